@@ -1,0 +1,444 @@
+//! The Rusinkiewicz angular grid with MERL's index mapping, and the channel axis.
+//!
+//! Conventions (see `../shared/docs/DESIGN.md` section 1), kept in this one module:
+//! - flat angular index `(ith * n_td + itd) * n_pd + ipd` (MERL's order: phi_d fastest);
+//! - theta_h bin `i` covers `[(i/n)^2, ((i+1)/n)^2] * pi/2` (sqrt spacing);
+//!   theta_d bin `j` covers `[j, j+1] / n * pi/2`; phi_d bin `k` covers `[k, k+1] / n * pi`;
+//! - **values are sampled at bin centres in index space**: theta_h = ((i + 1/2)/n)^2 pi/2,
+//!   theta_d = (j + 1/2)/n pi/2, phi_d = (k + 1/2)/n pi ([`AngularGrid::bin_centre`]);
+//! - phi_d is folded into [0, pi) by reciprocity (swapping wi and wo adds pi to phi_d), so it is
+//!   periodic with period pi;
+//! - directions: local frame, z = surface normal; the half vector has azimuth 0 (isotropy).
+
+use std::f64::consts::{FRAC_PI_2, PI};
+use std::fmt;
+use std::str::FromStr;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+
+/// A 3-vector in the local shading frame (z = normal).
+pub type Vec3 = [f64; 3];
+
+/// Rusinkiewicz half/difference angles of a direction pair, in radians.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HalfDiff {
+    /// Angle between the half vector and the normal, in [0, pi/2].
+    pub theta_h: f64,
+    /// Angle between the incident direction and the half vector, in [0, pi/2].
+    pub theta_d: f64,
+    /// Azimuth of the incident direction around the half vector, folded into [0, pi).
+    pub phi_d: f64,
+}
+
+fn dot(a: Vec3, b: Vec3) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn normalize(v: Vec3) -> Option<Vec3> {
+    let n = dot(v, v).sqrt();
+    (n > 0.0 && n.is_finite()).then(|| [v[0] / n, v[1] / n, v[2] / n])
+}
+
+/// Rotates `v` about the z axis by `angle` (right-handed).
+fn rotate_z(v: Vec3, angle: f64) -> Vec3 {
+    let (s, c) = angle.sin_cos();
+    [v[0] * c - v[1] * s, v[0] * s + v[1] * c, v[2]]
+}
+
+/// Rotates `v` about the y axis by `angle` (right-handed).
+fn rotate_y(v: Vec3, angle: f64) -> Vec3 {
+    let (s, c) = angle.sin_cos();
+    [v[0] * c + v[2] * s, v[1], v[2] * c - v[0] * s]
+}
+
+impl HalfDiff {
+    /// Half/difference angles of the direction pair (`wi`, `wo`), as in MERL's
+    /// `std_coords_to_half_diff_coords`, with phi_d folded into [0, pi).
+    ///
+    /// Returns `None` when the half vector is undefined (wi = -wo) or a vector is not finite.
+    /// The inputs need not be normalised.
+    pub fn from_dirs(wi: Vec3, wo: Vec3) -> Option<Self> {
+        let wi = normalize(wi)?;
+        let wo = normalize(wo)?;
+        let h = normalize([wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]])?;
+        let theta_h = h[2].clamp(-1.0, 1.0).acos();
+        let phi_h = h[1].atan2(h[0]);
+        let d = rotate_y(rotate_z(wi, -phi_h), -theta_h);
+        let theta_d = d[2].clamp(-1.0, 1.0).acos();
+        let mut phi_d = d[1].atan2(d[0]);
+        if phi_d < 0.0 {
+            phi_d += PI;
+        }
+        if phi_d >= PI {
+            phi_d -= PI;
+        }
+        Some(Self {
+            theta_h,
+            theta_d,
+            phi_d,
+        })
+    }
+
+    /// The direction pair (wi, wo) of these angles, with the half vector at azimuth 0.
+    pub fn to_dirs(&self) -> (Vec3, Vec3) {
+        let (sh, ch) = self.theta_h.sin_cos();
+        let (sd, cd) = self.theta_d.sin_cos();
+        let (sp, cp) = self.phi_d.sin_cos();
+        let h = [sh, 0.0, ch];
+        let wi = rotate_y([sd * cp, sd * sp, cd], self.theta_h);
+        let k = 2.0 * dot(wi, h);
+        let wo = [k * h[0] - wi[0], k * h[1] - wi[1], k * h[2] - wi[2]];
+        (wi, wo)
+    }
+
+    /// Whether both directions are strictly above the horizon.
+    pub fn is_above_horizon(&self) -> bool {
+        let (wi, wo) = self.to_dirs();
+        wi[2] > 0.0 && wo[2] > 0.0
+    }
+}
+
+/// The angular part of a dataset grid: resolution along theta_h, theta_d and phi_d.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct AngularGrid {
+    /// Number of theta_h bins (MERL: 90).
+    pub n_theta_h: usize,
+    /// Number of theta_d bins (MERL: 90).
+    pub n_theta_d: usize,
+    /// Number of phi_d bins over [0, pi) (MERL: 180).
+    pub n_phi_d: usize,
+}
+
+impl AngularGrid {
+    /// A grid of the given resolution; every count must be at least 1.
+    pub fn new(n_theta_h: usize, n_theta_d: usize, n_phi_d: usize) -> Result<Self> {
+        if n_theta_h == 0 || n_theta_d == 0 || n_phi_d == 0 {
+            return Err(Error::InvalidGrid {
+                reason: format!(
+                    "resolution {n_theta_h},{n_theta_d},{n_phi_d} has an empty axis; every count must be >= 1"
+                ),
+            });
+        }
+        n_theta_h
+            .checked_mul(n_theta_d)
+            .and_then(|n| n.checked_mul(n_phi_d))
+            .ok_or_else(|| Error::InvalidGrid {
+                reason: format!("resolution {n_theta_h},{n_theta_d},{n_phi_d} overflows"),
+            })?;
+        Ok(Self {
+            n_theta_h,
+            n_theta_d,
+            n_phi_d,
+        })
+    }
+
+    /// MERL's (and the paper's) grid, 90 x 90 x 180.
+    pub const MERL: Self = Self {
+        n_theta_h: 90,
+        n_theta_d: 90,
+        n_phi_d: 180,
+    };
+
+    /// Number of angular cells, n_th * n_td * n_pd.
+    pub fn len(&self) -> usize {
+        self.n_theta_h * self.n_theta_d * self.n_phi_d
+    }
+
+    /// Always false: a grid has at least one cell.
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+
+    /// Flat index of bin (ith, itd, ipd): `(ith * n_td + itd) * n_pd + ipd`.
+    pub fn index(&self, ith: usize, itd: usize, ipd: usize) -> usize {
+        debug_assert!(ith < self.n_theta_h && itd < self.n_theta_d && ipd < self.n_phi_d);
+        (ith * self.n_theta_d + itd) * self.n_phi_d + ipd
+    }
+
+    /// Bin indices (ith, itd, ipd) of a flat index.
+    pub fn unindex(&self, flat: usize) -> (usize, usize, usize) {
+        let ipd = flat % self.n_phi_d;
+        let rest = flat / self.n_phi_d;
+        (rest / self.n_theta_d, rest % self.n_theta_d, ipd)
+    }
+
+    /// Angles at the centre (in index space) of bin (ith, itd, ipd).
+    pub fn bin_centre(&self, ith: usize, itd: usize, ipd: usize) -> HalfDiff {
+        let u = (ith as f64 + 0.5) / self.n_theta_h as f64;
+        HalfDiff {
+            theta_h: u * u * FRAC_PI_2,
+            theta_d: (itd as f64 + 0.5) / self.n_theta_d as f64 * FRAC_PI_2,
+            phi_d: (ipd as f64 + 0.5) / self.n_phi_d as f64 * PI,
+        }
+    }
+
+    /// Angles at the centre of the bin with flat index `flat`.
+    pub fn bin_centre_flat(&self, flat: usize) -> HalfDiff {
+        let (i, j, k) = self.unindex(flat);
+        self.bin_centre(i, j, k)
+    }
+
+    /// Continuous coordinates of `hd` in index space, with bin centres at integers:
+    /// `(sqrt(theta_h / (pi/2)) n_th - 1/2, theta_d / (pi/2) n_td - 1/2, phi_d / pi n_pd - 1/2)`.
+    /// Used for multilinear interpolation (theta axes clamp, phi_d wraps with period pi).
+    pub fn continuous_coords(&self, hd: &HalfDiff) -> [f64; 3] {
+        let th = (hd.theta_h.max(0.0) / FRAC_PI_2).sqrt() * self.n_theta_h as f64 - 0.5;
+        let td = hd.theta_d.max(0.0) / FRAC_PI_2 * self.n_theta_d as f64 - 0.5;
+        let pd = hd.phi_d.rem_euclid(PI) / PI * self.n_phi_d as f64 - 0.5;
+        [th, td, pd]
+    }
+
+    /// The bin containing `hd` (MERL's lookup: floor, clamped to the grid; phi_d folded).
+    pub fn locate(&self, hd: &HalfDiff) -> (usize, usize, usize) {
+        let [th, td, pd] = self.continuous_coords(hd);
+        let clamp = |x: f64, n: usize| ((x + 0.5).floor().max(0.0) as usize).min(n - 1);
+        (
+            clamp(th, self.n_theta_h),
+            clamp(td, self.n_theta_d),
+            clamp(pd, self.n_phi_d),
+        )
+    }
+
+    /// Validity mask over flat indices: true where both directions of the bin centre are above
+    /// the horizon. Cells outside the mask hold no measurement and never enter statistics.
+    pub fn validity_mask(&self) -> Vec<bool> {
+        (0..self.len())
+            .map(|f| self.bin_centre_flat(f).is_above_horizon())
+            .collect()
+    }
+}
+
+impl fmt::Display for AngularGrid {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{},{},{}", self.n_theta_h, self.n_theta_d, self.n_phi_d)
+    }
+}
+
+impl FromStr for AngularGrid {
+    type Err = Error;
+
+    /// Parses `TH,TD,PD`, e.g. `90,90,180`.
+    fn from_str(s: &str) -> Result<Self> {
+        let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+        let bad = || Error::InvalidGrid {
+            reason: format!(
+                "expected TH,TD,PD (three positive integers, e.g. 90,90,180), got {s:?}"
+            ),
+        };
+        if parts.len() != 3 {
+            return Err(bad());
+        }
+        let n: Vec<usize> = parts
+            .iter()
+            .map(|p| p.parse::<usize>().map_err(|_| bad()))
+            .collect::<Result<_>>()?;
+        Self::new(n[0], n[1], n[2])
+    }
+}
+
+/// The channel axis of a dataset: sampled wavelengths (nm) or the three RGB channels.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", content = "wavelengths_nm", rename_all = "lowercase")]
+pub enum Channels {
+    /// Spectral samples at these wavelengths in nm, strictly increasing.
+    Spectral(Vec<f64>),
+    /// Linear RGB (the colour space of the source: sRGB primaries for RGL and MERL).
+    Rgb,
+}
+
+impl Channels {
+    /// Spectral channels at the given wavelengths (nm); they must be finite, positive and
+    /// strictly increasing.
+    pub fn spectral(wavelengths_nm: Vec<f64>) -> Result<Self> {
+        if wavelengths_nm.is_empty() {
+            return Err(Error::InvalidGrid {
+                reason: "a spectral channel axis needs at least one wavelength".into(),
+            });
+        }
+        if wavelengths_nm.iter().any(|w| !w.is_finite() || *w <= 0.0) {
+            return Err(Error::InvalidGrid {
+                reason: format!("wavelengths must be finite and positive, got {wavelengths_nm:?}"),
+            });
+        }
+        if wavelengths_nm.windows(2).any(|w| w[1] <= w[0]) {
+            return Err(Error::InvalidGrid {
+                reason: format!("wavelengths must be strictly increasing, got {wavelengths_nm:?}"),
+            });
+        }
+        Ok(Self::Spectral(wavelengths_nm))
+    }
+
+    /// Parses a wavelength specification: `START:END:STEP` in nm (END included when it falls on
+    /// the step) or a comma-separated list.
+    pub fn parse_wavelengths(spec: &str) -> Result<Self> {
+        let bad = |why: &str| Error::InvalidGrid {
+            reason: format!(
+                "wavelengths {spec:?}: {why} (expected START:END:STEP or a comma list, in nm)"
+            ),
+        };
+        let num = |t: &str| t.trim().parse::<f64>().map_err(|_| bad("not a number"));
+        if spec.contains(':') {
+            let parts: Vec<&str> = spec.split(':').collect();
+            if parts.len() != 3 {
+                return Err(bad("a range needs exactly three fields"));
+            }
+            let (start, end, step) = (num(parts[0])?, num(parts[1])?, num(parts[2])?);
+            if !step.is_finite() || step <= 0.0 || !end.is_finite() || end < start {
+                return Err(bad("need STEP > 0 and END >= START"));
+            }
+            let count = ((end - start) / step + 1e-9).floor() as usize + 1;
+            if count > 100_000 {
+                return Err(bad("more than 100000 wavelengths"));
+            }
+            Self::spectral((0..count).map(|i| start + i as f64 * step).collect())
+        } else {
+            Self::spectral(spec.split(',').map(num).collect::<Result<_>>()?)
+        }
+    }
+
+    /// Number of channels.
+    pub fn len(&self) -> usize {
+        match self {
+            Self::Spectral(w) => w.len(),
+            Self::Rgb => 3,
+        }
+    }
+
+    /// Always false: a channel axis has at least one channel.
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+
+    /// Channel labels for CSV headers: wavelengths as numbers (`450`, `452.5`) or `R`, `G`, `B`.
+    pub fn labels(&self) -> Vec<String> {
+        match self {
+            Self::Spectral(w) => w.iter().map(|x| format!("{x}")).collect(),
+            Self::Rgb => vec!["R".into(), "G".into(), "B".into()],
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn close(a: f64, b: f64, tol: f64) -> bool {
+        (a - b).abs() <= tol
+    }
+
+    #[test]
+    fn index_round_trip_and_merl_order() {
+        let g = AngularGrid::MERL;
+        assert_eq!(g.len(), 1_458_000);
+        assert_eq!(g.index(0, 0, 1), 1);
+        assert_eq!(g.index(0, 1, 0), 180);
+        assert_eq!(g.index(1, 0, 0), 90 * 180);
+        for flat in [0, 1, 179, 180, 16_199, 16_200, 1_457_999] {
+            let (i, j, k) = g.unindex(flat);
+            assert_eq!(g.index(i, j, k), flat);
+        }
+    }
+
+    #[test]
+    fn locate_bin_centres_on_coarse_and_merl_grids() {
+        for g in [AngularGrid::new(5, 7, 9).unwrap(), AngularGrid::MERL] {
+            for flat in (0..g.len()).step_by(97) {
+                let (i, j, k) = g.unindex(flat);
+                assert_eq!(g.locate(&g.bin_centre(i, j, k)), (i, j, k));
+                let c = g.continuous_coords(&g.bin_centre(i, j, k));
+                assert!(close(c[0], i as f64, 1e-9) && close(c[1], j as f64, 1e-9));
+                assert!(close(c[2], k as f64, 1e-9));
+            }
+        }
+    }
+
+    #[test]
+    fn normal_incidence_and_mirror_direction() {
+        // theta_h = 0, theta_d = 0: both directions along the normal.
+        let (wi, wo) = HalfDiff {
+            theta_h: 0.0,
+            theta_d: 0.0,
+            phi_d: 0.0,
+        }
+        .to_dirs();
+        assert!(close(wi[2], 1.0, 1e-15) && close(wo[2], 1.0, 1e-15));
+        // theta_h = 0: wo is the mirror of wi about the normal.
+        let (wi, wo) = HalfDiff {
+            theta_h: 0.0,
+            theta_d: 0.7,
+            phi_d: 0.3,
+        }
+        .to_dirs();
+        assert!(close(wi[0], -wo[0], 1e-15) && close(wi[1], -wo[1], 1e-15));
+        assert!(close(wi[2], wo[2], 1e-15) && close(wi[2], 0.7f64.cos(), 1e-15));
+    }
+
+    #[test]
+    fn validity_mask_excludes_grazing_cells() {
+        let g = AngularGrid::new(8, 8, 16).unwrap();
+        let mask = g.validity_mask();
+        let valid = mask.iter().filter(|v| **v).count();
+        assert!(valid > g.len() / 2 && valid < g.len(), "valid = {valid}");
+        // theta_h and theta_d both near pi/2 put wo under the horizon.
+        assert!(!mask[g.index(7, 7, 0)]);
+        assert!(mask[g.index(0, 0, 0)]);
+    }
+
+    #[test]
+    fn parse_grid_and_wavelengths() {
+        assert_eq!(
+            "90,90,180".parse::<AngularGrid>().unwrap(),
+            AngularGrid::MERL
+        );
+        assert!("90,90".parse::<AngularGrid>().is_err());
+        assert!("0,90,180".parse::<AngularGrid>().is_err());
+        let c = Channels::parse_wavelengths("360:1000:10").unwrap();
+        assert_eq!(c.len(), 65);
+        assert_eq!(c.labels()[1], "370");
+        assert_eq!(
+            Channels::parse_wavelengths("450, 550,650").unwrap().len(),
+            3
+        );
+        assert!(Channels::parse_wavelengths("550,450").is_err());
+        assert!(Channels::parse_wavelengths("400:300:10").is_err());
+        assert!(Channels::parse_wavelengths("a:b").is_err());
+    }
+
+    proptest! {
+        #[test]
+        fn half_diff_round_trip(th in 0.0..1.5f64, td in 0.0..1.5f64, pd in 0.0..3.1f64) {
+            let hd = HalfDiff { theta_h: th, theta_d: td, phi_d: pd };
+            let (wi, wo) = hd.to_dirs();
+            prop_assert!(close(dot(wi, wi), 1.0, 1e-12) && close(dot(wo, wo), 1.0, 1e-12));
+            let back = HalfDiff::from_dirs(wi, wo).unwrap();
+            prop_assert!(close(back.theta_h, th, 1e-9), "{back:?} vs {hd:?}");
+            prop_assert!(close(back.theta_d, td, 1e-9), "{back:?} vs {hd:?}");
+            // theta_d = 0 leaves phi_d undefined.
+            if td > 1e-6 {
+                let dp = (back.phi_d - pd).abs();
+                prop_assert!(dp < 1e-7 || (PI - dp) < 1e-7, "{back:?} vs {hd:?}");
+            }
+        }
+
+        #[test]
+        fn reciprocity_folds_phi_d(th in 0.01..1.5f64, td in 0.01..1.5f64, pd in 0.0..3.1f64) {
+            let (wi, wo) = HalfDiff { theta_h: th, theta_d: td, phi_d: pd }.to_dirs();
+            let a = HalfDiff::from_dirs(wi, wo).unwrap();
+            let b = HalfDiff::from_dirs(wo, wi).unwrap();
+            prop_assert!(close(a.theta_h, b.theta_h, 1e-9) && close(a.theta_d, b.theta_d, 1e-9));
+            let dp = (a.phi_d - b.phi_d).abs();
+            prop_assert!(dp < 1e-7 || (PI - dp) < 1e-7);
+        }
+
+        #[test]
+        fn azimuthal_rotation_invariance(th in 0.01..1.5f64, td in 0.01..1.5f64, pd in 0.0..3.1f64, rot in -3.0..3.0f64) {
+            let hd = HalfDiff { theta_h: th, theta_d: td, phi_d: pd };
+            let (wi, wo) = hd.to_dirs();
+            let b = HalfDiff::from_dirs(rotate_z(wi, rot), rotate_z(wo, rot)).unwrap();
+            prop_assert!(close(b.theta_h, th, 1e-9) && close(b.theta_d, td, 1e-9));
+        }
+    }
+}

@@ -1,0 +1,1 @@
+//! Gaussian-process maths for specgp (work in progress).

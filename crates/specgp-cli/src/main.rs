@@ -1,0 +1,97 @@
+//! `specgp`: the command-line front end of the specgp toolkit.
+//!
+//! The command-line contract lives in `../shared/docs/CLI.md`; every subcommand prints a clear
+//! error (what, which file, why) and exits with code 1 on failure.
+
+use brdf_io::{AngularGrid, Channels};
+use clap::{Parser, Subcommand};
+
+/// Learn a navigable, predictive space of real-world materials from measured spectral BRDFs.
+#[derive(Debug, Parser)]
+#[command(name = "specgp", version, about, long_about = None)]
+struct Cli {
+    /// Print tracing logs to stderr (-v: info, -vv: debug, -vvv: trace).
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    verbose: u8,
+
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Describe a grid: angular cells, cells above the horizon, values per material (D) and bytes.
+    Grid(GridArgs),
+}
+
+/// Arguments of `specgp grid`.
+#[derive(Debug, clap::Args)]
+struct GridArgs {
+    /// Angular resolution TH,TD,PD.
+    #[arg(long, default_value = "90,90,180")]
+    grid: AngularGrid,
+    /// Wavelengths START:END:STEP or a comma list in nm; RGB when absent.
+    #[arg(long)]
+    wavelengths: Option<String>,
+}
+
+fn grid_command(args: &GridArgs) -> anyhow::Result<()> {
+    let channels = match &args.wavelengths {
+        Some(spec) => Channels::parse_wavelengths(spec)?,
+        None => Channels::Rgb,
+    };
+    let cells = args.grid.len();
+    let valid = args.grid.validity_mask().iter().filter(|v| **v).count();
+    let d = cells * channels.len();
+    println!("grid           {}", args.grid);
+    println!("angular cells  {cells}");
+    println!(
+        "above horizon  {valid} ({:.1} %)",
+        100.0 * valid as f64 / cells as f64
+    );
+    println!("channels       {}", channels.len());
+    println!("D              {d}");
+    println!("bytes (f32)    {}", d * 4);
+    Ok(())
+}
+
+fn init_tracing(verbosity: u8) {
+    let level = match verbosity {
+        0 => "warn",
+        1 => "info",
+        2 => "debug",
+        _ => "trace",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_env("SPECGP_LOG")
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .init();
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Grid(args) => grid_command(&args),
+    }
+}
+
+fn main() -> std::process::ExitCode {
+    // Usage errors exit with 1 like every other error (CLI.md); --help and --version exit 0.
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(err) => {
+            let code = if err.use_stderr() { 1 } else { 0 };
+            let _ = err.print();
+            return std::process::ExitCode::from(code);
+        }
+    };
+    init_tracing(cli.verbose);
+    match run(cli) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(err) => {
+            eprintln!("error: {err:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
