@@ -1,0 +1,2 @@
+//! Criterion benchmarks for gp-core (placeholder, filled below).
+fn main() {}

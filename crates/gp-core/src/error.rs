@@ -1,0 +1,157 @@
+//! The crate's single error type.
+
+/// Every failure `gp-core` can report. Functions never panic on bad numeric input: they return one
+/// of these variants instead, naming the quantity at fault.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum GpError {
+    /// A hyperparameter is non-positive or non-finite.
+    #[error("invalid hyperparameter {name} = {value}: must be finite and > 0")]
+    InvalidHyperparameter {
+        /// Which hyperparameter (`signal_variance`, `length_scale[j]`, `noise`, ...).
+        name: String,
+        /// The offending value.
+        value: f64,
+    },
+    /// Two inputs have incompatible sizes.
+    #[error("dimension mismatch in {what}: expected {expected}, got {got}")]
+    DimensionMismatch {
+        /// What was being checked.
+        what: &'static str,
+        /// Expected size.
+        expected: usize,
+        /// Actual size.
+        got: usize,
+    },
+    /// An input contains NaN or an infinity.
+    #[error("non-finite value {value} in {what} at ({row}, {col})")]
+    NonFinite {
+        /// Which input.
+        what: &'static str,
+        /// Row of the first offending entry.
+        row: usize,
+        /// Column of the first offending entry.
+        col: usize,
+        /// The offending value.
+        value: f64,
+    },
+    /// A matrix that must be symmetric is not (beyond a relative tolerance of `sqrt(eps)`).
+    #[error("{what} is not symmetric: |a[{row},{col}] - a[{col},{row}]| = {diff:e}")]
+    NotSymmetric {
+        /// Which matrix.
+        what: &'static str,
+        /// Row of the worst entry.
+        row: usize,
+        /// Column of the worst entry.
+        col: usize,
+        /// Absolute asymmetry.
+        diff: f64,
+    },
+    /// The Cholesky factorisation failed even after the maximum jitter.
+    #[error(
+        "{what} (n = {n}) is not positive definite: Cholesky failed after {attempts} attempts \
+         (last jitter {last_jitter:e}, mean diagonal {mean_diagonal:e})"
+    )]
+    NotPositiveDefinite {
+        /// Which matrix.
+        what: &'static str,
+        /// Its dimension.
+        n: usize,
+        /// Factorisation attempts made (the first one without jitter).
+        attempts: usize,
+        /// Largest jitter tried (0 if the diagonal mean was not positive).
+        last_jitter: f64,
+        /// Mean of the diagonal of the input.
+        mean_diagonal: f64,
+    },
+    /// An input that must be non-empty is empty.
+    #[error("{what} is empty")]
+    Empty {
+        /// Which input.
+        what: &'static str,
+    },
+    /// An index is out of range.
+    #[error("index {index} out of range for {what} of size {len}")]
+    IndexOutOfRange {
+        /// Which collection.
+        what: &'static str,
+        /// The offending index.
+        index: usize,
+        /// The collection's size.
+        len: usize,
+    },
+    /// A computation on valid inputs overflowed to a non-finite result.
+    #[error("non-finite result in {what}: {value}")]
+    NonFiniteResult {
+        /// Which quantity.
+        what: &'static str,
+        /// The value obtained.
+        value: f64,
+    },
+}
+
+/// Shorthand for `Result<T, GpError>`.
+pub type Result<T> = std::result::Result<T, GpError>;
+
+/// Checks that every entry of `m` is finite.
+pub(crate) fn check_finite(m: faer::MatRef<'_, f64>, what: &'static str) -> Result<()> {
+    for j in 0..m.ncols() {
+        for i in 0..m.nrows() {
+            let v = m[(i, j)];
+            if !v.is_finite() {
+                return Err(GpError::NonFinite {
+                    what,
+                    row: i,
+                    col: j,
+                    value: v,
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Checks that every entry of `s` is finite (reported as a column vector).
+pub(crate) fn check_finite_slice(s: &[f64], what: &'static str) -> Result<()> {
+    match s.iter().position(|v| !v.is_finite()) {
+        Some(i) => Err(GpError::NonFinite {
+            what,
+            row: i,
+            col: 0,
+            value: s[i],
+        }),
+        None => Ok(()),
+    }
+}
+
+/// Checks `m` is square and symmetric to a relative tolerance `sqrt(eps) * max|a|`.
+pub(crate) fn check_symmetric(m: faer::MatRef<'_, f64>, what: &'static str) -> Result<()> {
+    let n = m.nrows();
+    if m.ncols() != n {
+        return Err(GpError::DimensionMismatch {
+            what,
+            expected: n,
+            got: m.ncols(),
+        });
+    }
+    let mut amax = 0.0f64;
+    for j in 0..n {
+        for i in 0..n {
+            amax = amax.max(m[(i, j)].abs());
+        }
+    }
+    let tol = f64::EPSILON.sqrt() * amax;
+    for j in 0..n {
+        for i in (j + 1)..n {
+            let diff = (m[(i, j)] - m[(j, i)]).abs();
+            if diff > tol {
+                return Err(GpError::NotSymmetric {
+                    what,
+                    row: i,
+                    col: j,
+                    diff,
+                });
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,135 @@
+//! Gram-matrix helpers: `G = Y Y^T`, centring `S = C G C` with `C = I - 1 1^T / N`, and subsets.
+//!
+//! Keeping the *uncentred* Gram `G` of the transformed data is enough for centring, for any
+//! subset of materials (leave-one-out) and for errors of linear predictors (DESIGN.md section 3).
+
+use crate::error::{GpError, Result, check_finite, check_symmetric};
+use faer::{Mat, MatRef, Par};
+
+/// `G = Y Y^T` (`N x N`) from dense data `Y` (`N x D`, rows are materials). Errors on
+/// non-finite data.
+pub fn gram_from_data(y: MatRef<'_, f64>, par: Par) -> Result<Mat<f64>> {
+    if y.nrows() == 0 {
+        return Err(GpError::Empty { what: "data Y" });
+    }
+    check_finite(y, "data Y")?;
+    let n = y.nrows();
+    let mut g = Mat::<f64>::zeros(n, n);
+    faer::linalg::matmul::matmul(g.as_mut(), faer::Accum::Replace, y, y.transpose(), 1.0, par);
+    symmetrise(&mut g);
+    Ok(g)
+}
+
+/// Centres a Gram matrix: `S = C G C`, `C = I - 1 1^T / N`, i.e.
+/// `S_ij = G_ij - r_i - r_j + t` with row means `r` and grand mean `t`. Equals the Gram of the
+/// column-centred data `Y - 1 m^T` (`m` = mean row). `G` must be square, symmetric and finite.
+pub fn centre_gram(g: MatRef<'_, f64>) -> Result<Mat<f64>> {
+    let n = g.nrows();
+    if n == 0 {
+        return Err(GpError::Empty {
+            what: "Gram matrix",
+        });
+    }
+    check_finite(g, "Gram matrix")?;
+    check_symmetric(g, "Gram matrix")?;
+    let r: Vec<f64> = (0..n)
+        .map(|i| (0..n).map(|j| g[(i, j)]).sum::<f64>() / n as f64)
+        .collect();
+    let t = r.iter().sum::<f64>() / n as f64;
+    let mut s = Mat::from_fn(n, n, |i, j| g[(i, j)] - r[i] - r[j] + t);
+    symmetrise(&mut s);
+    Ok(s)
+}
+
+/// Principal submatrix `G[idx, idx]` (e.g. all materials but one for leave-one-out). Indices may
+/// be in any order; errors on an out-of-range index or an empty selection.
+pub fn subset_gram(g: MatRef<'_, f64>, idx: &[usize]) -> Result<Mat<f64>> {
+    let n = g.nrows();
+    if g.ncols() != n {
+        return Err(GpError::DimensionMismatch {
+            what: "Gram matrix columns vs rows",
+            expected: n,
+            got: g.ncols(),
+        });
+    }
+    if idx.is_empty() {
+        return Err(GpError::Empty {
+            what: "subset index list",
+        });
+    }
+    if let Some(&bad) = idx.iter().find(|&&i| i >= n) {
+        return Err(GpError::IndexOutOfRange {
+            what: "Gram matrix",
+            index: bad,
+            len: n,
+        });
+    }
+    Ok(Mat::from_fn(idx.len(), idx.len(), |i, j| {
+        g[(idx[i], idx[j])]
+    }))
+}
+
+/// All indices `0..n` except `h` (leave-one-out helper for [`subset_gram`]).
+pub fn all_but(n: usize, h: usize) -> Vec<usize> {
+    (0..n).filter(|&i| i != h).collect()
+}
+
+/// Copies the lower triangle's average with the upper one into both (exact symmetry).
+pub(crate) fn symmetrise(m: &mut Mat<f64>) {
+    let n = m.nrows();
+    for j in 0..n {
+        for i in (j + 1)..n {
+            let v = 0.5 * (m[(i, j)] + m[(j, i)]);
+            m[(i, j)] = v;
+            m[(j, i)] = v;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    fn centring_matches_centred_data_and_subset() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let (n, d) = (9, 14);
+        let y = Mat::from_fn(n, d, |_, _| rng.random_range(-3.0..5.0));
+        let g = gram_from_data(y.as_ref(), Par::Seq).unwrap();
+        let s = centre_gram(g.as_ref()).unwrap();
+        let mean: Vec<f64> = (0..d)
+            .map(|j| (0..n).map(|i| y[(i, j)]).sum::<f64>() / n as f64)
+            .collect();
+        let yc = Mat::from_fn(n, d, |i, j| y[(i, j)] - mean[j]);
+        let sc = gram_from_data(yc.as_ref(), Par::Seq).unwrap();
+        let scale = (0..n).map(|i| g[(i, i)]).fold(0.0, f64::max);
+        for j in 0..n {
+            for i in 0..n {
+                assert!((s[(i, j)] - sc[(i, j)]).abs() <= 1e3 * f64::EPSILON * scale);
+            }
+            // Rows of a centred Gram sum to zero.
+            let rs: f64 = (0..n).map(|i| s[(i, j)]).sum();
+            assert!(rs.abs() <= 1e3 * f64::EPSILON * scale);
+        }
+        // Subset of G equals the Gram of the subset of Y; centring then matches too.
+        let idx = all_but(n, 4);
+        let gs = subset_gram(g.as_ref(), &idx).unwrap();
+        let ys = Mat::from_fn(n - 1, d, |i, j| y[(idx[i], j)]);
+        let gs2 = gram_from_data(ys.as_ref(), Par::Seq).unwrap();
+        for j in 0..n - 1 {
+            for i in 0..n - 1 {
+                assert_eq!(gs[(i, j)], gs2[(i, j)]);
+            }
+        }
+        assert!(matches!(
+            subset_gram(g.as_ref(), &[0, n]),
+            Err(GpError::IndexOutOfRange { index, .. }) if index == n
+        ));
+        assert!(subset_gram(g.as_ref(), &[]).is_err());
+        let mut bad = g.clone();
+        bad[(0, 0)] = f64::NAN;
+        assert!(centre_gram(bad.as_ref()).is_err());
+    }
+}

@@ -1,0 +1,479 @@
+//! RBF kernel with isotropic or ARD length-scales plus a white-noise (delta) term.
+//!
+//! For latent points `x, x'` in `R^q`:
+//!
+//! ```text
+//! k(x, x') = s^2 exp(-1/2 sum_j (x_j - x'_j)^2 / l_j^2)        (RBF part)
+//! K        = K_rbf(X) + mu I                                   (training covariance)
+//! ```
+//!
+//! with `l_j = l` for every `j` in the isotropic case. Latent points are the rows of an `N x q`
+//! matrix `X`. Gradients of any scalar `F(K)` are obtained by [`KernelParams::backprop`] from the
+//! symmetric matrix `dF/dK`.
+
+use crate::error::{GpError, Result, check_finite, check_finite_slice, check_symmetric};
+use faer::{Mat, MatRef, Par};
+use rayon::prelude::*;
+
+/// Length-scale of the RBF kernel: one value for every latent axis, or one per axis (ARD).
+#[derive(Debug, Clone, PartialEq)]
+pub enum LengthScale {
+    /// `l_j = l` for every axis.
+    Isotropic(f64),
+    /// `l_j` given per axis; the length must equal the latent dimension `q`.
+    Ard(Vec<f64>),
+}
+
+impl LengthScale {
+    /// Number of free length-scale values (1 for isotropic, `q` for ARD).
+    pub fn len(&self) -> usize {
+        match self {
+            LengthScale::Isotropic(_) => 1,
+            LengthScale::Ard(v) => v.len(),
+        }
+    }
+
+    /// True for an ARD length-scale with no axis (never valid after [`KernelParamsUnchecked::check`]).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The length-scale values (one for isotropic).
+    pub fn values(&self) -> &[f64] {
+        match self {
+            LengthScale::Isotropic(l) => std::slice::from_ref(l),
+            LengthScale::Ard(v) => v,
+        }
+    }
+
+    /// `l_j` for latent axis `j`.
+    #[inline]
+    pub fn axis(&self, j: usize) -> f64 {
+        match self {
+            LengthScale::Isotropic(l) => *l,
+            LengthScale::Ard(v) => v[j],
+        }
+    }
+
+    /// True for [`LengthScale::Ard`].
+    pub fn is_ard(&self) -> bool {
+        matches!(self, LengthScale::Ard(_))
+    }
+}
+
+/// Unvalidated kernel hyperparameters; call [`check`](Self::check) to obtain [`KernelParams`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct KernelParamsUnchecked {
+    /// RBF amplitude `s^2` (> 0).
+    pub signal_variance: f64,
+    /// Length-scale `l` (every value > 0).
+    pub length_scale: LengthScale,
+    /// White-noise variance `mu` on the diagonal (> 0).
+    pub noise: f64,
+}
+
+impl KernelParamsUnchecked {
+    /// Validates: every value finite and strictly positive, ARD non-empty.
+    pub fn check(self) -> Result<KernelParams> {
+        let bad = |name: String, value: f64| GpError::InvalidHyperparameter { name, value };
+        let ok = |v: f64| v.is_finite() && v > 0.0;
+        if !ok(self.signal_variance) {
+            return Err(bad("signal_variance".into(), self.signal_variance));
+        }
+        if !ok(self.noise) {
+            return Err(bad("noise".into(), self.noise));
+        }
+        match &self.length_scale {
+            LengthScale::Isotropic(l) => {
+                if !ok(*l) {
+                    return Err(bad("length_scale".into(), *l));
+                }
+            }
+            LengthScale::Ard(v) => {
+                if v.is_empty() {
+                    return Err(GpError::Empty {
+                        what: "ARD length-scale",
+                    });
+                }
+                if let Some(j) = v.iter().position(|&l| !ok(l)) {
+                    return Err(bad(format!("length_scale[{j}]"), v[j]));
+                }
+            }
+        }
+        Ok(KernelParams {
+            signal_variance: self.signal_variance,
+            length_scale: self.length_scale,
+            noise: self.noise,
+        })
+    }
+}
+
+/// Validated hyperparameters `(s^2, l, mu)` of `K = K_rbf + mu I`; every value finite and > 0.
+#[derive(Debug, Clone, PartialEq)]
+pub struct KernelParams {
+    signal_variance: f64,
+    length_scale: LengthScale,
+    noise: f64,
+}
+
+/// Gradient of a scalar with respect to the hyperparameters, in the layout of
+/// [`KernelParams::to_log_vec`]: `[s^2, l (1 or q values), mu]` (either raw or log coordinates).
+#[derive(Debug, Clone, PartialEq)]
+pub struct HyperGradient {
+    /// Derivative with respect to `s^2` (or `log s^2`).
+    pub signal_variance: f64,
+    /// Derivatives with respect to each `l_j` (or `log l_j`); one entry when isotropic.
+    pub length_scale: Vec<f64>,
+    /// Derivative with respect to `mu` (or `log mu`).
+    pub noise: f64,
+}
+
+impl HyperGradient {
+    /// Flattens to `[signal_variance, length_scale..., noise]`.
+    pub fn to_vec(&self) -> Vec<f64> {
+        let mut v = Vec::with_capacity(self.length_scale.len() + 2);
+        v.push(self.signal_variance);
+        v.extend_from_slice(&self.length_scale);
+        v.push(self.noise);
+        v
+    }
+}
+
+/// Gradient of a scalar `F(K(X, theta))` with respect to `X` and the hyperparameters.
+#[derive(Debug, Clone)]
+pub struct KernelGradient {
+    /// `dF/dX`, `N x q`.
+    pub x: Mat<f64>,
+    /// `dF/d(s^2)`, `dF/dl_j`, `dF/dmu`.
+    pub hyper: HyperGradient,
+    /// `dF/dlog s^2 = s^2 dF/ds^2`, `dF/dlog l_j = l_j dF/dl_j`, `dF/dlog mu = mu dF/dmu`.
+    pub hyper_log: HyperGradient,
+}
+
+impl KernelParams {
+    /// Builds and validates `(s^2, l, mu)`.
+    pub fn new(signal_variance: f64, length_scale: LengthScale, noise: f64) -> Result<Self> {
+        KernelParamsUnchecked {
+            signal_variance,
+            length_scale,
+            noise,
+        }
+        .check()
+    }
+
+    /// Isotropic shorthand: `KernelParams::new(s2, LengthScale::Isotropic(l), mu)`.
+    pub fn isotropic(signal_variance: f64, length_scale: f64, noise: f64) -> Result<Self> {
+        Self::new(signal_variance, LengthScale::Isotropic(length_scale), noise)
+    }
+
+    /// The paper's fixed values: `s = 1`, `l = 1`, `mu = 1e-4` (isotropic).
+    pub fn paper() -> Self {
+        KernelParams {
+            signal_variance: 1.0,
+            length_scale: LengthScale::Isotropic(1.0),
+            noise: 1e-4,
+        }
+    }
+
+    /// RBF amplitude `s^2`.
+    pub fn signal_variance(&self) -> f64 {
+        self.signal_variance
+    }
+
+    /// Length-scale.
+    pub fn length_scale(&self) -> &LengthScale {
+        &self.length_scale
+    }
+
+    /// White-noise variance `mu`.
+    pub fn noise(&self) -> f64 {
+        self.noise
+    }
+
+    /// Back to the unchecked form (e.g. to edit a field and re-check).
+    pub fn into_unchecked(self) -> KernelParamsUnchecked {
+        KernelParamsUnchecked {
+            signal_variance: self.signal_variance,
+            length_scale: self.length_scale,
+            noise: self.noise,
+        }
+    }
+
+    /// Copy with a different noise `mu` (validated).
+    pub fn with_noise(&self, noise: f64) -> Result<Self> {
+        Self::new(self.signal_variance, self.length_scale.clone(), noise)
+    }
+
+    /// Number of hyperparameters: `2 + ` [`LengthScale::len`].
+    pub fn n_hyper(&self) -> usize {
+        2 + self.length_scale.len()
+    }
+
+    /// Log-coordinates `[log s^2, log l_1 (.. log l_q), log mu]` for positive-constrained optimisation.
+    pub fn to_log_vec(&self) -> Vec<f64> {
+        let mut v = Vec::with_capacity(self.n_hyper());
+        v.push(self.signal_variance.ln());
+        v.extend(self.length_scale.values().iter().map(|l| l.ln()));
+        v.push(self.noise.ln());
+        v
+    }
+
+    /// Inverse of [`to_log_vec`](Self::to_log_vec): `log_theta.len() - 2` length-scales
+    /// (1 -> isotropic, else ARD). Errors if a value overflows or the slice is too short.
+    pub fn from_log_slice(log_theta: &[f64]) -> Result<Self> {
+        if log_theta.len() < 3 {
+            return Err(GpError::DimensionMismatch {
+                what: "log-hyperparameter vector (>= 3)",
+                expected: 3,
+                got: log_theta.len(),
+            });
+        }
+        let k = log_theta.len() - 2;
+        let ls: Vec<f64> = log_theta[1..1 + k].iter().map(|v| v.exp()).collect();
+        let length_scale = if k == 1 {
+            LengthScale::Isotropic(ls[0])
+        } else {
+            LengthScale::Ard(ls)
+        };
+        Self::new(log_theta[0].exp(), length_scale, log_theta[k + 1].exp())
+    }
+
+    /// Checks the length-scale matches the latent dimension `q` (ARD only).
+    pub fn check_dim(&self, q: usize) -> Result<()> {
+        if q == 0 {
+            return Err(GpError::Empty {
+                what: "latent dimension q",
+            });
+        }
+        if let LengthScale::Ard(v) = &self.length_scale
+            && v.len() != q
+        {
+            return Err(GpError::DimensionMismatch {
+                what: "ARD length-scale vs latent dimension q",
+                expected: q,
+                got: v.len(),
+            });
+        }
+        Ok(())
+    }
+
+    /// Scaled squared distance `r^2 = sum_j (a_j - b_j)^2 / l_j^2` (no validation; slices of length q).
+    #[inline]
+    pub fn scaled_sq_dist(&self, a: &[f64], b: &[f64]) -> f64 {
+        match &self.length_scale {
+            LengthScale::Isotropic(l) => {
+                let r: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
+                r / (l * l)
+            }
+            LengthScale::Ard(ls) => a
+                .iter()
+                .zip(b)
+                .zip(ls)
+                .map(|((x, y), l)| {
+                    let d = (x - y) / l;
+                    d * d
+                })
+                .sum(),
+        }
+    }
+
+    /// RBF value `k(a, b) = s^2 exp(-r^2/2)` (no delta term; slices of length q, unchecked).
+    #[inline]
+    pub fn rbf(&self, a: &[f64], b: &[f64]) -> f64 {
+        self.signal_variance * (-0.5 * self.scaled_sq_dist(a, b)).exp()
+    }
+
+    /// Validates `x` (`N x q`, non-empty, finite, ARD length matches q) and returns its rows.
+    pub(crate) fn rows_of(&self, x: MatRef<'_, f64>, what: &'static str) -> Result<Vec<Vec<f64>>> {
+        if x.nrows() == 0 {
+            return Err(GpError::Empty { what });
+        }
+        self.check_dim(x.ncols())?;
+        check_finite(x, what)?;
+        Ok((0..x.nrows())
+            .map(|i| (0..x.ncols()).map(|j| x[(i, j)]).collect())
+            .collect())
+    }
+
+    /// `K_rbf(X)`, `N x N`, without the noise term. `X` is `N x q` (rows are points).
+    pub fn rbf_matrix(&self, x: MatRef<'_, f64>) -> Result<Mat<f64>> {
+        let rows = self.rows_of(x, "latent points X")?;
+        let n = rows.len();
+        let mut k = Mat::<f64>::zeros(n, n);
+        for j in 0..n {
+            k[(j, j)] = self.signal_variance;
+            for i in (j + 1)..n {
+                let v = self.rbf(&rows[i], &rows[j]);
+                k[(i, j)] = v;
+                k[(j, i)] = v;
+            }
+        }
+        Ok(k)
+    }
+
+    /// Training covariance `K = K_rbf(X) + mu I`, `N x N`, symmetric positive definite
+    /// (its smallest eigenvalue is at least `mu`).
+    pub fn kernel_matrix(&self, x: MatRef<'_, f64>) -> Result<Mat<f64>> {
+        let mut k = self.rbf_matrix(x)?;
+        for i in 0..k.nrows() {
+            k[(i, i)] += self.noise;
+        }
+        Ok(k)
+    }
+
+    /// Cross-covariance `K_*[i, m] = k_rbf(x_i, x*_m)`, `N x M`, for training points `X` (`N x q`)
+    /// and test points `X*` (`M x q`); no delta term. Columns are filled in parallel when `par`
+    /// is [`Par::Rayon`].
+    pub fn cross_matrix(
+        &self,
+        x: MatRef<'_, f64>,
+        x_star: MatRef<'_, f64>,
+        par: Par,
+    ) -> Result<Mat<f64>> {
+        let rows = self.rows_of(x, "training latent points X")?;
+        if x_star.ncols() != x.ncols() {
+            return Err(GpError::DimensionMismatch {
+                what: "test points X* columns vs latent dimension q",
+                expected: x.ncols(),
+                got: x_star.ncols(),
+            });
+        }
+        check_finite(x_star, "test latent points X*")?;
+        let n = rows.len();
+        let m = x_star.nrows();
+        let q = x.ncols();
+        let mut out = Mat::<f64>::zeros(n, m);
+        let fill = |c: usize, col: &mut [f64]| {
+            let mut xs = [0.0f64; 8];
+            let mut xs_vec = Vec::new();
+            let xs: &mut [f64] = if q <= 8 {
+                &mut xs[..q]
+            } else {
+                xs_vec.resize(q, 0.0);
+                &mut xs_vec
+            };
+            for (j, v) in xs.iter_mut().enumerate() {
+                *v = x_star[(c, j)];
+            }
+            for (i, o) in col.iter_mut().enumerate() {
+                *o = self.rbf(&rows[i], xs);
+            }
+        };
+        if n > 0 && m > 0 {
+            let run = |(c, col): (usize, faer::ColMut<'_, f64>)| {
+                if let Some(col) = col.try_as_col_major_mut() {
+                    fill(c, col.as_slice_mut());
+                }
+            };
+            match par {
+                Par::Seq => out.as_mut().col_iter_mut().enumerate().for_each(run),
+                _ => out.as_mut().par_col_iter_mut().enumerate().for_each(run),
+            }
+        }
+        Ok(out)
+    }
+
+    /// Backpropagates a symmetric `dF/dK` (`N x N`) through `K = K_rbf(X) + mu I`.
+    ///
+    /// With `W = dF/dK ∘ K_rbf` (elementwise) and `X` the `N x q` latent points:
+    ///
+    /// ```text
+    /// dF/dx_nj      = -(2 / l_j^2) sum_m W_nm (x_nj - x_mj)
+    /// dF/dlog s^2   = sum_nm W_nm
+    /// dF/dlog l_j   = sum_nm W_nm (x_nj - x_mj)^2 / l_j^2     (summed over j when isotropic)
+    /// dF/dlog mu    = mu tr(dF/dK)
+    /// ```
+    ///
+    /// Cost `O(N^2 q)`. The raw gradients divide by the parameter (`dF/dθ = dF/dlog θ / θ`).
+    pub fn backprop(&self, x: MatRef<'_, f64>, dk: MatRef<'_, f64>) -> Result<KernelGradient> {
+        let rows = self.rows_of(x, "latent points X")?;
+        let n = rows.len();
+        let q = x.ncols();
+        if dk.nrows() != n || dk.ncols() != n {
+            return Err(GpError::DimensionMismatch {
+                what: "dF/dK vs number of latent points",
+                expected: n,
+                got: if dk.nrows() != n {
+                    dk.nrows()
+                } else {
+                    dk.ncols()
+                },
+            });
+        }
+        check_finite(dk, "dF/dK")?;
+        check_symmetric(dk, "dF/dK")?;
+        let inv_l2: Vec<f64> = (0..q)
+            .map(|j| {
+                let l = self.length_scale.axis(j);
+                1.0 / (l * l)
+            })
+            .collect();
+        let mut gx = Mat::<f64>::zeros(n, q);
+        let mut d_log_s2 = 0.0;
+        let mut d_log_l_axis = vec![0.0f64; q];
+        let mut diff = vec![0.0f64; q];
+        for nidx in 0..n {
+            // Diagonal: K_rbf[n,n] = s^2 contributes only to the amplitude.
+            d_log_s2 += dk[(nidx, nidx)] * self.signal_variance;
+            for m in (nidx + 1)..n {
+                let kv = self.rbf(&rows[nidx], &rows[m]);
+                let w = 0.5 * (dk[(nidx, m)] + dk[(m, nidx)]) * kv;
+                d_log_s2 += 2.0 * w;
+                for j in 0..q {
+                    diff[j] = rows[nidx][j] - rows[m][j];
+                    let g = -2.0 * inv_l2[j] * w * diff[j];
+                    gx[(nidx, j)] += g;
+                    gx[(m, j)] -= g;
+                    d_log_l_axis[j] += 2.0 * w * diff[j] * diff[j] * inv_l2[j];
+                }
+            }
+        }
+        let mut trace = 0.0;
+        for i in 0..n {
+            trace += dk[(i, i)];
+        }
+        let d_log_mu = self.noise * trace;
+        let d_log_l: Vec<f64> = match &self.length_scale {
+            LengthScale::Isotropic(_) => vec![d_log_l_axis.iter().sum()],
+            LengthScale::Ard(_) => d_log_l_axis,
+        };
+        let hyper_log = HyperGradient {
+            signal_variance: d_log_s2,
+            length_scale: d_log_l.clone(),
+            noise: d_log_mu,
+        };
+        let hyper = HyperGradient {
+            signal_variance: d_log_s2 / self.signal_variance,
+            length_scale: d_log_l
+                .iter()
+                .zip(self.length_scale.values())
+                .map(|(g, l)| g / l)
+                .collect(),
+            noise: trace,
+        };
+        Ok(KernelGradient {
+            x: gx,
+            hyper,
+            hyper_log,
+        })
+    }
+
+    /// Gradient of the cross-covariance with respect to a test point:
+    /// `d k_rbf(x_i, x*) / d x*_j = k_rbf(x_i, x*) (x_ij - x*_j) / l_j^2`, returned as `N x q`.
+    pub fn cross_gradient(&self, x: MatRef<'_, f64>, x_star: &[f64]) -> Result<Mat<f64>> {
+        let rows = self.rows_of(x, "training latent points X")?;
+        let q = x.ncols();
+        if x_star.len() != q {
+            return Err(GpError::DimensionMismatch {
+                what: "test point x* vs latent dimension q",
+                expected: q,
+                got: x_star.len(),
+            });
+        }
+        check_finite_slice(x_star, "test latent point x*")?;
+        Ok(Mat::from_fn(rows.len(), q, |i, j| {
+            let l = self.length_scale.axis(j);
+            self.rbf(&rows[i], x_star) * (rows[i][j] - x_star[j]) / (l * l)
+        }))
+    }
+}

@@ -1,0 +1,506 @@
+//! GPLVM log-likelihood from a Gram matrix, its analytic gradient, and a flat-vector interface
+//! for optimisers.
+//!
+//! With `S = Y Y^T` (`N x N`, `Y` transformed and centred, `D` columns), `K = K_rbf(X) + mu I`
+//! (DESIGN.md section 3):
+//!
+//! ```text
+//! L(X, theta) = -N D/2 log 2pi - D/2 log|K| - 1/2 tr(K^-1 S)  [ - 1/2 sum_n |x_n|^2 ]
+//! dL/dK       = 1/2 (K^-1 S K^-1 - D K^-1)
+//! dL/dX       = (dL/dK)(dK/dX)  [ - X ],   dL/dtheta = (dL/dK)(dK/dtheta)
+//! ```
+//!
+//! The bracketed term is the optional standard-normal prior on `X` (its normalising constant
+//! `-N q/2 log 2pi` is omitted). Cost `O(N^3 + N^2 q)`, independent of `D`. If the Cholesky
+//! factorisation of `K` needed jitter `j`, value and gradient are those of `K + j I` (reported in
+//! [`FactorInfo`]).
+
+use crate::cholesky::{CholeskyFactor, JitterPolicy};
+use crate::error::{GpError, Result, check_finite, check_symmetric};
+use crate::gram::{centre_gram, symmetrise};
+use crate::kernel::{HyperGradient, KernelParams, LengthScale};
+use faer::{Accum, Mat, MatRef, Par};
+
+const LN_2PI: f64 = 1.837_877_066_409_345_3;
+
+/// What the Cholesky factorisation of `K` needed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FactorInfo {
+    /// Jitter added to the diagonal of `K` (0 if none).
+    pub jitter: f64,
+    /// Factorisation attempts (1 = no jitter).
+    pub attempts: usize,
+    /// Hager 1-norm condition estimate of `K + jitter I` ([`CholeskyFactor::condition_estimate`]).
+    pub condition_estimate: f64,
+}
+
+impl FactorInfo {
+    pub(crate) fn of(f: &CholeskyFactor) -> Self {
+        FactorInfo {
+            jitter: f.jitter(),
+            attempts: f.attempts(),
+            condition_estimate: f.condition_estimate(),
+        }
+    }
+}
+
+/// Value and analytic gradient of the GPLVM log-likelihood.
+#[derive(Debug, Clone)]
+pub struct GplvmEval {
+    /// `L(X, theta)`.
+    pub value: f64,
+    /// `dL/dX`, `N x q`.
+    pub grad_x: Mat<f64>,
+    /// `dL/d(s^2, l, mu)`.
+    pub grad_hyper: HyperGradient,
+    /// `dL/d(log s^2, log l, log mu)`.
+    pub grad_hyper_log: HyperGradient,
+    /// Factorisation diagnostics.
+    pub factor: FactorInfo,
+}
+
+/// GPLVM objective defined by a centred Gram matrix `S` and the data dimension `D`.
+#[derive(Debug, Clone)]
+pub struct GplvmObjective {
+    s: Mat<f64>,
+    d: usize,
+    prior: bool,
+    constant: bool,
+    policy: JitterPolicy,
+}
+
+impl GplvmObjective {
+    /// From an already centred Gram `S = Y Y^T` (`N x N`, symmetric, finite) and `D >= 1`.
+    /// Prior off, constant term on, default jitter policy.
+    pub fn new(s: Mat<f64>, d: usize) -> Result<Self> {
+        if s.nrows() == 0 {
+            return Err(GpError::Empty {
+                what: "Gram matrix S",
+            });
+        }
+        if d == 0 {
+            return Err(GpError::Empty {
+                what: "data dimension D",
+            });
+        }
+        check_finite(s.as_ref(), "Gram matrix S")?;
+        check_symmetric(s.as_ref(), "Gram matrix S")?;
+        let mut s = s;
+        symmetrise(&mut s);
+        Ok(GplvmObjective {
+            s,
+            d,
+            prior: false,
+            constant: true,
+            policy: JitterPolicy::default(),
+        })
+    }
+
+    /// From an uncentred Gram `G = Y_raw Y_raw^T`: `S = C G C` (see [`centre_gram`]).
+    pub fn from_uncentred_gram(g: MatRef<'_, f64>, d: usize) -> Result<Self> {
+        Self::new(centre_gram(g)?, d)
+    }
+
+    /// Enables/disables the standard-normal prior `-1/2 sum |x_n|^2`.
+    pub fn with_prior(mut self, prior: bool) -> Self {
+        self.prior = prior;
+        self
+    }
+
+    /// Includes (default) or drops the constant `-N D/2 log 2pi` (dropping it helps optimisers
+    /// when `N D` is huge; gradients are unaffected).
+    pub fn with_constant(mut self, constant: bool) -> Self {
+        self.constant = constant;
+        self
+    }
+
+    /// Jitter policy for the factorisation of `K`.
+    pub fn with_jitter_policy(mut self, policy: JitterPolicy) -> Self {
+        self.policy = policy;
+        self
+    }
+
+    /// Number of points `N`.
+    pub fn n(&self) -> usize {
+        self.s.nrows()
+    }
+
+    /// Data dimension `D`.
+    pub fn d(&self) -> usize {
+        self.d
+    }
+
+    /// Whether the prior on `X` is on.
+    pub fn has_prior(&self) -> bool {
+        self.prior
+    }
+
+    /// The centred Gram matrix `S`.
+    pub fn gram(&self) -> MatRef<'_, f64> {
+        self.s.as_ref()
+    }
+
+    fn check_x(&self, x: MatRef<'_, f64>) -> Result<()> {
+        if x.nrows() != self.n() {
+            return Err(GpError::DimensionMismatch {
+                what: "latent points X rows vs Gram size N",
+                expected: self.n(),
+                got: x.nrows(),
+            });
+        }
+        Ok(())
+    }
+
+    fn factor(
+        &self,
+        x: MatRef<'_, f64>,
+        params: &KernelParams,
+        par: Par,
+    ) -> Result<CholeskyFactor> {
+        self.check_x(x)?;
+        let k = params.kernel_matrix(x)?;
+        CholeskyFactor::with_policy(k.as_ref(), self.policy, par).map_err(|e| match e {
+            GpError::NotPositiveDefinite {
+                n,
+                attempts,
+                last_jitter,
+                mean_diagonal,
+                ..
+            } => GpError::NotPositiveDefinite {
+                what: "kernel matrix K",
+                n,
+                attempts,
+                last_jitter,
+                mean_diagonal,
+            },
+            e => e,
+        })
+    }
+
+    fn assemble(&self, log_det: f64, trace: f64, x: MatRef<'_, f64>) -> Result<f64> {
+        let n = self.n() as f64;
+        let d = self.d as f64;
+        let mut v = -0.5 * d * log_det - 0.5 * trace;
+        if self.constant {
+            v -= 0.5 * n * d * LN_2PI;
+        }
+        if self.prior {
+            let mut sq = 0.0;
+            for j in 0..x.ncols() {
+                for i in 0..x.nrows() {
+                    sq += x[(i, j)] * x[(i, j)];
+                }
+            }
+            v -= 0.5 * sq;
+        }
+        if !v.is_finite() {
+            return Err(GpError::NonFiniteResult {
+                what: "GPLVM log-likelihood",
+                value: v,
+            });
+        }
+        Ok(v)
+    }
+
+    /// Log-likelihood value only (`O(N^3)`: one Cholesky and one inverse).
+    pub fn log_likelihood(
+        &self,
+        x: MatRef<'_, f64>,
+        params: &KernelParams,
+        par: Par,
+    ) -> Result<(f64, FactorInfo)> {
+        let f = self.factor(x, params, par)?;
+        let kinv = f.inverse();
+        let n = self.n();
+        let mut trace = 0.0;
+        for j in 0..n {
+            for i in 0..n {
+                trace += kinv[(i, j)] * self.s[(i, j)];
+            }
+        }
+        let v = self.assemble(f.log_det(), trace, x)?;
+        Ok((v, FactorInfo::of(&f)))
+    }
+
+    /// Value and analytic gradient with respect to `X` and the hyperparameters.
+    pub fn evaluate(
+        &self,
+        x: MatRef<'_, f64>,
+        params: &KernelParams,
+        par: Par,
+    ) -> Result<GplvmEval> {
+        let f = self.factor(x, params, par)?;
+        let n = self.n();
+        let kinv = f.inverse();
+        // B = K^-1 S, A = K^-1 S K^-1 = B K^-1.
+        let mut b = Mat::<f64>::zeros(n, n);
+        faer::linalg::matmul::matmul(b.as_mut(), Accum::Replace, &kinv, &self.s, 1.0, par);
+        let trace: f64 = (0..n).map(|i| b[(i, i)]).sum();
+        let mut dk = Mat::<f64>::zeros(n, n);
+        faer::linalg::matmul::matmul(dk.as_mut(), Accum::Replace, &b, &kinv, 0.5, par);
+        let half_d = 0.5 * self.d as f64;
+        for j in 0..n {
+            for i in 0..n {
+                dk[(i, j)] -= half_d * kinv[(i, j)];
+            }
+        }
+        symmetrise(&mut dk);
+        let value = self.assemble(f.log_det(), trace, x)?;
+        let g = params.backprop(x, dk.as_ref())?;
+        let mut grad_x = g.x;
+        if self.prior {
+            for j in 0..x.ncols() {
+                for i in 0..n {
+                    grad_x[(i, j)] -= x[(i, j)];
+                }
+            }
+        }
+        check_finite(grad_x.as_ref(), "GPLVM gradient dL/dX")?;
+        Ok(GplvmEval {
+            value,
+            grad_x,
+            grad_hyper: g.hyper,
+            grad_hyper_log: g.hyper_log,
+            factor: FactorInfo::of(&f),
+        })
+    }
+
+    /// Flat-vector view for optimisers: see [`FlatGplvm`].
+    pub fn flat(&self, q: usize, template: KernelParams, learn: Learn) -> Result<FlatGplvm<'_>> {
+        FlatGplvm::new(self, q, template, learn)
+    }
+}
+
+/// The same log-likelihood computed directly from dense data `Y` (`N x D`, used as given: centre
+/// it first if the Gram path is centred): `tr(K^-1 Y Y^T) = ||L^-1 Y||_F^2`. `O(N^2 D)`; meant
+/// for tests and small problems.
+pub fn log_likelihood_from_data(
+    y: MatRef<'_, f64>,
+    x: MatRef<'_, f64>,
+    params: &KernelParams,
+    prior: bool,
+    par: Par,
+) -> Result<f64> {
+    let n = y.nrows();
+    if n == 0 || y.ncols() == 0 {
+        return Err(GpError::Empty { what: "data Y" });
+    }
+    check_finite(y, "data Y")?;
+    if x.nrows() != n {
+        return Err(GpError::DimensionMismatch {
+            what: "latent points X rows vs data rows",
+            expected: n,
+            got: x.nrows(),
+        });
+    }
+    let k = params.kernel_matrix(x)?;
+    let f = CholeskyFactor::new(k.as_ref(), par)?;
+    let mut z = y.to_owned();
+    f.solve_lower_in_place(z.as_mut());
+    let mut tr = 0.0;
+    for j in 0..z.ncols() {
+        for i in 0..n {
+            tr += z[(i, j)] * z[(i, j)];
+        }
+    }
+    let d = y.ncols() as f64;
+    let mut v = -0.5 * n as f64 * d * LN_2PI - 0.5 * d * f.log_det() - 0.5 * tr;
+    if prior {
+        for j in 0..x.ncols() {
+            for i in 0..n {
+                v -= 0.5 * x[(i, j)] * x[(i, j)];
+            }
+        }
+    }
+    Ok(v)
+}
+
+/// Which hyperparameters a [`FlatGplvm`] optimises (the others stay at the template's values).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Learn {
+    /// Optimise `log s^2`.
+    pub signal_variance: bool,
+    /// Optimise `log l` (1 value, or `q` for ARD).
+    pub length_scale: bool,
+    /// Optimise `log mu`.
+    pub noise: bool,
+}
+
+impl Learn {
+    /// Only `X` is optimised (the paper's setting).
+    pub const NONE: Learn = Learn {
+        signal_variance: false,
+        length_scale: false,
+        noise: false,
+    };
+    /// `X` and every hyperparameter.
+    pub const ALL: Learn = Learn {
+        signal_variance: true,
+        length_scale: true,
+        noise: true,
+    };
+}
+
+/// Flat parameter vector `theta = [vec_row(X), free log-hyperparameters]` for an optimiser
+/// minimising the *negative* log-likelihood.
+///
+/// Layout: `X` row-major (`x_00, x_01, .., x_0(q-1), x_10, ..`, `N q` values), then in order
+/// `log s^2` (if learnt), `log l` (1, or `q` for ARD, if learnt), `log mu` (if learnt).
+#[derive(Debug, Clone)]
+pub struct FlatGplvm<'a> {
+    obj: &'a GplvmObjective,
+    q: usize,
+    template: KernelParams,
+    learn: Learn,
+}
+
+impl<'a> FlatGplvm<'a> {
+    /// Flat view of `obj` with latent dimension `q`; `template` supplies fixed hyperparameters
+    /// and the iso/ARD choice.
+    pub fn new(
+        obj: &'a GplvmObjective,
+        q: usize,
+        template: KernelParams,
+        learn: Learn,
+    ) -> Result<Self> {
+        template.check_dim(q)?;
+        Ok(FlatGplvm {
+            obj,
+            q,
+            template,
+            learn,
+        })
+    }
+
+    /// Number of free log-hyperparameters.
+    pub fn n_hyper(&self) -> usize {
+        usize::from(self.learn.signal_variance)
+            + if self.learn.length_scale {
+                self.template.length_scale().len()
+            } else {
+                0
+            }
+            + usize::from(self.learn.noise)
+    }
+
+    /// Length of `theta`: `N q + n_hyper`.
+    pub fn len(&self) -> usize {
+        self.obj.n() * self.q + self.n_hyper()
+    }
+
+    /// Always false (`N, q >= 1`).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Packs `X` (`N x q`) and the learnt hyperparameters of `params` into `theta`.
+    pub fn pack(&self, x: MatRef<'_, f64>, params: &KernelParams) -> Result<Vec<f64>> {
+        let n = self.obj.n();
+        if x.nrows() != n || x.ncols() != self.q {
+            return Err(GpError::DimensionMismatch {
+                what: "latent points X shape (rows * q) vs flat layout",
+                expected: n * self.q,
+                got: x.nrows() * x.ncols(),
+            });
+        }
+        params.check_dim(self.q)?;
+        if params.length_scale().is_ard() != self.template.length_scale().is_ard() {
+            return Err(GpError::DimensionMismatch {
+                what: "length-scale count (iso vs ARD) vs template",
+                expected: self.template.length_scale().len(),
+                got: params.length_scale().len(),
+            });
+        }
+        let mut v = Vec::with_capacity(self.len());
+        for i in 0..n {
+            for j in 0..self.q {
+                v.push(x[(i, j)]);
+            }
+        }
+        let lt = params.to_log_vec();
+        let k = params.length_scale().len();
+        if self.learn.signal_variance {
+            v.push(lt[0]);
+        }
+        if self.learn.length_scale {
+            v.extend_from_slice(&lt[1..1 + k]);
+        }
+        if self.learn.noise {
+            v.push(lt[k + 1]);
+        }
+        Ok(v)
+    }
+
+    /// Inverse of [`pack`](Self::pack). Errors on a wrong length or on hyperparameters that
+    /// overflow (`exp` to 0 or infinity).
+    pub fn unpack(&self, theta: &[f64]) -> Result<(Mat<f64>, KernelParams)> {
+        if theta.len() != self.len() {
+            return Err(GpError::DimensionMismatch {
+                what: "flat parameter vector length",
+                expected: self.len(),
+                got: theta.len(),
+            });
+        }
+        let (n, q) = (self.obj.n(), self.q);
+        let x = Mat::from_fn(n, q, |i, j| theta[i * q + j]);
+        let mut lt = self.template.to_log_vec();
+        let k = self.template.length_scale().len();
+        let mut p = n * q;
+        if self.learn.signal_variance {
+            lt[0] = theta[p];
+            p += 1;
+        }
+        if self.learn.length_scale {
+            lt[1..1 + k].copy_from_slice(&theta[p..p + k]);
+            p += k;
+        }
+        if self.learn.noise {
+            lt[k + 1] = theta[p];
+        }
+        let ls: Vec<f64> = lt[1..1 + k].iter().map(|v| v.exp()).collect();
+        let length_scale = match self.template.length_scale() {
+            LengthScale::Isotropic(_) => LengthScale::Isotropic(ls[0]),
+            LengthScale::Ard(_) => LengthScale::Ard(ls),
+        };
+        let params = KernelParams::new(lt[0].exp(), length_scale, lt[k + 1].exp())?;
+        Ok((x, params))
+    }
+
+    /// Full evaluation at `theta` (log-likelihood, not negated).
+    pub fn evaluate(&self, theta: &[f64], par: Par) -> Result<GplvmEval> {
+        let (x, params) = self.unpack(theta)?;
+        self.obj.evaluate(x.as_ref(), &params, par)
+    }
+
+    /// `-L(theta)` only.
+    pub fn neg_log_likelihood(&self, theta: &[f64], par: Par) -> Result<f64> {
+        let (x, params) = self.unpack(theta)?;
+        Ok(-self.obj.log_likelihood(x.as_ref(), &params, par)?.0)
+    }
+
+    /// `(-L(theta), -dL/dtheta)` in the layout of [`pack`](Self::pack).
+    pub fn neg_log_likelihood_and_gradient(
+        &self,
+        theta: &[f64],
+        par: Par,
+    ) -> Result<(f64, Vec<f64>)> {
+        let e = self.evaluate(theta, par)?;
+        let (n, q) = (self.obj.n(), self.q);
+        let mut g = Vec::with_capacity(self.len());
+        for i in 0..n {
+            for j in 0..q {
+                g.push(-e.grad_x[(i, j)]);
+            }
+        }
+        if self.learn.signal_variance {
+            g.push(-e.grad_hyper_log.signal_variance);
+        }
+        if self.learn.length_scale {
+            g.extend(e.grad_hyper_log.length_scale.iter().map(|v| -v));
+        }
+        if self.learn.noise {
+            g.push(-e.grad_hyper_log.noise);
+        }
+        Ok((-e.value, g))
+    }
+}

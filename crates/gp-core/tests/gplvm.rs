@@ -1,0 +1,485 @@
+//! Integration tests for gp-core: gradients against finite differences, invariances, the
+//! Gram-vs-dense likelihood, predictors against dense formulas, and numerical stress.
+
+use faer::linalg::solvers::DenseSolveCore;
+use gp_core::{
+    CholeskyFactor, FlatGplvm, GpError, GpRegression, GplvmObjective, KernelParams, Learn,
+    LengthScale, Mat, MatRef, Par, Predictor, centre_gram, column_mean, gram_from_data,
+    log_likelihood_from_data, posterior_mean,
+};
+use proptest::prelude::*;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+fn rand_mat(rng: &mut ChaCha8Rng, n: usize, m: usize, lo: f64, hi: f64) -> Mat<f64> {
+    Mat::from_fn(n, m, |_, _| rng.random_range(lo..hi))
+}
+
+/// Column-centred copy of `y`.
+fn centre_rows(y: MatRef<'_, f64>) -> Mat<f64> {
+    let m = column_mean(y);
+    Mat::from_fn(y.nrows(), y.ncols(), |i, j| y[(i, j)] - m[j])
+}
+
+fn objective_from_data(y: MatRef<'_, f64>) -> GplvmObjective {
+    let g = gram_from_data(y, Par::Seq).unwrap();
+    GplvmObjective::from_uncentred_gram(g.as_ref(), y.ncols()).unwrap()
+}
+
+fn params(rng: &mut ChaCha8Rng, q: usize, ard: bool, log_mu: f64) -> KernelParams {
+    let s2 = rng.random_range(-1.0f64..1.0).exp();
+    let ls = if ard {
+        LengthScale::Ard(
+            (0..q)
+                .map(|_| rng.random_range(-0.7f64..1.0).exp())
+                .collect(),
+        )
+    } else {
+        LengthScale::Isotropic(rng.random_range(-0.7f64..1.0).exp())
+    };
+    KernelParams::new(s2, ls, log_mu.exp()).unwrap()
+}
+
+/// Central difference of `f` at `theta` along coordinate `k`.
+fn central_diff(f: &dyn Fn(&[f64]) -> f64, theta: &[f64], k: usize) -> f64 {
+    let h = 1e-5 * theta[k].abs().max(1.0);
+    let mut tp = theta.to_vec();
+    let mut tm = theta.to_vec();
+    tp[k] += h;
+    tm[k] -= h;
+    (f(&tp) - f(&tm)) / (2.0 * h)
+}
+
+fn assert_close(fd: f64, an: f64, fscale: f64, what: &str) {
+    let tol = 1e-6 * (1.0 + fscale) + 1e-5 * an.abs();
+    assert!(
+        (fd - an).abs() <= tol,
+        "{what}: finite difference {fd} vs analytic {an} (tol {tol})"
+    );
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(48))]
+
+    /// dL/dX, dL/dlog(theta) and dL/dtheta against central differences; iso/ARD, prior on/off.
+    #[test]
+    fn gradients_match_finite_differences(
+        seed in any::<u64>(),
+        n in 2usize..7,
+        q in 1usize..4,
+        d in 1usize..8,
+        ard in any::<bool>(),
+        prior in any::<bool>(),
+        log_mu in -4.0f64..0.0,
+    ) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let y = rand_mat(&mut rng, n, d, -2.0, 2.0);
+        let x = rand_mat(&mut rng, n, q, -1.5, 1.5);
+        let p = params(&mut rng, q, ard, log_mu);
+        let obj = objective_from_data(y.as_ref()).with_prior(prior);
+        let e = obj.evaluate(x.as_ref(), &p, Par::Seq).unwrap();
+        // Value from evaluate equals the value-only path.
+        let (v, info) = obj.log_likelihood(x.as_ref(), &p, Par::Seq).unwrap();
+        prop_assert!((v - e.value).abs() <= 1e-10 * (1.0 + v.abs()));
+        prop_assert_eq!(info.jitter, 0.0);
+
+        // Flat vector with every hyperparameter learnt: X row-major, then log hypers.
+        let flat = obj.flat(q, p.clone(), Learn::ALL).unwrap();
+        let theta = flat.pack(x.as_ref(), &p).unwrap();
+        prop_assert_eq!(theta.len(), n * q + p.n_hyper());
+        let f = |t: &[f64]| -flat.neg_log_likelihood(t, Par::Seq).unwrap();
+        let fscale = e.value.abs();
+        for i in 0..n {
+            for j in 0..q {
+                let fd = central_diff(&f, &theta, i * q + j);
+                assert_close(fd, e.grad_x[(i, j)], fscale, "dL/dX");
+            }
+        }
+        let glog = e.grad_hyper_log.to_vec();
+        for (k, g) in glog.iter().enumerate() {
+            let fd = central_diff(&f, &theta, n * q + k);
+            assert_close(fd, *g, fscale, "dL/dlog theta");
+        }
+        // Raw-parameter gradients: chain rule dL/dtheta = dL/dlog theta / theta, checked by FD
+        // in raw coordinates.
+        let raw_theta: Vec<f64> = p.to_log_vec().iter().map(|v| v.exp()).collect();
+        let fr = |t: &[f64]| {
+            let lt: Vec<f64> = t.iter().map(|v| v.ln()).collect();
+            let pp = KernelParams::from_log_slice(&lt).unwrap();
+            let pp = match (p.length_scale(), pp.length_scale()) {
+                (LengthScale::Ard(_), LengthScale::Isotropic(l)) => {
+                    KernelParams::new(pp.signal_variance(), LengthScale::Ard(vec![*l]), pp.noise()).unwrap()
+                }
+                _ => pp,
+            };
+            obj.log_likelihood(x.as_ref(), &pp, Par::Seq).unwrap().0
+        };
+        let graw = e.grad_hyper.to_vec();
+        for (k, g) in graw.iter().enumerate() {
+            let h = 1e-6 * raw_theta[k];
+            let mut tp = raw_theta.clone();
+            let mut tm = raw_theta.clone();
+            tp[k] += h;
+            tm[k] -= h;
+            let fd = (fr(&tp) - fr(&tm)) / (2.0 * h);
+            assert_close(fd * raw_theta[k], g * raw_theta[k], fscale, "dL/dtheta (raw)");
+        }
+        // Flat gradient is the negated analytic gradient, and unpack inverts pack.
+        let (nv, ng) = flat.neg_log_likelihood_and_gradient(&theta, Par::Seq).unwrap();
+        prop_assert!((nv + e.value).abs() <= 1e-10 * (1.0 + nv.abs()));
+        prop_assert_eq!(ng[0], -e.grad_x[(0, 0)]);
+        prop_assert_eq!(ng[n * q], -glog[0]);
+        let (x2, p2) = flat.unpack(&theta).unwrap();
+        prop_assert_eq!(x2, x.clone());
+        prop_assert!((p2.signal_variance() - p.signal_variance()).abs() <= 1e-14 * p.signal_variance());
+    }
+
+    /// K is exactly symmetric and its eigenvalues are >= mu (up to rounding).
+    #[test]
+    fn kernel_matrix_is_spd(
+        seed in any::<u64>(),
+        n in 1usize..25,
+        q in 1usize..4,
+        ard in any::<bool>(),
+        log_mu in -8.0f64..1.0,
+    ) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let x = rand_mat(&mut rng, n, q, -2.0, 2.0);
+        let p = params(&mut rng, q, ard, log_mu);
+        let k = p.kernel_matrix(x.as_ref()).unwrap();
+        for j in 0..n {
+            prop_assert_eq!(k[(j, j)], p.signal_variance() + p.noise());
+            for i in 0..n {
+                prop_assert_eq!(k[(i, j)], k[(j, i)]);
+                prop_assert!(k[(i, j)] > 0.0);
+            }
+        }
+        let ev = k.self_adjoint_eigenvalues(faer::Side::Lower).unwrap();
+        let tol = 10.0 * n as f64 * f64::EPSILON * (p.signal_variance() * n as f64 + p.noise());
+        prop_assert!(ev[0] >= p.noise() - tol, "min eigenvalue {} < mu {}", ev[0], p.noise());
+        let f = CholeskyFactor::new(k.as_ref(), Par::Seq).unwrap();
+        prop_assert_eq!(f.jitter(), 0.0);
+    }
+}
+
+/// Random rotation in R^q (QR-free: product of Givens rotations).
+fn rotation(rng: &mut ChaCha8Rng, q: usize) -> Mat<f64> {
+    let mut r = Mat::<f64>::identity(q, q);
+    for a in 0..q {
+        for b in (a + 1)..q {
+            let t: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+            let g = Mat::from_fn(q, q, |i, j| match (i, j) {
+                _ if i == a && j == a || i == b && j == b => t.cos(),
+                _ if i == a && j == b => -t.sin(),
+                _ if i == b && j == a => t.sin(),
+                _ if i == j => 1.0,
+                _ => 0.0,
+            });
+            r = &r * &g;
+        }
+    }
+    r
+}
+
+#[test]
+fn likelihood_translation_and_rotation_invariance() {
+    let mut rng = ChaCha8Rng::seed_from_u64(42);
+    for q in [2usize, 3] {
+        let (n, d) = (12, 9);
+        let y = rand_mat(&mut rng, n, d, -1.0, 1.0);
+        let x = rand_mat(&mut rng, n, q, -1.0, 1.0);
+        let p = KernelParams::isotropic(1.3, 0.8, 1e-3).unwrap();
+        let t: Vec<f64> = (0..q).map(|_| rng.random_range(-3.0..3.0)).collect();
+        let r = rotation(&mut rng, q);
+        let xt = Mat::from_fn(n, q, |i, j| x[(i, j)] + t[j]);
+        let xr = &x * r.transpose();
+        let sq = |m: &Mat<f64>| -> f64 {
+            (0..n)
+                .map(|i| (0..q).map(|j| m[(i, j)] * m[(i, j)]).sum::<f64>())
+                .sum()
+        };
+        for prior in [false, true] {
+            let obj = objective_from_data(y.as_ref()).with_prior(prior);
+            let v0 = obj.log_likelihood(x.as_ref(), &p, Par::Seq).unwrap().0;
+            let vt = obj.log_likelihood(xt.as_ref(), &p, Par::Seq).unwrap().0;
+            let vr = obj.log_likelihood(xr.as_ref(), &p, Par::Seq).unwrap().0;
+            let tol = 1e-11 * v0.abs();
+            // Rotations preserve |x| so the value is invariant with or without the prior.
+            assert!((vr - v0).abs() <= tol, "rotation: {vr} vs {v0}");
+            if prior {
+                // Translation changes exactly the prior term -1/2 sum |x_n|^2.
+                let expected = -0.5 * (sq(&xt) - sq(&x));
+                assert!(expected.abs() > 1.0);
+                assert!(
+                    ((vt - v0) - expected).abs() <= tol,
+                    "{} vs {expected}",
+                    vt - v0
+                );
+            } else {
+                assert!((vt - v0).abs() <= tol, "translation: {vt} vs {v0}");
+            }
+        }
+    }
+}
+
+#[test]
+fn gram_likelihood_equals_dense_likelihood() {
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    for (n, d, q, ard) in [(5, 3, 1, false), (10, 40, 2, true), (30, 7, 3, false)] {
+        let y = rand_mat(&mut rng, n, d, -5.0, 20.0);
+        let x = rand_mat(&mut rng, n, q, -2.0, 2.0);
+        let p = params(&mut rng, q, ard, -3.0);
+        let yc = centre_rows(y.as_ref());
+        for prior in [false, true] {
+            let obj = objective_from_data(y.as_ref()).with_prior(prior);
+            let vg = obj.log_likelihood(x.as_ref(), &p, Par::Seq).unwrap().0;
+            let ve = obj.evaluate(x.as_ref(), &p, Par::rayon(2)).unwrap().value;
+            let vd =
+                log_likelihood_from_data(yc.as_ref(), x.as_ref(), &p, prior, Par::Seq).unwrap();
+            assert!((vg - vd).abs() <= 1e-10 * vd.abs(), "{vg} vs {vd}");
+            assert!((ve - vd).abs() <= 1e-10 * vd.abs(), "{ve} vs {vd}");
+        }
+        // Centred Gram from G equals the Gram of centred data (S = C G C).
+        let s = centre_gram(gram_from_data(y.as_ref(), Par::Seq).unwrap().as_ref()).unwrap();
+        let s2 = gram_from_data(yc.as_ref(), Par::Seq).unwrap();
+        let scale = (0..n).map(|i| s2[(i, i)]).fold(0.0, f64::max);
+        for j in 0..n {
+            for i in 0..n {
+                assert!((s[(i, j)] - s2[(i, j)]).abs() <= 1e-12 * scale);
+            }
+        }
+    }
+}
+
+#[test]
+fn predictors_against_dense_formulas() {
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let (n, d, q, m) = (20, 6, 2, 300);
+    let x = rand_mat(&mut rng, n, q, -2.0, 2.0);
+    let y = rand_mat(&mut rng, n, d, -1.0, 3.0);
+    let p = KernelParams::isotropic(1.0, 1.0, 1e-4).unwrap();
+    let gp = GpRegression::new(x.as_ref(), p.clone(), Par::Seq).unwrap();
+    assert_eq!(gp.factor().jitter(), 0.0);
+    let mean = column_mean(y.as_ref());
+    // Exact predictor reproduces training outputs; the smooth one does not.
+    for i in 0..n {
+        let xi: Vec<f64> = (0..q).map(|j| x[(i, j)]).collect();
+        let w = gp.weights(&xi, Predictor::Exact).unwrap();
+        for (k, wk) in w.iter().enumerate() {
+            let e = if k == i { 1.0 } else { 0.0 };
+            assert!((wk - e).abs() <= 1e-10, "w[{k}] = {wk}");
+        }
+        let yp = posterior_mean(&w, y.as_ref(), &mean).unwrap();
+        for j in 0..d {
+            assert!((yp[j] - y[(i, j)]).abs() <= 1e-10 * y[(i, j)].abs().max(1.0));
+        }
+        let ws = gp.weights(&xi, Predictor::Smooth).unwrap();
+        assert!((ws[i] - 1.0).abs() > 1e-6);
+        assert!(gp.variance(&xi).unwrap() < 1e-3);
+    }
+    // Dense reference: explicit inverse through LU (independent of the Cholesky path).
+    let k = p.kernel_matrix(x.as_ref()).unwrap();
+    let kinv = k.partial_piv_lu().inverse();
+    let xs = rand_mat(&mut rng, m, q, -3.0, 3.0);
+    // Include two training points among the test points.
+    let xs = Mat::from_fn(m, q, |r, j| if r < 2 { x[(5 * r, j)] } else { xs[(r, j)] });
+    for predictor in [Predictor::Exact, Predictor::Smooth] {
+        let wb = gp
+            .weights_batch(xs.as_ref(), predictor, Par::rayon(2))
+            .unwrap();
+        let wseq = gp.weights_batch(xs.as_ref(), predictor, Par::Seq).unwrap();
+        let var = gp.variance_batch(xs.as_ref(), Par::rayon(2)).unwrap();
+        for r in 0..m {
+            let xr: Vec<f64> = (0..q).map(|j| xs[(r, j)]).collect();
+            let mut ks: Vec<f64> = (0..n)
+                .map(|i| {
+                    let d2: f64 = (0..q).map(|j| (x[(i, j)] - xr[j]).powi(2)).sum();
+                    (-0.5 * d2).exp()
+                })
+                .collect();
+            if predictor == Predictor::Exact && r < 2 {
+                ks[5 * r] += 1e-4;
+            }
+            let wd: Vec<f64> = (0..n)
+                .map(|i| (0..n).map(|k2| kinv[(i, k2)] * ks[k2]).sum())
+                .collect();
+            let w1 = gp.weights(&xr, predictor).unwrap();
+            for i in 0..n {
+                assert!((wb[(i, r)] - wd[i]).abs() <= 1e-8 * (1.0 + wd[i].abs()));
+                assert_eq!(wb[(i, r)], wseq[(i, r)]);
+                assert!((w1[i] - wb[(i, r)]).abs() <= 1e-12 * (1.0 + w1[i].abs()));
+            }
+            // Smooth-k* variance against the dense formula.
+            let ksm: Vec<f64> = (0..n)
+                .map(|i| {
+                    let d2: f64 = (0..q).map(|j| (x[(i, j)] - xr[j]).powi(2)).sum();
+                    (-0.5 * d2).exp()
+                })
+                .collect();
+            let quad: f64 = (0..n)
+                .map(|i| {
+                    (0..n)
+                        .map(|k2| ksm[i] * kinv[(i, k2)] * ksm[k2])
+                        .sum::<f64>()
+                })
+                .sum();
+            let vd = (1.0 + 1e-4 - quad).max(0.0);
+            assert!((var[r] - vd).abs() <= 1e-8, "var {} vs {vd}", var[r]);
+            // Mean against the dense formula m + Y_c^T K^-1 k*.
+            let yp = posterior_mean(&w1, y.as_ref(), &mean).unwrap();
+            for j in 0..d {
+                let md: f64 = mean[j] + (0..n).map(|i| wd[i] * (y[(i, j)] - mean[j])).sum::<f64>();
+                assert!((yp[j] - md).abs() <= 1e-8 * (1.0 + md.abs()));
+            }
+        }
+    }
+}
+
+#[test]
+fn bad_inputs_are_clear_errors() {
+    let p = KernelParams::paper();
+    let mut x = Mat::from_fn(4, 2, |i, j| (i * 2 + j) as f64);
+    x[(2, 1)] = f64::NAN;
+    let s = Mat::<f64>::identity(4, 4);
+    let obj = GplvmObjective::new(s.clone(), 10).unwrap();
+    assert!(matches!(
+        obj.evaluate(x.as_ref(), &p, Par::Seq),
+        Err(GpError::NonFinite { row: 2, col: 1, .. })
+    ));
+    assert!(GpRegression::new(x.as_ref(), p.clone(), Par::Seq).is_err());
+    let mut bad_s = s.clone();
+    bad_s[(1, 1)] = f64::INFINITY;
+    assert!(matches!(
+        GplvmObjective::new(bad_s, 10),
+        Err(GpError::NonFinite { .. })
+    ));
+    assert!(GplvmObjective::new(s.clone(), 0).is_err());
+    let x3 = Mat::<f64>::zeros(3, 2);
+    assert!(matches!(
+        obj.log_likelihood(x3.as_ref(), &p, Par::Seq),
+        Err(GpError::DimensionMismatch { .. })
+    ));
+    for (s2, l, mu) in [(0.0, 1.0, 1e-4), (1.0, -1.0, 1e-4), (1.0, 1.0, f64::NAN)] {
+        assert!(matches!(
+            KernelParams::isotropic(s2, l, mu),
+            Err(GpError::InvalidHyperparameter { .. })
+        ));
+    }
+    assert!(KernelParams::new(1.0, LengthScale::Ard(vec![]), 1.0).is_err());
+    let ard = KernelParams::new(1.0, LengthScale::Ard(vec![1.0, 2.0, 3.0]), 1.0).unwrap();
+    let x_ok = Mat::from_fn(4, 2, |i, j| (i * 2 + j) as f64);
+    assert!(ard.kernel_matrix(x_ok.as_ref()).is_err());
+    // Flat: overflowing log-hyperparameters are errors, not panics.
+    let flat: FlatGplvm<'_> = obj.flat(2, p.clone(), Learn::ALL).unwrap();
+    let mut theta = flat.pack(x_ok.as_ref(), &p).unwrap();
+    let last = theta.len() - 1;
+    theta[last] = 1e6;
+    assert!(flat.neg_log_likelihood(&theta, Par::Seq).is_err());
+    theta[last] = -1e6;
+    assert!(flat.neg_log_likelihood(&theta, Par::Seq).is_err());
+    assert!(flat.unpack(&theta[..3]).is_err());
+    let gp = GpRegression::new(x_ok.as_ref(), p, Par::Seq).unwrap();
+    assert!(gp.weights(&[0.0, f64::NAN], Predictor::Exact).is_err());
+    assert!(gp.weights(&[0.0], Predictor::Exact).is_err());
+}
+
+#[test]
+fn stress_duplicates_tiny_noise_and_dynamic_range() {
+    let mut rng = ChaCha8Rng::seed_from_u64(99);
+    let (n, q, d) = (40, 2, 5);
+    // Y spanning 1e-6 .. 1e6 (log-uniform magnitudes, random signs).
+    let y = Mat::from_fn(n, d, |_, _| {
+        let m = 10f64.powf(rng.random_range(-6.0..6.0));
+        if rng.random_bool(0.5) { m } else { -m }
+    });
+    let obj = objective_from_data(y.as_ref()).with_prior(true);
+    // Half the latent points duplicated exactly.
+    let base = rand_mat(&mut rng, n / 2, q, -1.0, 1.0);
+    let x = Mat::from_fn(n, q, |i, j| base[(i % (n / 2), j)]);
+
+    // s^2 = 1, mu = 1e-10: K is singular up to mu but its Cholesky succeeds without jitter;
+    // the condition estimate exposes the problem.
+    let p = KernelParams::isotropic(1.0, 1.0, 1e-10).unwrap();
+    let e = obj.evaluate(x.as_ref(), &p, Par::Seq).unwrap();
+    assert!(e.value.is_finite());
+    assert!(e.grad_x.as_ref().norm_l2().is_finite());
+    assert_eq!(e.factor.jitter, 0.0);
+    assert!(
+        e.factor.condition_estimate > 1e9,
+        "{}",
+        e.factor.condition_estimate
+    );
+
+    // Exact predictor at a duplicated training point: finite, and the two copies share the
+    // prediction (their weights sum to ~1).
+    let gp = GpRegression::new(x.as_ref(), p.clone(), Par::Seq).unwrap();
+    let x0 = [x[(0, 0)], x[(0, 1)]];
+    let w = gp.weights(&x0, Predictor::Exact).unwrap();
+    assert!(w.iter().all(|v| v.is_finite()));
+    assert!(
+        (w[0] + w[n / 2] - 1.0).abs() < 1e-3,
+        "{} {}",
+        w[0],
+        w[n / 2]
+    );
+
+    // Numerically rank-deficient K: s^2 = 1e8, l = 100 over latent points in [-1, 1], so K_rbf has
+    // ~36 eigenvalues far below rounding (1e-8) while mu = 1e-10: jitter is needed and reported.
+    let xs = rand_mat(&mut rng, n, q, -1.0, 1.0);
+    let p = KernelParams::isotropic(1e8, 100.0, 1e-10).unwrap();
+    let e = obj.evaluate(xs.as_ref(), &p, Par::Seq).unwrap();
+    assert!(e.value.is_finite());
+    assert!(e.grad_x.as_ref().norm_l2().is_finite());
+    assert!(
+        e.factor.jitter > 0.0 && e.factor.attempts >= 2,
+        "{:?}",
+        e.factor
+    );
+    assert!(e.factor.jitter <= 1e-2 * (1e8 + 1e-10));
+    let x = xs;
+    let gp = GpRegression::new(x.as_ref(), p.clone(), Par::Seq).unwrap();
+    assert_eq!(gp.factor().jitter(), e.factor.jitter);
+    let w = gp.weights(&[0.1, 0.2], Predictor::Smooth).unwrap();
+    assert!(w.iter().all(|v| v.is_finite()));
+
+    // No jitter allowed and a numerically singular K: a clear error, not a panic.
+    let strict = objective_from_data(y.as_ref()).with_jitter_policy(gp_core::JitterPolicy::none());
+    match strict.log_likelihood(x.as_ref(), &p, Par::Seq) {
+        Err(GpError::NotPositiveDefinite { what, attempts, .. }) => {
+            assert_eq!(what, "kernel matrix K");
+            assert_eq!(attempts, 1);
+        }
+        other => panic!("expected NotPositiveDefinite, got {other:?}"),
+    }
+}
+
+#[test]
+fn stress_large_n_and_spread_inputs() {
+    let mut rng = ChaCha8Rng::seed_from_u64(2000);
+    let (n, q, d) = (2000, 2, 3);
+    // Latent coordinates with magnitudes from 1e-6 to 1e3.
+    let x = Mat::from_fn(n, q, |_, _| {
+        let m = 10f64.powf(rng.random_range(-6.0..3.0));
+        if rng.random_bool(0.5) { m } else { -m }
+    });
+    let y = Mat::from_fn(n, d, |_, _| 10f64.powf(rng.random_range(-6.0..6.0)));
+    let obj = objective_from_data(y.as_ref());
+    let p = KernelParams::paper();
+    let (v, info) = obj.log_likelihood(x.as_ref(), &p, Par::rayon(2)).unwrap();
+    assert!(v.is_finite());
+    // Hundreds of near-coincident points at the origin: K is ill conditioned (~N/mu) but
+    // factors without jitter at mu = 1e-4.
+    assert_eq!(info.jitter, 0.0);
+    assert!(info.condition_estimate > 1e5 && info.condition_estimate.is_finite());
+    let gp = GpRegression::new(x.as_ref(), p, Par::rayon(2)).unwrap();
+    let xs = rand_mat(&mut rng, 50, q, -2.0, 2.0);
+    let w = gp
+        .weights_batch(xs.as_ref(), Predictor::Exact, Par::rayon(2))
+        .unwrap();
+    assert!(w.as_ref().norm_l2().is_finite());
+    let var = gp.variance_batch(xs.as_ref(), Par::rayon(2)).unwrap();
+    assert!(
+        var.iter()
+            .all(|v| v.is_finite() && *v >= 0.0 && *v <= 1.0 + 1e-4)
+    );
+}
