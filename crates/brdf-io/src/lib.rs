@@ -5,6 +5,10 @@
 
 pub mod error;
 pub mod grid;
+pub mod rgl;
+pub mod source;
+pub mod tensor;
 
 pub use error::{Error, Result};
 pub use grid::{AngularGrid, Channels, HalfDiff, Vec3};
+pub use source::{BrdfSource, ImportReport};

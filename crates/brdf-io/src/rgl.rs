@@ -1,0 +1,667 @@
+//! Evaluation of isotropic RGL `.bsdf` files (Dupuy & Jakob 2018, "An adaptive parameterization
+//! for efficient material acquisition and rendering").
+//!
+//! The evaluator reproduces Mitsuba 3's `measured` plugin (`src/bsdfs/measured.cpp` with the
+//! `Marginal2D<Float, N, true>` interpolants of `include/mitsuba/core/distr_2d.h`) in f64 and
+//! divides its result by cos(theta_o): Mitsuba returns f cos(theta_o), specgp stores the BRDF f in
+//! 1/sr (`DESIGN.md` section 2). Steps for a pair (wi, wo), both above the horizon:
+//! 1. half vector m = normalize(wi + wo); elevations via the stable `2 asin(|d - z| / 2)`;
+//! 2. u_m = (sqrt(2 theta_m / pi), (phi_m - phi_i + pi) / 2pi mod 1) (isotropic files measure phi_m
+//!    relative to phi_i), u_i = (sqrt(2 theta_i / pi), (phi_i + pi) / 2pi);
+//! 3. the VNDF warp, a continuous marginal/conditional 2D distribution conditioned on
+//!    (phi_i, theta_i), is inverted at u_m, giving a point of the unit square;
+//! 4. the `spectra` (or `rgb`) table is bilinearly interpolated at that point and linearly in
+//!    (phi_i, theta_i, wavelength);
+//! 5. when the `jacobian` flag is set the result is multiplied by ndf(u_m) / (4 sigma(u_i)).
+//!
+//! Anisotropic files (more than two `phi_i` samples, Mitsuba's test) are rejected as not supported
+//! yet. Parameters outside the stored `theta_i` range are clamped like Mitsuba; a requested
+//! wavelength outside the stored range is an error.
+
+use std::f64::consts::PI;
+use std::path::{Path, PathBuf};
+
+use crate::error::{Error, Result};
+use crate::grid::{AngularGrid, Channels, Vec3};
+use crate::source::{BrdfSource, ImportReport, resample_cells};
+use crate::tensor::{DType, TensorFile};
+
+/// Linear interpolation weights along one conditioning axis, as Mitsuba's
+/// `Distribution2D::interpolate_weights`: the interval `[v[i], v[i+1]]` with `v[i] < p`
+/// (i in `0..=n-2`, 0 when none) and the clamped fraction. Axes of length 1 give `(0, 0.0)`.
+fn axis_weight(values: &[f64], p: f64) -> (usize, f64) {
+    let n = values.len();
+    if n < 2 {
+        return (0, 0.0);
+    }
+    // First index in 1..n-1 whose value is not below p, minus one.
+    let mut i = 1;
+    while i < n - 1 && values[i] < p {
+        i += 1;
+    }
+    let i = i - 1;
+    let (p0, p1) = (values[i], values[i + 1]);
+    let t = ((p - p0) / (p1 - p0)).clamp(0.0, 1.0);
+    (i, if t.is_nan() { 0.0 } else { t })
+}
+
+/// Up to four (slice, weight) pairs for linear interpolation over (phi_i, theta_i).
+#[derive(Debug, Clone, Copy)]
+struct Corners {
+    slice: [usize; 4],
+    weight: [f64; 4],
+}
+
+impl Corners {
+    /// `stride_phi` / `stride_theta` are slice strides (0 for an axis of length 1).
+    fn new(phi: (usize, f64), theta: (usize, f64), stride_phi: usize, stride_theta: usize) -> Self {
+        let base = phi.0 * stride_phi + theta.0 * stride_theta;
+        let (tp, tt) = (phi.1, theta.1);
+        Self {
+            slice: [
+                base,
+                base + stride_theta,
+                base + stride_phi,
+                base + stride_phi + stride_theta,
+            ],
+            weight: [
+                (1.0 - tp) * (1.0 - tt),
+                (1.0 - tp) * tt,
+                tp * (1.0 - tt),
+                tp * tt,
+            ],
+        }
+    }
+
+    /// Weighted sum of `table[slice * slice_len + index]` over the corners.
+    #[inline]
+    fn lookup(&self, table: &[f64], slice_len: usize, index: usize) -> f64 {
+        let mut acc = 0.0;
+        for k in 0..4 {
+            if self.weight[k] != 0.0 {
+                acc += self.weight[k] * table[self.slice[k] * slice_len + index];
+            }
+        }
+        acc
+    }
+}
+
+/// Bilinear position in a `w x h` table over the unit square: offsets and fractions.
+#[inline]
+fn patch(pos: [f64; 2], w: usize, h: usize) -> ([usize; 2], [f64; 2]) {
+    let x = pos[0].clamp(0.0, 1.0) * (w - 1) as f64;
+    let y = pos[1].clamp(0.0, 1.0) * (h - 1) as f64;
+    let ix = (x as usize).min(w - 2);
+    let iy = (y as usize).min(h - 2);
+    ([ix, iy], [x - ix as f64, y - iy as f64])
+}
+
+fn lerp(a: f64, b: f64, t: f64) -> f64 {
+    a + (b - a) * t
+}
+
+/// An unconditioned 2D table (ndf, sigma) with bilinear interpolation (Mitsuba `Marginal2D0`,
+/// no normalisation).
+#[derive(Debug, Clone)]
+struct Table2D {
+    w: usize,
+    h: usize,
+    data: Vec<f64>,
+}
+
+impl Table2D {
+    fn eval(&self, pos: [f64; 2]) -> f64 {
+        let ([ix, iy], [fx, fy]) = patch(pos, self.w, self.h);
+        let i = iy * self.w + ix;
+        let d = &self.data;
+        lerp(
+            lerp(d[i], d[i + 1], fx),
+            lerp(d[i + self.w], d[i + self.w + 1], fx),
+            fy,
+        )
+    }
+}
+
+/// The VNDF warp: a continuous marginal/conditional 2D distribution per (phi_i, theta_i) slice
+/// (Mitsuba `Marginal2D<Float, 2, true>` with normalisation), inverted for evaluation.
+#[derive(Debug, Clone)]
+struct Warp {
+    w: usize,
+    h: usize,
+    /// Normalised density, `slices * w * h`.
+    data: Vec<f64>,
+    /// Conditional CDFs along x, `slices * h * (w - 1)`.
+    cond: Vec<f64>,
+    /// Marginal CDF along y, `slices * (h - 1)`.
+    marg: Vec<f64>,
+}
+
+impl Warp {
+    fn new(raw: &[f64], slices: usize, w: usize, h: usize, path: &Path) -> Result<Self> {
+        let n_data = w * h;
+        let (n_cond, n_marg) = ((w - 1) * h, h - 1);
+        let (sx, sy) = (0.5 / (w - 1) as f64, 0.5 / (h - 1) as f64);
+        let mut data = Vec::with_capacity(slices * n_data);
+        let mut cond = Vec::with_capacity(slices * n_cond);
+        let mut marg = Vec::with_capacity(slices * n_marg);
+        let mut row_sum = vec![0.0; h];
+        for s in 0..slices {
+            let d = &raw[s * n_data..(s + 1) * n_data];
+            let c0 = cond.len();
+            for y in 0..h {
+                let mut acc = 0.0;
+                for x in 0..w - 1 {
+                    acc += sx * (d[y * w + x] + d[y * w + x + 1]);
+                    cond.push(acc);
+                }
+                row_sum[y] = acc;
+            }
+            let m0 = marg.len();
+            let mut acc = 0.0;
+            for y in 0..h - 1 {
+                acc += sy * (row_sum[y] + row_sum[y + 1]);
+                marg.push(acc);
+            }
+            if !(acc > 0.0 && acc.is_finite()) {
+                return Err(Error::Format {
+                    path: path.to_path_buf(),
+                    reason: format!(
+                        "field \"vndf\": slice {s} integrates to {acc}, not a positive density"
+                    ),
+                });
+            }
+            let norm = 1.0 / acc;
+            cond[c0..].iter_mut().for_each(|v| *v *= norm);
+            marg[m0..].iter_mut().for_each(|v| *v *= norm);
+            data.extend(d.iter().map(|v| v * norm));
+        }
+        Ok(Self {
+            w,
+            h,
+            data,
+            cond,
+            marg,
+        })
+    }
+
+    /// Inverse of the warp (Mitsuba `Marginal2D::invert_continuous`): the unit-square sample
+    /// that the warp maps to `u`.
+    fn invert(&self, u: [f64; 2], c: &Corners) -> [f64; 2] {
+        let (w, h) = (self.w, self.h);
+        let ([px, py], [sx, sy]) = patch(u, w, h);
+        let (n_data, n_cond, n_marg) = (w * h, (w - 1) * h, h - 1);
+        let i = py * w + px;
+        let v00 = c.lookup(&self.data, n_data, i);
+        let v10 = c.lookup(&self.data, n_data, i + 1);
+        let v01 = c.lookup(&self.data, n_data, i + w);
+        let v11 = c.lookup(&self.data, n_data, i + w + 1);
+        let c0 = lerp(v00, v01, sy);
+        let c1 = lerp(v10, v11, sy);
+        let mut x = sx * lerp(c0, c1, 0.5 * sx) / (w - 1) as f64;
+        let row = py * (w - 1);
+        if px > 0 {
+            let a = c.lookup(&self.cond, n_cond, row + px - 1);
+            let b = c.lookup(&self.cond, n_cond, row + px - 1 + (w - 1));
+            x += lerp(a, b, sy);
+        }
+        let r0 = c.lookup(&self.cond, n_cond, row + (w - 1) - 1);
+        let r1 = c.lookup(&self.cond, n_cond, row + 2 * (w - 1) - 1);
+        x /= lerp(r0, r1, sy);
+        let mut y = sy * lerp(r0, r1, 0.5 * sy) / (h - 1) as f64;
+        if py > 0 {
+            y += c.lookup(&self.marg, n_marg, py - 1);
+        }
+        [x, y]
+    }
+}
+
+/// Channel selection: for each output channel, the two stored channels and the weight of the
+/// second (linear interpolation in wavelength; exact channels have weight 0).
+#[derive(Debug, Clone, PartialEq)]
+struct Selection {
+    channels: Channels,
+    taps: Vec<(usize, usize, f64)>,
+}
+
+/// An isotropic RGL `.bsdf` file (spectral `*_spec.bsdf` or RGB `*_rgb.bsdf`), ready to evaluate.
+///
+/// `RglBsdf` is `Sync`: evaluate from many threads at once.
+#[derive(Debug, Clone)]
+pub struct RglBsdf {
+    path: PathBuf,
+    description: String,
+    native: Channels,
+    selection: Selection,
+    jacobian: bool,
+    phi_i: Vec<f64>,
+    theta_i: Vec<f64>,
+    ndf: Table2D,
+    sigma: Table2D,
+    vndf: Warp,
+    /// `spectra`/`rgb` values, `[phi_i][theta_i][channel][h][w]`.
+    spectra: Vec<f32>,
+    /// Stored channels.
+    n_ch: usize,
+    /// Resolution (w, h) of the spectra table.
+    spec_w: usize,
+    spec_h: usize,
+}
+
+fn shape_error(path: &Path, reason: String) -> Error {
+    Error::Format {
+        path: path.to_path_buf(),
+        reason: format!("invalid RGL BSDF structure: {reason}"),
+    }
+}
+
+/// Checks a field's dtype and rank and returns its shape.
+fn expect<'a>(tf: &'a TensorFile, name: &str, dtype: DType, rank: usize) -> Result<&'a [usize]> {
+    let f = tf.field(name)?;
+    if f.dtype() != dtype || f.shape().len() != rank {
+        return Err(shape_error(
+            tf.path(),
+            format!(
+                "field {name:?} is {:?} with shape {:?}, expected {dtype:?} of rank {rank}",
+                f.dtype(),
+                f.shape()
+            ),
+        ));
+    }
+    Ok(f.shape())
+}
+
+fn strictly_increasing(v: &[f64]) -> bool {
+    v.windows(2).all(|w| w[1] > w[0])
+}
+
+impl RglBsdf {
+    /// Reads and validates an RGL `.bsdf` file. Anisotropic files are rejected (not supported
+    /// yet); every structural problem is an error naming the file and the field.
+    pub fn open(path: impl AsRef<Path>) -> Result<Self> {
+        let tf = TensorFile::open(path)?;
+        Self::from_tensor_file(&tf)
+    }
+
+    /// Builds the evaluator from a parsed tensor file.
+    pub fn from_tensor_file(tf: &TensorFile) -> Result<Self> {
+        let path = tf.path();
+        let bad = |reason: String| shape_error(path, reason);
+        expect(tf, "description", DType::U8, 1)?;
+        let n_theta = expect(tf, "theta_i", DType::F32, 1)?[0];
+        let n_phi = expect(tf, "phi_i", DType::F32, 1)?[0];
+        let ndf_s = expect(tf, "ndf", DType::F32, 2)?.to_vec();
+        let sigma_s = expect(tf, "sigma", DType::F32, 2)?.to_vec();
+        let vndf_s = expect(tf, "vndf", DType::F32, 4)?.to_vec();
+        let lum_s = expect(tf, "luminance", DType::F32, 4)?.to_vec();
+        let jac_s = expect(tf, "jacobian", DType::U8, 1)?;
+        if jac_s != [1] {
+            return Err(bad(format!(
+                "field \"jacobian\" has shape {jac_s:?}, expected [1]"
+            )));
+        }
+        let spectral = tf.get("wavelengths").is_some();
+        let (spec_name, wavelengths) = if spectral {
+            expect(tf, "wavelengths", DType::F32, 1)?;
+            ("spectra", Some(tf.field_f64("wavelengths")?))
+        } else {
+            ("rgb", None)
+        };
+        let spec_s = expect(tf, spec_name, DType::F32, 5)?.to_vec();
+        let n_ch = wavelengths.as_ref().map_or(3, Vec::len);
+        if n_phi == 0 || n_theta == 0 {
+            return Err(bad("empty phi_i or theta_i".into()));
+        }
+        if vndf_s[..2] != [n_phi, n_theta]
+            || lum_s[..2] != [n_phi, n_theta]
+            || spec_s[..3] != [n_phi, n_theta, n_ch]
+        {
+            return Err(bad(format!(
+                "vndf {vndf_s:?}, luminance {lum_s:?} and {spec_name} {spec_s:?} do not start \
+                 with (phi_i, theta_i) = ({n_phi}, {n_theta}) (and {n_ch} channels)"
+            )));
+        }
+        if spec_s[3] != spec_s[4] || lum_s[2..] != spec_s[3..] || lum_s[2] != lum_s[3] {
+            return Err(bad(format!(
+                "{spec_name} {spec_s:?} and luminance {lum_s:?} need equal square tables"
+            )));
+        }
+        for (name, s) in [
+            ("ndf", &ndf_s),
+            ("sigma", &sigma_s),
+            ("vndf", &vndf_s[2..].to_vec()),
+        ] {
+            if s[0] < 2 || s[1] < 2 {
+                return Err(bad(format!(
+                    "field {name:?}: table {s:?} is smaller than 2 x 2"
+                )));
+            }
+        }
+        if spec_s[3] < 2 {
+            return Err(bad(format!(
+                "field {spec_name:?}: table {spec_s:?} is smaller than 2 x 2"
+            )));
+        }
+        if n_phi > 2 {
+            return Err(Error::Unsupported {
+                path: path.to_path_buf(),
+                feature: format!(
+                    "anisotropic RGL BSDF ({n_phi} phi_i samples; only isotropic files with at \
+                     most 2 are supported)"
+                ),
+            });
+        }
+        let phi_i = tf.field_f64("phi_i")?;
+        let theta_i = tf.field_f64("theta_i")?;
+        if !strictly_increasing(&phi_i) || !strictly_increasing(&theta_i) {
+            return Err(bad("phi_i and theta_i must be strictly increasing".into()));
+        }
+        let native = match wavelengths {
+            Some(w) => Channels::spectral(w).map_err(|e| {
+                bad(format!(
+                    "field \"wavelengths\" is not a valid channel axis: {e}"
+                ))
+            })?,
+            None => Channels::Rgb,
+        };
+        let jacobian = tf.field("jacobian")?.bytes()[0] != 0;
+        let description = tf.field("description")?.to_text().unwrap_or_default();
+        let ndf = Table2D {
+            w: ndf_s[1],
+            h: ndf_s[0],
+            data: tf.field_f64("ndf")?,
+        };
+        let sigma = Table2D {
+            w: sigma_s[1],
+            h: sigma_s[0],
+            data: tf.field_f64("sigma")?,
+        };
+        let vndf = Warp::new(
+            &tf.field_f64("vndf")?,
+            n_phi * n_theta,
+            vndf_s[3],
+            vndf_s[2],
+            path,
+        )?;
+        let spectra = tf.field_f32(spec_name)?;
+        let selection = Self::select(path, &native, &native)?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            description,
+            native,
+            selection,
+            jacobian,
+            phi_i,
+            theta_i,
+            ndf,
+            sigma,
+            vndf,
+            spectra,
+            n_ch,
+            spec_w: spec_s[4],
+            spec_h: spec_s[3],
+        })
+    }
+
+    fn select(path: &Path, native: &Channels, want: &Channels) -> Result<Selection> {
+        let taps = match (native, want) {
+            (Channels::Rgb, Channels::Rgb) => vec![(0, 0, 0.0), (1, 1, 0.0), (2, 2, 0.0)],
+            (Channels::Spectral(stored), Channels::Spectral(asked)) => {
+                let (lo, hi) = (stored[0], stored[stored.len() - 1]);
+                asked
+                    .iter()
+                    .map(|&l| {
+                        if !(lo..=hi).contains(&l) {
+                            return Err(Error::WavelengthOutOfRange {
+                                path: path.to_path_buf(),
+                                wavelength_nm: l,
+                                min_nm: lo,
+                                max_nm: hi,
+                            });
+                        }
+                        let (i, t) = axis_weight(stored, l);
+                        Ok(if stored.len() == 1 {
+                            (0, 0, 0.0)
+                        } else {
+                            (i, i + 1, t)
+                        })
+                    })
+                    .collect::<Result<_>>()?
+            }
+            (Channels::Rgb, Channels::Spectral(_)) => {
+                return Err(Error::InvalidArgument {
+                    reason: format!(
+                        "{}: an RGB file has no wavelengths; ask for RGB channels",
+                        path.display()
+                    ),
+                });
+            }
+            (Channels::Spectral(_), Channels::Rgb) => {
+                return Err(Error::InvalidArgument {
+                    reason: format!(
+                        "{}: a spectral file has no RGB channels; give wavelengths",
+                        path.display()
+                    ),
+                });
+            }
+        };
+        Ok(Selection {
+            channels: want.clone(),
+            taps,
+        })
+    }
+
+    /// The file this BSDF was read from.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The file's `description` text.
+    pub fn description(&self) -> &str {
+        &self.description
+    }
+
+    /// The channels stored in the file (its wavelengths, or R, G, B).
+    pub fn native_channels(&self) -> &Channels {
+        &self.native
+    }
+
+    /// The channels [`RglBsdf::eval`] writes (the stored ones unless changed with
+    /// [`RglBsdf::with_channels`]).
+    pub fn channels(&self) -> Channels {
+        self.selection.channels.clone()
+    }
+
+    /// The same BSDF evaluated at other channels: wavelengths inside the stored range for a
+    /// spectral file (linear interpolation between stored wavelengths, as Mitsuba), R,G,B for an
+    /// RGB file.
+    pub fn with_channels(mut self, channels: &Channels) -> Result<Self> {
+        self.selection = Self::select(&self.path, &self.native, channels)?;
+        Ok(self)
+    }
+
+    /// f(wi, wo) in 1/sr for every selected channel, written to `out`.
+    pub fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+        self.eval_selection(&self.selection, wi, wo, out)
+    }
+
+    fn eval_selection(&self, sel: &Selection, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+        if out.len() != sel.taps.len() {
+            return Err(Error::InvalidArgument {
+                reason: format!(
+                    "output buffer has {} slots for {} channels",
+                    out.len(),
+                    sel.taps.len()
+                ),
+            });
+        }
+        let (Some(wi), Some(wo)) = (unit(wi), unit(wo)) else {
+            return Err(Error::InvalidArgument {
+                reason: format!("directions must be finite and non-zero, got {wi:?}, {wo:?}"),
+            });
+        };
+        out.iter_mut().for_each(|v| *v = 0.0);
+        if !(wi[2] > 0.0 && wo[2] > 0.0) {
+            return Ok(());
+        }
+        let Some(m) = unit([wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]]) else {
+            return Ok(());
+        };
+        let theta_i = elevation(wi);
+        let phi_i = wi[1].atan2(wi[0]);
+        let theta_m = elevation(m);
+        let phi_m = m[1].atan2(m[0]);
+        let u_wi = [theta2u(theta_i), phi2u(phi_i)];
+        let mut u_m = [theta2u(theta_m), phi2u(phi_m - phi_i)];
+        u_m[1] -= u_m[1].floor();
+
+        let wp = axis_weight(&self.phi_i, phi_i);
+        let wt = axis_weight(&self.theta_i, theta_i);
+        let (n_phi, n_theta) = (self.phi_i.len(), self.theta_i.len());
+        let vndf_corners = Corners::new(
+            wp,
+            wt,
+            if n_phi > 1 { n_theta } else { 0 },
+            if n_theta > 1 { 1 } else { 0 },
+        );
+        let sample = self.vndf.invert(u_m, &vndf_corners);
+
+        let scale = if self.jacobian {
+            self.ndf.eval(u_m) / (4.0 * self.sigma.eval(u_wi))
+        } else {
+            1.0
+        };
+        // The spectra table: slices [phi][theta][channel], each spec_h x spec_w.
+        let (w, h) = (self.spec_w, self.spec_h);
+        let ([ix, iy], [fx, fy]) = patch(sample, w, h);
+        let n_slice = w * h;
+        let i0 = iy * w + ix;
+        let spec_corners = Corners::new(
+            wp,
+            wt,
+            if n_phi > 1 { n_theta * self.n_ch } else { 0 },
+            if n_theta > 1 { self.n_ch } else { 0 },
+        );
+        let bilerp = |slice: usize| -> f64 {
+            let d = &self.spectra[slice * n_slice..(slice + 1) * n_slice];
+            let v = |k: usize| f64::from(d[k]);
+            lerp(
+                lerp(v(i0), v(i0 + 1), fx),
+                lerp(v(i0 + w), v(i0 + w + 1), fx),
+                fy,
+            )
+        };
+        let inv_cos_o = 1.0 / wo[2];
+        for (o, &(k0, k1, t)) in out.iter_mut().zip(&sel.taps) {
+            let mut acc = 0.0;
+            for c in 0..4 {
+                let wgt = spec_corners.weight[c];
+                if wgt == 0.0 {
+                    continue;
+                }
+                let base = spec_corners.slice[c];
+                let mut v = bilerp(base + k0);
+                if t != 0.0 {
+                    v = lerp(v, bilerp(base + k1), t);
+                }
+                acc += wgt * v;
+            }
+            *o = acc * scale * inv_cos_o;
+        }
+        Ok(())
+    }
+
+    /// Evaluates the file at every bin centre of `grid` (directions from
+    /// [`crate::HalfDiff::to_dirs`]) for `channels`, in parallel. Values are in dataset order
+    /// (`angular_index * n_channels + channel`, MERL's angular order); cells below the horizon
+    /// are 0.0; negative values (Mitsuba's RGB tables dip slightly below zero) are clamped to 0
+    /// and counted in the report.
+    pub fn resample(
+        &self,
+        grid: &AngularGrid,
+        channels: &Channels,
+    ) -> Result<(Vec<f32>, ImportReport)> {
+        let sel = Self::select(&self.path, &self.native, channels)?;
+        let n = sel.taps.len();
+        let (values, report) = resample_cells(grid, n, None, false, |wi, wo, out| {
+            self.eval_selection(&sel, wi, wo, out)
+        })?;
+        tracing::info!(file = %self.path.display(), %grid, "resampled RGL BSDF: {report}");
+        Ok((values, report))
+    }
+}
+
+impl BrdfSource for RglBsdf {
+    fn channels(&self) -> Channels {
+        RglBsdf::channels(self)
+    }
+
+    fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+        RglBsdf::eval(self, wi, wo, out)
+    }
+}
+
+fn unit(v: Vec3) -> Option<Vec3> {
+    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    (n > 0.0 && n.is_finite()).then(|| [v[0] / n, v[1] / n, v[2] / n])
+}
+
+/// Elevation of a unit vector, stable near the pole: `2 asin(|d - (0,0,1)| / 2)`.
+fn elevation(d: Vec3) -> f64 {
+    let dist = (d[0] * d[0] + d[1] * d[1] + (d[2] - 1.0) * (d[2] - 1.0)).sqrt();
+    2.0 * (0.5 * dist).clamp(-1.0, 1.0).asin()
+}
+
+fn theta2u(theta: f64) -> f64 {
+    (theta * (2.0 / PI)).max(0.0).sqrt()
+}
+
+fn phi2u(phi: f64) -> f64 {
+    (phi + PI) / (2.0 * PI)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn axis_weight_matches_mitsuba_find_interval() {
+        let v = [0.0, 1.0, 2.0, 4.0];
+        assert_eq!(axis_weight(&v, -1.0), (0, 0.0));
+        assert_eq!(axis_weight(&v, 0.5), (0, 0.5));
+        assert_eq!(axis_weight(&v, 1.0), (0, 1.0));
+        assert_eq!(axis_weight(&v, 3.0), (2, 0.5));
+        assert_eq!(axis_weight(&v, 9.0), (2, 1.0));
+        assert_eq!(axis_weight(&[3.0], 9.0), (0, 0.0));
+    }
+
+    #[test]
+    fn warp_inverse_of_uniform_density_is_identity() {
+        // A constant density warps nothing: invert(u) = u.
+        let raw = vec![1.0; 5 * 4];
+        let warp = Warp::new(&raw, 1, 5, 4, Path::new("t")).unwrap();
+        let c = Corners::new((0, 0.0), (0, 0.0), 0, 0);
+        for u in [[0.1, 0.2], [0.5, 0.5], [0.99, 0.01], [1.0, 1.0], [0.0, 0.0]] {
+            let s = warp.invert(u, &c);
+            assert!(
+                (s[0] - u[0]).abs() < 1e-12 && (s[1] - u[1]).abs() < 1e-12,
+                "{s:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn warp_inverse_is_the_cdf_of_a_linear_density() {
+        // Density 1 + x along x (2 columns): CDF (x + x^2/2) / 1.5.
+        let raw = vec![1.0, 2.0, 1.0, 2.0];
+        let warp = Warp::new(&raw, 1, 2, 2, Path::new("t")).unwrap();
+        let c = Corners::new((0, 0.0), (0, 0.0), 0, 0);
+        for x in [0.0, 0.25, 0.5, 0.9] {
+            let s = warp.invert([x, 0.3], &c);
+            let cdf = (x + x * x / 2.0) / 1.5;
+            assert!(
+                (s[0] - cdf).abs() < 1e-12 && (s[1] - 0.3).abs() < 1e-12,
+                "{s:?}"
+            );
+        }
+    }
+}

@@ -1,0 +1,179 @@
+//! What every BRDF source offers (`specgp sample`, `render`): its channels and f(wi, wo), and the
+//! import report that resampling returns.
+
+use crate::error::Result;
+use crate::grid::{Channels, Vec3};
+
+/// A BRDF that can be evaluated at arbitrary direction pairs.
+///
+/// Directions are in the local frame (z = surface normal) and need not be normalised. Values are
+/// the BRDF f in 1/sr (no cosine factor); a pair with either direction at or below the horizon
+/// gives 0 in every channel. Implementations are `Sync`, so callers may evaluate in parallel.
+pub trait BrdfSource: Sync {
+    /// The channel axis of [`BrdfSource::eval`]'s output.
+    fn channels(&self) -> Channels;
+
+    /// Writes f(wi, wo) for every channel into `out` (length [`Channels::len`]).
+    fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()>;
+}
+
+/// What happened to the values while a source was resampled onto a grid.
+///
+/// Counts are over stored values (cells x channels) of cells above the horizon; cells below the
+/// horizon are written as 0.0 and counted only in `below_horizon_cells`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+pub struct ImportReport {
+    /// Values computed (cells above the horizon x channels).
+    pub values: usize,
+    /// Angular cells below the horizon (written as 0.0, not evaluated).
+    pub below_horizon_cells: usize,
+    /// Negative values clamped to 0 (Mitsuba's RGB interpolation and MERL's invalid markers).
+    pub negatives_clamped: usize,
+    /// NaN or infinite values, replaced by 0.
+    pub non_finite: usize,
+    /// Values above the source's outlier threshold (see the source's documentation).
+    pub outliers: usize,
+    /// Outlier values clamped to the threshold (0 unless clamping was asked for).
+    pub outliers_clamped: usize,
+    /// Smallest stored value (after clamping), `+inf` when nothing was stored.
+    pub min: f64,
+    /// Largest stored value (after clamping), `-inf` when nothing was stored.
+    pub max: f64,
+}
+
+impl ImportReport {
+    /// An empty report (min = +inf, max = -inf).
+    pub fn new() -> Self {
+        Self {
+            min: f64::INFINITY,
+            max: f64::NEG_INFINITY,
+            ..Self::default()
+        }
+    }
+
+    /// Records one evaluated value and returns the value to store: NaN/inf -> 0, negative -> 0,
+    /// above `outlier` -> counted, and clamped to `outlier` when `clamp_outliers` is set.
+    pub fn record(&mut self, v: f64, outlier: Option<f64>, clamp_outliers: bool) -> f64 {
+        self.values += 1;
+        let mut v = v;
+        if !v.is_finite() {
+            self.non_finite += 1;
+            v = 0.0;
+        } else if v < 0.0 {
+            self.negatives_clamped += 1;
+            v = 0.0;
+        }
+        if let Some(t) = outlier
+            && v > t
+        {
+            self.outliers += 1;
+            if clamp_outliers {
+                self.outliers_clamped += 1;
+                v = t;
+            }
+        }
+        self.min = self.min.min(v);
+        self.max = self.max.max(v);
+        v
+    }
+
+    /// Combines two reports (of disjoint parts of the same import).
+    pub fn merge(mut self, other: &Self) -> Self {
+        self.values += other.values;
+        self.below_horizon_cells += other.below_horizon_cells;
+        self.negatives_clamped += other.negatives_clamped;
+        self.non_finite += other.non_finite;
+        self.outliers += other.outliers;
+        self.outliers_clamped += other.outliers_clamped;
+        self.min = self.min.min(other.min);
+        self.max = self.max.max(other.max);
+        self
+    }
+}
+
+impl std::fmt::Display for ImportReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} values (min {:.4e}, max {:.4e}), {} below-horizon cells, {} negatives clamped, \
+             {} non-finite, {} outliers ({} clamped)",
+            self.values,
+            self.min,
+            self.max,
+            self.below_horizon_cells,
+            self.negatives_clamped,
+            self.non_finite,
+            self.outliers,
+            self.outliers_clamped
+        )
+    }
+}
+
+/// Resamples `eval` over every bin centre of `grid` in dataset order
+/// (`angular_index * n_channels + channel`), in parallel; cells whose bin-centre directions are
+/// not both above the horizon are 0.0. `eval(wi, wo, out)` fills one cell's channels.
+pub(crate) fn resample_cells<F>(
+    grid: &crate::grid::AngularGrid,
+    n_channels: usize,
+    outlier: Option<f64>,
+    clamp_outliers: bool,
+    eval: F,
+) -> Result<(Vec<f32>, ImportReport)>
+where
+    F: Fn(Vec3, Vec3, &mut [f64]) -> Result<()> + Sync,
+{
+    use rayon::prelude::*;
+    let mut out = vec![0f32; grid.len() * n_channels];
+    // Chunks of whole theta_h rows keep the per-task overhead small.
+    let cells_per_chunk = (grid.n_theta_d * grid.n_phi_d).max(1);
+    let report = out
+        .par_chunks_mut(cells_per_chunk * n_channels)
+        .enumerate()
+        .map(|(chunk, values)| -> Result<ImportReport> {
+            let mut report = ImportReport::new();
+            let mut buf = vec![0f64; n_channels];
+            for (k, cell) in values.chunks_mut(n_channels).enumerate() {
+                let flat = chunk * cells_per_chunk + k;
+                let (wi, wo) = grid.bin_centre_flat(flat).to_dirs();
+                if !(wi[2] > 0.0 && wo[2] > 0.0) {
+                    report.below_horizon_cells += 1;
+                    continue;
+                }
+                eval(wi, wo, &mut buf)?;
+                for (o, &v) in cell.iter_mut().zip(&buf) {
+                    *o = report.record(v, outlier, clamp_outliers) as f32;
+                }
+            }
+            Ok(report)
+        })
+        .try_reduce(ImportReport::new, |a, b| Ok(a.merge(&b)))?;
+    Ok((out, report))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn record_clamps_and_counts() {
+        let mut r = ImportReport::new();
+        assert_eq!(r.record(-0.5, None, false), 0.0);
+        assert_eq!(r.record(f64::NAN, None, false), 0.0);
+        assert_eq!(r.record(7.0, Some(5.0), false), 7.0);
+        assert_eq!(r.record(9.0, Some(5.0), true), 5.0);
+        assert_eq!(r.record(2.0, Some(5.0), true), 2.0);
+        assert_eq!(
+            (
+                r.values,
+                r.negatives_clamped,
+                r.non_finite,
+                r.outliers,
+                r.outliers_clamped
+            ),
+            (5, 1, 1, 2, 1)
+        );
+        assert_eq!((r.min, r.max), (0.0, 7.0));
+        let m = r.merge(&ImportReport::new());
+        assert_eq!(m, r);
+    }
+}
