@@ -23,6 +23,74 @@ pub enum Error {
         /// What is wrong with it.
         reason: String,
     },
+    /// A file that is not a dataset store (wrong magic bytes).
+    #[error("{path}: not a specgp dataset store (.sbrdf): {reason}")]
+    NotAStore {
+        /// The file concerned.
+        path: PathBuf,
+        /// What was found instead.
+        reason: String,
+    },
+    /// A dataset store written by a format version this build cannot read.
+    #[error(
+        "{path}: unsupported .sbrdf format version {found} (this build reads version {supported})"
+    )]
+    StoreVersion {
+        /// The file concerned.
+        path: PathBuf,
+        /// Version found in the file.
+        found: u32,
+        /// Version this build reads.
+        supported: u32,
+    },
+    /// A truncated or corrupt dataset store (header, offset table or chunk).
+    #[error("{path}: corrupt dataset store: {reason}")]
+    StoreCorrupt {
+        /// The file concerned.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The payload checksum of a dataset store does not match its header.
+    #[error("{path}: checksum mismatch: header says {expected}, payload hashes to {actual}")]
+    StoreChecksum {
+        /// The file concerned.
+        path: PathBuf,
+        /// Checksum recorded in the header.
+        expected: String,
+        /// Checksum of the payload as read.
+        actual: String,
+    },
+    /// A NaN or infinite value handed to the store writer.
+    #[error("{path}: material {material:?} has a non-finite value {value} at index {index}")]
+    NonFiniteValue {
+        /// The store being written.
+        path: PathBuf,
+        /// Name of the material.
+        material: String,
+        /// Flat dimension index (angular_index * n_channels + channel).
+        index: usize,
+        /// The offending value.
+        value: f32,
+    },
+    /// A store writer or reader used inconsistently (wrong lengths, ranges, order, names).
+    #[error("{path}: {reason}")]
+    StoreUsage {
+        /// The store concerned.
+        path: PathBuf,
+        /// What is inconsistent.
+        reason: String,
+    },
+    /// A material name that the dataset store does not hold.
+    #[error("{path}: no material named {name:?} (the store holds: {available})")]
+    UnknownMaterial {
+        /// The store concerned.
+        path: PathBuf,
+        /// The name asked for.
+        name: String,
+        /// The names it holds, comma-separated.
+        available: String,
+    },
     /// A BRDF file (tensor file, MERL, npy, names list, CSV) whose content breaks its format.
     #[error("{path}: {reason}")]
     Format {

@@ -2,13 +2,16 @@
 //!
 //! - [`grid`]: the Rusinkiewicz angular grid with MERL's index mapping, the channel axis and the
 //!   conversions between (theta_h, theta_d, phi_d) and (wi, wo).
+//! - [`store`]: the chunked dataset store (`.sbrdf`): streaming writer, memory-mapped reader.
 
 pub mod error;
 pub mod grid;
 pub mod rgl;
 pub mod source;
+pub mod store;
 pub mod tensor;
 
 pub use error::{Error, Result};
 pub use grid::{AngularGrid, Channels, HalfDiff, Vec3};
 pub use source::{BrdfSource, ImportReport};
+pub use store::{Store, StoreInfo, StoreOptions, StoreWriter};

@@ -6,6 +6,8 @@
 use brdf_io::{AngularGrid, Channels};
 use clap::{Parser, Subcommand};
 
+mod cmd_data;
+
 /// Learn a navigable, predictive space of real-world materials from measured spectral BRDFs.
 #[derive(Debug, Parser)]
 #[command(name = "specgp", version, about, long_about = None)]
@@ -22,6 +24,12 @@ struct Cli {
 enum Command {
     /// Describe a grid: angular cells, cells above the horizon, values per material (D) and bytes.
     Grid(GridArgs),
+    /// Import measured BRDF files into a dataset store (`.sbrdf`).
+    Import(cmd_data::ImportArgs),
+    /// Describe a dataset store: materials, grid, channels, D, bytes, layout, checksum.
+    Info(cmd_data::InfoArgs),
+    /// Export materials of a dataset store as an N x D `.npy` matrix (streamed).
+    Export(cmd_data::ExportArgs),
 }
 
 /// Arguments of `specgp grid`.
@@ -73,6 +81,9 @@ fn init_tracing(verbosity: u8) {
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Grid(args) => grid_command(&args),
+        Command::Import(args) => cmd_data::import(&args),
+        Command::Info(args) => cmd_data::info(&args),
+        Command::Export(args) => cmd_data::export(&args),
     }
 }
 

@@ -1,0 +1,345 @@
+//! The dataset store (`.sbrdf`): N materials x D values on one grid, laid out for the two hot
+//! paths of specgp.
+//!
+//! # Dimension order
+//! A material row has `D = grid.len() * channels.len()` values; flat index
+//! `d = angular_index * n_channels + channel` (channel fastest), with the angular index of
+//! [`AngularGrid::index`] (MERL order, phi_d fastest). Cells whose bin centre lies below the
+//! horizon ([`AngularGrid::validity_mask`]) are part of D but hold 0 (the writer zeroes them and
+//! counts non-zero inputs it dropped); they never enter the statistics.
+//!
+//! # Layout (version 1)
+//! The D indices are cut into chunks of `chunk_len` consecutive indices; a chunk is stored
+//! **index-major**: for each d of the chunk, the N material values are contiguous. So
+//! - a lookup of all N materials at one index d ([`Store::values_at`], lazy prediction) is one
+//!   contiguous read of N values (uncompressed) or one slice of a cached decompressed chunk;
+//! - a streaming Gram pass reads the chunks in file order, each an `N x chunk_len` column-major
+//!   block ([`Store::for_each_chunk`], [`Store::par_fold_chunks`], [`Store::gram`]).
+//!
+//! File: a 64-byte prefix (magic `\x89SBRDF\n\x1a`, version u32, reserved u32, payload offset,
+//! payload length, table offset, header offset, header length, xxh3-64 of the prefix and header,
+//! all little-endian), the chunks from offset 4096 (f32 or f16, little-endian, optionally one
+//! zstd frame per chunk), an offset table of `n_chunks + 1` u64 (chunk starts relative to the
+//! payload), and the JSON [`StoreHeader`] (grid, channels, names, sources, layout, statistics and
+//! the xxh3-64 checksum of chunks + table).
+
+mod reader;
+mod sample;
+mod writer;
+
+pub use reader::{OpenOptions, ReadMode, Store};
+pub use sample::{StoreMaterial, parse_store_spec};
+pub use writer::{MaterialWriter, StoreWriter};
+
+use serde::{Deserialize, Serialize};
+
+use crate::grid::{AngularGrid, Channels};
+
+/// Magic bytes at the start of every `.sbrdf` file.
+pub const MAGIC: [u8; 8] = *b"\x89SBRDF\n\x1a";
+/// The format version this build writes and reads.
+pub const FORMAT_VERSION: u32 = 1;
+/// Byte length of the fixed prefix.
+pub(crate) const PREFIX_LEN: usize = 64;
+/// Offset of the first chunk (page-aligned so memory-mapped f32 values are aligned).
+pub(crate) const PAYLOAD_OFFSET: u64 = 4096;
+/// The dimension order, spelled out in every header.
+pub const DIMENSION_ORDER: &str = "d = angular_index * n_channels + channel (channel fastest); \
+angular_index = (i_theta_h * n_theta_d + i_theta_d) * n_phi_d + i_phi_d (MERL order, phi_d fastest)";
+/// The validity convention, spelled out in every header.
+pub const VALIDITY: &str = "cells whose bin centre has wi or wo below the horizon \
+(AngularGrid::validity_mask) hold 0 and are excluded from statistics";
+
+/// Storage type of the values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(try_from = "String", into = "String")]
+pub enum Dtype {
+    /// IEEE 754 single precision (bit-exact round trip).
+    F32,
+    /// IEEE 754 half precision via the `half` crate (relative error <= 2^-11 in the normal range).
+    F16,
+}
+
+impl Dtype {
+    /// Bytes per stored value.
+    pub fn size(self) -> usize {
+        match self {
+            Self::F32 => 4,
+            Self::F16 => 2,
+        }
+    }
+
+    /// The name used in headers and on the command line (`f32`, `f16`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::F32 => "f32",
+            Self::F16 => "f16",
+        }
+    }
+}
+
+impl TryFrom<String> for Dtype {
+    type Error = String;
+    fn try_from(s: String) -> Result<Self, String> {
+        match s.as_str() {
+            "f32" => Ok(Self::F32),
+            "f16" => Ok(Self::F16),
+            _ => Err(format!("unsupported dtype {s:?} (supported: f32, f16)")),
+        }
+    }
+}
+
+impl From<Dtype> for String {
+    fn from(d: Dtype) -> String {
+        d.name().to_owned()
+    }
+}
+
+impl std::str::FromStr for Dtype {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::try_from(s.to_owned())
+    }
+}
+
+/// Compression of the chunks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase")]
+pub enum Compression {
+    /// Raw little-endian values.
+    None,
+    /// One zstd frame per chunk at this level (1..=22; 3 is zstd's default).
+    Zstd {
+        /// zstd compression level.
+        level: i32,
+    },
+}
+
+/// Options of [`StoreWriter`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct StoreOptions {
+    /// Indices per chunk; `None` picks about 1 MiB (uncompressed) or 256 KiB (zstd) per chunk.
+    pub chunk_len: Option<usize>,
+    /// Storage type of the values.
+    pub dtype: Dtype,
+    /// Chunk compression.
+    pub compression: Compression,
+    /// Memory the material-mode transpose may use, in bytes (default 256 MiB).
+    pub memory_budget: usize,
+}
+
+impl Default for StoreOptions {
+    fn default() -> Self {
+        Self {
+            chunk_len: None,
+            dtype: Dtype::F32,
+            compression: Compression::None,
+            memory_budget: 256 << 20,
+        }
+    }
+}
+
+impl StoreOptions {
+    /// The chunk length used for `n` materials.
+    pub fn effective_chunk_len(&self, n_materials: usize, d: usize) -> usize {
+        let len = self.chunk_len.unwrap_or_else(|| {
+            let target = match self.compression {
+                Compression::None => 1 << 20,
+                Compression::Zstd { .. } => 256 << 10,
+            };
+            (target / (n_materials.max(1) * self.dtype.size())).max(1)
+        });
+        len.clamp(1, d.max(1))
+    }
+}
+
+/// What a store is sampled on: the grid and the channel axis.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StoreInfo {
+    /// Angular grid.
+    pub grid: AngularGrid,
+    /// Channel axis.
+    pub channels: Channels,
+}
+
+impl StoreInfo {
+    /// Values per material, `grid.len() * channels.len()`.
+    pub fn d(&self) -> usize {
+        self.grid.len() * self.channels.len()
+    }
+}
+
+/// Statistics of stored values over the valid (above-horizon) cells.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ValueStats {
+    /// Number of valid values.
+    pub count: u64,
+    /// Smallest valid value (0 when `count` is 0).
+    pub min: f64,
+    /// Largest valid value (0 when `count` is 0).
+    pub max: f64,
+    /// Mean of the valid values.
+    pub mean: f64,
+    /// Sum of squares of all stored values (the diagonal of the uncentred Gram matrix).
+    pub sum_sq: f64,
+    /// Number of negative valid values.
+    pub negatives: u64,
+    /// Number of non-zero below-horizon inputs the writer replaced by 0.
+    pub zeroed_below_horizon: u64,
+}
+
+impl Default for ValueStats {
+    fn default() -> Self {
+        Self {
+            count: 0,
+            min: f64::INFINITY,
+            max: f64::NEG_INFINITY,
+            mean: 0.0,
+            sum_sq: 0.0,
+            negatives: 0,
+            zeroed_below_horizon: 0,
+        }
+    }
+}
+
+impl ValueStats {
+    /// Merges another set of statistics into this one.
+    pub fn merge(&mut self, o: &ValueStats) {
+        let total = self.count + o.count;
+        if total > 0 {
+            self.mean = (self.mean * self.count as f64 + o.mean * o.count as f64) / total as f64;
+        }
+        self.count = total;
+        self.min = self.min.min(o.min);
+        self.max = self.max.max(o.max);
+        self.sum_sq += o.sum_sq;
+        self.negatives += o.negatives;
+        self.zeroed_below_horizon += o.zeroed_below_horizon;
+    }
+
+    pub(crate) fn finalize(mut self) -> Self {
+        if self.count == 0 {
+            self.min = 0.0;
+            self.max = 0.0;
+        }
+        self
+    }
+}
+
+/// One material of a store.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MaterialEntry {
+    /// Unique name.
+    pub name: String,
+    /// Where it came from (file path, generator and seed, ...).
+    pub source: String,
+    /// Statistics of its values.
+    pub stats: ValueStats,
+}
+
+/// Chunk layout of the payload.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Layout {
+    /// Always `chunked-index-major`.
+    pub order: String,
+    /// Consecutive d indices per chunk (the last chunk may be shorter).
+    pub chunk_len: usize,
+    /// Number of chunks, `ceil(D / chunk_len)`.
+    pub n_chunks: usize,
+    /// Storage type.
+    pub dtype: Dtype,
+    /// Chunk compression.
+    pub compression: Compression,
+}
+
+/// Payload checksum.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Checksum {
+    /// Always `xxh3-64`, over the chunk bytes and the offset table as stored.
+    pub algorithm: String,
+    /// The hash as 16 hex digits.
+    pub value: String,
+}
+
+/// The JSON header of a store.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StoreHeader {
+    /// Always `specgp-sbrdf`.
+    pub format: String,
+    /// Format version ([`FORMAT_VERSION`]).
+    pub version: u32,
+    /// Angular grid.
+    pub grid: AngularGrid,
+    /// Channel axis.
+    pub channels: Channels,
+    /// Values per material.
+    pub d: usize,
+    /// The dimension order ([`DIMENSION_ORDER`]).
+    pub dimension_order: String,
+    /// The validity convention ([`VALIDITY`]).
+    pub validity: String,
+    /// The materials, in row order.
+    pub materials: Vec<MaterialEntry>,
+    /// Chunk layout.
+    pub layout: Layout,
+    /// Statistics over all materials.
+    pub stats: ValueStats,
+    /// Payload checksum.
+    pub checksum: Checksum,
+    /// Payload bytes (chunks + offset table).
+    pub payload_bytes: u64,
+    /// Writer that produced the file.
+    pub created_by: String,
+}
+
+impl StoreHeader {
+    /// Number of materials.
+    pub fn n_materials(&self) -> usize {
+        self.materials.len()
+    }
+
+    /// The d range of chunk `c`.
+    pub fn chunk_range(&self, c: usize) -> std::ops::Range<usize> {
+        let start = c * self.layout.chunk_len;
+        start..(start + self.layout.chunk_len).min(self.d)
+    }
+}
+
+/// Bytes of chunk index-major f32 values encoded as `dtype`.
+pub(crate) fn encode_values(values: &[f32], dtype: Dtype, out: &mut Vec<u8>) {
+    out.clear();
+    match dtype {
+        Dtype::F32 => {
+            out.reserve(values.len() * 4);
+            for v in values {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        Dtype::F16 => {
+            out.reserve(values.len() * 2);
+            for v in values {
+                out.extend_from_slice(&half::f16::from_f32(*v).to_le_bytes());
+            }
+        }
+    }
+}
+
+/// Decodes little-endian `dtype` bytes into f32 values (`out.len()` values).
+pub(crate) fn decode_values(bytes: &[u8], dtype: Dtype, out: &mut [f32]) {
+    match dtype {
+        Dtype::F32 => {
+            for (o, b) in out.iter_mut().zip(bytes.chunks_exact(4)) {
+                *o = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+            }
+        }
+        Dtype::F16 => {
+            for (o, b) in out.iter_mut().zip(bytes.chunks_exact(2)) {
+                *o = half::f16::from_le_bytes([b[0], b[1]]).to_f32();
+            }
+        }
+    }
+}
+
+pub(crate) fn hex64(h: u64) -> String {
+    format!("{h:016x}")
+}

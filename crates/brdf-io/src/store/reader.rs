@@ -1,0 +1,667 @@
+//! Reading `.sbrdf` stores: memory-mapped (default) or with positioned reads.
+
+use std::borrow::Cow;
+use std::fs::File;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, OnceLock};
+
+use rayon::prelude::*;
+use xxhash_rust::xxh3::Xxh3;
+
+use super::writer::read_exact_at;
+use super::{
+    Compression, Dtype, FORMAT_VERSION, MAGIC, PAYLOAD_OFFSET, PREFIX_LEN, StoreHeader,
+    decode_values, hex64,
+};
+use crate::error::{Error, Result};
+use crate::grid::{AngularGrid, Channels};
+
+/// How a [`Store`] reads its file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ReadMode {
+    /// Memory-map the file (default): zero-copy chunks and lookups from the page cache.
+    #[default]
+    Mmap,
+    /// Positioned reads (`pread`) into buffers: for file systems where mapping is unwise
+    /// (network mounts, files that other processes may truncate).
+    Buffered,
+}
+
+/// Options of [`Store::open_with`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct OpenOptions {
+    /// Memory map or positioned reads.
+    pub mode: ReadMode,
+    /// Decompressed chunks kept for [`Store::values_at`] on zstd stores (default 64).
+    pub cache_chunks: usize,
+}
+
+impl Default for OpenOptions {
+    fn default() -> Self {
+        Self {
+            mode: ReadMode::Mmap,
+            cache_chunks: 64,
+        }
+    }
+}
+
+enum Backing {
+    Mmap(memmap2::Mmap),
+    File(File),
+}
+
+const CACHE_SHARDS: usize = 16;
+
+/// (chunk index, last-use stamp, decoded values).
+type CacheEntry = (usize, u64, Arc<Vec<f32>>);
+
+struct ChunkCache {
+    shards: Vec<Mutex<Vec<CacheEntry>>>,
+    per_shard: usize,
+    clock: AtomicU64,
+}
+
+/// An open dataset store. `Send + Sync`: share one `Store` (or `Arc<Store>`) between threads.
+pub struct Store {
+    path: PathBuf,
+    header: StoreHeader,
+    backing: Backing,
+    /// Chunk start offsets relative to the payload, `n_chunks + 1` entries.
+    offsets: Vec<u64>,
+    table_offset: u64,
+    file_len: u64,
+    cache: ChunkCache,
+    mask: OnceLock<Vec<bool>>,
+}
+
+fn corrupt(path: &Path, reason: impl Into<String>) -> Error {
+    Error::StoreCorrupt {
+        path: path.to_owned(),
+        reason: reason.into(),
+    }
+}
+
+impl Store {
+    /// Opens a store with the default options (memory-mapped).
+    pub fn open(path: impl AsRef<Path>) -> Result<Self> {
+        Self::open_with(path, OpenOptions::default())
+    }
+
+    /// Opens a store: reads and checks the prefix, header and offset table (not the payload
+    /// checksum; see [`Store::verify_checksum`]).
+    pub fn open_with(path: impl AsRef<Path>, options: OpenOptions) -> Result<Self> {
+        let path = path.as_ref().to_owned();
+        let file = File::open(&path).map_err(|e| Error::io(&path, e))?;
+        let file_len = file.metadata().map_err(|e| Error::io(&path, e))?.len();
+        let mut prefix = [0u8; PREFIX_LEN];
+        let have = (file_len as usize).min(PREFIX_LEN);
+        read_exact_at(&file, &mut prefix[..have], 0).map_err(|e| Error::io(&path, e))?;
+        if have < MAGIC.len() || prefix[..8] != MAGIC {
+            return Err(Error::NotAStore {
+                path,
+                reason: format!(
+                    "file starts with {:02x?}, expected {:02x?}",
+                    &prefix[..have.min(8)],
+                    MAGIC
+                ),
+            });
+        }
+        if have < PREFIX_LEN {
+            return Err(corrupt(
+                &path,
+                format!("truncated: {file_len} bytes, shorter than the {PREFIX_LEN}-byte prefix"),
+            ));
+        }
+        let u64_at = |i: usize| u64::from_le_bytes(prefix[i..i + 8].try_into().unwrap());
+        let version = u32::from_le_bytes(prefix[8..12].try_into().unwrap());
+        if version != FORMAT_VERSION {
+            return Err(Error::StoreVersion {
+                path,
+                found: version,
+                supported: FORMAT_VERSION,
+            });
+        }
+        let (payload_offset, payload_len, table_offset, header_offset, header_len) =
+            (u64_at(16), u64_at(24), u64_at(32), u64_at(40), u64_at(48));
+        let expected_len = header_offset.checked_add(header_len);
+        if expected_len != Some(file_len) {
+            return Err(corrupt(
+                &path,
+                format!(
+                    "truncated or extended: {file_len} bytes, the prefix says {}",
+                    expected_len.map_or("an overflowing length".into(), |l| l.to_string())
+                ),
+            ));
+        }
+        if payload_offset != PAYLOAD_OFFSET
+            || table_offset < payload_offset
+            || payload_offset.checked_add(payload_len) != Some(header_offset)
+            || table_offset > header_offset
+            || header_len > 64 << 20
+        {
+            return Err(corrupt(&path, "inconsistent offsets in the prefix"));
+        }
+        let mut json = vec![0u8; header_len as usize];
+        read_exact_at(&file, &mut json, header_offset).map_err(|e| Error::io(&path, e))?;
+        let mut h = Xxh3::new();
+        h.update(&prefix[..56]);
+        h.update(&json);
+        if h.digest() != u64_at(56) {
+            return Err(corrupt(
+                &path,
+                "prefix/header hash mismatch (header damaged)",
+            ));
+        }
+        let header: StoreHeader =
+            serde_json::from_slice(&json).map_err(|e| corrupt(&path, format!("header: {e}")))?;
+        validate_header(&header, &path)?;
+        let n_chunks = header.layout.n_chunks;
+        let table_len = (n_chunks as u64 + 1) * 8;
+        if table_offset + table_len != header_offset {
+            return Err(corrupt(
+                &path,
+                "offset table size does not match the chunk count",
+            ));
+        }
+        let mut table = vec![0u8; table_len as usize];
+        read_exact_at(&file, &mut table, table_offset).map_err(|e| Error::io(&path, e))?;
+        let offsets: Vec<u64> = table
+            .chunks_exact(8)
+            .map(|b| u64::from_le_bytes(b.try_into().unwrap()))
+            .collect();
+        let n = header.n_materials();
+        let size = header.layout.dtype.size() as u64;
+        let monotone = offsets.windows(2).all(|w| w[0] <= w[1]);
+        if offsets[0] != 0 || !monotone || offsets[n_chunks] != table_offset - payload_offset {
+            return Err(corrupt(
+                &path,
+                "offset table is not a partition of the payload",
+            ));
+        }
+        if header.layout.compression == Compression::None {
+            for c in 0..n_chunks {
+                let want = header.chunk_range(c).len() as u64 * n as u64 * size;
+                if offsets[c + 1] - offsets[c] != want {
+                    return Err(corrupt(&path, format!("chunk {c} has the wrong size")));
+                }
+            }
+        }
+        let backing = match options.mode {
+            ReadMode::Buffered => Backing::File(file),
+            ReadMode::Mmap => {
+                // SAFETY: memmap2 requires that the mapped file is not modified or truncated
+                // while the map lives. Contract of `Store` (documented on `ReadMode::Mmap`,
+                // `Store::open`): `.sbrdf` files are written once into a temporary file and
+                // renamed into place, never modified in place by specgp; a user who truncates
+                // or rewrites a mapped file from another process breaks the contract, and the
+                // process may then read changed values or receive SIGBUS on access to pages
+                // past the new end of file. Use `ReadMode::Buffered` where that can happen.
+                let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| Error::io(&path, e))?;
+                Backing::Mmap(map)
+            }
+        };
+        let per_shard = options.cache_chunks.div_ceil(CACHE_SHARDS).max(1);
+        Ok(Self {
+            path,
+            header,
+            backing,
+            offsets,
+            table_offset,
+            file_len,
+            cache: ChunkCache {
+                shards: (0..CACHE_SHARDS).map(|_| Mutex::new(Vec::new())).collect(),
+                per_shard,
+                clock: AtomicU64::new(0),
+            },
+            mask: OnceLock::new(),
+        })
+    }
+
+    /// The file this store was opened from.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The header (grid, channels, materials, layout, statistics, checksum).
+    pub fn header(&self) -> &StoreHeader {
+        &self.header
+    }
+
+    /// Number of materials N.
+    pub fn n_materials(&self) -> usize {
+        self.header.materials.len()
+    }
+
+    /// Values per material D.
+    pub fn d(&self) -> usize {
+        self.header.d
+    }
+
+    /// The angular grid.
+    pub fn grid(&self) -> &AngularGrid {
+        &self.header.grid
+    }
+
+    /// The channel axis.
+    pub fn channels(&self) -> &Channels {
+        &self.header.channels
+    }
+
+    /// Material names in row order.
+    pub fn names(&self) -> Vec<&str> {
+        self.header
+            .materials
+            .iter()
+            .map(|m| m.name.as_str())
+            .collect()
+    }
+
+    /// Row index of the material called `name`.
+    pub fn material_index(&self, name: &str) -> Result<usize> {
+        self.header
+            .materials
+            .iter()
+            .position(|m| m.name == name)
+            .ok_or_else(|| Error::UnknownMaterial {
+                path: self.path.clone(),
+                name: name.to_owned(),
+                available: self.names().join(", "),
+            })
+    }
+
+    /// Number of chunks.
+    pub fn n_chunks(&self) -> usize {
+        self.header.layout.n_chunks
+    }
+
+    /// The d range of chunk `c`.
+    pub fn chunk_range(&self, c: usize) -> Range<usize> {
+        self.header.chunk_range(c)
+    }
+
+    /// Size of the file in bytes.
+    pub fn file_bytes(&self) -> u64 {
+        self.file_len
+    }
+
+    /// Validity mask over angular indices (cached).
+    pub fn validity_mask(&self) -> &[bool] {
+        self.mask.get_or_init(|| self.header.grid.validity_mask())
+    }
+
+    /// Raw bytes at `offset..offset + len` of the file.
+    fn bytes(&self, offset: u64, len: usize) -> Result<Cow<'_, [u8]>> {
+        match &self.backing {
+            Backing::Mmap(m) => {
+                let s = offset as usize;
+                m.get(s..s + len).map(Cow::Borrowed).ok_or_else(|| {
+                    corrupt(&self.path, format!("read past the end at byte {offset}"))
+                })
+            }
+            Backing::File(f) => {
+                let mut buf = vec![0u8; len];
+                read_exact_at(f, &mut buf, offset).map_err(|e| Error::io(&self.path, e))?;
+                Ok(Cow::Owned(buf))
+            }
+        }
+    }
+
+    fn chunk_bytes(&self, c: usize) -> Result<Cow<'_, [u8]>> {
+        let (a, b) = (self.offsets[c], self.offsets[c + 1]);
+        self.bytes(PAYLOAD_OFFSET + a, (b - a) as usize)
+    }
+
+    /// Decodes chunk `c` into `out` (index-major, `len * N` values); returns its d range.
+    pub fn read_chunk(&self, c: usize, out: &mut Vec<f32>) -> Result<Range<usize>> {
+        if c >= self.n_chunks() {
+            return Err(Error::StoreUsage {
+                path: self.path.clone(),
+                reason: format!("chunk {c} out of range (the store has {})", self.n_chunks()),
+            });
+        }
+        let range = self.chunk_range(c);
+        let count = range.len() * self.n_materials();
+        out.clear();
+        out.resize(count, 0.0);
+        let raw = self.chunk_bytes(c)?;
+        let dtype = self.header.layout.dtype;
+        match self.header.layout.compression {
+            Compression::None => decode_values(&raw, dtype, out),
+            Compression::Zstd { .. } => {
+                let want = count * dtype.size();
+                let bytes = zstd::bulk::decompress(&raw, want)
+                    .map_err(|e| corrupt(&self.path, format!("chunk {c}: zstd: {e}")))?;
+                if bytes.len() != want {
+                    return Err(corrupt(
+                        &self.path,
+                        format!(
+                            "chunk {c}: {} bytes decompressed, expected {want}",
+                            bytes.len()
+                        ),
+                    ));
+                }
+                decode_values(&bytes, dtype, out);
+            }
+        }
+        Ok(range)
+    }
+
+    /// Chunk `c` as f32 values, borrowed from the map when possible (uncompressed f32, mmap,
+    /// little-endian host), else decoded into `buf`.
+    fn chunk_values<'a>(&'a self, c: usize, buf: &'a mut Vec<f32>) -> Result<&'a [f32]> {
+        if cfg!(target_endian = "little")
+            && self.header.layout.compression == Compression::None
+            && self.header.layout.dtype == Dtype::F32
+            && let Backing::Mmap(m) = &self.backing
+        {
+            let (a, b) = (self.offsets[c] as usize, self.offsets[c + 1] as usize);
+            let s = PAYLOAD_OFFSET as usize;
+            if let Ok(v) = bytemuck::try_cast_slice::<u8, f32>(&m[s + a..s + b]) {
+                return Ok(v);
+            }
+        }
+        self.read_chunk(c, buf)?;
+        Ok(buf)
+    }
+
+    /// Streams every chunk in order: `f(d_range, block)` with `block[(d - d_range.start) * N + n]`
+    /// (index-major; as a matrix: N x len, column-major).
+    pub fn for_each_chunk(&self, mut f: impl FnMut(Range<usize>, &[f32])) -> Result<()> {
+        let mut buf = Vec::new();
+        for c in 0..self.n_chunks() {
+            let v = self.chunk_values(c, &mut buf)?;
+            f(self.chunk_range(c), v);
+        }
+        Ok(())
+    }
+
+    /// Parallel fold over the chunks (rayon): each worker starts from `init()`, folds chunks in
+    /// with `fold(acc, d_range, block)` (block as in [`Store::for_each_chunk`]), and the partial
+    /// results are combined with `reduce`.
+    pub fn par_fold_chunks<T: Send>(
+        &self,
+        init: impl Fn() -> T + Sync + Send,
+        fold: impl Fn(&mut T, Range<usize>, &[f32]) + Sync + Send,
+        reduce: impl Fn(T, T) -> T + Sync + Send,
+    ) -> Result<T> {
+        (0..self.n_chunks())
+            .into_par_iter()
+            .try_fold(
+                || (init(), Vec::new()),
+                |(mut acc, mut buf), c| {
+                    let v = self.chunk_values(c, &mut buf)?;
+                    fold(&mut acc, self.chunk_range(c), v);
+                    Ok::<_, Error>((acc, buf))
+                },
+            )
+            .map(|r| r.map(|(acc, _)| acc))
+            .try_reduce(&init, |a, b| Ok(reduce(a, b)))
+    }
+
+    /// The uncentred N x N Gram matrix `G[n][m] = sum_d y_n[d] y_m[d]` (row-major, f64
+    /// accumulation), in one parallel streaming pass.
+    pub fn gram(&self) -> Result<Vec<f64>> {
+        self.gram_with(f64::from)
+    }
+
+    /// The Gram matrix of transformed values `t(y)`; below-horizon cells count as 0 whatever
+    /// `t` gives (so `t = ln` is safe there).
+    pub fn gram_with(&self, t: impl Fn(f32) -> f64 + Sync + Send) -> Result<Vec<f64>> {
+        use faer::linalg::matmul::triangular::{BlockStructure, matmul};
+        let n = self.n_materials();
+        let nc = self.channels().len();
+        let mask = self.validity_mask();
+        let g = self.par_fold_chunks(
+            || (faer::Mat::<f64>::zeros(n, n), Vec::<f64>::new()),
+            |(g, conv), range, block| {
+                conv.clear();
+                conv.reserve(block.len());
+                for (i, row) in block.chunks_exact(n).enumerate() {
+                    if mask[(range.start + i) / nc] {
+                        conv.extend(row.iter().map(|v| t(*v)));
+                    } else {
+                        conv.extend(std::iter::repeat_n(0.0, n));
+                    }
+                }
+                let a = faer::MatRef::from_column_major_slice(conv, n, range.len());
+                matmul(
+                    g.as_mut(),
+                    BlockStructure::TriangularLower,
+                    faer::Accum::Add,
+                    a,
+                    BlockStructure::Rectangular,
+                    a.transpose(),
+                    BlockStructure::Rectangular,
+                    1.0,
+                    faer::Par::Seq,
+                );
+            },
+            |(a, _), (b, _)| (a + b, Vec::new()),
+        )?;
+        let g = g.0;
+        let mut out = vec![0.0; n * n];
+        for i in 0..n {
+            for j in 0..=i {
+                out[i * n + j] = g[(i, j)];
+                out[j * n + i] = g[(i, j)];
+            }
+        }
+        Ok(out)
+    }
+
+    fn cached_chunk(&self, c: usize) -> Result<Arc<Vec<f32>>> {
+        let shard = &self.cache.shards[c % CACHE_SHARDS];
+        let stamp = self.cache.clock.fetch_add(1, Ordering::Relaxed);
+        {
+            let mut s = shard.lock().unwrap_or_else(|p| p.into_inner());
+            if let Some(e) = s.iter_mut().find(|e| e.0 == c) {
+                e.1 = stamp;
+                return Ok(e.2.clone());
+            }
+        }
+        let mut v = Vec::new();
+        self.read_chunk(c, &mut v)?;
+        let v = Arc::new(v);
+        let mut s = shard.lock().unwrap_or_else(|p| p.into_inner());
+        if !s.iter().any(|e| e.0 == c) {
+            if s.len() >= self.cache.per_shard
+                && let Some(oldest) = s.iter().enumerate().min_by_key(|(_, e)| e.1).map(|x| x.0)
+            {
+                s.swap_remove(oldest);
+            }
+            s.push((c, stamp, v.clone()));
+        }
+        Ok(v)
+    }
+
+    fn check_d(&self, d: usize) -> Result<()> {
+        if d >= self.d() {
+            return Err(Error::StoreUsage {
+                path: self.path.clone(),
+                reason: format!("index {d} out of range (D = {})", self.d()),
+            });
+        }
+        Ok(())
+    }
+
+    /// All N values at index `d` (`out.len()` must be N). Uncompressed stores read N contiguous
+    /// values; zstd stores go through a small thread-safe cache of decompressed chunks.
+    pub fn values_at(&self, d: usize, out: &mut [f32]) -> Result<()> {
+        self.check_d(d)?;
+        let n = self.n_materials();
+        if out.len() != n {
+            return Err(Error::StoreUsage {
+                path: self.path.clone(),
+                reason: format!(
+                    "values_at: output has {} slots for {n} materials",
+                    out.len()
+                ),
+            });
+        }
+        let chunk_len = self.header.layout.chunk_len;
+        let c = d / chunk_len;
+        let j = d - c * chunk_len;
+        let dtype = self.header.layout.dtype;
+        match self.header.layout.compression {
+            Compression::None => {
+                let size = dtype.size();
+                let off = PAYLOAD_OFFSET + self.offsets[c] + (j * n * size) as u64;
+                let raw = self.bytes(off, n * size)?;
+                decode_values(&raw, dtype, out);
+            }
+            Compression::Zstd { .. } => {
+                let chunk = self.cached_chunk(c)?;
+                out.copy_from_slice(&chunk[j * n..(j + 1) * n]);
+            }
+        }
+        Ok(())
+    }
+
+    /// Values of material `m` over `d_range` into `out` (`out.len() == d_range.len()`).
+    pub fn material_row(&self, m: usize, d_range: Range<usize>, out: &mut [f32]) -> Result<()> {
+        let n = self.n_materials();
+        if m >= n || d_range.end > self.d() || d_range.start > d_range.end {
+            return Err(Error::StoreUsage {
+                path: self.path.clone(),
+                reason: format!(
+                    "material_row({m}, {d_range:?}) out of range ({n} materials, D = {})",
+                    self.d()
+                ),
+            });
+        }
+        if out.len() != d_range.len() {
+            return Err(Error::StoreUsage {
+                path: self.path.clone(),
+                reason: format!(
+                    "material_row: output has {} slots for {} values",
+                    out.len(),
+                    d_range.len()
+                ),
+            });
+        }
+        if d_range.is_empty() {
+            return Ok(());
+        }
+        let chunk_len = self.header.layout.chunk_len;
+        let (c0, c1) = (d_range.start / chunk_len, (d_range.end - 1) / chunk_len);
+        let dtype = self.header.layout.dtype;
+        let size = dtype.size();
+        let mut buf = Vec::new();
+        for c in c0..=c1 {
+            let cr = self.chunk_range(c);
+            let lo = cr.start.max(d_range.start);
+            let hi = cr.end.min(d_range.end);
+            let dst = &mut out[lo - d_range.start..hi - d_range.start];
+            match self.header.layout.compression {
+                Compression::None => {
+                    // Strided gather straight from the file: one span covering the rows.
+                    let first = self.offsets[c] + (((lo - cr.start) * n + m) * size) as u64;
+                    let span = ((hi - lo - 1) * n + 1) * size;
+                    let raw = self.bytes(PAYLOAD_OFFSET + first, span)?;
+                    for (k, o) in dst.iter_mut().enumerate() {
+                        let b = &raw[k * n * size..k * n * size + size];
+                        decode_values(b, dtype, std::slice::from_mut(o));
+                    }
+                }
+                Compression::Zstd { .. } => {
+                    let single = c0 == c1;
+                    let chunk: Arc<Vec<f32>>;
+                    let vals: &[f32] = if single {
+                        chunk = self.cached_chunk(c)?;
+                        &chunk
+                    } else {
+                        self.read_chunk(c, &mut buf)?;
+                        &buf
+                    };
+                    for (k, o) in dst.iter_mut().enumerate() {
+                        *o = vals[(lo - cr.start + k) * n + m];
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Recomputes the payload checksum (chunks + offset table) and compares it with the header.
+    pub fn verify_checksum(&self) -> Result<()> {
+        let mut h = Xxh3::new();
+        let end = self.table_offset + self.offsets.len() as u64 * 8;
+        let mut pos = PAYLOAD_OFFSET;
+        const STEP: u64 = 8 << 20;
+        while pos < end {
+            let len = STEP.min(end - pos) as usize;
+            h.update(&self.bytes(pos, len)?);
+            pos += len as u64;
+        }
+        let actual = hex64(h.digest());
+        if actual != self.header.checksum.value {
+            return Err(Error::StoreChecksum {
+                path: self.path.clone(),
+                expected: self.header.checksum.value.clone(),
+                actual,
+            });
+        }
+        Ok(())
+    }
+}
+
+fn validate_header(h: &StoreHeader, path: &Path) -> Result<()> {
+    let bad = |r: String| Err(corrupt(path, r));
+    if h.format != "specgp-sbrdf" {
+        return bad(format!(
+            "header format {:?}, expected \"specgp-sbrdf\"",
+            h.format
+        ));
+    }
+    if h.version != FORMAT_VERSION {
+        return Err(Error::StoreVersion {
+            path: path.to_owned(),
+            found: h.version,
+            supported: FORMAT_VERSION,
+        });
+    }
+    let g = AngularGrid::new(h.grid.n_theta_h, h.grid.n_theta_d, h.grid.n_phi_d)
+        .map_err(|e| corrupt(path, format!("header grid: {e}")))?;
+    let d = g.len().checked_mul(h.channels.len());
+    if d != Some(h.d) {
+        return bad(format!(
+            "header D = {} but grid {} x {} channels gives {d:?}",
+            h.d,
+            g,
+            h.channels.len()
+        ));
+    }
+    if h.materials.is_empty() {
+        return bad("no materials".into());
+    }
+    let l = &h.layout;
+    if l.order != "chunked-index-major" {
+        return bad(format!("unsupported layout order {:?}", l.order));
+    }
+    if l.chunk_len == 0 || l.n_chunks != h.d.div_ceil(l.chunk_len) {
+        return bad(format!(
+            "chunk length {} and chunk count {} do not fit D = {}",
+            l.chunk_len, l.n_chunks, h.d
+        ));
+    }
+    if h.checksum.algorithm != "xxh3-64" {
+        return bad(format!(
+            "unsupported checksum algorithm {:?}",
+            h.checksum.algorithm
+        ));
+    }
+    Ok(())
+}
+
+impl std::fmt::Debug for Store {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Store")
+            .field("path", &self.path)
+            .field("n_materials", &self.n_materials())
+            .field("d", &self.d())
+            .field("layout", &self.header.layout)
+            .finish()
+    }
+}

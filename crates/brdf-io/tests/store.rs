@@ -1,0 +1,582 @@
+//! Dataset store: round trips, layouts, lookups, Gram pass, and every kind of bad input.
+
+use std::path::{Path, PathBuf};
+
+use brdf_io::store::{Compression, Dtype, OpenOptions, ReadMode, StoreMaterial};
+use brdf_io::{AngularGrid, Channels, Error, Store, StoreInfo, StoreOptions, StoreWriter};
+use proptest::prelude::*;
+
+fn info(th: usize, td: usize, pd: usize, channels: Channels) -> StoreInfo {
+    StoreInfo {
+        grid: AngularGrid::new(th, td, pd).unwrap(),
+        channels,
+    }
+}
+
+/// Deterministic pseudo-random values, 0 below the horizon (the store's convention).
+fn material(info: &StoreInfo, seed: u64) -> Vec<f32> {
+    let mask = info.grid.validity_mask();
+    let nc = info.channels.len();
+    let mut s = seed
+        .wrapping_mul(6364136223846793005)
+        .wrapping_add(1442695040888963407);
+    (0..info.d())
+        .map(|d| {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            if mask[d / nc] {
+                ((s >> 40) as f32) / (1u64 << 24) as f32 * 3.0 - 0.5
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
+fn write_materials(
+    path: &Path,
+    info: &StoreInfo,
+    rows: &[Vec<f32>],
+    options: StoreOptions,
+    slice: usize,
+) -> brdf_io::Result<brdf_io::store::StoreHeader> {
+    let mut w = StoreWriter::create(path, info.clone(), options)?;
+    for (i, row) in rows.iter().enumerate() {
+        let mut m = w.begin_material(&format!("mat{i}"), &format!("test:{i}"))?;
+        for part in row.chunks(slice.max(1)) {
+            m.write(part)?;
+        }
+        m.finish()?;
+    }
+    w.finish()
+}
+
+fn read_all(store: &Store) -> Vec<Vec<f32>> {
+    let n = store.n_materials();
+    (0..n)
+        .map(|m| {
+            let mut row = vec![0f32; store.d()];
+            store.material_row(m, 0..store.d(), &mut row).unwrap();
+            row
+        })
+        .collect()
+}
+
+fn dir() -> tempfile::TempDir {
+    tempfile::tempdir().unwrap()
+}
+
+fn only_file(dir: &Path) -> Vec<PathBuf> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect()
+}
+
+#[test]
+fn round_trip_material_mode_all_read_paths() {
+    let info = info(4, 5, 6, Channels::Rgb);
+    let rows: Vec<_> = (0..5).map(|i| material(&info, i)).collect();
+    let t = dir();
+    for compression in [Compression::None, Compression::Zstd { level: 3 }] {
+        let path = t.path().join(format!("{compression:?}.sbrdf"));
+        let options = StoreOptions {
+            chunk_len: Some(7),
+            compression,
+            memory_budget: 5 * 4 * 20, // forces several transpose super-blocks
+            ..Default::default()
+        };
+        let header = write_materials(&path, &info, &rows, options, 11).unwrap();
+        assert_eq!(header.layout.n_chunks, info.d().div_ceil(7));
+        for mode in [ReadMode::Mmap, ReadMode::Buffered] {
+            let store = Store::open_with(
+                &path,
+                OpenOptions {
+                    mode,
+                    cache_chunks: 2,
+                },
+            )
+            .unwrap();
+            store.verify_checksum().unwrap();
+            assert_eq!(store.n_materials(), 5);
+            assert_eq!(store.d(), 4 * 5 * 6 * 3);
+            assert_eq!(store.names(), ["mat0", "mat1", "mat2", "mat3", "mat4"]);
+            assert_eq!(store.header().materials[3].source, "test:3");
+            let back = read_all(&store);
+            for (a, b) in back.iter().zip(&rows) {
+                assert!(a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits()));
+            }
+            // values_at: all N at one index, in every chunk position.
+            let mut out = [0f32; 5];
+            for d in [0, 1, 6, 7, 100, info.d() - 1] {
+                store.values_at(d, &mut out).unwrap();
+                for m in 0..5 {
+                    assert_eq!(out[m].to_bits(), rows[m][d].to_bits(), "d = {d} m = {m}");
+                }
+            }
+            // streaming pass sees every index once, index-major.
+            let mut seen = 0;
+            store
+                .for_each_chunk(|range, block| {
+                    assert_eq!(block.len(), range.len() * 5);
+                    for (k, d) in range.clone().enumerate() {
+                        for m in 0..5 {
+                            assert_eq!(block[k * 5 + m], rows[m][d]);
+                        }
+                    }
+                    seen += range.len();
+                })
+                .unwrap();
+            assert_eq!(seen, info.d());
+            // Gram matrix against a direct f64 computation.
+            let g = store.gram().unwrap();
+            for i in 0..5 {
+                for j in 0..5 {
+                    let want: f64 = rows[i]
+                        .iter()
+                        .zip(&rows[j])
+                        .map(|(a, b)| f64::from(*a) * f64::from(*b))
+                        .sum();
+                    assert!((g[i * 5 + j] - want).abs() <= 1e-9 * want.abs().max(1.0));
+                }
+                assert!((g[i * 5 + i] - store.header().materials[i].stats.sum_sq).abs() < 1e-6);
+            }
+        }
+    }
+    // nothing but the two stores in the directory: no temporary or scratch file left.
+    assert_eq!(only_file(t.path()).len(), 2);
+}
+
+#[test]
+fn block_mode_equals_material_mode() {
+    let info = info(
+        3,
+        4,
+        8,
+        Channels::spectral(vec![400.0, 500.0, 600.0, 700.0]).unwrap(),
+    );
+    let n = 3;
+    let rows: Vec<_> = (0..n).map(|i| material(&info, 10 + i as u64)).collect();
+    let t = dir();
+    let a = t.path().join("a.sbrdf");
+    let b = t.path().join("b.sbrdf");
+    let opts = StoreOptions {
+        chunk_len: Some(13),
+        compression: Compression::Zstd { level: 1 },
+        ..Default::default()
+    };
+    write_materials(&a, &info, &rows, opts.clone(), 1000).unwrap();
+    let mut w = StoreWriter::create(&b, info.clone(), opts).unwrap();
+    let names: Vec<(String, String)> = (0..n)
+        .map(|i| (format!("mat{i}"), format!("test:{i}")))
+        .collect();
+    w.declare_materials(&names).unwrap();
+    let mut d0 = 0;
+    for len in [1usize, 5, 40, 17].iter().cycle() {
+        let d1 = (d0 + len).min(info.d());
+        let block: Vec<f32> = (d0..d1)
+            .flat_map(|d| rows.iter().map(move |r| r[d]))
+            .collect();
+        w.write_block(d0..d1, &block).unwrap();
+        d0 = d1;
+        if d0 == info.d() {
+            break;
+        }
+    }
+    let hb = w.finish().unwrap();
+    let (sa, sb) = (Store::open(&a).unwrap(), Store::open(&b).unwrap());
+    assert_eq!(read_all(&sa), read_all(&sb));
+    // Same statistics up to summation order.
+    for (x, y) in sa.header().materials.iter().zip(&hb.materials) {
+        assert_eq!((&x.name, &x.source), (&y.name, &y.source));
+        let (p, q) = (&x.stats, &y.stats);
+        assert_eq!(
+            (p.count, p.min, p.max, p.negatives),
+            (q.count, q.min, q.max, q.negatives)
+        );
+        assert!((p.sum_sq - q.sum_sq).abs() < 1e-9 * p.sum_sq);
+        assert!((p.mean - q.mean).abs() < 1e-12);
+    }
+    assert_eq!(sa.header().checksum, sb.header().checksum);
+}
+
+#[test]
+fn statistics_and_horizon_zeroing() {
+    let info = info(4, 4, 4, Channels::Rgb);
+    let mask = info.grid.validity_mask();
+    let t = dir();
+    let path = t.path().join("s.sbrdf");
+    let mut row = vec![2.0f32; info.d()];
+    row[0] = -1.0; // cell 0 is valid (normal incidence)
+    let invalid = mask.iter().filter(|v| !**v).count();
+    assert!(invalid > 0);
+    let h = {
+        let mut w = StoreWriter::create(&path, info.clone(), StoreOptions::default()).unwrap();
+        w.add_material("x", "here", &row).unwrap();
+        w.finish().unwrap()
+    };
+    let s = &h.materials[0].stats;
+    let valid = (mask.len() - invalid) * 3;
+    assert_eq!(s.count as usize, valid);
+    assert_eq!(s.zeroed_below_horizon as usize, invalid * 3);
+    assert_eq!(s.negatives, 1);
+    assert_eq!((s.min, s.max), (-1.0, 2.0));
+    let mean = ((valid - 1) as f64 * 2.0 - 1.0) / valid as f64;
+    assert!((s.mean - mean).abs() < 1e-12);
+    let store = Store::open(&path).unwrap();
+    let back = &read_all(&store)[0];
+    for (d, v) in back.iter().enumerate() {
+        let want = if !mask[d / 3] {
+            0.0
+        } else if d == 0 {
+            -1.0
+        } else {
+            2.0
+        };
+        assert_eq!(*v, want, "d = {d}");
+    }
+}
+
+#[test]
+fn f16_store_within_half_precision() {
+    let info = info(3, 3, 6, Channels::Rgb);
+    let rows: Vec<_> = (0..4).map(|i| material(&info, 40 + i)).collect();
+    let t = dir();
+    let path = t.path().join("h.sbrdf");
+    let opts = StoreOptions {
+        dtype: Dtype::F16,
+        chunk_len: Some(10),
+        ..Default::default()
+    };
+    write_materials(&path, &info, &rows, opts, 50).unwrap();
+    let store = Store::open(&path).unwrap();
+    assert_eq!(store.header().layout.dtype, Dtype::F16);
+    for (a, b) in read_all(&store).iter().zip(&rows) {
+        for (x, y) in a.iter().zip(b) {
+            assert!(
+                (x - y).abs() <= y.abs() * 2f32.powi(-11) + 6e-8,
+                "{x} vs {y}"
+            );
+        }
+    }
+}
+
+#[test]
+fn material_sampling_interpolates_on_the_grid() {
+    // A material linear in the continuous theta_d coordinate is reproduced exactly between
+    // bin centres; phi_d wraps.
+    let info = info(2, 6, 4, Channels::Rgb);
+    let g = info.grid;
+    let mut row = vec![0f32; info.d()];
+    for a in 0..g.len() {
+        let (_, j, k) = g.unindex(a);
+        for c in 0..3 {
+            row[a * 3 + c] = (j as f32 + 1.0) * (c as f32 + 1.0) + 10.0 * k as f32;
+        }
+    }
+    // Keep everything: no cell of this grid is checked against the mask here, so build on cells
+    // above the horizon only.
+    let mask = g.validity_mask();
+    let t = dir();
+    let path = t.path().join("m.sbrdf");
+    let mut w = StoreWriter::create(&path, info.clone(), StoreOptions::default()).unwrap();
+    w.add_material("lin", "test", &row).unwrap();
+    w.finish().unwrap();
+    let store = std::sync::Arc::new(Store::open(&path).unwrap());
+    let m = StoreMaterial::new(store.clone(), "lin").unwrap();
+    let mut out = [0f64; 3];
+    // Bin centre (0, 1, 2): exact stored value.
+    assert!(mask[g.index(0, 1, 2)] && mask[g.index(0, 2, 2)]);
+    m.eval_half_diff(&g.bin_centre(0, 1, 2), &mut out).unwrap();
+    assert_eq!(out, [2.0 + 20.0, 4.0 + 20.0, 6.0 + 20.0]);
+    // Halfway between theta_d bins 1 and 2 at phi_d bin 2, theta_h centre 0.
+    let mut hd = g.bin_centre(0, 1, 2);
+    hd.theta_d = 2.0 / 6.0 * std::f64::consts::FRAC_PI_2;
+    m.eval_half_diff(&hd, &mut out).unwrap();
+    for (c, o) in out.iter().enumerate() {
+        let want = 2.5 * (c as f64 + 1.0) + 20.0;
+        assert!((o - want).abs() < 1e-9, "{o} vs {want}");
+    }
+    // phi_d = 0 lies halfway between bin 3 (wrapped) and bin 0.
+    let mut hd = g.bin_centre(0, 1, 0);
+    hd.phi_d = 0.0;
+    m.eval_half_diff(&hd, &mut out).unwrap();
+    assert!((out[0] - (2.0 + 15.0)).abs() < 1e-9, "{out:?}");
+    assert!(StoreMaterial::new(store.clone(), "nope").is_err());
+    assert!(StoreMaterial::by_index(store.clone(), 1).is_err());
+    // Through the BrdfSource trait, as `specgp sample DATA.sbrdf:lin` uses it.
+    let spec = format!("{}:lin", path.display());
+    let (p, name) = brdf_io::store::parse_store_spec(&spec).unwrap();
+    let src: Box<dyn brdf_io::BrdfSource> = Box::new(StoreMaterial::open(&p, &name).unwrap());
+    assert_eq!(src.channels(), Channels::Rgb);
+    let (wi, wo) = g.bin_centre(0, 1, 2).to_dirs();
+    src.eval(wi, wo, &mut out).unwrap();
+    assert!((out[2] - 26.0).abs() < 1e-9, "{out:?}");
+    assert!(brdf_io::store::parse_store_spec("x.bsdf").is_none());
+    // Below the horizon: 0.
+    m.eval([0.0, 0.0, 1.0], [1.0, 0.0, -0.1], &mut out).unwrap();
+    assert_eq!(out, [0.0; 3]);
+}
+
+// ---------------------------------------------------------------- bad input
+
+fn small_store(dir: &Path, compression: Compression) -> PathBuf {
+    let info = info(3, 3, 4, Channels::Rgb);
+    let rows: Vec<_> = (0..3).map(|i| material(&info, 70 + i)).collect();
+    let path = dir.join("bad.sbrdf");
+    let opts = StoreOptions {
+        chunk_len: Some(16),
+        compression,
+        ..Default::default()
+    };
+    write_materials(&path, &info, &rows, opts, 1000).unwrap();
+    path
+}
+
+fn names_file(e: &Error, path: &Path) {
+    let msg = e.to_string();
+    assert!(
+        msg.contains(&path.display().to_string()),
+        "error does not name {}: {msg}",
+        path.display()
+    );
+}
+
+#[test]
+fn missing_file_and_wrong_magic() {
+    let t = dir();
+    let missing = t.path().join("nope.sbrdf");
+    let e = Store::open(&missing).unwrap_err();
+    assert!(matches!(e, Error::Io { .. }), "{e}");
+    names_file(&e, &missing);
+    let other = t.path().join("other.sbrdf");
+    std::fs::write(
+        &other,
+        b"tensor_file\0 and more bytes, well past sixty-four of them........",
+    )
+    .unwrap();
+    let e = Store::open(&other).unwrap_err();
+    assert!(matches!(e, Error::NotAStore { .. }), "{e}");
+    names_file(&e, &other);
+    let empty = t.path().join("empty.sbrdf");
+    std::fs::write(&empty, b"").unwrap();
+    assert!(matches!(
+        Store::open(&empty).unwrap_err(),
+        Error::NotAStore { .. }
+    ));
+}
+
+#[test]
+fn truncated_files_are_rejected_at_every_length() {
+    let t = dir();
+    let path = small_store(t.path(), Compression::None);
+    let bytes = std::fs::read(&path).unwrap();
+    let cut = t.path().join("cut.sbrdf");
+    for len in [
+        8,
+        40,
+        64,
+        100,
+        4096,
+        4200,
+        bytes.len() - 300,
+        bytes.len() - 1,
+    ] {
+        std::fs::write(&cut, &bytes[..len]).unwrap();
+        let e = Store::open(&cut).unwrap_err();
+        assert!(matches!(e, Error::StoreCorrupt { .. }), "len {len}: {e}");
+        names_file(&e, &cut);
+    }
+}
+
+#[test]
+fn unsupported_version_and_dtype() {
+    let t = dir();
+    let path = small_store(t.path(), Compression::None);
+    let mut bytes = std::fs::read(&path).unwrap();
+    bytes[8] = 7;
+    std::fs::write(&path, &bytes).unwrap();
+    match Store::open(&path).unwrap_err() {
+        Error::StoreVersion { found, .. } => assert_eq!(found, 7),
+        e => panic!("expected a version error, got {e}"),
+    }
+    bytes[8] = 1;
+    // Rewrite the header's dtype and fix up the header hash so only the dtype is wrong.
+    let key = b"\"dtype\": \"f32\"";
+    let pos = bytes
+        .windows(key.len())
+        .position(|w| w == key)
+        .expect("dtype in header");
+    bytes[pos + 10..pos + 13].copy_from_slice(b"f64");
+    let hoff = u64::from_le_bytes(bytes[40..48].try_into().unwrap()) as usize;
+    let h = xxhash_rust_digest(&bytes[..56], &bytes[hoff..]);
+    bytes[56..64].copy_from_slice(&h.to_le_bytes());
+    std::fs::write(&path, &bytes).unwrap();
+    let e = Store::open(&path).unwrap_err();
+    assert!(e.to_string().contains("unsupported dtype \"f64\""), "{e}");
+    names_file(&e, &path);
+}
+
+/// xxh3-64 of the prefix fields followed by the header (as the format defines it).
+fn xxhash_rust_digest(prefix: &[u8], header: &[u8]) -> u64 {
+    let mut v = prefix.to_vec();
+    v.extend_from_slice(header);
+    xxhash_rust::xxh3::xxh3_64(&v)
+}
+
+#[test]
+fn corrupt_payload_fails_checksum_and_damaged_header_fails_open() {
+    let t = dir();
+    for compression in [Compression::None, Compression::Zstd { level: 3 }] {
+        let path = small_store(t.path(), compression);
+        let mut bytes = std::fs::read(&path).unwrap();
+        bytes[4096 + 5] ^= 0x40;
+        std::fs::write(&path, &bytes).unwrap();
+        let store = Store::open(&path).unwrap();
+        let e = store.verify_checksum().unwrap_err();
+        assert!(matches!(e, Error::StoreChecksum { .. }), "{e}");
+        names_file(&e, &path);
+        if compression != Compression::None {
+            // A damaged zstd frame is a clear error on read, not a panic.
+            let mut out = vec![0f32; 3];
+            if let Err(e) = store.values_at(0, &mut out) {
+                assert!(matches!(e, Error::StoreCorrupt { .. }), "{e}");
+            }
+        }
+        // A damaged header byte is caught by the header hash.
+        let n = bytes.len();
+        bytes[n - 10] ^= 0x01;
+        std::fs::write(&path, &bytes).unwrap();
+        let e = Store::open(&path).unwrap_err();
+        assert!(matches!(e, Error::StoreCorrupt { .. }), "{e}");
+    }
+}
+
+#[test]
+fn writer_rejects_non_finite_and_bad_lengths_and_leaves_nothing() {
+    let t = dir();
+    let info = info(2, 2, 4, Channels::Rgb);
+    let path = t.path().join("w.sbrdf");
+    for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+        let mut w = StoreWriter::create(&path, info.clone(), StoreOptions::default()).unwrap();
+        let mut row = vec![0.5f32; info.d()];
+        row[5] = bad;
+        let e = w.add_material("m", "s", &row).unwrap_err();
+        match &e {
+            Error::NonFiniteValue {
+                material, index, ..
+            } => assert_eq!((material.as_str(), *index), ("m", 5)),
+            e => panic!("expected NonFiniteValue, got {e}"),
+        }
+        names_file(&e, &path);
+        // The writer is poisoned; finishing fails, and nothing is left behind.
+        assert!(w.finish().is_err());
+        assert!(only_file(t.path()).is_empty());
+    }
+    // Too many values, too few values, duplicate names, empty store, grid mismatch.
+    let mut w = StoreWriter::create(&path, info.clone(), StoreOptions::default()).unwrap();
+    assert!(w.add_material("m", "s", &vec![0.0; info.d() + 1]).is_err());
+    drop(w);
+    let mut w = StoreWriter::create(&path, info.clone(), StoreOptions::default()).unwrap();
+    {
+        let mut m = w.begin_material("a", "s").unwrap();
+        m.write(&[1.0; 4]).unwrap();
+        let e = m.finish().unwrap_err();
+        assert!(e.to_string().contains("expected D = 48"), "{e}");
+    }
+    drop(w);
+    let mut w = StoreWriter::create(&path, info.clone(), StoreOptions::default()).unwrap();
+    w.add_material("a", "s", &vec![0.0; info.d()]).unwrap();
+    assert!(w.add_material("a", "s", &vec![0.0; info.d()]).is_err());
+    drop(w);
+    let w = StoreWriter::create(&path, info.clone(), StoreOptions::default()).unwrap();
+    let other = StoreInfo {
+        grid: AngularGrid::new(2, 2, 5).unwrap(),
+        channels: Channels::Rgb,
+    };
+    let e = w.check_info(&other).unwrap_err();
+    assert!(e.to_string().contains("does not match"), "{e}");
+    w.check_info(&info).unwrap();
+    assert!(w.finish().is_err(), "a store without materials is an error");
+    // Block mode: out of order, wrong length, incomplete.
+    let mut w = StoreWriter::create(&path, info.clone(), StoreOptions::default()).unwrap();
+    w.declare_materials(&[("a", "s"), ("b", "s")]).unwrap();
+    assert!(w.write_block(1..3, &[0.0; 4]).is_err());
+    assert!(w.write_block(0..3, &[0.0; 5]).is_err());
+    w.write_block(0..3, &[0.0; 6]).unwrap();
+    assert!(w.begin_material("c", "s").is_err());
+    let e = w.finish().unwrap_err();
+    assert!(e.to_string().contains("incomplete"), "{e}");
+    // Writing into a directory that does not exist names the path.
+    let nowhere = t.path().join("no/such/dir/x.sbrdf");
+    let e = StoreWriter::create(&nowhere, info, StoreOptions::default())
+        .err()
+        .unwrap();
+    names_file(&e, &nowhere);
+    assert!(only_file(t.path()).is_empty(), "{:?}", only_file(t.path()));
+}
+
+#[test]
+fn lookups_out_of_range_are_errors() {
+    let t = dir();
+    let path = small_store(t.path(), Compression::Zstd { level: 1 });
+    let store = Store::open(&path).unwrap();
+    let mut out = vec![0f32; 3];
+    assert!(store.values_at(store.d(), &mut out).is_err());
+    assert!(store.values_at(0, &mut out[..2]).is_err());
+    let mut row = vec![0f32; 4];
+    assert!(store.material_row(3, 0..4, &mut row).is_err());
+    assert!(store.material_row(0, 0..5, &mut row).is_err());
+    assert!(store.material_index("zzz").is_err());
+    fn send_sync<T: Send + Sync>() {}
+    send_sync::<Store>();
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+
+    #[test]
+    fn random_stores_round_trip(
+        n in 1usize..5,
+        th in 1usize..4, td in 1usize..4, pd in 1usize..5,
+        nc in 1usize..4,
+        chunk in 1usize..40,
+        zstd in any::<bool>(),
+        half in any::<bool>(),
+        slice in 1usize..50,
+        seed in any::<u64>(),
+    ) {
+        let channels = Channels::spectral((0..nc).map(|i| 400.0 + 10.0 * i as f64).collect()).unwrap();
+        let info = info(th, td, pd, channels);
+        let rows: Vec<_> = (0..n).map(|i| material(&info, seed ^ i as u64)).collect();
+        let t = dir();
+        let path = t.path().join("p.sbrdf");
+        let opts = StoreOptions {
+            chunk_len: Some(chunk),
+            dtype: if half { Dtype::F16 } else { Dtype::F32 },
+            compression: if zstd { Compression::Zstd { level: 2 } } else { Compression::None },
+            memory_budget: 64,
+        };
+        write_materials(&path, &info, &rows, opts, slice).unwrap();
+        let store = Store::open(&path).unwrap();
+        store.verify_checksum().unwrap();
+        let back = read_all(&store);
+        for (a, b) in back.iter().zip(&rows) {
+            for (x, y) in a.iter().zip(b) {
+                if half {
+                    prop_assert!((x - y).abs() <= y.abs() * 2f32.powi(-11) + 6e-8);
+                } else {
+                    prop_assert_eq!(x.to_bits(), y.to_bits());
+                }
+            }
+        }
+        let mut out = vec![0f32; n];
+        for d in (0..store.d()).step_by(3) {
+            store.values_at(d, &mut out).unwrap();
+            for m in 0..n {
+                prop_assert_eq!(out[m].to_bits(), back[m][d].to_bits());
+            }
+        }
+    }
+}
