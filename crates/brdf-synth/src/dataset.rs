@@ -1,0 +1,122 @@
+//! Evaluating materials on a dataset grid, in memory (small grids, tests).
+//!
+//! Values are f(wi, wo, lambda) in 1/sr at the bin centres of the [`AngularGrid`]
+//! ([`AngularGrid::bin_centre`]), in the store's dimension order
+//! `d = angular_index * n_channels + channel` (channel fastest); cells whose bin centre has a
+//! direction below the horizon hold 0.
+
+use brdf_io::{AngularGrid, Channels};
+use rayon::prelude::*;
+
+use crate::error::{Error, Result};
+use crate::material::{Material, PreparedMaterial};
+
+/// The default grid of `specgp synth`: 32 x 32 x 64 (theta_h, theta_d, phi_d).
+/// See BENCHMARKS.md ("synth") for the timing behind this choice.
+pub const DEFAULT_GRID: AngularGrid = AngularGrid {
+    n_theta_h: 32,
+    n_theta_d: 32,
+    n_phi_d: 64,
+};
+
+/// The default wavelengths of `specgp synth`, nm (33 samples over the RGL range).
+pub const DEFAULT_WAVELENGTHS: &str = "360:1000:20";
+
+/// The wavelengths of a spectral channel axis; synthesis is spectral only.
+pub fn wavelengths_of(channels: &Channels) -> Result<&[f64]> {
+    match channels {
+        Channels::Spectral(w) => Ok(w),
+        Channels::Rgb => Err(Error::InvalidRequest {
+            reason: "synthetic materials are spectral: give wavelengths, not RGB channels".into(),
+        }),
+    }
+}
+
+/// Prepares every material for the channel axis.
+pub fn prepare_all(materials: &[Material], channels: &Channels) -> Result<Vec<PreparedMaterial>> {
+    let w = wavelengths_of(channels)?;
+    Ok(materials.par_iter().map(|m| m.prepare(w)).collect())
+}
+
+/// Evaluates one material on every cell of `grid`: `out` has `grid.len() * n_channels` values
+/// in dimension order (below-horizon cells 0). Parallel over cells.
+pub fn eval_on_grid(m: &PreparedMaterial, grid: &AngularGrid, out: &mut [f64]) {
+    let nc = m.wavelengths().len();
+    debug_assert_eq!(out.len(), grid.len() * nc);
+    out.par_chunks_mut(nc).enumerate().for_each(|(cell, o)| {
+        let hd = grid.bin_centre_flat(cell);
+        if hd.is_above_horizon() {
+            m.eval_half_diff(&hd, o);
+        } else {
+            o.fill(0.0);
+        }
+    });
+}
+
+/// A dataset held in memory: N materials x D values, row-major (one row per material).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SynthDataset {
+    /// Material names, one per row.
+    pub names: Vec<String>,
+    /// Angular grid.
+    pub grid: AngularGrid,
+    /// Channel axis (spectral).
+    pub channels: Channels,
+    /// N x D values (f in 1/sr), row-major, in dimension order.
+    pub values: Vec<f64>,
+}
+
+impl SynthDataset {
+    /// Number of materials N.
+    pub fn n(&self) -> usize {
+        self.names.len()
+    }
+
+    /// Values per material D.
+    pub fn d(&self) -> usize {
+        self.grid.len() * self.channels.len()
+    }
+
+    /// The row of material `i`.
+    pub fn row(&self, i: usize) -> &[f64] {
+        let d = self.d();
+        &self.values[i * d..(i + 1) * d]
+    }
+}
+
+/// Evaluates `materials` on `grid` x `channels` into memory. Use for small grids (tests);
+/// `stream::write_store` streams any size.
+pub fn generate(
+    materials: &[Material],
+    grid: AngularGrid,
+    channels: &Channels,
+) -> Result<SynthDataset> {
+    let d = grid.len() * channels.len();
+    let total = d
+        .checked_mul(materials.len())
+        .filter(|t| *t <= (1usize << 31))
+        .ok_or(Error::TooLarge {
+            n_materials: materials.len(),
+            dims: d,
+        })?;
+    let prepared = prepare_all(materials, channels)?;
+    let mut values = vec![0.0; total];
+    if d > 0 {
+        for (row, m) in values.chunks_mut(d).zip(&prepared) {
+            eval_on_grid(m, &grid, row);
+        }
+    }
+    Ok(SynthDataset {
+        names: materials.iter().map(|m| m.name.clone()).collect(),
+        grid,
+        channels: channels.clone(),
+        values,
+    })
+}
+
+/// The 51 preset materials of `seed` on a small grid, in memory: a ready-made dataset with
+/// known ground truth for other crates' tests (e.g. grid `8,8,16` and wavelengths
+/// `400:700:50` gives D = 7168).
+pub fn preset_dataset(grid: AngularGrid, channels: &Channels, seed: u64) -> Result<SynthDataset> {
+    generate(&crate::preset::preset(seed), grid, channels)
+}

@@ -1,0 +1,30 @@
+//! Physically based spectral BRDF models and the embedded default dataset of specgp.
+//!
+//! - [`spectrum`]: reflectance spectra (embedded ColorChecker and Spectralon tables, smooth
+//!   parametric shapes);
+//! - [`optics`]: dispersive indices, complex Fresnel reflectance of dielectrics and real metals,
+//!   thin-film interference;
+//! - [`microfacet`]: GGX with Smith height-correlated masking, Charlie sheen;
+//! - [`material`]: layered materials (diffuse / Oren-Nayar base, sheen, flakes, dielectric
+//!   interface, clear coat, bare metals), energy-conserving and reciprocal;
+//! - [`preset`]: 51 named materials spanning the RGL isotropic catalogue's families,
+//!   deterministic per seed;
+//! - [`dataset`]: evaluation on an [`brdf_io::AngularGrid`] in memory.
+
+pub mod dataset;
+pub mod error;
+pub mod material;
+pub mod microfacet;
+pub mod optics;
+pub mod preset;
+pub mod spectrum;
+
+pub use dataset::{DEFAULT_GRID, DEFAULT_WAVELENGTHS, SynthDataset, generate, preset_dataset};
+pub use error::{Error, Result};
+pub use material::{
+    Base, Body, Diffuse, Family, Flakes, Fresnel, Interface, Material, PreparedMaterial, Sheen,
+    Specular, Substrate, directional_albedo,
+};
+pub use optics::{Ior, Metal};
+pub use preset::{N_MATERIALS, preset, preset_material};
+pub use spectrum::Spectrum;

@@ -1,0 +1,765 @@
+//! Layered spectral BRDF models.
+//!
+//! A [`Material`] is a description (plain data); [`Material::prepare`] turns it into a
+//! [`PreparedMaterial`] for a set of wavelengths, which evaluates f(wi, wo, lambda) in 1/sr.
+//!
+//! Structure, from the bottom up:
+//! - a [`Base`]: a diffuse lobe (Lambert or energy-bounded Oren-Nayar) coloured by a reflectance
+//!   spectrum, optionally under a [`Sheen`] lobe (fabrics; albedo-scaled coupling), and mixed
+//!   with an area fraction of oriented [`Flakes`] (metallic and pearlescent paints);
+//! - optionally a dielectric [`Interface`] on the base (the binder of a paint or plastic): a GGX
+//!   specular lobe with spectral Fresnel plus the base attenuated by the interface transmittance
+//!   `T(mu) = 1 - E(mu)` in and out, where E is the interface's directional albedo;
+//! - or, instead of both, a bare metal ([`Body::Metal`]): GGX lobes with the complex Fresnel
+//!   reflectance of a real metal;
+//! - optionally a clear coat (another [`Interface`]) over everything, coupled the same way.
+//!
+//! Every lobe is reciprocal, and every layer conserves energy: GGX single scattering with
+//! height-correlated Smith masking has albedo <= F <= 1; diffuse and sheen lobes are normalised
+//! numerically so that their albedo is <= their colour; a layer's albedo is
+//! `E(mu_i) + T(mu_i) int T(mu_o) f_below cos <= E + (1 - E) = 1`. The tabulated E is taken at the
+//! largest index over the requested wavelengths (Fresnel grows with the index), so
+//! `T` never over-transmits.
+
+use std::f64::consts::PI;
+
+use brdf_io::{HalfDiff, Vec3};
+
+use crate::microfacet::{charlie_d, ggx_lobe, sheen_visibility, smith_g2};
+use crate::optics::{Complex, Ior, Metal, fresnel, thin_film};
+use crate::spectrum::Spectrum;
+
+/// Largest diffuse reflectance a base may have (keeps every material strictly passive).
+pub const MAX_ALBEDO: f64 = 0.99;
+
+/// The family of a material (its name prefix follows the RGL catalogue's naming).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Family {
+    /// Acrylic felts: rough diffuse with a strong sheen.
+    Felt,
+    /// Papers: rough diffuse with a faint broad gloss.
+    Paper,
+    /// Corrugated cardboard.
+    Cardboard,
+    /// Wall and ceiling paints, chalk paints: matte to eggshell.
+    WallPaint,
+    /// Vinyl wrapping films: matte, satin or gloss plastics, some metallic.
+    Vinyl,
+    /// Satin fabrics: sheen plus a soft specular.
+    Satin,
+    /// Car paints, solid or metallic, under a clear coat.
+    CarPaint,
+    /// Painted metal (model-kit paints): pigment and metal flakes over metal.
+    PaintedMetal,
+    /// Bare polished or brushed metals.
+    Metal,
+    /// Iridescent interference-flake paints and colour-change films.
+    Iridescent,
+    /// A leaf.
+    Leaf,
+    /// A near-ideal diffuser (Spectralon).
+    Diffuser,
+}
+
+/// How a specular lobe reflects: its Fresnel term.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Fresnel {
+    /// A dielectric with a real, dispersive index.
+    Dielectric(Ior),
+    /// A real metal (complex index from the embedded tables).
+    Conductor(Metal),
+    /// A thin dielectric film (Airy interference) on a substrate.
+    ThinFilm {
+        /// Index of the film.
+        film: Ior,
+        /// Film thickness, nm.
+        thickness_nm: f64,
+        /// The material under the film.
+        substrate: Substrate,
+    },
+}
+
+/// The substrate under a thin film.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Substrate {
+    /// A dielectric (e.g. mica).
+    Dielectric(Ior),
+    /// A metal (e.g. aluminium flakes).
+    Conductor(Metal),
+}
+
+/// A GGX microfacet specular lobe.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Specular {
+    /// GGX roughness alpha (> 0).
+    pub alpha: f64,
+    /// The Fresnel term.
+    pub fresnel: Fresnel,
+}
+
+/// The diffuse lobe shape.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Diffuse {
+    /// Lambertian, 1/pi.
+    Lambert,
+    /// Oren-Nayar in Fujii's energy-bounded form, roughness `sigma` in [0, 1]: flatter than
+    /// Lambert, with back-scattering at grazing angles.
+    OrenNayar {
+        /// Surface roughness (0 = Lambert).
+        sigma: f64,
+    },
+}
+
+/// A fabric sheen lobe (Charlie distribution, Neubelt visibility): brightest at grazing angles.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sheen {
+    /// Strength of the sheen in [0, 1]; the diffuse lobe under it receives only what the sheen
+    /// does not scatter (albedo scaling, `(1 - E_s(mu_i)) (1 - E_s(mu_o))`).
+    pub weight: f64,
+    /// Sheen colour (albedo of the normalised lobe), in [0, 1].
+    pub colour: Spectrum,
+    /// Sheen roughness in (0, 1]; small values concentrate the lobe at grazing angles.
+    pub roughness: f64,
+}
+
+/// Oriented flakes embedded in a base: a fraction of the surface reflects through a GGX lobe
+/// whose roughness is the spread of the flake normals.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Flakes {
+    /// Area fraction covered by flakes, in [0, 1].
+    pub coverage: f64,
+    /// The flakes' reflection (metal, or an interference film on mica/aluminium).
+    pub lobe: Specular,
+}
+
+/// A diffuse base with optional sheen and flakes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Base {
+    /// Diffuse reflectance spectrum (clamped to [0, [`MAX_ALBEDO`]]).
+    pub albedo: Spectrum,
+    /// Diffuse lobe shape.
+    pub diffuse: Diffuse,
+    /// Optional sheen.
+    pub sheen: Option<Sheen>,
+    /// Optional flakes.
+    pub flakes: Option<Flakes>,
+}
+
+/// A smooth or rough dielectric interface (binder or clear coat).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Interface {
+    /// GGX roughness of the interface.
+    pub alpha: f64,
+    /// Refractive index.
+    pub ior: Ior,
+}
+
+/// What lies under the optional clear coat.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Body {
+    /// A diffuse base, optionally under a dielectric interface.
+    Layered {
+        /// The base.
+        base: Base,
+        /// The interface on top of the base, if any.
+        interface: Option<Interface>,
+    },
+    /// A bare metal: weighted GGX lobes (weights sum to <= 1).
+    Metal {
+        /// (weight, lobe) pairs.
+        lobes: Vec<(f64, Specular)>,
+    },
+}
+
+/// A named spectral material.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Material {
+    /// Name, with an RGL-like family prefix (e.g. `acrylic_felt_green`).
+    pub name: String,
+    /// Family.
+    pub family: Family,
+    /// The body.
+    pub body: Body,
+    /// An optional clear coat over the body.
+    pub coat: Option<Interface>,
+}
+
+// ---------------------------------------------------------------------------------------------
+// Preparation.
+
+/// Nodes of the coupling tables, spaced as mu = (k / (N - 1))^2.
+const E_NODES: usize = 48;
+/// Stratified NDF samples per axis for the coupling tables.
+const E_SAMPLES: usize = 64;
+/// Relative safety margin on tabulated interface albedo (quadrature and interpolation error).
+const E_MARGIN: f64 = 1.01;
+
+/// A specular lobe prepared for a set of wavelengths.
+#[derive(Debug, Clone)]
+struct PSpec {
+    alpha: f64,
+    weight: f64,
+    kind: PFresnel,
+}
+
+#[derive(Debug, Clone)]
+enum PFresnel {
+    /// Interface from a real medium `n1` into `n2[l]`.
+    Index { n1: f64, n2: Vec<Complex> },
+    /// Thin film: incident medium `n1`, film index `nf[l]`, thickness, substrate `ns[l]`.
+    Film {
+        n1: f64,
+        nf: Vec<f64>,
+        d: f64,
+        ns: Vec<Complex>,
+        lambda: Vec<f64>,
+    },
+}
+
+impl PFresnel {
+    fn new(f: &Fresnel, n1: f64, wavelengths: &[f64]) -> Self {
+        match f {
+            Fresnel::Dielectric(ior) => Self::Index {
+                n1,
+                n2: wavelengths
+                    .iter()
+                    .map(|&l| Complex::real(ior.at(l)))
+                    .collect(),
+            },
+            Fresnel::Conductor(m) => Self::Index {
+                n1,
+                n2: wavelengths.iter().map(|&l| m.nk(l)).collect(),
+            },
+            Fresnel::ThinFilm {
+                film,
+                thickness_nm,
+                substrate,
+            } => Self::Film {
+                n1,
+                nf: wavelengths.iter().map(|&l| film.at(l)).collect(),
+                d: thickness_nm.max(0.0),
+                ns: wavelengths
+                    .iter()
+                    .map(|&l| match substrate {
+                        Substrate::Dielectric(ior) => Complex::real(ior.at(l)),
+                        Substrate::Conductor(m) => m.nk(l),
+                    })
+                    .collect(),
+                lambda: wavelengths.to_vec(),
+            },
+        }
+    }
+
+    #[inline]
+    fn eval(&self, l: usize, cos_d: f64) -> f64 {
+        match self {
+            Self::Index { n1, n2 } => fresnel(cos_d, *n1, n2[l]),
+            Self::Film {
+                n1,
+                nf,
+                d,
+                ns,
+                lambda,
+            } => thin_film(cos_d, lambda[l], *n1, nf[l], *d, ns[l]),
+        }
+    }
+}
+
+impl PSpec {
+    fn new(s: &Specular, weight: f64, n1: f64, wavelengths: &[f64]) -> Self {
+        Self {
+            alpha: s.alpha.clamp(1e-3, 1.0),
+            weight: weight.clamp(0.0, 1.0),
+            kind: PFresnel::new(&s.fresnel, n1, wavelengths),
+        }
+    }
+}
+
+/// A dielectric interface prepared for a set of wavelengths, with its coupling table.
+#[derive(Debug, Clone)]
+struct PInterface {
+    spec: PSpec,
+    /// Conservative interface albedo E at the nodes mu_k = (k / (N - 1))^2.
+    e_table: Vec<f64>,
+}
+
+impl PInterface {
+    fn new(i: &Interface, wavelengths: &[f64]) -> Self {
+        let spec = PSpec::new(
+            &Specular {
+                alpha: i.alpha,
+                fresnel: Fresnel::Dielectric(i.ior),
+            },
+            1.0,
+            1.0,
+            wavelengths,
+        );
+        // Fresnel reflectance grows with the index: tabulate E at the largest one.
+        let eta = i.ior.max_over(wavelengths);
+        let e_table = (0..E_NODES)
+            .map(|k| {
+                let t = k as f64 / (E_NODES - 1) as f64;
+                let mu = (t * t).max(1e-4);
+                (ggx_albedo(mu, spec.alpha, |c| fresnel(c, 1.0, Complex::real(eta))) * E_MARGIN
+                    + 1e-3)
+                    .min(1.0)
+            })
+            .collect();
+        Self { spec, e_table }
+    }
+
+    /// Transmittance 1 - E(mu) into the layer below.
+    #[inline]
+    fn transmittance(&self, mu: f64) -> f64 {
+        1.0 - table_at(&self.e_table, mu)
+    }
+}
+
+/// Directional albedo of a GGX lobe with Fresnel `f(cos_d)` at incidence cosine `mu`:
+/// E = int F G2 (wi.h) / (mu cos_h) over h distributed as D(h) cos_h, by stratified quadrature.
+fn ggx_albedo(mu: f64, alpha: f64, f: impl Fn(f64) -> f64) -> f64 {
+    let wi = [(1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu];
+    let n = E_SAMPLES;
+    let mut sum = 0.0;
+    for a in 0..n {
+        let u = (a as f64 + 0.5) / n as f64;
+        let tan2 = alpha * alpha * u / (1.0 - u);
+        let cos_h = 1.0 / (1.0 + tan2).sqrt();
+        let sin_h = (1.0 - cos_h * cos_h).max(0.0).sqrt();
+        for b in 0..n {
+            let phi = (b as f64 + 0.5) / n as f64 * 2.0 * PI;
+            let h = [sin_h * phi.cos(), sin_h * phi.sin(), cos_h];
+            let cos_d = dot(wi, h);
+            if cos_d <= 0.0 {
+                continue;
+            }
+            let mu_o = 2.0 * cos_d * h[2] - wi[2];
+            if mu_o <= 0.0 {
+                continue;
+            }
+            sum += f(cos_d) * smith_g2(mu, mu_o, alpha) * cos_d / (mu * cos_h);
+        }
+    }
+    sum / (n * n) as f64
+}
+
+/// Directional albedo of a lobe `shape(wi, wo)` (unit colour) at the coupling-table nodes
+/// mu_k = (k / (N - 1))^2, by cosine-weighted stratified quadrature. Used to normalise the
+/// diffuse and sheen lobes and to couple the sheen with the diffuse lobe under it.
+fn albedo_table(shape: impl Fn(Vec3, Vec3) -> f64) -> Vec<f64> {
+    let n = 48;
+    (0..E_NODES)
+        .map(|k| {
+            let t = k as f64 / (E_NODES - 1) as f64;
+            let mu = (t * t).max(1e-3);
+            let wi = [(1.0 - mu * mu).sqrt(), 0.0, mu];
+            let mut sum = 0.0;
+            for a in 0..n {
+                let u = (a as f64 + 0.5) / n as f64;
+                let r = u.sqrt();
+                let z = (1.0 - u).sqrt();
+                for b in 0..n {
+                    let phi = (b as f64 + 0.5) / n as f64 * 2.0 * PI;
+                    sum += shape(wi, [r * phi.cos(), r * phi.sin(), z]);
+                }
+            }
+            sum * PI / (n * n) as f64
+        })
+        .collect()
+}
+
+/// Linear interpolation in a coupling table at `mu`.
+#[inline]
+fn table_at(table: &[f64], mu: f64) -> f64 {
+    let x = mu.clamp(0.0, 1.0).sqrt() * (E_NODES - 1) as f64;
+    let i = (x.floor() as usize).min(E_NODES - 2);
+    let f = x - i as f64;
+    table[i] * (1.0 - f) + table[i + 1] * f
+}
+
+#[inline]
+fn dot(a: Vec3, b: Vec3) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// Fujii's energy-bounded Oren-Nayar shape for unit albedo (before normalisation).
+#[inline]
+fn oren_nayar(wi: Vec3, wo: Vec3, sigma: f64) -> f64 {
+    let a = 1.0 / (PI + (PI / 2.0 - 2.0 / 3.0) * sigma);
+    let b = sigma * a;
+    let s = dot(wi, wo) - wi[2] * wo[2];
+    let t = if s > 0.0 { wi[2].max(wo[2]) } else { 1.0 };
+    (a + b * s / t.max(1e-6)).max(0.0)
+}
+
+/// The sheen shape for unit colour (before normalisation).
+#[inline]
+fn sheen_shape(wi: Vec3, wo: Vec3, r: f64) -> f64 {
+    let h = [wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]];
+    let len = dot(h, h).sqrt();
+    if len <= 0.0 {
+        return 0.0;
+    }
+    charlie_d(h[2] / len, r) * sheen_visibility(wi[2], wo[2])
+}
+
+#[derive(Debug, Clone)]
+struct PBase {
+    diffuse: Diffuse,
+    /// Normalisation of the diffuse shape (>= 1).
+    diffuse_norm: f64,
+    /// Per-wavelength diffuse reflectance times the diffuse weight.
+    albedo: Vec<f64>,
+    /// Sheen: roughness, normalisation, per-wavelength colour times weight, and the
+    /// (conservative) sheen albedo table for a white colour.
+    sheen: Option<(f64, f64, Vec<f64>, Vec<f64>)>,
+    /// Flakes: coverage and lobe.
+    flakes: Option<(f64, PSpec)>,
+}
+
+#[derive(Debug, Clone)]
+enum PBody {
+    Layered {
+        base: Box<PBase>,
+        interface: Option<PInterface>,
+    },
+    Metal {
+        lobes: Vec<PSpec>,
+    },
+}
+
+/// A material prepared for evaluation at a fixed list of wavelengths.
+#[derive(Debug, Clone)]
+pub struct PreparedMaterial {
+    wavelengths: Vec<f64>,
+    body: PBody,
+    coat: Option<PInterface>,
+}
+
+impl Material {
+    /// Prepares the material for evaluation at `wavelengths` (nm): caches per-wavelength
+    /// constants and the energy-coupling tables. Costs a few milliseconds.
+    pub fn prepare(&self, wavelengths: &[f64]) -> PreparedMaterial {
+        let covered = self.coat.is_some();
+        let body = match &self.body {
+            Body::Metal { lobes } => {
+                let total: f64 = lobes.iter().map(|(w, _)| w.max(0.0)).sum();
+                let scale = if total > 1.0 { 1.0 / total } else { 1.0 };
+                PBody::Metal {
+                    lobes: lobes
+                        .iter()
+                        .map(|(w, s)| PSpec::new(s, w.max(0.0) * scale, 1.0, wavelengths))
+                        .collect(),
+                }
+            }
+            Body::Layered { base, interface } => {
+                // Flakes sit in a binder when anything covers them.
+                let n1 = if covered || interface.is_some() {
+                    Ior::BINDER.at(550.0)
+                } else {
+                    1.0
+                };
+                PBody::Layered {
+                    base: Box::new(prepare_base(base, n1, wavelengths)),
+                    interface: interface.as_ref().map(|i| PInterface::new(i, wavelengths)),
+                }
+            }
+        };
+        PreparedMaterial {
+            wavelengths: wavelengths.to_vec(),
+            body,
+            coat: self.coat.as_ref().map(|c| PInterface::new(c, wavelengths)),
+        }
+    }
+
+    /// f(wi, wo, lambda) in 1/sr (slow: prepares the material for one wavelength; use
+    /// [`Material::prepare`] for many evaluations).
+    pub fn eval(&self, wi: Vec3, wo: Vec3, lambda_nm: f64) -> f64 {
+        let mut out = [0.0];
+        self.prepare(&[lambda_nm]).eval(wi, wo, &mut out);
+        out[0]
+    }
+}
+
+fn prepare_base(base: &Base, n1: f64, wavelengths: &[f64]) -> PBase {
+    let coverage = base
+        .flakes
+        .as_ref()
+        .map_or(0.0, |f| f.coverage.clamp(0.0, 1.0));
+    let sheen_w = base
+        .sheen
+        .as_ref()
+        .map_or(0.0, |s| s.weight.clamp(0.0, 1.0));
+    let diffuse_w = 1.0 - coverage;
+    let diffuse_norm = match base.diffuse {
+        Diffuse::Lambert => 1.0,
+        Diffuse::OrenNayar { sigma } => {
+            let t = albedo_table(|wi, wo| oren_nayar(wi, wo, sigma));
+            t.into_iter().fold(1.0, f64::max) * 1.01
+        }
+    };
+    let albedo = wavelengths
+        .iter()
+        .map(|&l| diffuse_w * base.albedo.eval(l).clamp(0.0, MAX_ALBEDO))
+        .collect();
+    let sheen = base.sheen.as_ref().map(|s| {
+        let r = s.roughness.clamp(0.05, 1.0);
+        let table = albedo_table(|wi, wo| sheen_shape(wi, wo, r));
+        let norm = table.iter().copied().fold(1.0, f64::max) * 1.02;
+        // Albedo of the normalised, weighted white sheen, with a safety margin.
+        let e: Vec<f64> = table
+            .iter()
+            .map(|a| (sheen_w * a / norm * 1.02 + 1e-3).min(1.0))
+            .collect();
+        let w = (1.0 - coverage) * sheen_w;
+        let colour = wavelengths
+            .iter()
+            .map(|&l| w * s.colour.eval(l).clamp(0.0, 1.0))
+            .collect();
+        (r, norm, colour, e)
+    });
+    let flakes = base
+        .flakes
+        .as_ref()
+        .map(|f| (coverage, PSpec::new(&f.lobe, 1.0, n1, wavelengths)));
+    PBase {
+        diffuse: base.diffuse,
+        diffuse_norm,
+        albedo,
+        sheen,
+        flakes,
+    }
+}
+
+/// Geometry shared by every lobe of one direction pair.
+struct Geom {
+    wi: Vec3,
+    wo: Vec3,
+    mu_i: f64,
+    mu_o: f64,
+    cos_h: f64,
+    cos_d: f64,
+}
+
+impl PSpec {
+    /// D G2 / (4 mu_i mu_o) times the lobe weight (Fresnel excluded).
+    #[inline]
+    fn shape(&self, g: &Geom) -> f64 {
+        self.weight * ggx_lobe(g.cos_h, g.mu_i, g.mu_o, self.alpha)
+    }
+}
+
+impl PreparedMaterial {
+    /// The wavelengths (nm) this material was prepared for.
+    pub fn wavelengths(&self) -> &[f64] {
+        &self.wavelengths
+    }
+
+    /// f(wi, wo, lambda_l) in 1/sr for every prepared wavelength, written to `out` (length =
+    /// number of wavelengths). Directions need not be normalised; any direction at or below the
+    /// horizon gives 0.
+    pub fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) {
+        debug_assert_eq!(out.len(), self.wavelengths.len());
+        out.fill(0.0);
+        let (Some(wi), Some(wo)) = (normalize(wi), normalize(wo)) else {
+            return;
+        };
+        if wi[2] <= 0.0 || wo[2] <= 0.0 {
+            return;
+        }
+        let Some(h) = normalize([wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]]) else {
+            return;
+        };
+        let g = Geom {
+            wi,
+            wo,
+            mu_i: wi[2],
+            mu_o: wo[2],
+            cos_h: h[2],
+            cos_d: dot(wi, h).clamp(0.0, 1.0),
+        };
+        match &self.body {
+            PBody::Metal { lobes } => {
+                for lobe in lobes {
+                    let s = lobe.shape(&g);
+                    if s > 0.0 {
+                        for (l, o) in out.iter_mut().enumerate() {
+                            *o += s * lobe.kind.eval(l, g.cos_d);
+                        }
+                    }
+                }
+            }
+            PBody::Layered { base, interface } => {
+                base.eval(&g, out);
+                if let Some(i) = interface {
+                    i.apply(&g, out);
+                }
+            }
+        }
+        if let Some(c) = &self.coat {
+            c.apply(&g, out);
+        }
+    }
+
+    /// f at the direction pair of Rusinkiewicz angles `hd` (see [`PreparedMaterial::eval`]).
+    pub fn eval_half_diff(&self, hd: &HalfDiff, out: &mut [f64]) {
+        let (wi, wo) = hd.to_dirs();
+        self.eval(wi, wo, out);
+    }
+}
+
+impl PBase {
+    fn eval(&self, g: &Geom, out: &mut [f64]) {
+        let d = match self.diffuse {
+            Diffuse::Lambert => 1.0 / PI,
+            Diffuse::OrenNayar { sigma } => oren_nayar(g.wi, g.wo, sigma) / self.diffuse_norm,
+        };
+        // The sheen sits on top of the diffuse lobe, which only receives what the sheen does
+        // not scatter (albedo scaling, reciprocal in wi and wo).
+        let (t, sheen) = match &self.sheen {
+            Some((r, norm, _, e)) => (
+                (1.0 - table_at(e, g.mu_i)) * (1.0 - table_at(e, g.mu_o)),
+                sheen_shape(g.wi, g.wo, *r) / norm,
+            ),
+            None => (1.0, 0.0),
+        };
+        for (o, a) in out.iter_mut().zip(&self.albedo) {
+            *o = t * a * d;
+        }
+        if let Some((_, _, colour, _)) = &self.sheen {
+            for (o, c) in out.iter_mut().zip(colour) {
+                *o += c * sheen;
+            }
+        }
+        if let Some((coverage, lobe)) = &self.flakes {
+            let s = coverage * lobe.shape(g);
+            if s > 0.0 {
+                for (l, o) in out.iter_mut().enumerate() {
+                    *o += s * lobe.kind.eval(l, g.cos_d);
+                }
+            }
+        }
+    }
+}
+
+impl PInterface {
+    /// Replaces `below` by this interface's reflection plus the coupled layer below.
+    fn apply(&self, g: &Geom, below: &mut [f64]) {
+        let t = self.transmittance(g.mu_i) * self.transmittance(g.mu_o);
+        let s = self.spec.shape(g);
+        for (l, o) in below.iter_mut().enumerate() {
+            let spec = if s > 0.0 {
+                s * self.spec.kind.eval(l, g.cos_d)
+            } else {
+                0.0
+            };
+            *o = spec + t * *o;
+        }
+    }
+}
+
+fn normalize(v: Vec3) -> Option<Vec3> {
+    let n = dot(v, v).sqrt();
+    (n > 0.0 && n.is_finite()).then(|| [v[0] / n, v[1] / n, v[2] / n])
+}
+
+/// Directional albedo `int f(wi, wo) cos(theta_o) dwo` per prepared wavelength at incidence
+/// angle `theta_i` (radians), by deterministic quadrature over half vectors: theta_h = u^2 pi/2
+/// on `n` midpoints (dense near the normal, resolving sharp specular peaks), phi_h on `2n`
+/// midpoints over [0, pi) (the integrand is symmetric in phi_h), with `dwo = 4 (wi.h) dwh`.
+pub fn directional_albedo(m: &PreparedMaterial, theta_i: f64, n: usize) -> Vec<f64> {
+    let nl = m.wavelengths.len();
+    let mut total = vec![0.0; nl];
+    let mut f = vec![0.0; nl];
+    let wi = [theta_i.sin(), 0.0, theta_i.cos()];
+    let n = n.max(4);
+    let n_phi = 2 * n;
+    let du = 1.0 / n as f64;
+    let dphi = PI / n_phi as f64;
+    for a in 0..n {
+        let u = (a as f64 + 0.5) * du;
+        let th = u * u * PI / 2.0;
+        let (sh, ch) = th.sin_cos();
+        let dth = PI * u * du;
+        for b in 0..n_phi {
+            let phi = (b as f64 + 0.5) * dphi;
+            let h = [sh * phi.cos(), sh * phi.sin(), ch];
+            let cd = dot(wi, h);
+            if cd <= 0.0 {
+                continue;
+            }
+            let wo = [
+                2.0 * cd * h[0] - wi[0],
+                2.0 * cd * h[1] - wi[1],
+                2.0 * cd * h[2] - wi[2],
+            ];
+            if wo[2] <= 0.0 {
+                continue;
+            }
+            m.eval(wi, wo, &mut f);
+            // Both halves of phi in [0, 2 pi): factor 2.
+            let w = 2.0 * wo[2] * 4.0 * cd * sh * dth * dphi;
+            for (t, v) in total.iter_mut().zip(&f) {
+                *t += v * w;
+            }
+        }
+    }
+    total
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lambert(rho: f64) -> Material {
+        Material {
+            name: "lambert".into(),
+            family: Family::Diffuser,
+            body: Body::Layered {
+                base: Base {
+                    albedo: Spectrum::Constant(rho),
+                    diffuse: Diffuse::Lambert,
+                    sheen: None,
+                    flakes: None,
+                },
+                interface: None,
+            },
+            coat: None,
+        }
+    }
+
+    #[test]
+    fn albedo_quadrature_is_accurate_for_lambert() {
+        let m = lambert(0.9).prepare(&[550.0]);
+        for deg in [0.0f64, 30.0, 60.0, 80.0, 89.0] {
+            let a = directional_albedo(&m, deg.to_radians(), 96)[0];
+            assert!((a - 0.9).abs() < 0.9 * 2e-3, "{deg} deg: {a}");
+        }
+    }
+
+    #[test]
+    fn ggx_albedo_of_white_smooth_lobe_is_near_one() {
+        // F = 1, near-normal incidence on a smooth surface: almost all energy is reflected.
+        let e = ggx_albedo(0.9, 0.05, |_| 1.0);
+        assert!(e > 0.98 && e <= 1.0 + 1e-9, "{e}");
+        // Rough GGX loses energy to (missing) multiple scattering, more at grazing.
+        let e_rough = ggx_albedo(0.2, 1.0, |_| 1.0);
+        assert!(e_rough < 0.8, "{e_rough}");
+    }
+
+    #[test]
+    fn interface_transmittance_is_physical() {
+        let i = PInterface::new(
+            &Interface {
+                alpha: 0.1,
+                ior: Ior::constant(1.5),
+            },
+            &[550.0],
+        );
+        // Normal incidence: 1 - 0.04 (smooth-ish surface), with the conservative margin.
+        let t0 = i.transmittance(1.0);
+        assert!(t0 > 0.94 && t0 < 0.961, "{t0}");
+        // Grazing: much less is transmitted.
+        assert!(i.transmittance(0.05) < 0.75);
+    }
+}
