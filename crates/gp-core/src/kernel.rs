@@ -257,24 +257,19 @@ impl KernelParams {
         Ok(())
     }
 
-    /// Scaled squared distance `r^2 = sum_j (a_j - b_j)^2 / l_j^2` (no validation; slices of length q).
+    /// Scaled squared distance `r^2 = sum_j (a_j / l_j - b_j / l_j)^2` (no validation; slices of
+    /// length q). Every kernel evaluation in this crate uses exactly this arithmetic (coordinates
+    /// divided by `l_j` first, then summed over `j` in order), so `K` and cross-covariances agree
+    /// bit for bit.
     #[inline]
     pub fn scaled_sq_dist(&self, a: &[f64], b: &[f64]) -> f64 {
-        match &self.length_scale {
-            LengthScale::Isotropic(l) => {
-                let r: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
-                r / (l * l)
-            }
-            LengthScale::Ard(ls) => a
-                .iter()
-                .zip(b)
-                .zip(ls)
-                .map(|((x, y), l)| {
-                    let d = (x - y) / l;
-                    d * d
-                })
-                .sum(),
+        let mut r = 0.0;
+        for (j, (x, y)) in a.iter().zip(b).enumerate() {
+            let l = self.length_scale.axis(j);
+            let d = x / l - y / l;
+            r += d * d;
         }
+        r
     }
 
     /// RBF value `k(a, b) = s^2 exp(-r^2/2)` (no delta term; slices of length q, unchecked).
@@ -293,6 +288,40 @@ impl KernelParams {
         Ok((0..x.nrows())
             .map(|i| (0..x.ncols()).map(|j| x[(i, j)]).collect())
             .collect())
+    }
+
+    /// Validates `x` like `rows_of` and returns the scaled coordinates `z_ij = x_ij / l_j`
+    /// stored per axis (`q` vectors of length `N`), for vectorised kernel evaluation.
+    pub(crate) fn scaled_axes(
+        &self,
+        x: MatRef<'_, f64>,
+        what: &'static str,
+    ) -> Result<Vec<Vec<f64>>> {
+        if x.nrows() == 0 {
+            return Err(GpError::Empty { what });
+        }
+        self.check_dim(x.ncols())?;
+        check_finite(x, what)?;
+        Ok((0..x.ncols())
+            .map(|j| {
+                let l = self.length_scale.axis(j);
+                (0..x.nrows()).map(|i| x[(i, j)] / l).collect()
+            })
+            .collect())
+    }
+
+    /// Fills `out[i] = r^2(x_i, x*)` from scaled axes `z` (see `scaled_axes`); same arithmetic
+    /// as [`scaled_sq_dist`](Self::scaled_sq_dist).
+    #[inline]
+    pub(crate) fn fill_sq_dist(&self, z: &[Vec<f64>], x_star: &[f64], out: &mut [f64]) {
+        out.iter_mut().for_each(|v| *v = 0.0);
+        for (j, zj) in z.iter().enumerate() {
+            let zs = x_star[j] / self.length_scale.axis(j);
+            for (o, &zi) in out.iter_mut().zip(zj) {
+                let d = zi - zs;
+                *o += d * d;
+            }
+        }
     }
 
     /// `K_rbf(X)`, `N x N`, without the noise term. `X` is `N x q` (rows are points).
@@ -330,7 +359,7 @@ impl KernelParams {
         x_star: MatRef<'_, f64>,
         par: Par,
     ) -> Result<Mat<f64>> {
-        let rows = self.rows_of(x, "training latent points X")?;
+        let z = self.scaled_axes(x, "training latent points X")?;
         if x_star.ncols() != x.ncols() {
             return Err(GpError::DimensionMismatch {
                 what: "test points X* columns vs latent dimension q",
@@ -339,25 +368,15 @@ impl KernelParams {
             });
         }
         check_finite(x_star, "test latent points X*")?;
-        let n = rows.len();
+        let n = x.nrows();
         let m = x_star.nrows();
         let q = x.ncols();
         let mut out = Mat::<f64>::zeros(n, m);
+        let s2 = self.signal_variance;
         let fill = |c: usize, col: &mut [f64]| {
-            let mut xs = [0.0f64; 8];
-            let mut xs_vec = Vec::new();
-            let xs: &mut [f64] = if q <= 8 {
-                &mut xs[..q]
-            } else {
-                xs_vec.resize(q, 0.0);
-                &mut xs_vec
-            };
-            for (j, v) in xs.iter_mut().enumerate() {
-                *v = x_star[(c, j)];
-            }
-            for (i, o) in col.iter_mut().enumerate() {
-                *o = self.rbf(&rows[i], xs);
-            }
+            let xs: Vec<f64> = (0..q).map(|j| x_star[(c, j)]).collect();
+            self.fill_sq_dist(&z, &xs, col);
+            col.iter_mut().for_each(|v| *v = s2 * (-0.5 * *v).exp());
         };
         if n > 0 && m > 0 {
             let run = |(c, col): (usize, faer::ColMut<'_, f64>)| {

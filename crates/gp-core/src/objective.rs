@@ -19,6 +19,7 @@ use crate::cholesky::{CholeskyFactor, JitterPolicy};
 use crate::error::{GpError, Result, check_finite, check_symmetric};
 use crate::gram::{centre_gram, symmetrise};
 use crate::kernel::{HyperGradient, KernelParams, LengthScale};
+use faer::linalg::matmul::triangular::BlockStructure;
 use faer::{Accum, Mat, MatRef, Par};
 
 const LN_2PI: f64 = 1.837_877_066_409_345_3;
@@ -236,15 +237,27 @@ impl GplvmObjective {
         let mut b = Mat::<f64>::zeros(n, n);
         faer::linalg::matmul::matmul(b.as_mut(), Accum::Replace, &kinv, &self.s, 1.0, par);
         let trace: f64 = (0..n).map(|i| b[(i, i)]).sum();
+        // A is symmetric: compute its lower triangle only (half the flops), then mirror.
         let mut dk = Mat::<f64>::zeros(n, n);
-        faer::linalg::matmul::matmul(dk.as_mut(), Accum::Replace, &b, &kinv, 0.5, par);
+        faer::linalg::matmul::triangular::matmul(
+            dk.as_mut(),
+            BlockStructure::TriangularLower,
+            Accum::Replace,
+            &b,
+            BlockStructure::Rectangular,
+            &kinv,
+            BlockStructure::Rectangular,
+            0.5,
+            par,
+        );
         let half_d = 0.5 * self.d as f64;
         for j in 0..n {
-            for i in 0..n {
-                dk[(i, j)] -= half_d * kinv[(i, j)];
+            for i in j..n {
+                let v = dk[(i, j)] - half_d * kinv[(i, j)];
+                dk[(i, j)] = v;
+                dk[(j, i)] = v;
             }
         }
-        symmetrise(&mut dk);
         let value = self.assemble(f.log_det(), trace, x)?;
         let g = params.backprop(x, dk.as_ref())?;
         let mut grad_x = g.x;

@@ -39,7 +39,8 @@ pub enum Predictor {
 /// factor of `K`.
 #[derive(Debug, Clone)]
 pub struct GpRegression {
-    rows: Vec<Vec<f64>>,
+    /// Scaled training coordinates `x_ij / l_j`, one vector per latent axis.
+    z: Vec<Vec<f64>>,
     params: KernelParams,
     chol: CholeskyFactor,
 }
@@ -57,20 +58,20 @@ impl GpRegression {
         policy: JitterPolicy,
         par: Par,
     ) -> Result<Self> {
-        let rows = params.rows_of(x, "training latent points X")?;
+        let z = params.scaled_axes(x, "training latent points X")?;
         let k = params.kernel_matrix(x)?;
         let chol = CholeskyFactor::with_policy(k.as_ref(), policy, par)?;
-        Ok(GpRegression { rows, params, chol })
+        Ok(GpRegression { z, params, chol })
     }
 
     /// Number of training points `N`.
     pub fn n(&self) -> usize {
-        self.rows.len()
+        self.z[0].len()
     }
 
     /// Latent dimension `q`.
     pub fn q(&self) -> usize {
-        self.rows[0].len()
+        self.z.len()
     }
 
     /// Hyperparameters.
@@ -113,9 +114,11 @@ impl GpRegression {
     /// Fills `out` (length N) with `k*` for the given predictor.
     fn fill_kstar(&self, x_star: &[f64], predictor: Predictor, out: &mut [f64]) {
         let mu = self.effective_noise();
-        for (o, xi) in out.iter_mut().zip(&self.rows) {
-            let r2 = self.params.scaled_sq_dist(xi, x_star);
-            *o = self.params.signal_variance() * (-0.5 * r2).exp();
+        let s2 = self.params.signal_variance();
+        self.params.fill_sq_dist(&self.z, x_star, out);
+        for o in out.iter_mut() {
+            let r2 = *o;
+            *o = s2 * (-0.5 * r2).exp();
             if predictor == Predictor::Exact && r2 == 0.0 {
                 *o += mu;
             }
