@@ -6,6 +6,9 @@
 
 pub mod error;
 pub mod grid;
+pub mod merl;
+pub mod nbrdf;
+pub mod npy;
 pub mod rgl;
 pub mod source;
 pub mod store;

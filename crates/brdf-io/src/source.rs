@@ -6,7 +6,10 @@ use crate::grid::{Channels, Vec3};
 
 /// A BRDF that can be evaluated at arbitrary direction pairs.
 ///
-/// Directions are in the local frame (z = surface normal) and need not be normalised. Values are
+/// Directions are in the local frame (z = surface normal) and need not be normalised; the
+/// argument order is Mitsuba 3's `BSDF::eval` (`wi` = `si.wi`, `wo` = the other direction), so an
+/// RGL file evaluates exactly as Mitsuba's `measured` plugin (reciprocal data such as MERL does
+/// not care). Grid resampling passes [`crate::HalfDiff::to_dirs`]'s pair in order. Values are
 /// the BRDF f in 1/sr (no cosine factor); a pair with either direction at or below the horizon
 /// gives 0 in every channel. Implementations are `Sync`, so callers may evaluate in parallel.
 pub trait BrdfSource: Sync {

@@ -127,3 +127,213 @@ fn rgl_resample_is_symmetric_under_reciprocity_and_zero_below_horizon() {
     bsdf.eval(wo, wi, &mut f2).unwrap();
     assert!((f1[1] - f2[1]).abs() < 0.1 * f1[1], "{f1:?} vs {f2:?}");
 }
+
+/// Seeded direction pairs with both elevations below `max_deg` (a tiny xorshift, no dependency).
+fn random_pairs(n: usize, max_deg: f64, seed: u64) -> Vec<([f64; 3], [f64; 3])> {
+    let mut s = seed | 1;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let max = max_deg.to_radians();
+    let mut dir = |next: &mut dyn FnMut() -> f64| {
+        // Uniform in solid angle over the cap theta <= max.
+        let cos_t = 1.0 - next() * (1.0 - max.cos());
+        let sin_t = (1.0 - cos_t * cos_t).sqrt();
+        let phi = 2.0 * std::f64::consts::PI * next();
+        [sin_t * phi.cos(), sin_t * phi.sin(), cos_t]
+    };
+    (0..n).map(|_| (dir(&mut next), dir(&mut next))).collect()
+}
+
+#[test]
+fn nbrdf_rgl_networks_agree_with_rgl_files_at_non_grazing_directions() {
+    use brdf_io::nbrdf::NbrdfSet;
+    let Some(data) = shared_data() else { return };
+    let set = NbrdfSet::open(
+        data.join("nbrdf/rgl-isotropic_nbrdf_weights_675.npy"),
+        data.join("nbrdf/rgl-isotropic_nbrdf_names.txt"),
+    )
+    .unwrap();
+    assert_eq!(set.len(), 51);
+    let pairs = random_pairs(400, 60.0, 7);
+    let mut all = Vec::new();
+    for file in rgl_files(&data) {
+        let name = file.file_stem().unwrap().to_str().unwrap();
+        let i = set.find(name).unwrap_or_else(|| panic!("{name} not in the names file"));
+        let net = set.material(i).unwrap();
+        let bsdf = RglBsdf::open(&file).unwrap();
+        let mut errs = Vec::new();
+        let mut f = [0.0; 3];
+        for (wi, wo) in &pairs {
+            bsdf.eval(*wi, *wo, &mut f).unwrap();
+            let g = net.eval(*wi, *wo);
+            for c in 0..3 {
+                if f[c] > 1e-3 {
+                    errs.push((g[c] - f[c]).abs() / f[c]);
+                }
+            }
+        }
+        errs.sort_by(f64::total_cmp);
+        let median = errs[errs.len() / 2];
+        println!("{name}: median relative error {median:.3}, 90th percentile {:.3}", errs[errs.len() * 9 / 10]);
+        // SOURCES.md: the networks agree within ~5-20 %.
+        assert!(median < 0.25, "{name}: median relative error {median}");
+        all.extend(errs);
+    }
+    all.sort_by(f64::total_cmp);
+    let median = all[all.len() / 2];
+    println!("all 7 materials: median relative error {median:.3}");
+    assert!(median < 0.05, "overall median relative error {median}");
+}
+
+#[test]
+fn nbrdf_resample_counts_grazing_outliers() {
+    use brdf_io::nbrdf::{NbrdfOptions, NbrdfSet};
+    let Some(data) = shared_data() else { return };
+    let set = NbrdfSet::open(
+        data.join("nbrdf/rgl-isotropic_nbrdf_weights_675.npy"),
+        data.join("nbrdf/rgl-isotropic_nbrdf_names.txt"),
+    )
+    .unwrap();
+    let grid = AngularGrid::new(10, 10, 20).unwrap();
+    let mut worst = (0.0f64, String::new());
+    for i in 0..set.len() {
+        let net = set.material(i).unwrap();
+        let (v, r) = net.resample(&grid).unwrap();
+        assert_eq!(v.len(), grid.len() * 3);
+        assert_eq!(r.non_finite, 0);
+        if r.max > worst.0 {
+            worst = (r.max, set.names()[i].clone());
+        }
+        // The same cell through eval.
+        let a = grid.index(3, 4, 5);
+        let (wi, wo) = grid.bin_centre_flat(a).to_dirs();
+        let e = net.eval(wi, wo);
+        assert!((f64::from(v[a * 3]) - e[0]).abs() <= 1e-6 * e[0].max(1e-6));
+        // Clamping caps every value at the threshold and counts the same outliers.
+        let opts = NbrdfOptions {
+            outlier_threshold: 2.0,
+            clamp_outliers: true,
+        };
+        let (vc, rc) = net.resample_with(&grid, opts).unwrap();
+        assert!(vc.iter().all(|x| *x <= 2.0));
+        assert_eq!(rc.outliers, rc.outliers_clamped);
+        assert_eq!(rc.outliers, v.iter().filter(|x| **x > 2.0).count());
+    }
+    println!("largest network value on grid {grid}: {:.3e} ({})", worst.0, worst.1);
+}
+
+/// Rebuilds an RGB file as a spectral file with three wavelengths (B at 450, G at 550, R at
+/// 650 nm) through the tensor writer.
+fn spectral_copy(rgb_file: &Path, out: &Path) {
+    use brdf_io::tensor::{Field, TensorFile};
+    let tf = TensorFile::open(rgb_file).unwrap();
+    let rgb = tf.field("rgb").unwrap();
+    let s = rgb.shape().to_vec();
+    let v = rgb.to_f32(rgb_file).unwrap();
+    let n = s[3] * s[4];
+    let mut spectra = v.clone();
+    for slice in 0..s[0] * s[1] {
+        for (dst, src) in [(0, 2), (1, 1), (2, 0)] {
+            let a = (slice * 3 + dst) * n;
+            let b = (slice * 3 + src) * n;
+            spectra[a..a + n].copy_from_slice(&v[b..b + n]);
+        }
+    }
+    let mut fields: Vec<Field> = tf
+        .fields()
+        .iter()
+        .filter(|f| f.name() != "rgb")
+        .cloned()
+        .collect();
+    fields.push(Field::from_f32("wavelengths", vec![3], &[450.0, 550.0, 650.0]).unwrap());
+    fields.push(Field::from_f32("spectra", s, &spectra).unwrap());
+    TensorFile::write(out, &fields).unwrap();
+}
+
+#[test]
+fn tensor_writer_round_trips_a_real_file_and_spectral_files_evaluate() {
+    use brdf_io::tensor::TensorFile;
+    let Some(data) = shared_data() else { return };
+    let file = data.join("rgl-rgb/satin_rosaline_rgb.bsdf");
+    let tf = TensorFile::open(&file).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let copy = dir.path().join("copy.bsdf");
+    TensorFile::write(&copy, tf.fields()).unwrap();
+    let back = TensorFile::open(&copy).unwrap();
+    assert_eq!(back.fields(), tf.fields());
+    // Same layout as RGL's own writer: byte-identical.
+    assert_eq!(std::fs::read(&copy).unwrap(), std::fs::read(&file).unwrap());
+
+    let spec = dir.path().join("spec.bsdf");
+    spectral_copy(&file, &spec);
+    let rgb = RglBsdf::open(&file).unwrap();
+    let s = RglBsdf::open(&spec).unwrap();
+    assert_eq!(
+        s.native_channels(),
+        &Channels::spectral(vec![450.0, 550.0, 650.0]).unwrap()
+    );
+    let s = s
+        .with_channels(&Channels::spectral(vec![450.0, 500.0, 550.0, 650.0]).unwrap())
+        .unwrap();
+    for (wi, wo) in random_pairs(50, 85.0, 3) {
+        let (mut a, mut b) = ([0.0; 3], [0.0; 4]);
+        rgb.eval(wi, wo, &mut a).unwrap();
+        s.eval(wi, wo, &mut b).unwrap();
+        let close = |x: f64, y: f64| (x - y).abs() <= 1e-12 * x.abs().max(1.0);
+        assert!(close(b[0], a[2]) && close(b[2], a[1]) && close(b[3], a[0]), "{a:?} {b:?}");
+        assert!(close(b[1], 0.5 * (a[2] + a[1])), "500 nm interpolates 450 and 550");
+    }
+    let e = s
+        .clone()
+        .with_channels(&Channels::spectral(vec![400.0]).unwrap())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("400") && e.contains("450"), "{e}");
+    assert!(rgb.clone().with_channels(&Channels::spectral(vec![500.0]).unwrap()).is_err());
+    // Resampling at chosen wavelengths: channel fastest.
+    let grid = AngularGrid::new(4, 4, 8).unwrap();
+    let want = Channels::spectral(vec![550.0, 650.0]).unwrap();
+    let (v, _) = s.resample(&grid, &want).unwrap();
+    let (w, _) = rgb.resample(&grid, &Channels::Rgb).unwrap();
+    for a in 0..grid.len() {
+        assert!((v[a * 2] - w[a * 3 + 1]).abs() <= 1e-6 * w[a * 3 + 1].abs().max(1e-6));
+        assert!((v[a * 2 + 1] - w[a * 3]).abs() <= 1e-6 * w[a * 3].abs().max(1e-6));
+    }
+}
+
+#[test]
+fn anisotropic_files_are_rejected_clearly() {
+    use brdf_io::tensor::{Field, TensorFile};
+    let Some(data) = shared_data() else { return };
+    let file = data.join("rgl-rgb/paper_white_rgb.bsdf");
+    let tf = TensorFile::open(&file).unwrap();
+    // Pretend the file had four phi_i samples (shapes adjusted so only the phi_i count differs).
+    let fields: Vec<Field> = tf
+        .fields()
+        .iter()
+        .map(|f| {
+            let mut shape = f.shape().to_vec();
+            let mut v = f.to_f32(&file).unwrap_or_default();
+            match f.name() {
+                "phi_i" => {
+                    return Field::from_f32("phi_i", vec![4], &[-3.0, -1.0, 1.0, 3.0]).unwrap();
+                }
+                "vndf" | "luminance" | "rgb" => {
+                    shape[0] = 4;
+                    v = v.repeat(4);
+                }
+                _ => return f.clone(),
+            }
+            Field::from_f32(f.name(), shape, &v).unwrap()
+        })
+        .collect();
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("aniso.bsdf");
+    TensorFile::write(&p, &fields).unwrap();
+    let e = RglBsdf::open(&p).unwrap_err().to_string();
+    assert!(e.contains("aniso.bsdf") && e.contains("not supported yet"), "{e}");
+}

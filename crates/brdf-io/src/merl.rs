@@ -1,0 +1,389 @@
+//! MERL `.binary` BRDF files (Matusik et al. 2003): reader, writer, conversion to dataset order
+//! and resampling to other grids.
+//!
+//! Layout: three little-endian `i32` resolutions (theta_h, theta_d, phi_d; 90, 90, 180 for MERL),
+//! then 3 x n_th x n_td x n_pd little-endian f64, channel-major (all R, then G, then B), each
+//! channel in MERL's angular order (the order of [`AngularGrid::index`]). Stored numbers are
+//! scaled: the BRDF value in 1/sr is `stored * scale[c]` with scale = (1/1500, 1.15/1500,
+//! 1.66/1500) for R, G, B ([`MERL_SCALE`]). Negative stored values mark invalid (unmeasured or
+//! below-horizon) samples.
+//!
+//! [`read_merl`] keeps the values exactly as stored (negative markers included, times the
+//! scale); the conversions to dataset order treat negatives as 0 and count them in the
+//! [`ImportReport`].
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use crate::error::{Error, Result};
+use crate::grid::{AngularGrid, Channels, HalfDiff, Vec3};
+use crate::source::{BrdfSource, ImportReport};
+use crate::tensor::write_atomic;
+
+/// Per-channel factors from stored numbers to BRDF values in 1/sr (R, G, B).
+pub const MERL_SCALE: [f64; 3] = [1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0];
+
+/// A MERL BRDF: its grid and its values in 1/sr, channel-major (`c * grid.len() + flat`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MerlBrdf {
+    grid: AngularGrid,
+    values: Vec<f64>,
+}
+
+/// How [`MerlBrdf::resample`] maps MERL's cells onto another grid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Resampling {
+    /// The MERL cell containing the target bin centre ([`AngularGrid::locate`]).
+    Nearest,
+    /// The mean of the valid MERL cells whose bin centres fall into the target bin (negative
+    /// markers and below-horizon cells excluded); a target bin that receives no MERL cell (a
+    /// grid finer than MERL's along some axis) falls back to `Nearest`. The right choice for
+    /// coarser grids: it averages instead of aliasing.
+    #[default]
+    Average,
+}
+
+impl MerlBrdf {
+    /// A MERL BRDF from values in 1/sr, channel-major; `values.len()` must be `3 * grid.len()`.
+    pub fn new(grid: AngularGrid, values: Vec<f64>) -> Result<Self> {
+        if values.len() != 3 * grid.len() {
+            return Err(Error::InvalidArgument {
+                reason: format!(
+                    "a MERL BRDF on grid {grid} needs {} values, got {}",
+                    3 * grid.len(),
+                    values.len()
+                ),
+            });
+        }
+        Ok(Self { grid, values })
+    }
+
+    /// A MERL BRDF from dataset-order values (`flat * 3 + channel`, RGB in 1/sr); cells below
+    /// the horizon are written as 0.
+    pub fn from_dataset_order(grid: AngularGrid, values: &[f32]) -> Result<Self> {
+        if values.len() != 3 * grid.len() {
+            return Err(Error::InvalidArgument {
+                reason: format!(
+                    "dataset-order RGB values on grid {grid} need {} values, got {}",
+                    3 * grid.len(),
+                    values.len()
+                ),
+            });
+        }
+        let n = grid.len();
+        let mut out = vec![0.0; 3 * n];
+        for (flat, cell) in values.chunks_exact(3).enumerate() {
+            for c in 0..3 {
+                out[c * n + flat] = f64::from(cell[c]);
+            }
+        }
+        Ok(Self { grid, values: out })
+    }
+
+    /// The grid of the file.
+    pub fn grid(&self) -> &AngularGrid {
+        &self.grid
+    }
+
+    /// Values in 1/sr, channel-major; negative values are the file's invalid markers.
+    pub fn values(&self) -> &[f64] {
+        &self.values
+    }
+
+    /// Value of channel `c` (0 = R) at flat angular index `flat`.
+    pub fn value(&self, c: usize, flat: usize) -> f64 {
+        self.values[c * self.grid.len() + flat]
+    }
+
+    /// The values in dataset order on the file's own grid (`flat * 3 + channel`), with cells
+    /// below the horizon set to 0 and negative markers set to 0 (counted).
+    pub fn to_dataset_order(&self) -> (Vec<f32>, ImportReport) {
+        let g = self.grid;
+        let mask = g.validity_mask();
+        let mut report = ImportReport::new();
+        let mut out = vec![0f32; 3 * g.len()];
+        for (flat, ok) in mask.iter().enumerate() {
+            if !ok {
+                report.below_horizon_cells += 1;
+                continue;
+            }
+            for c in 0..3 {
+                out[flat * 3 + c] = report.record(self.value(c, flat), None, false) as f32;
+            }
+        }
+        (out, report)
+    }
+
+    /// The values resampled onto `grid` in dataset order (see [`Resampling`]); cells below the
+    /// horizon are 0, negative markers count as 0 (nearest) or are skipped (average).
+    pub fn resample(&self, grid: &AngularGrid, method: Resampling) -> (Vec<f32>, ImportReport) {
+        if *grid == self.grid {
+            return self.to_dataset_order();
+        }
+        let src = self.grid;
+        let n = src.len();
+        let target_mask = grid.validity_mask();
+        let mut sums = vec![0f64; 3 * grid.len()];
+        let mut counts = vec![0u32; 3 * grid.len()];
+        if method == Resampling::Average {
+            for (flat, ok) in src.validity_mask().into_iter().enumerate() {
+                if !ok {
+                    continue;
+                }
+                let (i, j, k) = grid.locate(&src.bin_centre_flat(flat));
+                let t = grid.index(i, j, k);
+                for c in 0..3 {
+                    let v = self.values[c * n + flat];
+                    if v >= 0.0 && v.is_finite() {
+                        sums[t * 3 + c] += v;
+                        counts[t * 3 + c] += 1;
+                    }
+                }
+            }
+        }
+        let mut report = ImportReport::new();
+        let mut out = vec![0f32; 3 * grid.len()];
+        for (t, ok) in target_mask.iter().enumerate() {
+            if !ok {
+                report.below_horizon_cells += 1;
+                continue;
+            }
+            let (i, j, k) = src.locate(&grid.bin_centre_flat(t));
+            let nearest = src.index(i, j, k);
+            for c in 0..3 {
+                let v = if counts[t * 3 + c] > 0 {
+                    sums[t * 3 + c] / f64::from(counts[t * 3 + c])
+                } else {
+                    self.values[c * n + nearest]
+                };
+                out[t * 3 + c] = report.record(v, None, false) as f32;
+            }
+        }
+        (out, report)
+    }
+}
+
+impl BrdfSource for MerlBrdf {
+    fn channels(&self) -> Channels {
+        Channels::Rgb
+    }
+
+    /// MERL's lookup: the value of the cell containing the pair's half/difference angles
+    /// (no interpolation); negative markers read as 0.
+    fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+        if out.len() != 3 {
+            return Err(Error::InvalidArgument {
+                reason: format!("output buffer has {} slots for 3 channels", out.len()),
+            });
+        }
+        out.iter_mut().for_each(|v| *v = 0.0);
+        let len = |v: Vec3| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        if !(wi[2] > 0.0 && wo[2] > 0.0) || len(wi) == 0.0 || len(wo) == 0.0 {
+            return Ok(());
+        }
+        let Some(hd) = HalfDiff::from_dirs(wi, wo) else {
+            return Ok(());
+        };
+        let (i, j, k) = self.grid.locate(&hd);
+        let flat = self.grid.index(i, j, k);
+        for (c, o) in out.iter_mut().enumerate() {
+            *o = self.value(c, flat).max(0.0);
+        }
+        Ok(())
+    }
+}
+
+/// Reads a MERL `.binary` file (values in 1/sr, negative markers kept).
+pub fn read_merl(path: impl AsRef<Path>) -> Result<MerlBrdf> {
+    let path = path.as_ref();
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    parse_merl(&bytes, path)
+}
+
+/// Parses the bytes of a MERL file; `path` is only used in error messages.
+pub fn parse_merl(bytes: &[u8], path: impl AsRef<Path>) -> Result<MerlBrdf> {
+    let path: PathBuf = path.as_ref().to_path_buf();
+    let bad = |reason: String| Error::Format {
+        path: path.clone(),
+        reason,
+    };
+    if bytes.len() < 12 {
+        return Err(bad(format!(
+            "truncated MERL file: {} bytes, the header alone needs 12",
+            bytes.len()
+        )));
+    }
+    let dim = |k: usize| i32::from_le_bytes([bytes[4 * k], bytes[4 * k + 1], bytes[4 * k + 2], bytes[4 * k + 3]]);
+    let dims = [dim(0), dim(1), dim(2)];
+    if dims.iter().any(|&d| d <= 0) {
+        return Err(bad(format!("bad MERL resolution {dims:?} (expected e.g. 90 90 180)")));
+    }
+    let grid = AngularGrid::new(dims[0] as usize, dims[1] as usize, dims[2] as usize)
+        .map_err(|e| bad(format!("bad MERL resolution {dims:?}: {e}")))?;
+    let expected = grid
+        .len()
+        .checked_mul(24)
+        .and_then(|n| n.checked_add(12))
+        .ok_or_else(|| bad(format!("MERL resolution {dims:?} overflows")))?;
+    if bytes.len() != expected {
+        return Err(bad(format!(
+            "MERL file of resolution {dims:?} must have {expected} bytes, it has {}",
+            bytes.len()
+        )));
+    }
+    let n = grid.len();
+    let values = bytes[12..]
+        .chunks_exact(8)
+        .enumerate()
+        .map(|(i, b)| {
+            let mut a = [0u8; 8];
+            a.copy_from_slice(b);
+            f64::from_le_bytes(a) * MERL_SCALE[i / n]
+        })
+        .collect();
+    Ok(MerlBrdf { grid, values })
+}
+
+/// The stored number whose read-back (`stored * scale`) equals `value` when such a number exists
+/// within a few ulps of `value / scale` (always true for values that were read from a MERL file),
+/// else the nearest one: read -> write -> read is exact.
+fn stored_number(value: f64, scale: f64) -> f64 {
+    let guess = value / scale;
+    if !guess.is_finite() || guess * scale == value {
+        return guess;
+    }
+    let (mut lo, mut hi) = (guess, guess);
+    for _ in 0..4 {
+        lo = step_ulp(lo, false);
+        hi = step_ulp(hi, true);
+        if lo * scale == value {
+            return lo;
+        }
+        if hi * scale == value {
+            return hi;
+        }
+    }
+    guess
+}
+
+/// The neighbouring f64 of a finite `x` (`f64::next_up` / `next_down`, which need Rust 1.86).
+fn step_ulp(x: f64, up: bool) -> f64 {
+    if x == 0.0 {
+        let tiny = f64::from_bits(1);
+        return if up { tiny } else { -tiny };
+    }
+    let b = x.to_bits();
+    let away_from_zero = up == (x > 0.0);
+    f64::from_bits(if away_from_zero { b + 1 } else { b - 1 })
+}
+
+/// Writes a MERL `.binary` file (temporary file + rename). Values are in 1/sr; the per-channel
+/// scale is inverted so that [`read_merl`] gives the same values back.
+pub fn write_merl(path: impl AsRef<Path>, brdf: &MerlBrdf) -> Result<()> {
+    let path = path.as_ref();
+    let g = brdf.grid;
+    let dims = [g.n_theta_h, g.n_theta_d, g.n_phi_d].map(i32::try_from);
+    let [Ok(a), Ok(b), Ok(c)] = dims else {
+        return Err(Error::InvalidArgument {
+            reason: format!("grid {g} does not fit MERL's i32 header"),
+        });
+    };
+    let n = g.len();
+    write_atomic(path, |w| {
+        for d in [a, b, c] {
+            w.write_all(&d.to_le_bytes())?;
+        }
+        for (i, v) in brdf.values.iter().enumerate() {
+            w.write_all(&stored_number(*v, MERL_SCALE[i / n]).to_le_bytes())?;
+        }
+        Ok(())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn synthetic(grid: AngularGrid) -> MerlBrdf {
+        // Smooth positive values with a few negative markers, as a MERL file would hold them.
+        let n = grid.len();
+        let values = (0..3 * n)
+            .map(|i| {
+                let (c, flat) = (i / n, i % n);
+                let hd = grid.bin_centre_flat(flat);
+                let raw = if flat % 17 == 3 {
+                    -1.0
+                } else {
+                    100.0 * (-3.0 * hd.theta_h).exp() + 10.0 * (c as f64 + 1.0) + hd.phi_d
+                };
+                raw * MERL_SCALE[c]
+            })
+            .collect();
+        MerlBrdf::new(grid, values).unwrap()
+    }
+
+    #[test]
+    fn write_read_round_trip_is_exact() {
+        let grid = AngularGrid::new(9, 9, 18).unwrap();
+        let brdf = synthetic(grid);
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.binary");
+        write_merl(&p, &brdf).unwrap();
+        let bytes = std::fs::read(&p).unwrap();
+        assert_eq!(bytes.len(), 12 + 24 * grid.len());
+        assert_eq!(&bytes[..4], &9i32.to_le_bytes());
+        let back = read_merl(&p).unwrap();
+        assert_eq!(back, brdf, "read(write(x)) must equal x bit for bit");
+        // And the file bytes round-trip as well.
+        write_merl(&p, &back).unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), bytes);
+    }
+
+    #[test]
+    fn dataset_order_counts_markers_and_masks_horizon() {
+        let grid = AngularGrid::new(6, 6, 12).unwrap();
+        let brdf = synthetic(grid);
+        let (v, r) = brdf.to_dataset_order();
+        let mask = grid.validity_mask();
+        let valid = mask.iter().filter(|m| **m).count();
+        assert_eq!(r.values, 3 * valid);
+        let markers = (0..grid.len()).filter(|f| f % 17 == 3 && mask[*f]).count();
+        assert_eq!(r.negatives_clamped, 3 * markers);
+        let f = mask.iter().position(|m| *m).unwrap();
+        assert_eq!(v[f * 3 + 1], brdf.value(1, f) as f32);
+        let bad = mask.iter().position(|m| !*m).unwrap();
+        assert_eq!(&v[bad * 3..bad * 3 + 3], &[0.0, 0.0, 0.0]);
+        // Resampling onto the same grid is the identity conversion.
+        assert_eq!(brdf.resample(&grid, Resampling::Average).0, v);
+        // Back from dataset order: valid cells survive exactly.
+        let again = MerlBrdf::from_dataset_order(grid, &v).unwrap();
+        assert_eq!(again.value(2, f) as f32, v[f * 3 + 2]);
+    }
+
+    #[test]
+    fn coarse_resampling_averages_a_constant_exactly() {
+        let fine = AngularGrid::new(12, 12, 24).unwrap();
+        let coarse = AngularGrid::new(4, 4, 8).unwrap();
+        let brdf = MerlBrdf::new(fine, vec![0.25; 3 * fine.len()]).unwrap();
+        for m in [Resampling::Nearest, Resampling::Average] {
+            let (v, r) = brdf.resample(&coarse, m);
+            assert_eq!(r.negatives_clamped, 0);
+            for (t, ok) in coarse.validity_mask().iter().enumerate() {
+                let want = if *ok { 0.25 } else { 0.0 };
+                assert_eq!(v[t * 3], want, "cell {t} with {m:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn rejects_bad_sizes() {
+        let e = parse_merl(&[0u8; 5], "m.binary").unwrap_err().to_string();
+        assert!(e.contains("m.binary") && e.contains("truncated"), "{e}");
+        let mut b = Vec::new();
+        for d in [2i32, 2, 2] {
+            b.extend_from_slice(&d.to_le_bytes());
+        }
+        b.extend_from_slice(&[0u8; 16]);
+        assert!(parse_merl(&b, "m.binary").unwrap_err().to_string().contains("must have"));
+    }
+}

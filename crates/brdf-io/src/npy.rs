@@ -1,0 +1,414 @@
+//! NumPy `.npy` files of little-endian f32 or f64 values in C order (any rank; specgp uses 1-D
+//! and 2-D): a reader and a streaming writer.
+//!
+//! The writer emits format version 1.0 (2.0 when the header does not fit in 64 KiB), pads the
+//! header to a multiple of 64 bytes as NumPy does, and writes through a temporary file in the
+//! target directory that [`NpyWriter::finish`] renames into place: an interrupted export leaves
+//! nothing behind.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use crate::error::{Error, Result};
+
+const MAGIC: &[u8; 6] = b"\x93NUMPY";
+
+/// Element type of an `.npy` file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NpyDtype {
+    /// Little-endian f32 (`<f4`).
+    F32,
+    /// Little-endian f64 (`<f8`).
+    F64,
+}
+
+impl NpyDtype {
+    fn descr(self) -> &'static str {
+        match self {
+            Self::F32 => "<f4",
+            Self::F64 => "<f8",
+        }
+    }
+
+    fn size(self) -> usize {
+        match self {
+            Self::F32 => 4,
+            Self::F64 => 8,
+        }
+    }
+}
+
+/// The values of an `.npy` file.
+#[derive(Debug, Clone, PartialEq)]
+pub enum NpyData {
+    /// f32 values.
+    F32(Vec<f32>),
+    /// f64 values.
+    F64(Vec<f64>),
+}
+
+/// An array read from an `.npy` file: shape (C order) and values.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NpyArray {
+    /// The shape, outermost axis first.
+    pub shape: Vec<usize>,
+    /// The values in C order.
+    pub data: NpyData,
+}
+
+impl NpyArray {
+    /// Number of values.
+    pub fn len(&self) -> usize {
+        match &self.data {
+            NpyData::F32(v) => v.len(),
+            NpyData::F64(v) => v.len(),
+        }
+    }
+
+    /// Whether the array holds no value.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The values as f64.
+    pub fn to_f64(&self) -> Vec<f64> {
+        match &self.data {
+            NpyData::F32(v) => v.iter().map(|&x| f64::from(x)).collect(),
+            NpyData::F64(v) => v.clone(),
+        }
+    }
+
+    /// The values as f32 (f64 values rounded).
+    pub fn to_f32(&self) -> Vec<f32> {
+        match &self.data {
+            NpyData::F32(v) => v.clone(),
+            NpyData::F64(v) => v.iter().map(|&x| x as f32).collect(),
+        }
+    }
+}
+
+/// Reads an `.npy` file of little-endian f32 or f64 values in C order.
+pub fn read(path: impl AsRef<Path>) -> Result<NpyArray> {
+    let path = path.as_ref();
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    parse(&bytes, path)
+}
+
+/// Parses the bytes of an `.npy` file; `path` is only used in error messages.
+pub fn parse(bytes: &[u8], path: impl AsRef<Path>) -> Result<NpyArray> {
+    let path = path.as_ref();
+    let bad = |reason: String| Error::Format {
+        path: path.to_path_buf(),
+        reason,
+    };
+    if bytes.len() < 10 || &bytes[..6] != MAGIC {
+        return Err(bad("not an .npy file (missing \\x93NUMPY magic)".into()));
+    }
+    let (header_len, start): (usize, usize) = match bytes[6] {
+        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
+        2 | 3 => {
+            if bytes.len() < 12 {
+                return Err(bad("truncated .npy header".into()));
+            }
+            (
+                u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
+                12,
+            )
+        }
+        v => return Err(bad(format!("unsupported .npy format version {v}.{}", bytes[7]))),
+    };
+    let end = start
+        .checked_add(header_len)
+        .filter(|&e| e <= bytes.len())
+        .ok_or_else(|| bad("truncated .npy header".into()))?;
+    let header = std::str::from_utf8(&bytes[start..end])
+        .map_err(|_| bad(".npy header is not text".into()))?;
+    let descr = dict_value(header, "descr")
+        .ok_or_else(|| bad(format!("no 'descr' in .npy header {header:?}")))?;
+    let dtype = match descr.trim_matches(|c| c == '\'' || c == '"') {
+        "<f4" => NpyDtype::F32,
+        "<f8" => NpyDtype::F64,
+        d => {
+            return Err(bad(format!(
+                "unsupported .npy dtype {d:?} (only little-endian f32 '<f4' and f64 '<f8')"
+            )));
+        }
+    };
+    let fortran = dict_value(header, "fortran_order")
+        .ok_or_else(|| bad(format!("no 'fortran_order' in .npy header {header:?}")))?;
+    if fortran.trim() != "False" {
+        return Err(bad("Fortran-ordered .npy arrays are not supported".into()));
+    }
+    let shape_text = dict_value(header, "shape")
+        .ok_or_else(|| bad(format!("no 'shape' in .npy header {header:?}")))?;
+    let shape: Vec<usize> = shape_text
+        .trim()
+        .trim_start_matches('(')
+        .trim_end_matches(')')
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            s.parse::<usize>()
+                .map_err(|_| bad(format!("bad .npy shape {shape_text:?}")))
+        })
+        .collect::<Result<_>>()?;
+    let count = shape
+        .iter()
+        .try_fold(1usize, |a, &n| a.checked_mul(n))
+        .ok_or_else(|| bad(format!("shape {shape:?} overflows")))?;
+    let body = &bytes[end..];
+    if Some(body.len()) != count.checked_mul(dtype.size()) {
+        return Err(bad(format!(
+            "shape {shape:?} of {} needs {} data bytes, the file has {}",
+            dtype.descr(),
+            count.saturating_mul(dtype.size()),
+            body.len()
+        )));
+    }
+    let data = match dtype {
+        NpyDtype::F32 => NpyData::F32(
+            body.chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect(),
+        ),
+        NpyDtype::F64 => NpyData::F64(
+            body.chunks_exact(8)
+                .map(|b| {
+                    let mut a = [0u8; 8];
+                    a.copy_from_slice(b);
+                    f64::from_le_bytes(a)
+                })
+                .collect(),
+        ),
+    };
+    Ok(NpyArray { shape, data })
+}
+
+/// The raw text of `key`'s value in a Python dict literal (up to the next top-level comma).
+fn dict_value<'a>(header: &'a str, key: &str) -> Option<&'a str> {
+    let k1 = format!("'{key}'");
+    let k2 = format!("\"{key}\"");
+    let at = header.find(&k1).or_else(|| header.find(&k2))? + k1.len();
+    let rest = header[at..].trim_start().strip_prefix(':')?;
+    let mut depth = 0i32;
+    for (i, c) in rest.char_indices() {
+        match c {
+            '(' | '[' => depth += 1,
+            ')' | ']' => depth -= 1,
+            ',' | '}' if depth == 0 => return Some(rest[..i].trim()),
+            _ => {}
+        }
+    }
+    None
+}
+
+fn header_bytes(dtype: NpyDtype, shape: &[usize]) -> Vec<u8> {
+    let shape_text = match shape {
+        [n] => format!("({n},)"),
+        _ => format!(
+            "({})",
+            shape
+                .iter()
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    };
+    let dict = format!(
+        "{{'descr': '{}', 'fortran_order': False, 'shape': {shape_text}, }}",
+        dtype.descr()
+    );
+    // Pad with spaces and a final newline so that the data starts on a 64-byte boundary.
+    let (version, prefix) = if dict.len() + 1 + 10 <= u16::MAX as usize {
+        (1u8, 10)
+    } else {
+        (2u8, 12)
+    };
+    let total = (prefix + dict.len() + 1).div_ceil(64) * 64;
+    let hlen = total - prefix;
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(MAGIC);
+    out.extend_from_slice(&[version, 0]);
+    if version == 1 {
+        out.extend_from_slice(&(hlen as u16).to_le_bytes());
+    } else {
+        out.extend_from_slice(&(hlen as u32).to_le_bytes());
+    }
+    out.extend_from_slice(dict.as_bytes());
+    out.resize(total - 1, b' ');
+    out.push(b'\n');
+    out
+}
+
+/// A streaming `.npy` writer: the header first, then values in C order (e.g. one matrix row at a
+/// time), then [`NpyWriter::finish`] checks the count and renames the file into place.
+/// Dropping the writer without finishing deletes the temporary file.
+#[derive(Debug)]
+pub struct NpyWriter {
+    path: PathBuf,
+    dtype: NpyDtype,
+    expected: usize,
+    written: usize,
+    out: std::io::BufWriter<tempfile::NamedTempFile>,
+}
+
+impl NpyWriter {
+    /// Starts an `.npy` file of `dtype` values with `shape` at `path` (written to a temporary
+    /// file in the same directory until [`NpyWriter::finish`]).
+    pub fn create(path: impl AsRef<Path>, dtype: NpyDtype, shape: &[usize]) -> Result<Self> {
+        let path = path.as_ref().to_path_buf();
+        let expected = shape
+            .iter()
+            .try_fold(1usize, |a, &n| a.checked_mul(n))
+            .ok_or_else(|| Error::InvalidArgument {
+                reason: format!("npy shape {shape:?} overflows"),
+            })?;
+        let dir = match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let tmp = tempfile::NamedTempFile::new_in(&dir).map_err(|e| Error::io(&path, e))?;
+        let mut out = std::io::BufWriter::with_capacity(1 << 20, tmp);
+        out.write_all(&header_bytes(dtype, shape))
+            .map_err(|e| Error::io(&path, e))?;
+        Ok(Self {
+            path,
+            dtype,
+            expected,
+            written: 0,
+            out,
+        })
+    }
+
+    fn reserve(&mut self, n: usize) -> Result<()> {
+        if self.written + n > self.expected {
+            return Err(Error::InvalidArgument {
+                reason: format!(
+                    "{}: {} values written to an array of {}",
+                    self.path.display(),
+                    self.written + n,
+                    self.expected
+                ),
+            });
+        }
+        self.written += n;
+        Ok(())
+    }
+
+    /// Appends f32 values (widened to f64 for an f64 file).
+    pub fn write_f32(&mut self, values: &[f32]) -> Result<()> {
+        self.reserve(values.len())?;
+        let r = match self.dtype {
+            NpyDtype::F32 => values
+                .iter()
+                .try_for_each(|v| self.out.write_all(&v.to_le_bytes())),
+            NpyDtype::F64 => values
+                .iter()
+                .try_for_each(|v| self.out.write_all(&f64::from(*v).to_le_bytes())),
+        };
+        r.map_err(|e| Error::io(&self.path, e))
+    }
+
+    /// Appends f64 values (rounded to f32 for an f32 file).
+    pub fn write_f64(&mut self, values: &[f64]) -> Result<()> {
+        self.reserve(values.len())?;
+        let r = match self.dtype {
+            NpyDtype::F32 => values
+                .iter()
+                .try_for_each(|v| self.out.write_all(&(*v as f32).to_le_bytes())),
+            NpyDtype::F64 => values
+                .iter()
+                .try_for_each(|v| self.out.write_all(&v.to_le_bytes())),
+        };
+        r.map_err(|e| Error::io(&self.path, e))
+    }
+
+    /// Checks that every value was written, flushes and renames the file into place.
+    pub fn finish(self) -> Result<()> {
+        let path = self.path;
+        if self.written != self.expected {
+            return Err(Error::InvalidArgument {
+                reason: format!(
+                    "{}: only {} of {} values written",
+                    path.display(),
+                    self.written,
+                    self.expected
+                ),
+            });
+        }
+        let tmp = self
+            .out
+            .into_inner()
+            .map_err(|e| Error::io(&path, e.into_error()))?;
+        tmp.as_file().sync_all().map_err(|e| Error::io(&path, e))?;
+        tmp.persist(&path).map_err(|e| Error::io(&path, e.error))?;
+        Ok(())
+    }
+}
+
+/// Writes an f32 array of `shape` (C order) to `path` in one call.
+pub fn write_f32(path: impl AsRef<Path>, shape: &[usize], values: &[f32]) -> Result<()> {
+    let mut w = NpyWriter::create(path, NpyDtype::F32, shape)?;
+    w.write_f32(values)?;
+    w.finish()
+}
+
+/// Writes an f64 array of `shape` (C order) to `path` in one call.
+pub fn write_f64(path: impl AsRef<Path>, shape: &[usize], values: &[f64]) -> Result<()> {
+    let mut w = NpyWriter::create(path, NpyDtype::F64, shape)?;
+    w.write_f64(values)?;
+    w.finish()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip_1d_and_2d_streaming() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.npy");
+        let mut w = NpyWriter::create(&p, NpyDtype::F32, &[2, 3]).unwrap();
+        w.write_f32(&[1.0, 2.0, 3.0]).unwrap();
+        w.write_f64(&[4.0, 5.5, -6.0]).unwrap();
+        assert!(w.write_f32(&[7.0]).is_err(), "overflowing the shape is an error");
+        w.finish().unwrap();
+        let bytes = std::fs::read(&p).unwrap();
+        assert_eq!((bytes.len() - 24) % 64, 0, "header padded to 64 bytes");
+        let a = read(&p).unwrap();
+        assert_eq!(a.shape, vec![2, 3]);
+        assert_eq!(a.data, NpyData::F32(vec![1.0, 2.0, 3.0, 4.0, 5.5, -6.0]));
+
+        let q = dir.path().join("b.npy");
+        write_f64(&q, &[3], &[0.1, 0.2, 0.3]).unwrap();
+        let b = read(&q).unwrap();
+        assert_eq!(b.shape, vec![3]);
+        assert_eq!(b.to_f64(), vec![0.1, 0.2, 0.3]);
+    }
+
+    #[test]
+    fn unfinished_writer_leaves_nothing_and_short_data_is_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("c.npy");
+        let mut w = NpyWriter::create(&p, NpyDtype::F64, &[4]).unwrap();
+        w.write_f64(&[1.0]).unwrap();
+        assert!(w.finish().is_err());
+        assert!(!p.exists());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+
+    #[test]
+    fn rejects_bad_files() {
+        assert!(parse(b"hello", "x.npy").is_err());
+        let mut h = header_bytes(NpyDtype::F32, &[2]);
+        h.extend_from_slice(&1f32.to_le_bytes());
+        let e = parse(&h, "x.npy").unwrap_err().to_string();
+        assert!(e.contains("x.npy") && e.contains("needs 8 data bytes"), "{e}");
+        let mut b = header_bytes(NpyDtype::F32, &[1]);
+        let at = b.windows(3).position(|w| w == b"<f4").unwrap();
+        b[at] = b'>';
+        b.extend_from_slice(&[0; 4]);
+        assert!(parse(&b, "x.npy").unwrap_err().to_string().contains(">f4"));
+    }
+}
