@@ -285,9 +285,27 @@ impl KernelParams {
         }
         self.check_dim(x.ncols())?;
         check_finite(x, what)?;
+        self.check_scaled(x)?;
         Ok((0..x.nrows())
             .map(|i| (0..x.ncols()).map(|j| x[(i, j)]).collect())
             .collect())
+    }
+
+    /// Errors if some `x_ij / l_j` overflows (distances would become NaN).
+    fn check_scaled(&self, x: MatRef<'_, f64>) -> Result<()> {
+        for j in 0..x.ncols() {
+            let l = self.length_scale.axis(j);
+            for i in 0..x.nrows() {
+                let z = x[(i, j)] / l;
+                if !z.is_finite() {
+                    return Err(GpError::NonFiniteResult {
+                        what: "scaled latent coordinate x / l",
+                        value: z,
+                    });
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Validates `x` like `rows_of` and returns the scaled coordinates `z_ij = x_ij / l_j`
@@ -302,6 +320,7 @@ impl KernelParams {
         }
         self.check_dim(x.ncols())?;
         check_finite(x, what)?;
+        self.check_scaled(x)?;
         Ok((0..x.ncols())
             .map(|j| {
                 let l = self.length_scale.axis(j);

@@ -15,6 +15,28 @@
 //!   interface for optimisers).
 //! - [`regression`]: [`GpRegression`] posterior weights / variance, [`Predictor`] exact vs smooth.
 //! - [`diagnostics`]: the length-scale condition ([`length_scale_condition`]).
+//!
+//! ```
+//! use gp_core::{GplvmObjective, GpRegression, KernelParams, Learn, Mat, Par, Predictor};
+//!
+//! // Uncentred Gram G = Y Y^T of N = 4 materials with D = 3 values each.
+//! let y = Mat::from_fn(4, 3, |i, j| ((i * 3 + j) as f64).sin());
+//! let g = gp_core::gram_from_data(y.as_ref(), Par::Seq)?;
+//! let obj = GplvmObjective::from_uncentred_gram(g.as_ref(), 3)?.with_prior(true);
+//!
+//! // Flat interface for an optimiser: X (row-major) + learnt log-hyperparameters.
+//! let x = Mat::from_fn(4, 2, |i, j| 0.3 * i as f64 - 0.2 * j as f64);
+//! let flat = obj.flat(2, KernelParams::paper(), Learn::ALL)?;
+//! let theta = flat.pack(x.as_ref(), &KernelParams::paper())?;
+//! let (neg_ll, grad) = flat.neg_log_likelihood_and_gradient(&theta, Par::Seq)?;
+//! assert!(neg_ll.is_finite() && grad.len() == 4 * 2 + 3);
+//!
+//! // Prediction: the exact predictor returns the training weights e_i at x_i.
+//! let gp = GpRegression::new(x.as_ref(), KernelParams::paper(), Par::Seq)?;
+//! let w = gp.weights(&[x[(1, 0)], x[(1, 1)]], Predictor::Exact)?;
+//! assert!((w[1] - 1.0).abs() < 1e-10);
+//! # Ok::<(), gp_core::GpError>(())
+//! ```
 
 pub mod cholesky;
 pub mod diagnostics;

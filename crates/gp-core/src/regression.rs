@@ -141,6 +141,24 @@ impl GpRegression {
         Ok((0..k.len()).map(|i| m[(i, 0)]).collect())
     }
 
+    /// Jacobian of the posterior weights with respect to the test point,
+    /// `dw/dx*_j = K^-1 dk*/dx*_j` (`N x q`, column `j`), with
+    /// `dk*_i/dx*_j = k_rbf(x_i, x*) (x_ij - x*_j) / l_j^2`. The delta term of the exact predictor
+    /// is piecewise constant, so both predictors share this Jacobian away from training points.
+    /// Useful to place a held-out material in the latent space by gradient descent.
+    pub fn weights_jacobian(&self, x_star: &[f64]) -> Result<Mat<f64>> {
+        self.check_point(x_star)?;
+        let (n, q) = (self.n(), self.q());
+        let mut k = vec![0.0; n];
+        self.fill_kstar(x_star, Predictor::Smooth, &mut k);
+        let mut jac = Mat::from_fn(n, q, |i, j| {
+            let l = self.params.length_scale().axis(j);
+            k[i] * (self.z[j][i] - x_star[j] / l) / l
+        });
+        self.solve_seq(jac.as_mut(), true);
+        Ok(jac)
+    }
+
     /// Predictive variance `s^2 + mu - k_s^T K^-1 k_s` at one test point (clamped at 0).
     pub fn variance(&self, x_star: &[f64]) -> Result<f64> {
         let k = self.cross_covariance(x_star, Predictor::Smooth)?;

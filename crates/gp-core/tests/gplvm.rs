@@ -162,6 +162,43 @@ proptest! {
     }
 }
 
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(32))]
+
+    /// The exact predictor reproduces every training output to 1e-10 relative (to the largest
+    /// |y| of the column), for mu down to 1e-4 (condition numbers up to ~1e6).
+    #[test]
+    fn exact_predictor_reproduces_training_outputs(
+        seed in any::<u64>(),
+        n in 2usize..30,
+        q in 1usize..4,
+        ard in any::<bool>(),
+        log_mu in -9.2f64..0.0,
+    ) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let x = rand_mat(&mut rng, n, q, -2.0, 2.0);
+        let y = rand_mat(&mut rng, n, 4, -1e3, 1e3);
+        let p = params(&mut rng, q, ard, log_mu);
+        let gp = GpRegression::new(x.as_ref(), p, Par::Seq).unwrap();
+        let cond = gp.factor().condition_estimate();
+        let tol = 1e-10;
+        let mean = column_mean(y.as_ref());
+        let xs = Mat::from_fn(n, q, |i, j| x[(i, j)]);
+        let w = gp.weights_batch(xs.as_ref(), Predictor::Exact, Par::Seq).unwrap();
+        for i in 0..n {
+            let wi: Vec<f64> = (0..n).map(|k| w[(k, i)]).collect();
+            let yp = posterior_mean(&wi, y.as_ref(), &mean).unwrap();
+            for j in 0..4 {
+                let scale = (0..n).map(|k| y[(k, j)].abs()).fold(0.0, f64::max);
+                prop_assert!(
+                    (yp[j] - y[(i, j)]).abs() <= tol * scale,
+                    "point {} dim {}: {} vs {} (cond {:e})", i, j, yp[j], y[(i, j)], cond
+                );
+            }
+        }
+    }
+}
+
 /// Random rotation in R^q (QR-free: product of Givens rotations).
 fn rotation(rng: &mut ChaCha8Rng, q: usize) -> Mat<f64> {
     let mut r = Mat::<f64>::identity(q, q);
@@ -482,4 +519,44 @@ fn stress_large_n_and_spread_inputs() {
         var.iter()
             .all(|v| v.is_finite() && *v >= 0.0 && *v <= 1.0 + 1e-4)
     );
+}
+
+#[test]
+fn weights_jacobian_matches_finite_differences() {
+    let mut rng = ChaCha8Rng::seed_from_u64(17);
+    let (n, q) = (15, 3);
+    let x = rand_mat(&mut rng, n, q, -1.0, 1.0);
+    let p = KernelParams::new(1.7, LengthScale::Ard(vec![0.6, 1.1, 2.0]), 1e-2).unwrap();
+    let gp = GpRegression::new(x.as_ref(), p.clone(), Par::Seq).unwrap();
+    let xs = [0.3, -0.2, 0.5];
+    let jac = gp.weights_jacobian(&xs).unwrap();
+    // Cross-covariance gradient from the kernel module agrees with the K^-1-free part.
+    let kg = p.cross_gradient(x.as_ref(), &xs).unwrap();
+    let f = gp.factor();
+    let kj = f.solve(kg.as_ref()).unwrap();
+    for j in 0..q {
+        let h = 1e-6;
+        let mut xp = xs;
+        let mut xm = xs;
+        xp[j] += h;
+        xm[j] -= h;
+        let wp = gp.weights(&xp, Predictor::Smooth).unwrap();
+        let wm = gp.weights(&xm, Predictor::Smooth).unwrap();
+        for i in 0..n {
+            let fd = (wp[i] - wm[i]) / (2.0 * h);
+            assert!(
+                (fd - jac[(i, j)]).abs() <= 1e-6 * (1.0 + fd.abs()),
+                "{fd} vs {}",
+                jac[(i, j)]
+            );
+            assert!((kj[(i, j)] - jac[(i, j)]).abs() <= 1e-10 * (1.0 + fd.abs()));
+        }
+    }
+    // Overflowing scaled coordinates are an error, not NaN weights.
+    let tiny = KernelParams::isotropic(1.0, 1e-300, 1e-4).unwrap();
+    let big = Mat::from_fn(3, 1, |i, _| 1e10 * (i as f64 + 1.0));
+    assert!(matches!(
+        GpRegression::new(big.as_ref(), tiny, Par::Seq),
+        Err(GpError::NonFiniteResult { .. })
+    ));
 }
