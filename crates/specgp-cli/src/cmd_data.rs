@@ -6,8 +6,22 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use brdf_io::store::{Compression, Dtype};
-use brdf_io::{AngularGrid, Channels, Store, StoreInfo, StoreOptions, StoreWriter};
+use brdf_io::{AngularGrid, Channels, ImportReport, Store, StoreInfo, StoreOptions, StoreWriter};
 use indicatif::{ProgressBar, ProgressStyle};
+
+/// `println!` that treats a closed stdout (`specgp info X | head`) as success instead of
+/// panicking; other write errors are returned.
+macro_rules! out {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        match writeln!(std::io::stdout().lock(), $($t)*) {
+            Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
+                Err(anyhow::Error::from(e).context("writing to stdout"))
+            }
+            _ => Ok::<(), anyhow::Error>(()),
+        }
+    }};
+}
 
 /// Options shared by every `import` format: where and how the store is written.
 #[derive(Debug, clap::Args)]
@@ -53,6 +67,45 @@ pub struct ImportArgs {
 enum ImportFormat {
     /// RGL tensor files (`*_spec.bsdf`: spectral; `*_rgb.bsdf`: R,G,B), resampled onto the grid.
     Rgl(RglArgs),
+    /// MERL `.binary` files (R,G,B), resampled onto the grid.
+    Merl(MerlArgs),
+    /// Neural-BRDF networks (one weights row per material) evaluated on the grid.
+    Nbrdf(NbrdfArgs),
+}
+
+/// Arguments of `specgp import merl`.
+#[derive(Debug, clap::Args)]
+struct MerlArgs {
+    /// MERL `.binary` files, one material each (named by the file stem).
+    #[arg(required = true)]
+    files: Vec<PathBuf>,
+    /// How MERL cells map onto a different grid: `average` (mean of the valid MERL cells in each
+    /// target bin) or `nearest`.
+    #[arg(long, default_value = "average", value_parser = ["average", "nearest"])]
+    resampling: String,
+    #[command(flatten)]
+    store: StoreOut,
+}
+
+/// Arguments of `specgp import nbrdf`.
+#[derive(Debug, clap::Args)]
+struct NbrdfArgs {
+    /// The `(N, 675)` weights `.npy`.
+    weights: PathBuf,
+    /// Material names, one line per weights row.
+    #[arg(long)]
+    names: PathBuf,
+    /// Only these materials (comma-separated names; default: all).
+    #[arg(long, value_delimiter = ',')]
+    only: Option<Vec<String>>,
+    /// Values above this (1/sr) are counted as outliers in the report.
+    #[arg(long, default_value_t = brdf_io::nbrdf::DEFAULT_OUTLIER_THRESHOLD)]
+    outlier_threshold: f64,
+    /// Clamp outliers to `--outlier-threshold` (otherwise they are stored as computed).
+    #[arg(long)]
+    clamp: bool,
+    #[command(flatten)]
+    store: StoreOut,
 }
 
 /// Arguments of `specgp import rgl`.
@@ -90,45 +143,121 @@ fn stem(path: &Path) -> String {
 pub fn import(args: &ImportArgs) -> anyhow::Result<()> {
     match &args.format {
         ImportFormat::Rgl(a) => import_rgl(a),
+        ImportFormat::Merl(a) => import_merl(a),
+        ImportFormat::Nbrdf(a) => import_nbrdf(a),
     }
 }
 
-fn import_rgl(args: &RglArgs) -> anyhow::Result<()> {
-    use brdf_io::rgl::RglBsdf;
-    let first = RglBsdf::open(&args.files[0])?;
-    let channels = match &args.wavelengths {
-        Some(spec) => Channels::parse_wavelengths(spec)?,
-        None => first.native_channels().clone(),
-    };
-    drop(first);
+/// Writes materials produced one at a time by `load(i) -> (name, source, values, report)`,
+/// with a progress bar, a report line per material and a total.
+fn import_each(
+    store: &StoreOut,
+    channels: Channels,
+    what: &str,
+    count: usize,
+    mut load: impl FnMut(usize) -> anyhow::Result<(String, String, Vec<f32>, ImportReport)>,
+) -> anyhow::Result<()> {
     let info = StoreInfo {
-        grid: args.store.grid,
-        channels: channels.clone(),
+        grid: store.grid,
+        channels,
     };
-    let mut writer = StoreWriter::create(&args.store.out, info, args.store.options())?;
-    let pb = bar(args.files.len() as u64, "import rgl");
-    for file in &args.files {
-        pb.set_message(stem(file));
-        let bsdf = RglBsdf::open(file)?;
-        let (values, report) = bsdf
-            .resample(&args.store.grid, &channels)
-            .with_context(|| format!("resampling {}", file.display()))?;
-        let name = stem(file);
-        writer.add_material(&name, &file.display().to_string(), &values)?;
-        pb.suspend(|| println!("{name}: {report}"));
+    let mut writer = StoreWriter::create(&store.out, info, store.options())?;
+    let pb = bar(count as u64, what);
+    let mut total = ImportReport::new();
+    for i in 0..count {
+        let (name, source, values, report) = load(i)?;
+        pb.set_message(name.clone());
+        writer.add_material(&name, &source, &values)?;
+        pb.suspend(|| out!("{name}: {report}"))?;
+        total = total.merge(&report);
         pb.inc(1);
     }
     pb.finish_and_clear();
     let header = writer.finish()?;
-    println!(
+    out!("total: {total}")?;
+    out!(
         "wrote {}: {} materials, grid {}, {} channels, D = {}",
-        args.store.out.display(),
+        store.out.display(),
         header.n_materials(),
         header.grid,
         header.channels.len(),
         header.d
-    );
+    )?;
     Ok(())
+}
+
+fn import_merl(args: &MerlArgs) -> anyhow::Result<()> {
+    use brdf_io::merl::{Resampling, read_merl};
+    let method = if args.resampling == "nearest" {
+        Resampling::Nearest
+    } else {
+        Resampling::Average
+    };
+    import_each(
+        &args.store,
+        Channels::Rgb,
+        "import merl",
+        args.files.len(),
+        |i| {
+            let file = &args.files[i];
+            let brdf = read_merl(file)?;
+            let (values, report) = brdf.resample(&args.store.grid, method);
+            Ok((stem(file), file.display().to_string(), values, report))
+        },
+    )
+}
+
+fn import_nbrdf(args: &NbrdfArgs) -> anyhow::Result<()> {
+    use brdf_io::nbrdf::{NbrdfOptions, NbrdfSet};
+    let set = NbrdfSet::open(&args.weights, &args.names)?;
+    let rows: Vec<usize> = match &args.only {
+        Some(names) => names
+            .iter()
+            .map(|n| {
+                set.find(n.trim()).with_context(|| {
+                    format!("{}: no material named {:?}", args.names.display(), n.trim())
+                })
+            })
+            .collect::<anyhow::Result<_>>()?,
+        None => (0..set.len()).collect(),
+    };
+    let options = NbrdfOptions {
+        outlier_threshold: args.outlier_threshold,
+        clamp_outliers: args.clamp,
+    };
+    import_each(
+        &args.store,
+        Channels::Rgb,
+        "import nbrdf",
+        rows.len(),
+        |i| {
+            let net = set.material(rows[i])?;
+            let (values, report) = net.resample_with(&args.store.grid, options)?;
+            let source = format!("{} row {}", args.weights.display(), rows[i]);
+            Ok((net.name().to_owned(), source, values, report))
+        },
+    )
+}
+
+fn import_rgl(args: &RglArgs) -> anyhow::Result<()> {
+    use brdf_io::rgl::RglBsdf;
+    let channels = match &args.wavelengths {
+        Some(spec) => Channels::parse_wavelengths(spec)?,
+        None => RglBsdf::open(&args.files[0])?.native_channels().clone(),
+    };
+    import_each(
+        &args.store,
+        channels.clone(),
+        "import rgl",
+        args.files.len(),
+        |i| {
+            let file = &args.files[i];
+            let (values, report) = RglBsdf::open(file)?
+                .resample(&args.store.grid, &channels)
+                .with_context(|| format!("resampling {}", file.display()))?;
+            Ok((stem(file), file.display().to_string(), values, report))
+        },
+    )
 }
 
 /// Arguments of `specgp info`.
@@ -153,22 +282,27 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
             o.insert("file_bytes".into(), store.file_bytes().into());
             o.insert("checksum_verified".into(), verified.is_ok().into());
         }
-        println!("{}", serde_json::to_string_pretty(&v)?);
+        out!("{}", serde_json::to_string_pretty(&v)?)?;
     } else {
         let comp = match h.layout.compression {
             Compression::None => "none".to_owned(),
             Compression::Zstd { level } => format!("zstd level {level}"),
         };
-        println!("file           {}", args.path.display());
-        println!("materials      {}", h.n_materials());
+        out!("file           {}", args.path.display())?;
+        out!("materials      {}", h.n_materials())?;
         for m in &h.materials {
-            println!(
+            out!(
                 "  {:<24} mean {:.4e}  min {:.4e}  max {:.4e}  negatives {}  from {}",
-                m.name, m.stats.mean, m.stats.min, m.stats.max, m.stats.negatives, m.source
-            );
+                m.name,
+                m.stats.mean,
+                m.stats.min,
+                m.stats.max,
+                m.stats.negatives,
+                m.source
+            )?;
         }
-        println!("grid           {}", h.grid);
-        println!(
+        out!("grid           {}", h.grid)?;
+        out!(
             "channels       {} ({})",
             h.channels.len(),
             match &h.channels {
@@ -179,18 +313,18 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
                     w.last().copied().unwrap_or(0.0)
                 ),
             }
-        );
-        println!("D              {}", h.d);
-        println!("order          {}", h.dimension_order);
-        println!("bytes          {}", store.file_bytes());
-        println!(
+        )?;
+        out!("D              {}", h.d)?;
+        out!("order          {}", h.dimension_order)?;
+        out!("bytes          {}", store.file_bytes())?;
+        out!(
             "layout         {}, {} indices x {} chunks, {}, {comp}",
             h.layout.order,
             h.layout.chunk_len,
             h.layout.n_chunks,
             h.layout.dtype.name()
-        );
-        println!(
+        )?;
+        out!(
             "checksum       {} {} ({})",
             h.checksum.algorithm,
             h.checksum.value,
@@ -199,7 +333,7 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
             } else {
                 "MISMATCH"
             }
-        );
+        )?;
     }
     verified?;
     Ok(())
@@ -315,13 +449,13 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
     file.sync_all().map_err(io)?;
     tmp.persist(&args.out)
         .map_err(|e| anyhow::anyhow!("{}: {}", args.out.display(), e.error))?;
-    println!(
+    out!(
         "wrote {}: {} x {d} {} ({})",
         args.out.display(),
         rows.len(),
         args.dtype,
         store.header().dimension_order
-    );
+    )?;
     Ok(())
 }
 
