@@ -515,3 +515,80 @@ impl KernelParams {
         }))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    fn cross_matrix_matches_kernel_matrix_bitwise() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let x = Mat::from_fn(37, 3, |_, _| rng.random_range(-2.0..2.0));
+        for p in [
+            KernelParams::isotropic(2.0, 0.7, 1e-3).unwrap(),
+            KernelParams::new(0.5, LengthScale::Ard(vec![0.3, 1.0, 4.0]), 1e-6).unwrap(),
+        ] {
+            let k = p.rbf_matrix(x.as_ref()).unwrap();
+            let kn = p.kernel_matrix(x.as_ref()).unwrap();
+            for par in [Par::Seq, Par::rayon(2)] {
+                let c = p.cross_matrix(x.as_ref(), x.as_ref(), par).unwrap();
+                assert_eq!(c, k);
+            }
+            for i in 0..37 {
+                assert_eq!(kn[(i, i)], p.signal_variance() + p.noise());
+                // Direct formula for one entry.
+                let r2: f64 = (0..3)
+                    .map(|j| {
+                        let l = p.length_scale().axis(j);
+                        ((x[(i, j)] - x[(0, j)]) / l).powi(2)
+                    })
+                    .sum();
+                let direct = p.signal_variance() * (-0.5 * r2).exp();
+                assert!((k[(i, 0)] - direct).abs() <= 1e-14 * p.signal_variance());
+            }
+        }
+        // ARD with equal length-scales equals isotropic.
+        let iso = KernelParams::isotropic(1.3, 0.9, 1e-4).unwrap();
+        let ard = KernelParams::new(1.3, LengthScale::Ard(vec![0.9; 3]), 1e-4).unwrap();
+        assert_eq!(
+            iso.kernel_matrix(x.as_ref()).unwrap(),
+            ard.kernel_matrix(x.as_ref()).unwrap()
+        );
+    }
+
+    #[test]
+    fn log_roundtrip_and_validation() {
+        let p = KernelParams::new(0.25, LengthScale::Ard(vec![0.5, 2.0]), 1e-4).unwrap();
+        let lv = p.to_log_vec();
+        assert_eq!(lv.len(), 4);
+        let p2 = KernelParams::from_log_slice(&lv).unwrap();
+        assert!((p2.signal_variance() - 0.25).abs() < 1e-15);
+        assert!((p2.length_scale().values()[1] - 2.0).abs() < 1e-15);
+        assert!((p2.noise() - 1e-4).abs() < 1e-19);
+        assert!(KernelParams::from_log_slice(&[0.0, 0.0]).is_err());
+        assert!(KernelParams::from_log_slice(&[800.0, 0.0, 0.0]).is_err());
+        let e = KernelParamsUnchecked {
+            signal_variance: 1.0,
+            length_scale: LengthScale::Ard(vec![1.0, 0.0]),
+            noise: 1.0,
+        }
+        .check();
+        assert_eq!(
+            e,
+            Err(GpError::InvalidHyperparameter {
+                name: "length_scale[1]".into(),
+                value: 0.0
+            })
+        );
+        assert!(p.check_dim(3).is_err());
+        assert!(p.check_dim(2).is_ok());
+        let x = Mat::from_fn(4, 3, |i, j| (i + j) as f64);
+        assert!(matches!(
+            p.kernel_matrix(x.as_ref()),
+            Err(GpError::DimensionMismatch { .. })
+        ));
+        assert_eq!(KernelParams::paper().to_log_vec()[2], 1e-4f64.ln());
+    }
+}
