@@ -1,0 +1,208 @@
+//! `specgp sample SOURCE --dirs DIRS.csv --out VALUES.csv [--wavelengths]`: BRDF values f (1/sr)
+//! at given direction pairs.
+//!
+//! Sources plug in through [`brdf_io::BrdfSource`]; [`open_source`] maps a SOURCE argument to one:
+//! - `FILE.bsdf`: an RGL file (spectral files may be evaluated at `--wavelengths`);
+//! - `FILE.binary`: a MERL file (nearest cell, as MERL's own lookup);
+//! - `DATA.sbrdf:MATERIAL`: a stored material (multilinear interpolation on the store's grid).
+//!
+//! Further kinds (`MODEL.toml@X,Y`) add one arm to [`open_source`].
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use brdf_io::{BrdfSource, Channels, Vec3};
+
+/// Arguments of `specgp sample`.
+#[derive(Debug, clap::Args)]
+pub struct SampleArgs {
+    /// The BRDF: an RGL `.bsdf` file, a MERL `.binary` file or `DATA.sbrdf:MATERIAL`.
+    pub source: String,
+    /// CSV of direction pairs, one `wi_x,wi_y,wi_z,wo_x,wo_y,wo_z` row each (local frame,
+    /// z = normal; a header line is allowed).
+    #[arg(long)]
+    pub dirs: PathBuf,
+    /// Output CSV: a header naming the channels, then one row of values (1/sr) per pair.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Wavelengths START:END:STEP or a comma list in nm (spectral `.bsdf` sources only;
+    /// default: the stored wavelengths).
+    #[arg(long)]
+    pub wavelengths: Option<String>,
+}
+
+/// Opens the BRDF named by a SOURCE argument, evaluated at `wavelengths` when given.
+pub fn open_source(
+    spec: &str,
+    wavelengths: Option<&Channels>,
+) -> anyhow::Result<Box<dyn BrdfSource>> {
+    let only_native = |kind: &str| -> anyhow::Result<()> {
+        if wavelengths.is_some() {
+            bail!("--wavelengths applies to spectral .bsdf sources only, not to {kind} {spec:?}");
+        }
+        Ok(())
+    };
+    if let Some((path, name)) = brdf_io::store::parse_store_spec(spec) {
+        only_native("the stored material")?;
+        let m = brdf_io::store::StoreMaterial::open(&path, &name)
+            .with_context(|| format!("opening {spec}"))?;
+        return Ok(Box::new(m));
+    }
+    let path = Path::new(spec);
+    match path.extension().and_then(|e| e.to_str()) {
+        Some("bsdf") => {
+            let mut bsdf = brdf_io::rgl::RglBsdf::open(path)?;
+            if let Some(ch) = wavelengths {
+                bsdf = bsdf.with_channels(ch)?;
+            }
+            Ok(Box::new(bsdf))
+        }
+        Some("binary") => {
+            only_native("the MERL file")?;
+            Ok(Box::new(brdf_io::merl::read_merl(path)?))
+        }
+        _ => bail!(
+            "unknown SOURCE {spec:?}: expected an RGL .bsdf file, a MERL .binary file or \
+             DATA.sbrdf:MATERIAL"
+        ),
+    }
+}
+
+/// Parses DIRS.csv text: rows of six numbers; blank lines and `#` comments are skipped, a first
+/// non-numeric line is a header. Errors name the file and the line.
+pub fn parse_dirs(text: &str, path: &Path) -> anyhow::Result<Vec<(Vec3, Vec3)>> {
+    let mut pairs = Vec::new();
+    let mut seen_row = false;
+    for (k, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+        let nums: Result<Vec<f64>, _> = fields.iter().map(|f| f.parse::<f64>()).collect();
+        let where_ = || format!("{} line {}", path.display(), k + 1);
+        let nums = match nums {
+            Ok(n) => n,
+            Err(_) if !seen_row && fields.iter().any(|f| f.parse::<f64>().is_err()) => {
+                seen_row = true; // the header
+                continue;
+            }
+            Err(_) => bail!(
+                "{}: expected six numbers wi_x,wi_y,wi_z,wo_x,wo_y,wo_z, got {line:?}",
+                where_()
+            ),
+        };
+        seen_row = true;
+        if nums.len() != 6 {
+            bail!(
+                "{}: expected six numbers wi_x,wi_y,wi_z,wo_x,wo_y,wo_z, got {} fields",
+                where_(),
+                nums.len()
+            );
+        }
+        if nums.iter().any(|x| !x.is_finite()) {
+            bail!("{}: non-finite direction component in {line:?}", where_());
+        }
+        let wi = [nums[0], nums[1], nums[2]];
+        let wo = [nums[3], nums[4], nums[5]];
+        let norm = |v: Vec3| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        if norm(wi) == 0.0 || norm(wo) == 0.0 {
+            bail!("{}: zero-length direction in {line:?}", where_());
+        }
+        pairs.push((wi, wo));
+    }
+    if pairs.is_empty() {
+        bail!("{}: no direction pairs", path.display());
+    }
+    Ok(pairs)
+}
+
+/// Evaluates `source` at every pair and returns the CSV text (header of channel labels).
+pub fn sample_csv(source: &dyn BrdfSource, pairs: &[(Vec3, Vec3)]) -> anyhow::Result<String> {
+    let labels = source.channels().labels();
+    let mut out = labels.join(",");
+    out.push('\n');
+    let mut buf = vec![0.0; labels.len()];
+    for (k, (wi, wo)) in pairs.iter().enumerate() {
+        source
+            .eval(*wi, *wo, &mut buf)
+            .with_context(|| format!("evaluating direction pair {}", k + 1))?;
+        let row: Vec<String> = buf.iter().map(|v| format!("{v:e}")).collect();
+        out.push_str(&row.join(","));
+        out.push('\n');
+    }
+    Ok(out)
+}
+
+/// Runs `specgp sample`.
+pub fn sample(args: &SampleArgs) -> anyhow::Result<()> {
+    let wavelengths = args
+        .wavelengths
+        .as_deref()
+        .map(Channels::parse_wavelengths)
+        .transpose()?;
+    let source = open_source(&args.source, wavelengths.as_ref())?;
+    let text = std::fs::read_to_string(&args.dirs)
+        .with_context(|| format!("reading {}", args.dirs.display()))?;
+    let pairs = parse_dirs(&text, &args.dirs)?;
+    let csv = sample_csv(source.as_ref(), &pairs)?;
+    let dir = match args.out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let mut tmp = tempfile::NamedTempFile::new_in(&dir)
+        .with_context(|| format!("creating a temporary file next to {}", args.out.display()))?;
+    tmp.write_all(csv.as_bytes())
+        .and_then(|()| tmp.flush())
+        .with_context(|| format!("writing {}", args.out.display()))?;
+    tmp.persist(&args.out)
+        .with_context(|| format!("writing {}", args.out.display()))?;
+    tracing::info!(pairs = pairs.len(), out = %args.out.display(), "sampled {}", args.source);
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_rows_with_header_and_reports_bad_lines() {
+        let p = Path::new("d.csv");
+        let text = "wi_x,wi_y,wi_z,wo_x,wo_y,wo_z\n0,0,1, 0.6,0,0.8\n\n# comment\n0.6,0,0.8,0,0,1\n";
+        let pairs = parse_dirs(text, p).unwrap();
+        assert_eq!(pairs.len(), 2);
+        assert_eq!(pairs[0].1, [0.6, 0.0, 0.8]);
+        let e = parse_dirs("0,0,1,0,0,1\n0,0,1,0,x,1\n", p).unwrap_err().to_string();
+        assert!(e.contains("d.csv line 2"), "{e}");
+        let e = parse_dirs("0,0,1,0,0\n", p).unwrap_err().to_string();
+        assert!(e.contains("line 1") && e.contains("5 fields"), "{e}");
+        let e = parse_dirs("0,0,0,0,0,1\n", p).unwrap_err().to_string();
+        assert!(e.contains("zero-length"), "{e}");
+        assert!(parse_dirs("a,b\n", p).is_err());
+    }
+
+    #[test]
+    fn samples_a_real_rgl_file() {
+        let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/rgl-rgb");
+        let file = data.join("paper_white_rgb.bsdf");
+        if !file.is_file() {
+            eprintln!("skipping: {} is absent", file.display());
+            return;
+        }
+        let src = open_source(file.to_str().unwrap(), None).unwrap();
+        let pairs = vec![([0.0, 0.0, 1.0], [0.6, 0.0, 0.8]), ([0.0, 0.0, 1.0], [0.0, 0.6, -0.8])];
+        let csv = sample_csv(src.as_ref(), &pairs).unwrap();
+        let lines: Vec<&str> = csv.lines().collect();
+        assert_eq!(lines[0], "R,G,B");
+        let g: f64 = lines[1].split(',').nth(1).unwrap().parse().unwrap();
+        let mut want = [0.0; 3];
+        src.eval(pairs[0].0, pairs[0].1, &mut want).unwrap();
+        assert_eq!(g, want[1]);
+        assert!(g > 0.1 && g < 0.6, "white paper f ~ albedo/pi, got {g}");
+        assert_eq!(lines[2], "0e0,0e0,0e0", "below the horizon");
+        let e = open_source(file.to_str().unwrap(), Some(&Channels::spectral(vec![500.0]).unwrap()));
+        assert!(e.is_err());
+        assert!(open_source("x.png", None).is_err());
+    }
+}
