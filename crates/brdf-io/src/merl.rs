@@ -213,10 +213,19 @@ pub fn parse_merl(bytes: &[u8], path: impl AsRef<Path>) -> Result<MerlBrdf> {
             bytes.len()
         )));
     }
-    let dim = |k: usize| i32::from_le_bytes([bytes[4 * k], bytes[4 * k + 1], bytes[4 * k + 2], bytes[4 * k + 3]]);
+    let dim = |k: usize| {
+        i32::from_le_bytes([
+            bytes[4 * k],
+            bytes[4 * k + 1],
+            bytes[4 * k + 2],
+            bytes[4 * k + 3],
+        ])
+    };
     let dims = [dim(0), dim(1), dim(2)];
     if dims.iter().any(|&d| d <= 0) {
-        return Err(bad(format!("bad MERL resolution {dims:?} (expected e.g. 90 90 180)")));
+        return Err(bad(format!(
+            "bad MERL resolution {dims:?} (expected e.g. 90 90 180)"
+        )));
     }
     let grid = AngularGrid::new(dims[0] as usize, dims[1] as usize, dims[2] as usize)
         .map_err(|e| bad(format!("bad MERL resolution {dims:?}: {e}")))?;
@@ -384,6 +393,11 @@ mod tests {
             b.extend_from_slice(&d.to_le_bytes());
         }
         b.extend_from_slice(&[0u8; 16]);
-        assert!(parse_merl(&b, "m.binary").unwrap_err().to_string().contains("must have"));
+        assert!(
+            parse_merl(&b, "m.binary")
+                .unwrap_err()
+                .to_string()
+                .contains("must have")
+        );
     }
 }

@@ -23,33 +23,16 @@ use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 use crate::grid::{AngularGrid, Channels, Vec3};
-use crate::source::{BrdfSource, ImportReport, resample_cells};
+use crate::source::{BrdfSource, ImportReport, ResampleOptions, resample_cells};
 
 /// Number of weights per network (6*21 + 21 + 21*21 + 21 + 21*3 + 3).
 pub const WEIGHTS_PER_NETWORK: usize = 675;
 
-/// Default outlier threshold in 1/sr: 1e4, above the specular peak of the shiniest MERL
-/// materials (~ 1e3..1e4 1/sr for chrome-like samples) and far below the networks' grazing-angle
-/// blow-ups (up to ~3e6 on the RGL-51 set at a 45,45,90 grid).
-pub const DEFAULT_OUTLIER_THRESHOLD: f64 = 1e4;
+/// Default outlier threshold in 1/sr (see [`crate::source::DEFAULT_OUTLIER_THRESHOLD`]).
+pub const DEFAULT_OUTLIER_THRESHOLD: f64 = crate::source::DEFAULT_OUTLIER_THRESHOLD;
 
-/// How [`Nbrdf::resample_with`] treats network outputs.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct NbrdfOptions {
-    /// Values above this (1/sr) are counted as outliers in the report.
-    pub outlier_threshold: f64,
-    /// Clamp outliers to the threshold (otherwise they are stored as computed).
-    pub clamp_outliers: bool,
-}
-
-impl Default for NbrdfOptions {
-    fn default() -> Self {
-        Self {
-            outlier_threshold: DEFAULT_OUTLIER_THRESHOLD,
-            clamp_outliers: false,
-        }
-    }
-}
+/// How [`Nbrdf::resample_with`] treats network outputs (the shared [`ResampleOptions`]).
+pub type NbrdfOptions = ResampleOptions;
 
 /// A set of Neural-BRDF networks: weights and names.
 #[derive(Debug, Clone)]

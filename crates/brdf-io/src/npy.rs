@@ -115,7 +115,12 @@ pub fn parse(bytes: &[u8], path: impl AsRef<Path>) -> Result<NpyArray> {
                 12,
             )
         }
-        v => return Err(bad(format!("unsupported .npy format version {v}.{}", bytes[7]))),
+        v => {
+            return Err(bad(format!(
+                "unsupported .npy format version {v}.{}",
+                bytes[7]
+            )));
+        }
     };
     let end = start
         .checked_add(header_len)
@@ -372,7 +377,10 @@ mod tests {
         let mut w = NpyWriter::create(&p, NpyDtype::F32, &[2, 3]).unwrap();
         w.write_f32(&[1.0, 2.0, 3.0]).unwrap();
         w.write_f64(&[4.0, 5.5, -6.0]).unwrap();
-        assert!(w.write_f32(&[7.0]).is_err(), "overflowing the shape is an error");
+        assert!(
+            w.write_f32(&[7.0]).is_err(),
+            "overflowing the shape is an error"
+        );
         w.finish().unwrap();
         let bytes = std::fs::read(&p).unwrap();
         assert_eq!((bytes.len() - 24) % 64, 0, "header padded to 64 bytes");
@@ -404,7 +412,10 @@ mod tests {
         let mut h = header_bytes(NpyDtype::F32, &[2]);
         h.extend_from_slice(&1f32.to_le_bytes());
         let e = parse(&h, "x.npy").unwrap_err().to_string();
-        assert!(e.contains("x.npy") && e.contains("needs 8 data bytes"), "{e}");
+        assert!(
+            e.contains("x.npy") && e.contains("needs 8 data bytes"),
+            "{e}"
+        );
         let mut b = header_bytes(NpyDtype::F32, &[1]);
         let at = b.windows(3).position(|w| w == b"<f4").unwrap();
         b[at] = b'>';

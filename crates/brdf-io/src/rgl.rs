@@ -23,7 +23,7 @@ use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 use crate::grid::{AngularGrid, Channels, Vec3};
-use crate::source::{BrdfSource, ImportReport, resample_cells};
+use crate::source::{BrdfSource, ImportReport, ResampleOptions, resample_cells};
 use crate::tensor::{DType, TensorFile};
 
 /// Linear interpolation weights along one conditioning axis, as Mitsuba's
@@ -574,17 +574,34 @@ impl RglBsdf {
     /// [`crate::HalfDiff::to_dirs`]) for `channels`, in parallel. Values are in dataset order
     /// (`angular_index * n_channels + channel`, MERL's angular order); cells below the horizon
     /// are 0.0; negative values (Mitsuba's RGB tables dip slightly below zero) are clamped to 0
-    /// and counted in the report.
+    /// and counted in the report, and so are values above
+    /// [`crate::source::DEFAULT_OUTLIER_THRESHOLD`] (not clamped; see
+    /// [`RglBsdf::resample_with`]). Such values occur at grazing bin centres, where Mitsuba's
+    /// f cos(theta_o) does not vanish as fast as cos(theta_o).
     pub fn resample(
         &self,
         grid: &AngularGrid,
         channels: &Channels,
     ) -> Result<(Vec<f32>, ImportReport)> {
+        self.resample_with(grid, channels, ResampleOptions::default())
+    }
+
+    /// As [`RglBsdf::resample`] with explicit outlier handling.
+    pub fn resample_with(
+        &self,
+        grid: &AngularGrid,
+        channels: &Channels,
+        options: ResampleOptions,
+    ) -> Result<(Vec<f32>, ImportReport)> {
         let sel = Self::select(&self.path, &self.native, channels)?;
         let n = sel.taps.len();
-        let (values, report) = resample_cells(grid, n, None, false, |wi, wo, out| {
-            self.eval_selection(&sel, wi, wo, out)
-        })?;
+        let (values, report) = resample_cells(
+            grid,
+            n,
+            Some(options.outlier_threshold),
+            options.clamp_outliers,
+            |wi, wo, out| self.eval_selection(&sel, wi, wo, out),
+        )?;
         tracing::info!(file = %self.path.display(), %grid, "resampled RGL BSDF: {report}");
         Ok((values, report))
     }

@@ -20,6 +20,31 @@ pub trait BrdfSource: Sync {
     fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()>;
 }
 
+/// Default outlier threshold in 1/sr: 1e4, above the specular peak of the shiniest measured
+/// materials (~1e3..1e4 1/sr for chrome-like MERL samples) and far below the blow-ups of
+/// Neural-BRDF networks at grazing angles (up to ~3e6 1/sr) and of RGL files divided by a tiny
+/// cos(theta_o) at grazing bin centres (up to ~3e7 1/sr on the MERL grid).
+pub const DEFAULT_OUTLIER_THRESHOLD: f64 = 1e4;
+
+/// How resampling treats extreme values.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ResampleOptions {
+    /// Values above this (1/sr) are counted as outliers in the report.
+    pub outlier_threshold: f64,
+    /// Clamp outliers to the threshold (otherwise they are stored as computed).
+    pub clamp_outliers: bool,
+}
+
+impl Default for ResampleOptions {
+    /// Count values above [`DEFAULT_OUTLIER_THRESHOLD`], do not clamp.
+    fn default() -> Self {
+        Self {
+            outlier_threshold: DEFAULT_OUTLIER_THRESHOLD,
+            clamp_outliers: false,
+        }
+    }
+}
+
 /// What happened to the values while a source was resampled onto a grid.
 ///
 /// Counts are over stored values (cells x channels) of cells above the horizon; cells below the
@@ -32,7 +57,7 @@ pub struct ImportReport {
     pub below_horizon_cells: usize,
     /// Negative values clamped to 0 (Mitsuba's RGB interpolation and MERL's invalid markers).
     pub negatives_clamped: usize,
-    /// NaN or infinite values, replaced by 0.
+    /// NaN or infinite values (or values beyond the f32 range), replaced by 0.
     pub non_finite: usize,
     /// Values above the source's outlier threshold (see the source's documentation).
     pub outliers: usize,
@@ -54,12 +79,13 @@ impl ImportReport {
         }
     }
 
-    /// Records one evaluated value and returns the value to store: NaN/inf -> 0, negative -> 0,
+    /// Records one evaluated value and returns the value to store: NaN/inf/beyond f32 -> 0,
+    /// negative -> 0,
     /// above `outlier` -> counted, and clamped to `outlier` when `clamp_outliers` is set.
     pub fn record(&mut self, v: f64, outlier: Option<f64>, clamp_outliers: bool) -> f64 {
         self.values += 1;
         let mut v = v;
-        if !v.is_finite() {
+        if !v.is_finite() || v.abs() > f64::from(f32::MAX) {
             self.non_finite += 1;
             v = 0.0;
         } else if v < 0.0 {

@@ -138,7 +138,7 @@ fn random_pairs(n: usize, max_deg: f64, seed: u64) -> Vec<([f64; 3], [f64; 3])> 
         (s >> 11) as f64 / (1u64 << 53) as f64
     };
     let max = max_deg.to_radians();
-    let mut dir = |next: &mut dyn FnMut() -> f64| {
+    let dir = |next: &mut dyn FnMut() -> f64| {
         // Uniform in solid angle over the cap theta <= max.
         let cos_t = 1.0 - next() * (1.0 - max.cos());
         let sin_t = (1.0 - cos_t * cos_t).sqrt();
@@ -162,7 +162,9 @@ fn nbrdf_rgl_networks_agree_with_rgl_files_at_non_grazing_directions() {
     let mut all = Vec::new();
     for file in rgl_files(&data) {
         let name = file.file_stem().unwrap().to_str().unwrap();
-        let i = set.find(name).unwrap_or_else(|| panic!("{name} not in the names file"));
+        let i = set
+            .find(name)
+            .unwrap_or_else(|| panic!("{name} not in the names file"));
         let net = set.material(i).unwrap();
         let bsdf = RglBsdf::open(&file).unwrap();
         let mut errs = Vec::new();
@@ -178,7 +180,10 @@ fn nbrdf_rgl_networks_agree_with_rgl_files_at_non_grazing_directions() {
         }
         errs.sort_by(f64::total_cmp);
         let median = errs[errs.len() / 2];
-        println!("{name}: median relative error {median:.3}, 90th percentile {:.3}", errs[errs.len() * 9 / 10]);
+        println!(
+            "{name}: median relative error {median:.3}, 90th percentile {:.3}",
+            errs[errs.len() * 9 / 10]
+        );
         // SOURCES.md: the networks agree within ~5-20 %.
         assert!(median < 0.25, "{name}: median relative error {median}");
         all.extend(errs);
@@ -223,7 +228,10 @@ fn nbrdf_resample_counts_grazing_outliers() {
         assert_eq!(rc.outliers, rc.outliers_clamped);
         assert_eq!(rc.outliers, v.iter().filter(|x| **x > 2.0).count());
     }
-    println!("largest network value on grid {grid}: {:.3e} ({})", worst.0, worst.1);
+    println!(
+        "largest network value on grid {grid}: {:.3e} ({})",
+        worst.0, worst.1
+    );
 }
 
 /// Rebuilds an RGB file as a spectral file with three wavelengths (B at 450, G at 550, R at
@@ -284,8 +292,14 @@ fn tensor_writer_round_trips_a_real_file_and_spectral_files_evaluate() {
         rgb.eval(wi, wo, &mut a).unwrap();
         s.eval(wi, wo, &mut b).unwrap();
         let close = |x: f64, y: f64| (x - y).abs() <= 1e-12 * x.abs().max(1.0);
-        assert!(close(b[0], a[2]) && close(b[2], a[1]) && close(b[3], a[0]), "{a:?} {b:?}");
-        assert!(close(b[1], 0.5 * (a[2] + a[1])), "500 nm interpolates 450 and 550");
+        assert!(
+            close(b[0], a[2]) && close(b[2], a[1]) && close(b[3], a[0]),
+            "{a:?} {b:?}"
+        );
+        assert!(
+            close(b[1], 0.5 * (a[2] + a[1])),
+            "500 nm interpolates 450 and 550"
+        );
     }
     let e = s
         .clone()
@@ -293,7 +307,11 @@ fn tensor_writer_round_trips_a_real_file_and_spectral_files_evaluate() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("400") && e.contains("450"), "{e}");
-    assert!(rgb.clone().with_channels(&Channels::spectral(vec![500.0]).unwrap()).is_err());
+    assert!(
+        rgb.clone()
+            .with_channels(&Channels::spectral(vec![500.0]).unwrap())
+            .is_err()
+    );
     // Resampling at chosen wavelengths: channel fastest.
     let grid = AngularGrid::new(4, 4, 8).unwrap();
     let want = Channels::spectral(vec![550.0, 650.0]).unwrap();
@@ -335,5 +353,8 @@ fn anisotropic_files_are_rejected_clearly() {
     let p = dir.path().join("aniso.bsdf");
     TensorFile::write(&p, &fields).unwrap();
     let e = RglBsdf::open(&p).unwrap_err().to_string();
-    assert!(e.contains("aniso.bsdf") && e.contains("not supported yet"), "{e}");
+    assert!(
+        e.contains("aniso.bsdf") && e.contains("not supported yet"),
+        "{e}"
+    );
 }

@@ -169,11 +169,14 @@ mod tests {
     #[test]
     fn parses_rows_with_header_and_reports_bad_lines() {
         let p = Path::new("d.csv");
-        let text = "wi_x,wi_y,wi_z,wo_x,wo_y,wo_z\n0,0,1, 0.6,0,0.8\n\n# comment\n0.6,0,0.8,0,0,1\n";
+        let text =
+            "wi_x,wi_y,wi_z,wo_x,wo_y,wo_z\n0,0,1, 0.6,0,0.8\n\n# comment\n0.6,0,0.8,0,0,1\n";
         let pairs = parse_dirs(text, p).unwrap();
         assert_eq!(pairs.len(), 2);
         assert_eq!(pairs[0].1, [0.6, 0.0, 0.8]);
-        let e = parse_dirs("0,0,1,0,0,1\n0,0,1,0,x,1\n", p).unwrap_err().to_string();
+        let e = parse_dirs("0,0,1,0,0,1\n0,0,1,0,x,1\n", p)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("d.csv line 2"), "{e}");
         let e = parse_dirs("0,0,1,0,0\n", p).unwrap_err().to_string();
         assert!(e.contains("line 1") && e.contains("5 fields"), "{e}");
@@ -191,7 +194,10 @@ mod tests {
             return;
         }
         let src = open_source(file.to_str().unwrap(), None).unwrap();
-        let pairs = vec![([0.0, 0.0, 1.0], [0.6, 0.0, 0.8]), ([0.0, 0.0, 1.0], [0.0, 0.6, -0.8])];
+        let pairs = vec![
+            ([0.0, 0.0, 1.0], [0.6, 0.0, 0.8]),
+            ([0.0, 0.0, 1.0], [0.0, 0.6, -0.8]),
+        ];
         let csv = sample_csv(src.as_ref(), &pairs).unwrap();
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(lines[0], "R,G,B");
@@ -201,7 +207,10 @@ mod tests {
         assert_eq!(g, want[1]);
         assert!(g > 0.1 && g < 0.6, "white paper f ~ albedo/pi, got {g}");
         assert_eq!(lines[2], "0e0,0e0,0e0", "below the horizon");
-        let e = open_source(file.to_str().unwrap(), Some(&Channels::spectral(vec![500.0]).unwrap()));
+        let e = open_source(
+            file.to_str().unwrap(),
+            Some(&Channels::spectral(vec![500.0]).unwrap()),
+        );
         assert!(e.is_err());
         assert!(open_source("x.png", None).is_err());
     }
