@@ -3,6 +3,10 @@
 //! - [`grid`]: the Rusinkiewicz angular grid with MERL's index mapping, the channel axis and the
 //!   conversions between (theta_h, theta_d, phi_d) and (wi, wo).
 //! - [`store`]: the chunked dataset store (`.sbrdf`): streaming writer, memory-mapped reader.
+//! - [`tensor`]: the RGL `tensor_file` container (reader and writer); [`rgl`]: isotropic RGL
+//!   `.bsdf` evaluation matching Mitsuba 3's `measured` plugin (f in 1/sr) and grid resampling;
+//!   [`merl`]: MERL `.binary` files; [`nbrdf`]: Neural-BRDF networks; [`npy`]: `.npy` I/O.
+//! - [`source`]: the [`BrdfSource`] trait (f(wi, wo) for any source) and the [`ImportReport`].
 
 pub mod error;
 pub mod grid;
