@@ -151,21 +151,50 @@ pub(crate) fn resample_cells<F>(
 where
     F: Fn(Vec3, Vec3, &mut [f64]) -> Result<()> + Sync,
 {
-    use rayon::prelude::*;
     let mut out = vec![0f32; grid.len() * n_channels];
+    let report = resample_cells_into(grid, 0, &mut out, n_channels, outlier, clamp_outliers, eval)?;
+    Ok((out, report))
+}
+
+/// As [`resample_cells`] for the block of cells `first_cell..first_cell + out.len() / n_channels`,
+/// written into `out` (its length must be a multiple of `n_channels` inside the grid).
+pub(crate) fn resample_cells_into<F>(
+    grid: &crate::grid::AngularGrid,
+    first_cell: usize,
+    out: &mut [f32],
+    n_channels: usize,
+    outlier: Option<f64>,
+    clamp_outliers: bool,
+    eval: F,
+) -> Result<ImportReport>
+where
+    F: Fn(Vec3, Vec3, &mut [f64]) -> Result<()> + Sync,
+{
+    use rayon::prelude::*;
+    if n_channels == 0
+        || out.len() % n_channels != 0
+        || first_cell + out.len() / n_channels > grid.len()
+    {
+        return Err(crate::error::Error::InvalidArgument {
+            reason: format!(
+                "block of {} values from cell {first_cell} does not fit grid {grid} with {n_channels} channels",
+                out.len()
+            ),
+        });
+    }
     // Chunks of whole theta_h rows keep the per-task overhead small.
     let cells_per_chunk = (grid.n_theta_d * grid.n_phi_d).max(1);
-    let report = out
-        .par_chunks_mut(cells_per_chunk * n_channels)
+    out.par_chunks_mut(cells_per_chunk * n_channels)
         .enumerate()
         .map(|(chunk, values)| -> Result<ImportReport> {
             let mut report = ImportReport::new();
             let mut buf = vec![0f64; n_channels];
             for (k, cell) in values.chunks_mut(n_channels).enumerate() {
-                let flat = chunk * cells_per_chunk + k;
+                let flat = first_cell + chunk * cells_per_chunk + k;
                 let (wi, wo) = grid.bin_centre_flat(flat).to_dirs();
                 if !(wi[2] > 0.0 && wo[2] > 0.0) {
                     report.below_horizon_cells += 1;
+                    cell.iter_mut().for_each(|v| *v = 0.0);
                     continue;
                 }
                 eval(wi, wo, &mut buf)?;
@@ -175,8 +204,7 @@ where
             }
             Ok(report)
         })
-        .try_reduce(ImportReport::new, |a, b| Ok(a.merge(&b)))?;
-    Ok((out, report))
+        .try_reduce(ImportReport::new, |a, b| Ok(a.merge(&b)))
 }
 
 #[cfg(test)]

@@ -115,6 +115,38 @@ fn rgl_resample_is_symmetric_under_reciprocity_and_zero_below_horizon() {
             assert_eq!(cell, [0.0, 0.0, 0.0]);
         }
     }
+    // Block-wise resampling gives the same values and the same counts.
+    let mut block = vec![1.0f32; 3 * 37];
+    let mut merged = brdf_io::ImportReport::new();
+    let mut all = Vec::new();
+    let mut first = 0;
+    while first < grid.len() {
+        let n = 37.min(grid.len() - first);
+        let r = bsdf
+            .resample_block(
+                &grid,
+                &Channels::Rgb,
+                Default::default(),
+                first,
+                &mut block[..3 * n],
+            )
+            .unwrap();
+        merged = merged.merge(&r);
+        all.extend_from_slice(&block[..3 * n]);
+        first += n;
+    }
+    assert_eq!(all, values);
+    assert_eq!(merged, report);
+    assert!(
+        bsdf.resample_block(
+            &grid,
+            &Channels::Rgb,
+            Default::default(),
+            grid.len() - 1,
+            &mut block[..6]
+        )
+        .is_err()
+    );
     // White paper: nearly neutral, roughly Lambertian magnitude (albedo ~0.8 -> f ~ 0.25).
     let (i, j, k) = (1, 2, 3);
     let a = grid.index(i, j, k);
