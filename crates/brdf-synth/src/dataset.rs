@@ -85,7 +85,7 @@ impl SynthDataset {
 }
 
 /// Evaluates `materials` on `grid` x `channels` into memory. Use for small grids (tests);
-/// `stream::write_store` streams any size.
+/// [`crate::stream::write_store`] streams any size.
 pub fn generate(
     materials: &[Material],
     grid: AngularGrid,

@@ -16,11 +16,12 @@ pub enum Error {
         reason: String,
     },
     /// The dataset store failed while writing `path`.
-    #[error("{path}: writing the synthetic dataset failed: {source}")]
+    #[error("{path}: writing the synthetic dataset failed")]
     Store {
         /// The output file.
         path: PathBuf,
-        /// The store's error.
+        /// The store's error (the cause in the error chain).
+        #[source]
         source: brdf_io::Error,
     },
     /// The dataset would not fit in memory.

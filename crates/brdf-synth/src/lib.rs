@@ -9,7 +9,8 @@
 //!   interface, clear coat, bare metals), energy-conserving and reciprocal;
 //! - [`preset`]: 51 named materials spanning the RGL isotropic catalogue's families,
 //!   deterministic per seed;
-//! - [`dataset`]: evaluation on an [`brdf_io::AngularGrid`] in memory.
+//! - [`dataset`]: evaluation on an [`brdf_io::AngularGrid`] in memory;
+//! - [`stream`]: the same streamed into a `.sbrdf` store, for any grid size.
 
 pub mod dataset;
 pub mod error;
@@ -18,6 +19,7 @@ pub mod microfacet;
 pub mod optics;
 pub mod preset;
 pub mod spectrum;
+pub mod stream;
 
 pub use dataset::{DEFAULT_GRID, DEFAULT_WAVELENGTHS, SynthDataset, generate, preset_dataset};
 pub use error::{Error, Result};
@@ -28,3 +30,4 @@ pub use material::{
 pub use optics::{Ior, Metal};
 pub use preset::{N_MATERIALS, preset, preset_material};
 pub use spectrum::Spectrum;
+pub use stream::write_store;

@@ -7,6 +7,7 @@ use brdf_io::{AngularGrid, Channels};
 use clap::{Parser, Subcommand};
 
 mod cmd_data;
+mod cmd_synth;
 mod cmd_sample;
 
 /// Learn a navigable, predictive space of real-world materials from measured spectral BRDFs.
@@ -31,6 +32,8 @@ enum Command {
     Info(cmd_data::InfoArgs),
     /// Export materials of a dataset store as an N x D `.npy` matrix (streamed).
     Export(cmd_data::ExportArgs),
+    /// Write the embedded default dataset: 51 synthetic spectral materials on a grid.
+    Synth(cmd_synth::SynthArgs),
     /// Evaluate a BRDF source (f in 1/sr) at the direction pairs of a CSV file.
     Sample(cmd_sample::SampleArgs),
 }
@@ -87,6 +90,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Import(args) => cmd_data::import(&args),
         Command::Info(args) => cmd_data::info(&args),
         Command::Export(args) => cmd_data::export(&args),
+        Command::Synth(args) => cmd_synth::synth(&args),
         Command::Sample(args) => cmd_sample::sample(&args),
     }
 }

@@ -1,0 +1,157 @@
+//! Streaming a synthetic dataset into a `.sbrdf` store: any grid size, never more than one
+//! block of cells (about 16 MB of f32 values for all materials) in memory.
+
+use std::path::Path;
+
+use brdf_io::store::StoreHeader;
+use brdf_io::{AngularGrid, Channels, StoreInfo, StoreOptions, StoreWriter};
+use rayon::prelude::*;
+
+use crate::dataset::prepare_all;
+use crate::error::{Error, Result};
+use crate::material::Material;
+
+/// Values held in memory per block while streaming to a store (f32 values).
+const BLOCK_VALUES: usize = 4 << 20;
+
+/// Streams `materials` evaluated on `grid` x `channels` into a new store at `path` (written
+/// to a temporary file and renamed into place). `progress` is called with the number of angular
+/// cells completed so far (out of `grid.len()`). Only one block of cells (about 16 MB) of all
+/// materials is in memory at a time.
+pub fn write_store(
+    path: &Path,
+    materials: &[Material],
+    grid: AngularGrid,
+    channels: &Channels,
+    options: StoreOptions,
+    seed: u64,
+    mut progress: impl FnMut(usize),
+) -> Result<StoreHeader> {
+    let store_err = |source| Error::Store {
+        path: path.to_owned(),
+        source,
+    };
+    if materials.is_empty() {
+        return Err(Error::InvalidRequest {
+            reason: "no materials to write".into(),
+        });
+    }
+    let prepared = prepare_all(materials, channels)?;
+    let n = materials.len();
+    let nc = channels.len();
+    let info = StoreInfo {
+        grid,
+        channels: channels.clone(),
+    };
+    let mut writer = StoreWriter::create(path, info, options).map_err(store_err)?;
+    let sources: Vec<(String, String)> = materials
+        .iter()
+        .map(|m| {
+            (
+                m.name.clone(),
+                format!("brdf-synth preset seed {seed} ({:?})", m.family),
+            )
+        })
+        .collect();
+    writer.declare_materials(&sources).map_err(store_err)?;
+    let cells_per_block = (BLOCK_VALUES / (n * nc)).max(1);
+    let mut block = Vec::new();
+    let mut start = 0;
+    while start < grid.len() {
+        let end = (start + cells_per_block).min(grid.len());
+        block.clear();
+        block.resize((end - start) * nc * n, 0.0f32);
+        // Index-major: for cell c and channel l, the N materials are contiguous.
+        block.par_chunks_mut(nc * n).enumerate().for_each_init(
+            || vec![0.0f64; nc],
+            |scratch, (i, out)| {
+                let hd = grid.bin_centre_flat(start + i);
+                if !hd.is_above_horizon() {
+                    return;
+                }
+                for (mi, m) in prepared.iter().enumerate() {
+                    m.eval_half_diff(&hd, scratch);
+                    for (l, v) in scratch.iter().enumerate() {
+                        out[l * n + mi] = *v as f32;
+                    }
+                }
+            },
+        );
+        writer
+            .write_block(start * nc..end * nc, &block)
+            .map_err(store_err)?;
+        start = end;
+        progress(start);
+    }
+    writer.finish().map_err(store_err)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dataset::generate;
+    use crate::preset::preset;
+    use brdf_io::Store;
+
+    #[test]
+    fn store_round_trip_matches_in_memory_generation() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("synth.sbrdf");
+        let grid = AngularGrid::new(6, 5, 8).unwrap();
+        let channels = Channels::parse_wavelengths("400:700:100").unwrap();
+        let mats = preset(2);
+        let mut calls = Vec::new();
+        let header = write_store(
+            &path,
+            &mats[..7],
+            grid,
+            &channels,
+            StoreOptions {
+                // Small chunks so several blocks and chunks are exercised.
+                chunk_len: Some(50),
+                ..StoreOptions::default()
+            },
+            2,
+            |done| calls.push(done),
+        )
+        .unwrap();
+        assert_eq!(header.n_materials(), 7);
+        assert_eq!(calls.last(), Some(&grid.len()));
+        let expect = generate(&mats[..7], grid, &channels).unwrap();
+        let store = Store::open(&path).unwrap();
+        assert_eq!(store.n_materials(), 7);
+        assert_eq!(store.d(), expect.d());
+        assert_eq!(
+            store.names(),
+            expect.names.iter().map(|s| s.as_str()).collect::<Vec<_>>()
+        );
+        let mut row = vec![0.0f32; store.d()];
+        for m in 0..7 {
+            store.material_row(m, 0..store.d(), &mut row).unwrap();
+            for (a, b) in row.iter().zip(expect.row(m)) {
+                assert_eq!(*a, *b as f32);
+            }
+        }
+        // Nothing but the store is left in the directory.
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn rgb_channels_are_refused_without_leaving_a_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.sbrdf");
+        let grid = AngularGrid::new(2, 2, 2).unwrap();
+        let err = write_store(
+            &path,
+            &preset(0),
+            grid,
+            &Channels::Rgb,
+            StoreOptions::default(),
+            0,
+            |_| {},
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("spectral"), "{err}");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+}
