@@ -157,12 +157,13 @@ proptest! {
 #[test]
 fn fuzz_seed_is_a_valid_minimal_bsdf() {
     // The cargo-fuzz seed (fuzz/seeds/tensor_file) must load, so fuzzing starts past the checks.
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../fuzz/seeds/tensor_file/minimal_rgb.bsdf");
+    let p =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fuzz/seeds/tensor_file/minimal_rgb.bsdf");
     let bytes = std::fs::read(&p).unwrap();
     assert!(exercise(&bytes), "{} does not load", p.display());
     let bsdf = RglBsdf::open(&p).unwrap();
     let mut out = [0.0; 3];
-    bsdf.eval([0.0, 0.0, 1.0], [0.0, 0.0, 1.0], &mut out).unwrap();
+    bsdf.eval([0.0, 0.0, 1.0], [0.0, 0.0, 1.0], &mut out)
+        .unwrap();
     assert!(out.iter().all(|v| v.is_finite() && *v >= 0.0), "{out:?}");
 }
