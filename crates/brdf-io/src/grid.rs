@@ -201,6 +201,39 @@ impl AngularGrid {
         )
     }
 
+    /// Multilinear interpolation stencil at `hd`: eight (flat angular index, weight) pairs whose
+    /// weights sum to 1. Bin centres sit at integer [`continuous_coords`](Self::continuous_coords);
+    /// theta_h and theta_d clamp at the grid's first and last centres, phi_d wraps with period pi.
+    /// At a bin centre the stencil reduces to that bin with weight 1 (other weights are 0).
+    pub fn interpolation_stencil(&self, hd: &HalfDiff) -> [(usize, f64); 8] {
+        let c = self.continuous_coords(hd);
+        let clamp_axis = |x: f64, n: usize| -> (usize, usize, f64) {
+            let x = x.clamp(0.0, (n - 1) as f64);
+            let i0 = x.floor() as usize;
+            let i1 = (i0 + 1).min(n - 1);
+            (i0, i1, x - i0 as f64)
+        };
+        let wrap_axis = |x: f64, n: usize| -> (usize, usize, f64) {
+            let f = x.floor();
+            let i0 = (f as i64).rem_euclid(n as i64) as usize;
+            (i0, (i0 + 1) % n, x - f)
+        };
+        let (h0, h1, th) = clamp_axis(c[0], self.n_theta_h);
+        let (d0, d1, td) = clamp_axis(c[1], self.n_theta_d);
+        let (p0, p1, tp) = wrap_axis(c[2], self.n_phi_d);
+        let mut out = [(0usize, 0.0f64); 8];
+        let mut k = 0;
+        for (hi, wh) in [(h0, 1.0 - th), (h1, th)] {
+            for (di, wd) in [(d0, 1.0 - td), (d1, td)] {
+                for (pi, wp) in [(p0, 1.0 - tp), (p1, tp)] {
+                    out[k] = (self.index(hi, di, pi), wh * wd * wp);
+                    k += 1;
+                }
+            }
+        }
+        out
+    }
+
     /// Validity mask over flat indices: true where both directions of the bin centre are above
     /// the horizon. Cells outside the mask hold no measurement and never enter statistics.
     pub fn validity_mask(&self) -> Vec<bool> {
@@ -353,6 +386,41 @@ mod tests {
                 assert!(close(c[2], k as f64, 1e-9));
             }
         }
+    }
+
+    #[test]
+    fn interpolation_stencil_weights() {
+        let g = AngularGrid::new(6, 5, 8).unwrap();
+        // At a bin centre: that bin with weight 1.
+        let st = g.interpolation_stencil(&g.bin_centre(2, 3, 4));
+        let total: f64 = st.iter().map(|(_, w)| w).sum();
+        assert!(close(total, 1.0, 1e-12));
+        let at: f64 = st
+            .iter()
+            .filter(|(i, _)| *i == g.index(2, 3, 4))
+            .map(|(_, w)| w)
+            .sum();
+        assert!(close(at, 1.0, 1e-9), "{st:?}");
+        // Half-way in phi_d between the last and the first bin: wraps around.
+        let hd = HalfDiff {
+            phi_d: 0.0,
+            ..g.bin_centre(2, 3, 0)
+        };
+        let st = g.interpolation_stencil(&hd);
+        let w_first: f64 = st
+            .iter()
+            .filter(|(i, _)| *i == g.index(2, 3, 0))
+            .map(|(_, w)| w)
+            .sum();
+        let w_last: f64 = st
+            .iter()
+            .filter(|(i, _)| *i == g.index(2, 3, 7))
+            .map(|(_, w)| w)
+            .sum();
+        assert!(
+            close(w_first, 0.5, 1e-9) && close(w_last, 0.5, 1e-9),
+            "{st:?}"
+        );
     }
 
     #[test]

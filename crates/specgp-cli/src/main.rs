@@ -7,8 +7,9 @@ use brdf_io::{AngularGrid, Channels};
 use clap::{Parser, Subcommand};
 
 mod cmd_data;
-mod cmd_synth;
+mod cmd_fit;
 mod cmd_sample;
+mod cmd_synth;
 
 /// Learn a navigable, predictive space of real-world materials from measured spectral BRDFs.
 #[derive(Debug, Parser)]
@@ -32,10 +33,14 @@ enum Command {
     Info(cmd_data::InfoArgs),
     /// Export materials of a dataset store as an N x D `.npy` matrix (streamed).
     Export(cmd_data::ExportArgs),
-    /// Write the embedded default dataset: 51 synthetic spectral materials on a grid.
-    Synth(cmd_synth::SynthArgs),
     /// Evaluate a BRDF source (f in 1/sr) at the direction pairs of a CSV file.
     Sample(cmd_sample::SampleArgs),
+    /// Write the embedded default dataset: 51 synthetic spectral materials on a grid.
+    Synth(cmd_synth::SynthArgs),
+    /// Fit a GPLVM latent space to a dataset store and write the model (TOML).
+    Fit(cmd_fit::FitArgs),
+    /// Show the latent coordinates and log-likelihood of a model.
+    Latent(cmd_fit::LatentArgs),
 }
 
 /// Arguments of `specgp grid`.
@@ -87,11 +92,13 @@ fn init_tracing(verbosity: u8) {
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Grid(args) => grid_command(&args),
+        Command::Fit(args) => cmd_fit::fit(&args),
+        Command::Latent(args) => cmd_fit::latent(&args),
         Command::Import(args) => cmd_data::import(&args),
         Command::Info(args) => cmd_data::info(&args),
         Command::Export(args) => cmd_data::export(&args),
-        Command::Synth(args) => cmd_synth::synth(&args),
         Command::Sample(args) => cmd_sample::sample(&args),
+        Command::Synth(args) => cmd_synth::synth(&args),
     }
 }
 
@@ -108,6 +115,15 @@ fn main() -> std::process::ExitCode {
     init_tracing(cli.verbose);
     match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
+        // A closed pipe (`specgp latent m.toml | head`) is not an error.
+        Err(err)
+            if err.chain().any(|e| {
+                e.downcast_ref::<std::io::Error>()
+                    .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+            }) =>
+        {
+            std::process::ExitCode::SUCCESS
+        }
         Err(err) => {
             eprintln!("error: {err:#}");
             std::process::ExitCode::FAILURE

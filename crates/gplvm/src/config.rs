@@ -1,0 +1,249 @@
+//! Fit configuration: parsed from TOML into an unchecked form, then validated by [`FitParams::check`].
+//!
+//! `configs/fit/paper.toml` reproduces the paper (q = 2, l = 1, mu = 1e-4, unit amplitude, PCA
+//! start, Hooke-Jeeves, raw values); the defaults here are the measured best configuration.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::transform::Transform;
+
+/// Which optimiser moves the latent points (and hyperparameters).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OptimizerKind {
+    /// Hooke-Jeeves direct search, as in the paper.
+    HookeJeeves,
+    /// L-BFGS on the analytic gradient.
+    Lbfgs,
+}
+
+impl std::str::FromStr for OptimizerKind {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "hooke-jeeves" => Ok(Self::HookeJeeves),
+            "lbfgs" => Ok(Self::Lbfgs),
+            other => Err(Error::InvalidConfig {
+                reason: format!("unknown optimizer {other:?}: expected hooke-jeeves or lbfgs"),
+            }),
+        }
+    }
+}
+
+impl std::fmt::Display for OptimizerKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::HookeJeeves => "hooke-jeeves",
+            Self::Lbfgs => "lbfgs",
+        })
+    }
+}
+
+/// How the data are scaled against the kernel amplitude before fitting.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DataScaling {
+    /// Divide the centred data by their RMS, so the average variance per dimension is 1 and a
+    /// unit kernel amplitude is meaningful.
+    UnitVariance,
+    /// Use the transformed values as they are.
+    None,
+}
+
+/// How the PCA start is scaled.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum InitScaling {
+    /// Scale all latent axes together so the first has unit standard deviation (keeps the
+    /// PCA aspect ratio).
+    Isotropic,
+    /// Standardise every latent axis to unit standard deviation.
+    PerAxis,
+    /// Raw PCA scores of the scaled data.
+    None,
+    /// The isotropic start multiplied by the factor that maximises the likelihood (a 1-D
+    /// search over 10^-3..10^3 before the optimiser starts): with a fixed length-scale the
+    /// latent scale decides how correlated the materials look to the kernel.
+    Likelihood,
+}
+
+/// Fit parameters as written in a TOML file or on the command line, before validation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FitParams {
+    /// Latent dimension q >= 1.
+    pub latent_dim: usize,
+    /// Optimiser.
+    pub optimizer: OptimizerKind,
+    /// Data transform: `raw`, `log` or `log:OFFSET`.
+    pub transform: String,
+    /// Scaling of the data against the kernel amplitude.
+    pub data_scaling: DataScaling,
+    /// RBF amplitude s (the kernel variance is s^2).
+    pub amplitude: f64,
+    /// RBF length-scale l.
+    pub lengthscale: f64,
+    /// Noise mu (K = K_rbf + mu I).
+    pub noise: f64,
+    /// Learn s, l and mu with the latent points (type-II maximum likelihood).
+    pub learn_hyperparameters: bool,
+    /// Standard-normal prior on the latent points.
+    pub prior: bool,
+    /// Scaling of the PCA start.
+    pub init_scaling: InitScaling,
+    /// Extra optimisations from perturbed PCA starts; the best likelihood wins.
+    pub restarts: usize,
+    /// Seed of the restart perturbations.
+    pub seed: u64,
+    /// Iteration cap of L-BFGS.
+    pub max_iterations: u64,
+    /// Evaluation cap of Hooke-Jeeves.
+    pub max_evaluations: usize,
+    /// L-BFGS stops when the gradient norm of the per-value objective -L/(N D) falls below this.
+    pub gradient_tolerance: f64,
+    /// L-BFGS stops when the per-value objective -L/(N D) changes by less than this in a step.
+    pub cost_tolerance: f64,
+    /// Initial step of Hooke-Jeeves.
+    pub initial_step: f64,
+    /// Final step of Hooke-Jeeves.
+    pub min_step: f64,
+}
+
+impl Default for FitParams {
+    fn default() -> Self {
+        Self {
+            latent_dim: 2,
+            optimizer: OptimizerKind::Lbfgs,
+            transform: "log".into(),
+            data_scaling: DataScaling::UnitVariance,
+            amplitude: 1.0,
+            lengthscale: 1.0,
+            noise: 1e-4,
+            learn_hyperparameters: false,
+            prior: true,
+            init_scaling: InitScaling::Likelihood,
+            restarts: 0,
+            seed: 0,
+            max_iterations: 2_000,
+            max_evaluations: 200_000,
+            gradient_tolerance: 1e-7,
+            cost_tolerance: 1e-11,
+            initial_step: 0.1,
+            min_step: 1e-6,
+        }
+    }
+}
+
+/// Validated fit configuration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FitConfig {
+    /// The validated parameters.
+    pub params: FitParams,
+    /// The parsed transform.
+    pub transform: Transform,
+}
+
+impl FitParams {
+    /// Reads parameters from a TOML file; unknown keys are errors.
+    pub fn from_toml_file(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::File {
+            path: path.to_owned(),
+            reason: e.to_string(),
+        })?;
+        toml::from_str(&text).map_err(|e| Error::File {
+            path: path.to_owned(),
+            reason: e.to_string(),
+        })
+    }
+
+    /// Validates every value.
+    pub fn check(self) -> Result<FitConfig> {
+        let bad = |reason: String| Err(Error::InvalidConfig { reason });
+        if self.latent_dim == 0 || self.latent_dim > 64 {
+            return bad(format!(
+                "latent_dim must be in 1..=64, got {}",
+                self.latent_dim
+            ));
+        }
+        for (name, v) in [
+            ("amplitude", self.amplitude),
+            ("lengthscale", self.lengthscale),
+            ("noise", self.noise),
+            ("initial_step", self.initial_step),
+            ("min_step", self.min_step),
+            ("gradient_tolerance", self.gradient_tolerance),
+            ("cost_tolerance", self.cost_tolerance),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(format!("{name} must be finite and > 0, got {v}"));
+            }
+        }
+        if self.max_iterations == 0 || self.max_evaluations == 0 {
+            return bad("max_iterations and max_evaluations must be >= 1".into());
+        }
+        let transform: Transform = self.transform.parse()?;
+        Ok(FitConfig {
+            params: self,
+            transform,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn paper_config_parses() {
+        let p: FitParams = toml::from_str(
+            r#"
+            latent_dim = 2
+            optimizer = "hooke-jeeves"
+            transform = "raw"
+            lengthscale = 1.0
+            noise = 1e-4
+            "#,
+        )
+        .unwrap();
+        let c = p.check().unwrap();
+        assert_eq!(c.transform, Transform::Raw);
+        assert_eq!(c.params.optimizer, OptimizerKind::HookeJeeves);
+    }
+
+    #[test]
+    fn shipped_configs_parse_and_default_matches_code() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/fit");
+        let paper = FitParams::from_toml_file(&dir.join("paper.toml"))
+            .unwrap()
+            .check()
+            .unwrap();
+        assert_eq!(paper.params.optimizer, OptimizerKind::HookeJeeves);
+        assert_eq!(paper.transform, Transform::Raw);
+        assert_eq!((paper.params.lengthscale, paper.params.noise), (1.0, 1e-4));
+        let default = FitParams::from_toml_file(&dir.join("default.toml")).unwrap();
+        assert_eq!(default, FitParams::default());
+    }
+
+    #[test]
+    fn unknown_keys_and_bad_values_are_errors() {
+        assert!(toml::from_str::<FitParams>("latent_dimension = 2").is_err());
+        let p = FitParams {
+            noise: 0.0,
+            ..Default::default()
+        };
+        assert!(p.check().is_err());
+        let p = FitParams {
+            latent_dim: 0,
+            ..Default::default()
+        };
+        assert!(p.check().is_err());
+        let p = FitParams {
+            transform: "exp".into(),
+            ..Default::default()
+        };
+        assert!(p.check().is_err());
+    }
+}

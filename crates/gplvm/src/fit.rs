@@ -1,0 +1,355 @@
+//! Fitting: the Gram pass over a store, the PCA start, optimisation with restarts, and the model.
+
+use std::path::Path;
+use std::time::Instant;
+
+use brdf_io::store::Store;
+use faer::{Mat, MatRef, Par};
+use gp_core::{GplvmObjective, KernelParams, Learn, centre_gram};
+use rand::SeedableRng;
+use rand_distr::{Distribution, Normal};
+
+use crate::config::{DataScaling, FitConfig, InitScaling, OptimizerKind};
+use crate::error::{Error, Result};
+use crate::model::{
+    DatasetRef, FitReport, Hyperparameters, LatentMaterial, MODEL_FORMAT, MODEL_VERSION, Model,
+};
+use crate::optim::{HookeJeevesSettings, LbfgsSettings, Minimum, hooke_jeeves, lbfgs};
+use crate::pca::Pca;
+use crate::transform::Transform;
+
+/// The result of one streaming pass over a store.
+#[derive(Debug, Clone)]
+pub struct GramPass {
+    /// Uncentred Gram matrix of the transformed values, N x N.
+    pub gram: Mat<f64>,
+    /// Values per material that carry data (valid cells x channels).
+    pub d_effective: usize,
+    /// Seconds the pass took.
+    pub seconds: f64,
+}
+
+/// Computes the uncentred Gram matrix of the transformed data in one parallel streaming pass.
+pub fn gram_pass(store: &Store, transform: Transform) -> Result<GramPass> {
+    let start = Instant::now();
+    let n = store.n_materials();
+    let g = store.gram_with(move |v| transform.forward(f64::from(v)))?;
+    let gram = Mat::from_fn(n, n, |i, j| g[i * n + j]);
+    let valid = store.validity_mask().iter().filter(|v| **v).count();
+    Ok(GramPass {
+        gram,
+        d_effective: valid * store.channels().len(),
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+/// The centred Gram matrix divided by the data scale, and that scale.
+pub fn scaled_centred_gram(
+    g: MatRef<'_, f64>,
+    d: usize,
+    scaling: DataScaling,
+) -> Result<(Mat<f64>, f64)> {
+    let n = g.nrows();
+    if n < 2 {
+        return Err(Error::InvalidData {
+            reason: format!("a GPLVM needs at least 2 materials, got {n}"),
+        });
+    }
+    let s = centre_gram(g)?;
+    let trace: f64 = (0..n).map(|i| s[(i, i)]).sum();
+    let scale = match scaling {
+        DataScaling::None => 1.0,
+        DataScaling::UnitVariance => {
+            if !(trace > 0.0 && trace.is_finite()) {
+                return Err(Error::InvalidData {
+                    reason: format!(
+                        "the {n} materials are identical after the transform (total variance {trace:e}); nothing to fit"
+                    ),
+                });
+            }
+            trace / (n as f64 * d as f64)
+        }
+    };
+    Ok((Mat::from_fn(n, n, |i, j| s[(i, j)] / scale), scale))
+}
+
+/// A fitted latent space, before it is wrapped into a [`Model`].
+#[derive(Debug, Clone)]
+pub struct Fit {
+    /// Latent points, N x q.
+    pub x: Mat<f64>,
+    /// Kernel hyperparameters.
+    pub params: KernelParams,
+    /// Variance divisor applied to the centred data.
+    pub data_scale: f64,
+    /// Final log-likelihood.
+    pub log_likelihood: f64,
+    /// Log-likelihood at the PCA start.
+    pub initial_log_likelihood: f64,
+    /// Norm of the gradient at the optimum.
+    pub gradient_norm: f64,
+    /// Jitter used at the optimum.
+    pub jitter: f64,
+    /// Condition-number estimate of K at the optimum.
+    pub condition_number: f64,
+    /// Iterations over all restarts.
+    pub iterations: u64,
+    /// Objective evaluations over all restarts.
+    pub evaluations: u64,
+    /// Why the winning run stopped.
+    pub stop_reason: String,
+    /// Seconds spent optimising.
+    pub seconds: f64,
+    /// Share of variance in the leading q principal components.
+    pub pca_explained: f64,
+}
+
+fn template_params(config: &FitConfig) -> Result<KernelParams> {
+    let p = &config.params;
+    Ok(KernelParams::isotropic(
+        p.amplitude * p.amplitude,
+        p.lengthscale,
+        p.noise,
+    )?)
+}
+
+/// The factor `a` in 10^-3..10^3 maximising the likelihood of the start `a x0` (hyperparameters
+/// at the template): a coarse log-spaced scan refined by golden-section search on log a.
+fn best_start_scale(
+    flat: &gp_core::FlatGplvm<'_>,
+    x0: MatRef<'_, f64>,
+    template: &KernelParams,
+    par: Par,
+) -> Result<f64> {
+    let value = |log_a: f64| -> f64 {
+        let a = log_a.exp();
+        let x = Mat::from_fn(x0.nrows(), x0.ncols(), |i, k| x0[(i, k)] * a);
+        flat.pack(x.as_ref(), template)
+            .and_then(|t| flat.neg_log_likelihood(&t, par))
+            .unwrap_or(f64::INFINITY)
+    };
+    let (lo, hi, steps) = (
+        -3.0f64 * std::f64::consts::LN_10,
+        3.0 * std::f64::consts::LN_10,
+        25,
+    );
+    let grid: Vec<f64> = (0..=steps)
+        .map(|i| lo + (hi - lo) * i as f64 / steps as f64)
+        .collect();
+    let values: Vec<f64> = grid.iter().map(|&g| value(g)).collect();
+    let best = (0..values.len())
+        .min_by(|&a, &b| values[a].total_cmp(&values[b]))
+        .ok_or_else(|| Error::Objective {
+            reason: "empty scale scan".into(),
+        })?;
+    if !values[best].is_finite() {
+        return Err(Error::Objective {
+            reason: "the likelihood is not finite at any scale of the PCA start".into(),
+        });
+    }
+    // Golden-section refinement in the bracketing interval.
+    let (mut a, mut b) = (grid[best.saturating_sub(1)], grid[(best + 1).min(steps)]);
+    let phi = 0.5 * (5f64.sqrt() - 1.0);
+    let (mut c, mut d) = (b - phi * (b - a), a + phi * (b - a));
+    let (mut fc, mut fd) = (value(c), value(d));
+    for _ in 0..40 {
+        if fc < fd {
+            b = d;
+            d = c;
+            fd = fc;
+            c = b - phi * (b - a);
+            fc = value(c);
+        } else {
+            a = c;
+            c = d;
+            fc = fd;
+            d = a + phi * (b - a);
+            fd = value(d);
+        }
+    }
+    let refined = 0.5 * (a + b);
+    Ok(if value(refined) <= values[best] {
+        refined.exp()
+    } else {
+        grid[best].exp()
+    })
+}
+
+/// Fits the latent space to an uncentred Gram matrix `g` of data with `d` informative values
+/// per material.
+pub fn fit_gram(g: MatRef<'_, f64>, d: usize, config: &FitConfig) -> Result<Fit> {
+    let p = &config.params;
+    let (s, data_scale) = scaled_centred_gram(g, d, p.data_scaling)?;
+    let n = s.nrows();
+    let q = p.latent_dim;
+    let pca = Pca::from_centred_gram(s.as_ref(), q)?;
+    let objective = GplvmObjective::new(s, d)?.with_prior(p.prior);
+    let template = template_params(config)?;
+    let learn = if p.learn_hyperparameters {
+        Learn::ALL
+    } else {
+        Learn::NONE
+    };
+    let flat = objective.flat(q, template.clone(), learn)?;
+    let par = Par::Seq;
+    let mut x0 = pca.latent_start(p.init_scaling);
+    if p.init_scaling == InitScaling::Likelihood {
+        let factor = best_start_scale(&flat, x0.as_ref(), &template, par)?;
+        tracing::info!(
+            factor,
+            "PCA start scaled by the likelihood-maximising factor"
+        );
+        x0 = Mat::from_fn(x0.nrows(), x0.ncols(), |i, k| x0[(i, k)] * factor);
+    }
+    let theta0 = flat.pack(x0.as_ref(), &template)?;
+    let initial_log_likelihood = -flat.neg_log_likelihood(&theta0, par)?;
+    // The optimisers see the negative log-likelihood per data value, -L / (N D): the same
+    // optimum, with values and gradients of order 1 whatever the data size, so step sizes and
+    // tolerances mean the same thing for every dataset.
+    let per_value = 1.0 / (n as f64 * d as f64);
+
+    let start = Instant::now();
+    let mut best: Option<Minimum> = None;
+    let (mut iterations, mut evaluations) = (0u64, 0u64);
+    let normal = Normal::new(0.0, 0.1).map_err(|e| Error::InvalidConfig {
+        reason: e.to_string(),
+    })?;
+    for restart in 0..=p.restarts {
+        let mut start_theta = theta0.clone();
+        if restart > 0 {
+            let mut rng =
+                rand_chacha::ChaCha8Rng::seed_from_u64(p.seed.wrapping_add(restart as u64));
+            for v in start_theta.iter_mut().take(n * q) {
+                *v += normal.sample(&mut rng);
+            }
+        }
+        let run = match p.optimizer {
+            OptimizerKind::HookeJeeves => {
+                let settings = HookeJeevesSettings {
+                    initial_step: p.initial_step,
+                    step_reduction: 0.5,
+                    min_step: p.min_step,
+                    max_evaluations: p.max_evaluations,
+                };
+                hooke_jeeves(
+                    |t| {
+                        flat.neg_log_likelihood(t, par)
+                            .map_or(f64::INFINITY, |v| v * per_value)
+                    },
+                    &start_theta,
+                    &settings,
+                )?
+            }
+            OptimizerKind::Lbfgs => {
+                let settings = LbfgsSettings {
+                    max_iterations: p.max_iterations,
+                    gradient_tolerance: p.gradient_tolerance,
+                    cost_tolerance: p.cost_tolerance,
+                    ..LbfgsSettings::default()
+                };
+                lbfgs(
+                    |t| {
+                        let (v, mut g) = flat.neg_log_likelihood_and_gradient(t, par)?;
+                        g.iter_mut().for_each(|x| *x *= per_value);
+                        Ok((v * per_value, g))
+                    },
+                    &start_theta,
+                    &settings,
+                )?
+            }
+        };
+        tracing::info!(
+            restart,
+            value = -run.value / per_value,
+            evaluations = run.evaluations,
+            "optimisation run finished"
+        );
+        iterations += run.iterations;
+        evaluations += run.evaluations;
+        if best.as_ref().is_none_or(|b| run.value < b.value) {
+            best = Some(run);
+        }
+    }
+    let seconds = start.elapsed().as_secs_f64();
+    let best = best.ok_or_else(|| Error::Objective {
+        reason: "no optimisation run".into(),
+    })?;
+    let eval = flat.evaluate(&best.x, par)?;
+    let (_, grad) = flat.neg_log_likelihood_and_gradient(&best.x, par)?;
+    let gradient_norm = grad.iter().map(|g| g * g).sum::<f64>().sqrt();
+    let (x, params) = flat.unpack(&best.x)?;
+    Ok(Fit {
+        x,
+        params,
+        data_scale,
+        log_likelihood: eval.value,
+        initial_log_likelihood,
+        gradient_norm,
+        jitter: eval.factor.jitter,
+        condition_number: eval.factor.condition_estimate,
+        iterations,
+        evaluations,
+        stop_reason: best.stop_reason,
+        seconds,
+        pca_explained: pca.explained(q),
+    })
+}
+
+/// Fits a GPLVM to the store at `path` and returns the model (not yet saved).
+pub fn fit_store(path: &Path, config: &FitConfig) -> Result<Model> {
+    let store = Store::open(path)?;
+    let pass = gram_pass(&store, config.transform)?;
+    let fit = fit_gram(pass.gram.as_ref(), pass.d_effective, config)?;
+    let header = store.header();
+    let n = store.n_materials();
+    let abs_path = std::fs::canonicalize(path).unwrap_or_else(|_| path.to_owned());
+    Ok(Model {
+        format: MODEL_FORMAT.into(),
+        version: MODEL_VERSION,
+        dataset: DatasetRef {
+            path: abs_path,
+            checksum: format!("{}:{}", header.checksum.algorithm, header.checksum.value),
+            n_materials: n,
+            d: store.d(),
+            d_effective: pass.d_effective,
+            grid: store.grid().to_string(),
+            channels: store.channels().labels(),
+        },
+        transform: config.transform,
+        data_scale: fit.data_scale,
+        prior: config.params.prior,
+        latent_dim: config.params.latent_dim,
+        hyperparameters: Hyperparameters {
+            signal_variance: fit.params.signal_variance(),
+            length_scale: fit.params.length_scale().values().to_vec(),
+            noise: fit.params.noise(),
+        },
+        fit: FitReport {
+            optimizer: config.params.optimizer.to_string(),
+            log_likelihood: fit.log_likelihood,
+            initial_log_likelihood: fit.initial_log_likelihood,
+            gradient_norm: fit.gradient_norm,
+            jitter: fit.jitter,
+            condition_number: fit.condition_number,
+            iterations: fit.iterations,
+            evaluations: fit.evaluations,
+            stop_reason: fit.stop_reason,
+            gram_seconds: pass.seconds,
+            optimize_seconds: fit.seconds,
+            pca_explained: fit.pca_explained,
+        },
+        config: config.params.clone(),
+        materials: store
+            .names()
+            .iter()
+            .enumerate()
+            .map(|(i, name)| LatentMaterial {
+                name: (*name).to_owned(),
+                coords: (0..fit.x.ncols()).map(|k| fit.x[(i, k)]).collect(),
+            })
+            .collect(),
+        gram: (0..n)
+            .map(|i| (0..n).map(|j| pass.gram[(i, j)]).collect())
+            .collect(),
+    })
+}

@@ -1,0 +1,196 @@
+//! The model file: a TOML document recording everything needed to use and audit a fit.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::config::FitParams;
+use crate::error::{Error, Result};
+use crate::transform::Transform;
+
+/// Format tag written into every model file.
+pub const MODEL_FORMAT: &str = "specgp-gplvm";
+/// Version of the model file format.
+pub const MODEL_VERSION: u32 = 1;
+
+/// The dataset a model was fitted on.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DatasetRef {
+    /// Path of the store, as given when fitting (absolute when it could be resolved).
+    pub path: PathBuf,
+    /// The store's payload checksum (algorithm:value).
+    pub checksum: String,
+    /// Number of materials N.
+    pub n_materials: usize,
+    /// Values per material D (all cells).
+    pub d: usize,
+    /// Values per material that carry data (above-horizon cells x channels): the D of the
+    /// likelihood.
+    pub d_effective: usize,
+    /// Angular grid, `TH,TD,PD`.
+    pub grid: String,
+    /// Channel labels.
+    pub channels: Vec<String>,
+}
+
+/// Kernel hyperparameters of the fitted model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Hyperparameters {
+    /// RBF variance s^2.
+    pub signal_variance: f64,
+    /// RBF length-scale(s): one value (isotropic) or one per latent axis (ARD).
+    pub length_scale: Vec<f64>,
+    /// Noise mu.
+    pub noise: f64,
+}
+
+/// How the fit went.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FitReport {
+    /// Optimiser used.
+    pub optimizer: String,
+    /// Final log-likelihood (with the prior term when the prior is on).
+    pub log_likelihood: f64,
+    /// Log-likelihood at the PCA start.
+    pub initial_log_likelihood: f64,
+    /// Euclidean norm of the gradient of the log-likelihood at the optimum (all optimised
+    /// parameters).
+    pub gradient_norm: f64,
+    /// Jitter the Cholesky factorisation of K needed at the optimum.
+    pub jitter: f64,
+    /// Condition-number estimate of K at the optimum.
+    pub condition_number: f64,
+    /// Optimiser iterations (summed over restarts).
+    pub iterations: u64,
+    /// Objective evaluations (summed over restarts).
+    pub evaluations: u64,
+    /// Why the winning run stopped.
+    pub stop_reason: String,
+    /// Seconds spent in the Gram pass.
+    pub gram_seconds: f64,
+    /// Seconds spent optimising.
+    pub optimize_seconds: f64,
+    /// Share of the variance in the first q principal components.
+    pub pca_explained: f64,
+}
+
+/// One material's place in the latent space.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LatentMaterial {
+    /// Material name (as in the store).
+    pub name: String,
+    /// Latent coordinates (q values).
+    pub coords: Vec<f64>,
+}
+
+/// A fitted GPLVM.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Model {
+    /// Always [`MODEL_FORMAT`].
+    pub format: String,
+    /// [`MODEL_VERSION`].
+    pub version: u32,
+    /// The dataset.
+    pub dataset: DatasetRef,
+    /// Data transform applied before fitting.
+    pub transform: Transform,
+    /// Variance divisor: the likelihood sees centred transformed data divided by
+    /// sqrt(`data_scale`).
+    pub data_scale: f64,
+    /// Whether the standard-normal prior on the latent points is part of the likelihood.
+    pub prior: bool,
+    /// Latent dimension q.
+    pub latent_dim: usize,
+    /// Kernel hyperparameters.
+    pub hyperparameters: Hyperparameters,
+    /// Fit diagnostics.
+    pub fit: FitReport,
+    /// The configuration the fit used.
+    pub config: FitParams,
+    /// The materials and their latent coordinates.
+    pub materials: Vec<LatentMaterial>,
+    /// The uncentred Gram matrix of the transformed (unscaled) data, row by row: centring,
+    /// subsets (leave-one-out) and errors of any linear predictor follow from it.
+    pub gram: Vec<Vec<f64>>,
+}
+
+impl Model {
+    /// Latent coordinates as an N x q matrix.
+    pub fn latent_matrix(&self) -> faer::Mat<f64> {
+        faer::Mat::from_fn(self.materials.len(), self.latent_dim, |i, k| {
+            self.materials[i].coords[k]
+        })
+    }
+
+    /// The uncentred Gram matrix as an N x N matrix.
+    pub fn gram_matrix(&self) -> faer::Mat<f64> {
+        let n = self.gram.len();
+        faer::Mat::from_fn(n, n, |i, j| self.gram[i][j])
+    }
+
+    /// Reads and validates a model file.
+    pub fn load(path: &Path) -> Result<Self> {
+        let err = |reason: String| Error::File {
+            path: path.to_owned(),
+            reason,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| err(e.to_string()))?;
+        let model: Model =
+            toml::from_str(&text).map_err(|e| err(format!("not a model file: {e}")))?;
+        if model.format != MODEL_FORMAT || model.version != MODEL_VERSION {
+            return Err(err(format!(
+                "format {} version {} is not {MODEL_FORMAT} version {MODEL_VERSION}",
+                model.format, model.version
+            )));
+        }
+        let n = model.materials.len();
+        if n != model.dataset.n_materials
+            || model.gram.len() != n
+            || model.gram.iter().any(|r| r.len() != n)
+            || model
+                .materials
+                .iter()
+                .any(|m| m.coords.len() != model.latent_dim)
+        {
+            return Err(err(format!(
+                "inconsistent sizes: {n} materials, dataset says {}, latent_dim {}",
+                model.dataset.n_materials, model.latent_dim
+            )));
+        }
+        let finite = model
+            .materials
+            .iter()
+            .flat_map(|m| &m.coords)
+            .chain(model.gram.iter().flatten());
+        if finite.into_iter().any(|v| !v.is_finite()) {
+            return Err(err("non-finite coordinates or Gram entries".into()));
+        }
+        Ok(model)
+    }
+
+    /// Writes the model as TOML (temporary file, then rename).
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let err = |reason: String| Error::File {
+            path: path.to_owned(),
+            reason,
+        };
+        let text = toml::to_string_pretty(self).map_err(|e| err(e.to_string()))?;
+        let dir = path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        let file_name = path
+            .file_name()
+            .ok_or_else(|| err("not a file path".into()))?;
+        let tmp = dir.join(format!(
+            ".{}.tmp{}",
+            file_name.to_string_lossy(),
+            std::process::id()
+        ));
+        std::fs::write(&tmp, text).map_err(|e| err(e.to_string()))?;
+        std::fs::rename(&tmp, path).map_err(|e| {
+            let _ = std::fs::remove_file(&tmp);
+            err(e.to_string())
+        })
+    }
+}

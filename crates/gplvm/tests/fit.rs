@@ -1,0 +1,228 @@
+//! End-to-end tests of the GPLVM fit on synthetic stores.
+
+use std::path::{Path, PathBuf};
+
+use brdf_io::store::{Store, StoreOptions};
+use brdf_io::{AngularGrid, Channels};
+use brdf_synth::{preset, write_store};
+use faer::{Mat, Par};
+use gp_core::KernelParams;
+use gplvm::{FitParams, Model, OptimizerKind, fit_store};
+
+fn grid() -> AngularGrid {
+    AngularGrid::new(8, 8, 16).unwrap()
+}
+
+/// Writes the preset materials selected by `pick` (indices into the 51) to a store in `dir`.
+fn synth_store(dir: &Path, name: &str, pick: &[usize]) -> PathBuf {
+    let all = preset(0);
+    // Repeated picks are duplicates under new names (store names must be unique).
+    let materials: Vec<_> = pick
+        .iter()
+        .enumerate()
+        .map(|(k, &i)| {
+            let mut m = all[i].clone();
+            if pick[..k].contains(&i) {
+                m.name = format!("{}_copy{k}", m.name);
+            }
+            m
+        })
+        .collect();
+    let path = dir.join(name);
+    let channels = Channels::parse_wavelengths("400:700:50").unwrap();
+    write_store(
+        &path,
+        &materials,
+        grid(),
+        &channels,
+        StoreOptions::default(),
+        0,
+        |_| {},
+    )
+    .unwrap();
+    path
+}
+
+fn all_materials() -> Vec<usize> {
+    (0..preset(0).len()).collect()
+}
+
+fn params(optimizer: OptimizerKind, transform: &str) -> FitParams {
+    FitParams {
+        optimizer,
+        transform: transform.into(),
+        // Keep Hooke-Jeeves affordable in a debug-profile test.
+        max_evaluations: 25_000,
+        min_step: 1e-4,
+        ..FitParams::default()
+    }
+}
+
+#[test]
+fn optimisers_improve_on_pca_and_lbfgs_beats_hooke_jeeves_per_evaluation() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = synth_store(dir.path(), "all.sbrdf", &all_materials());
+    for transform in ["raw", "log"] {
+        let hj = fit_store(
+            &data,
+            &params(OptimizerKind::HookeJeeves, transform)
+                .check()
+                .unwrap(),
+        )
+        .unwrap();
+        let lb = fit_store(
+            &data,
+            &params(OptimizerKind::Lbfgs, transform).check().unwrap(),
+        )
+        .unwrap();
+        for m in [&hj, &lb] {
+            assert!(
+                m.fit.log_likelihood > m.fit.initial_log_likelihood,
+                "{transform}: {} did not improve on PCA: {} <= {}",
+                m.fit.optimizer,
+                m.fit.log_likelihood,
+                m.fit.initial_log_likelihood
+            );
+        }
+        let (l_hj, l_lb) = (hj.fit.log_likelihood, lb.fit.log_likelihood);
+        eprintln!(
+            "{transform}: HJ {l_hj:.6e} in {} evaluations, L-BFGS {l_lb:.6e} in {}",
+            hj.fit.evaluations, lb.fit.evaluations
+        );
+        // L-BFGS at least as high (up to 1e-6 relative) in at most a tenth of the evaluations.
+        assert!(
+            l_lb >= l_hj - 1e-6 * l_hj.abs(),
+            "{transform}: L-BFGS {l_lb} < HJ {l_hj}"
+        );
+        assert!(lb.fit.evaluations * 10 <= hj.fit.evaluations, "{transform}");
+    }
+}
+
+#[test]
+fn fits_are_reproducible_for_a_seed() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = synth_store(
+        dir.path(),
+        "some.sbrdf",
+        &[0, 5, 9, 14, 20, 27, 33, 40, 45, 50],
+    );
+    let p = FitParams {
+        restarts: 2,
+        seed: 7,
+        ..FitParams::default()
+    }
+    .check()
+    .unwrap();
+    let a = fit_store(&data, &p).unwrap();
+    let b = fit_store(&data, &p).unwrap();
+    assert_eq!(a.materials, b.materials);
+    assert_eq!(a.fit.log_likelihood, b.fit.log_likelihood);
+}
+
+#[test]
+fn small_and_degenerate_datasets() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = FitParams::default().check().unwrap();
+    // One material: a clear error.
+    let one = synth_store(dir.path(), "one.sbrdf", &[3]);
+    let err = fit_store(&one, &p).unwrap_err().to_string();
+    assert!(err.contains("at least 2 materials"), "{err}");
+    // Two materials: a finite fit that separates them.
+    let two = synth_store(dir.path(), "two.sbrdf", &[3, 40]);
+    let m = fit_store(&two, &p).unwrap();
+    assert!(m.fit.log_likelihood.is_finite());
+    assert_ne!(m.materials[0].coords, m.materials[1].coords);
+    // Duplicates of one material: finite, duplicates end up (nearly) together.
+    let dup = synth_store(dir.path(), "dup.sbrdf", &[3, 3, 3, 40, 12]);
+    let m = fit_store(&dup, &p).unwrap();
+    assert!(m.fit.log_likelihood.is_finite() && m.fit.condition_number.is_finite());
+    let dist = |a: &[f64], b: &[f64]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    };
+    let spread = dist(&m.materials[0].coords, &m.materials[3].coords);
+    assert!(dist(&m.materials[0].coords, &m.materials[1].coords) < 1e-3 * spread.max(1e-12));
+    // All materials identical: nothing to fit, a clear error.
+    let same = synth_store(dir.path(), "same.sbrdf", &[7, 7, 7]);
+    let err = fit_store(&same, &p).unwrap_err().to_string();
+    assert!(err.contains("identical"), "{err}");
+}
+
+/// The model's log-likelihood recomputed independently from the stored values: read every row,
+/// transform, keep the valid cells, centre, scale, and evaluate the dense formula.
+#[test]
+fn reported_likelihood_matches_an_independent_recomputation() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = synth_store(
+        dir.path(),
+        "some.sbrdf",
+        &[1, 6, 11, 16, 21, 26, 31, 36, 41, 46],
+    );
+    for transform in ["raw", "log", "log:0.5"] {
+        let p = FitParams {
+            transform: transform.into(),
+            ..FitParams::default()
+        };
+        let model = fit_store(&data, &p.check().unwrap()).unwrap();
+        let out = dir.path().join("model.toml");
+        model.save(&out).unwrap();
+        let model = Model::load(&out).unwrap();
+
+        let store = Store::open(&data).unwrap();
+        let (n, d) = (store.n_materials(), store.d());
+        let nc = store.channels().len();
+        let mask = store.validity_mask().to_vec();
+        let cols: Vec<usize> = (0..d).filter(|&j| mask[j / nc]).collect();
+        assert_eq!(cols.len(), model.dataset.d_effective);
+        let mut row = vec![0f32; d];
+        let mut y = Mat::<f64>::zeros(n, cols.len());
+        for i in 0..n {
+            store.material_row(i, 0..d, &mut row).unwrap();
+            for (c, &j) in cols.iter().enumerate() {
+                y[(i, c)] = model.transform.forward(f64::from(row[j]));
+            }
+        }
+        for c in 0..cols.len() {
+            let mean = (0..n).map(|i| y[(i, c)]).sum::<f64>() / n as f64;
+            for i in 0..n {
+                y[(i, c)] = (y[(i, c)] - mean) / model.data_scale.sqrt();
+            }
+        }
+        let h = &model.hyperparameters;
+        let params =
+            KernelParams::isotropic(h.signal_variance, h.length_scale[0], h.noise).unwrap();
+        let x = model.latent_matrix();
+        let direct = gp_core::log_likelihood_from_data(
+            y.as_ref(),
+            x.as_ref(),
+            &params,
+            model.prior,
+            Par::Seq,
+        )
+        .unwrap();
+        let rel = (direct - model.fit.log_likelihood).abs() / direct.abs();
+        assert!(
+            rel < 1e-8,
+            "{transform}: model {} vs direct {direct} (rel {rel:e})",
+            model.fit.log_likelihood
+        );
+    }
+}
+
+#[test]
+fn bad_model_files_are_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("nope.toml");
+    let err = Model::load(&missing).unwrap_err().to_string();
+    assert!(err.contains("nope.toml"), "{err}");
+    let junk = dir.path().join("junk.toml");
+    std::fs::write(&junk, "format = 3\n[[[").unwrap();
+    let err = Model::load(&junk).unwrap_err().to_string();
+    assert!(
+        err.contains("junk.toml") && err.contains("not a model file"),
+        "{err}"
+    );
+}

@@ -1,0 +1,144 @@
+//! `specgp fit` and `specgp latent`: fit the latent space of a dataset and show it.
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::Context;
+use gplvm::{FitParams, Model, OptimizerKind};
+use indicatif::{ProgressBar, ProgressStyle};
+
+/// Arguments of `specgp fit`.
+#[derive(Debug, clap::Args)]
+pub struct FitArgs {
+    /// Dataset store (`.sbrdf`).
+    data: PathBuf,
+    /// Output model file (TOML).
+    #[arg(long)]
+    out: PathBuf,
+    /// Fit configuration (TOML, e.g. `configs/fit/paper.toml`); flags below override it.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Latent dimension q.
+    #[arg(long)]
+    latent_dim: Option<usize>,
+    /// Optimiser: hooke-jeeves (the paper) or lbfgs.
+    #[arg(long)]
+    optimizer: Option<OptimizerKind>,
+    /// RBF length-scale l.
+    #[arg(long)]
+    lengthscale: Option<f64>,
+    /// Noise mu.
+    #[arg(long)]
+    noise: Option<f64>,
+    /// Learn amplitude, length-scale and noise with the latent points.
+    #[arg(long)]
+    learn_hyperparameters: bool,
+    /// Data transform: raw, log or log:OFFSET.
+    #[arg(long)]
+    transform: Option<String>,
+    /// Extra optimisations from perturbed starts.
+    #[arg(long)]
+    restarts: Option<usize>,
+    /// Seed of the restart perturbations.
+    #[arg(long)]
+    seed: Option<u64>,
+}
+
+/// Runs `specgp fit`.
+pub fn fit(args: &FitArgs) -> anyhow::Result<()> {
+    let mut params = match &args.config {
+        Some(path) => FitParams::from_toml_file(path)?,
+        None => FitParams::default(),
+    };
+    if let Some(q) = args.latent_dim {
+        params.latent_dim = q;
+    }
+    if let Some(o) = args.optimizer {
+        params.optimizer = o;
+    }
+    if let Some(l) = args.lengthscale {
+        params.lengthscale = l;
+    }
+    if let Some(mu) = args.noise {
+        params.noise = mu;
+    }
+    if args.learn_hyperparameters {
+        params.learn_hyperparameters = true;
+    }
+    if let Some(t) = &args.transform {
+        params.transform = t.clone();
+    }
+    if let Some(r) = args.restarts {
+        params.restarts = r;
+    }
+    if let Some(s) = args.seed {
+        params.seed = s;
+    }
+    let config = params.check()?;
+    let spinner = ProgressBar::new_spinner();
+    spinner.set_style(
+        ProgressStyle::with_template("fit [{elapsed_precise}] {spinner} {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+    );
+    spinner.set_message(format!(
+        "Gram pass over {} and {} optimisation",
+        args.data.display(),
+        config.params.optimizer
+    ));
+    spinner.enable_steady_tick(Duration::from_millis(120));
+    let model = gplvm::fit_store(&args.data, &config);
+    spinner.finish_and_clear();
+    let model = model.with_context(|| format!("fitting {}", args.data.display()))?;
+    model.save(&args.out)?;
+    let f = &model.fit;
+    eprintln!(
+        "fitted {} materials, q = {}, transform {}: log-likelihood {:.6e} (PCA start {:.6e}), \
+         |grad| {:.2e}, {} evaluations, Gram pass {:.2} s, optimiser {:.3} s -> {}",
+        model.materials.len(),
+        model.latent_dim,
+        model.transform,
+        f.log_likelihood,
+        f.initial_log_likelihood,
+        f.gradient_norm,
+        f.evaluations,
+        f.gram_seconds,
+        f.optimize_seconds,
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// Arguments of `specgp latent`.
+#[derive(Debug, clap::Args)]
+pub struct LatentArgs {
+    /// Model file (TOML).
+    model: PathBuf,
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Runs `specgp latent`.
+pub fn latent(args: &LatentArgs) -> anyhow::Result<()> {
+    let model = Model::load(&args.model)?;
+    let mut out = std::io::stdout().lock();
+    if args.json {
+        let doc = serde_json::json!({
+            "log_likelihood": model.fit.log_likelihood,
+            "latent_dim": model.latent_dim,
+            "materials": model.materials.iter().map(|m| serde_json::json!({
+                "name": m.name, "coords": m.coords
+            })).collect::<Vec<_>>(),
+        });
+        let text = serde_json::to_string_pretty(&doc).context("serialising JSON")?;
+        writeln!(out, "{text}")?;
+    } else {
+        writeln!(out, "# log-likelihood {:.10e}", model.fit.log_likelihood)?;
+        for m in &model.materials {
+            let coords: Vec<String> = m.coords.iter().map(|c| format!("{c:+.6}")).collect();
+            writeln!(out, "{:<40} {}", m.name, coords.join(" "))?;
+        }
+    }
+    Ok(())
+}
