@@ -79,7 +79,11 @@ fn round_trip_material_mode_all_read_paths() {
     let info = info(4, 5, 6, Channels::Rgb);
     let rows: Vec<_> = (0..5).map(|i| material(&info, i)).collect();
     let t = dir();
-    for compression in [Compression::None, Compression::Zstd { level: 3 }] {
+    for compression in [
+        Compression::None,
+        Compression::Zstd { level: 3 },
+        Compression::ZstdShuffle { level: 3 },
+    ] {
         let path = t.path().join(format!("{compression:?}.sbrdf"));
         let options = StoreOptions {
             chunk_len: Some(7),
@@ -144,8 +148,8 @@ fn round_trip_material_mode_all_read_paths() {
             }
         }
     }
-    // nothing but the two stores in the directory: no temporary or scratch file left.
-    assert_eq!(only_file(t.path()).len(), 2);
+    // nothing but the three stores in the directory: no temporary or scratch file left.
+    assert_eq!(only_file(t.path()).len(), 3);
 }
 
 #[test]
@@ -428,7 +432,11 @@ fn xxhash_rust_digest(prefix: &[u8], header: &[u8]) -> u64 {
 #[test]
 fn corrupt_payload_fails_checksum_and_damaged_header_fails_open() {
     let t = dir();
-    for compression in [Compression::None, Compression::Zstd { level: 3 }] {
+    for compression in [
+        Compression::None,
+        Compression::Zstd { level: 3 },
+        Compression::ZstdShuffle { level: 3 },
+    ] {
         let path = small_store(t.path(), compression);
         let mut bytes = std::fs::read(&path).unwrap();
         bytes[4096 + 5] ^= 0x40;
@@ -542,7 +550,7 @@ proptest! {
         th in 1usize..4, td in 1usize..4, pd in 1usize..5,
         nc in 1usize..4,
         chunk in 1usize..40,
-        zstd in any::<bool>(),
+        zstd in 0u8..3,
         half in any::<bool>(),
         slice in 1usize..50,
         seed in any::<u64>(),
@@ -555,7 +563,11 @@ proptest! {
         let opts = StoreOptions {
             chunk_len: Some(chunk),
             dtype: if half { Dtype::F16 } else { Dtype::F32 },
-            compression: if zstd { Compression::Zstd { level: 2 } } else { Compression::None },
+            compression: match zstd {
+                0 => Compression::None,
+                1 => Compression::Zstd { level: 2 },
+                _ => Compression::ZstdShuffle { level: 2 },
+            },
             memory_budget: 64,
         };
         write_materials(&path, &info, &rows, opts, slice).unwrap();

@@ -38,6 +38,9 @@ pub struct StoreOut {
     /// Compress chunks with zstd at this level (1..=22); uncompressed when absent.
     #[arg(long, value_name = "LEVEL")]
     pub zstd: Option<i32>,
+    /// With `--zstd`: byte-shuffle each chunk first (smaller files for float data).
+    #[arg(long, requires = "zstd")]
+    pub shuffle: bool,
     /// Grid indices per chunk (default: about 1 MiB per chunk, 256 KiB with zstd).
     #[arg(long)]
     pub chunk_len: Option<usize>,
@@ -48,9 +51,13 @@ impl StoreOut {
         StoreOptions {
             chunk_len: self.chunk_len,
             dtype: self.dtype,
-            compression: self
-                .zstd
-                .map_or(Compression::None, |level| Compression::Zstd { level }),
+            compression: self.zstd.map_or(Compression::None, |level| {
+                if self.shuffle {
+                    Compression::ZstdShuffle { level }
+                } else {
+                    Compression::Zstd { level }
+                }
+            }),
             ..StoreOptions::default()
         }
     }
@@ -287,6 +294,7 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
         let comp = match h.layout.compression {
             Compression::None => "none".to_owned(),
             Compression::Zstd { level } => format!("zstd level {level}"),
+            Compression::ZstdShuffle { level } => format!("byte shuffle + zstd level {level}"),
         };
         out!("file           {}", args.path.display())?;
         out!("materials      {}", h.n_materials())?;
@@ -529,7 +537,7 @@ mod tests {
             info.clone(),
             StoreOptions {
                 chunk_len: Some(7),
-                compression: Compression::Zstd { level: 1 },
+                compression: Compression::ZstdShuffle { level: 1 },
                 ..Default::default()
             },
         )

@@ -113,6 +113,48 @@ pub enum Compression {
         /// zstd compression level.
         level: i32,
     },
+    /// Byte-shuffled, then zstd: the chunk's bytes are regrouped by significance (all first
+    /// bytes of the values, then all second bytes, ...), which lets zstd find the redundancy
+    /// of similar exponents in float data.
+    #[serde(rename = "zstd-shuffle")]
+    ZstdShuffle {
+        /// zstd compression level.
+        level: i32,
+    },
+}
+
+impl Compression {
+    /// The zstd level, if compressed.
+    pub fn zstd_level(self) -> Option<i32> {
+        match self {
+            Self::None => None,
+            Self::Zstd { level } | Self::ZstdShuffle { level } => Some(level),
+        }
+    }
+}
+
+/// Regroups `bytes` of `size`-byte values by byte significance.
+pub(crate) fn shuffle(bytes: &[u8], size: usize) -> Vec<u8> {
+    let count = bytes.len() / size;
+    let mut out = vec![0u8; bytes.len()];
+    for (i, v) in bytes.chunks_exact(size).enumerate() {
+        for (b, x) in v.iter().enumerate() {
+            out[b * count + i] = *x;
+        }
+    }
+    out
+}
+
+/// Inverse of [`shuffle`].
+pub(crate) fn unshuffle(bytes: &[u8], size: usize) -> Vec<u8> {
+    let count = bytes.len() / size;
+    let mut out = vec![0u8; bytes.len()];
+    for (i, v) in out.chunks_exact_mut(size).enumerate() {
+        for (b, x) in v.iter_mut().enumerate() {
+            *x = bytes[b * count + i];
+        }
+    }
+    out
 }
 
 /// Options of [`StoreWriter`].
@@ -145,7 +187,7 @@ impl StoreOptions {
         let len = self.chunk_len.unwrap_or_else(|| {
             let target = match self.compression {
                 Compression::None => 1 << 20,
-                Compression::Zstd { .. } => 256 << 10,
+                Compression::Zstd { .. } | Compression::ZstdShuffle { .. } => 256 << 10,
             };
             (target / (n_materials.max(1) * self.dtype.size())).max(1)
         });

@@ -329,7 +329,7 @@ impl Store {
         let dtype = self.header.layout.dtype;
         match self.header.layout.compression {
             Compression::None => decode_values(&raw, dtype, out),
-            Compression::Zstd { .. } => {
+            compression => {
                 let want = count * dtype.size();
                 let bytes = zstd::bulk::decompress(&raw, want)
                     .map_err(|e| corrupt(&self.path, format!("chunk {c}: zstd: {e}")))?;
@@ -342,7 +342,11 @@ impl Store {
                         ),
                     ));
                 }
-                decode_values(&bytes, dtype, out);
+                if let Compression::ZstdShuffle { .. } = compression {
+                    decode_values(&super::unshuffle(&bytes, dtype.size()), dtype, out);
+                } else {
+                    decode_values(&bytes, dtype, out);
+                }
             }
         }
         Ok(range)
@@ -511,7 +515,7 @@ impl Store {
                 let raw = self.bytes(off, n * size)?;
                 decode_values(&raw, dtype, out);
             }
-            Compression::Zstd { .. } => {
+            _ => {
                 let chunk = self.cached_chunk(c)?;
                 out.copy_from_slice(&chunk[j * n..(j + 1) * n]);
             }
@@ -565,7 +569,7 @@ impl Store {
                         decode_values(b, dtype, std::slice::from_mut(o));
                     }
                 }
-                Compression::Zstd { .. } => {
+                _ => {
                     let single = c0 == c1;
                     let chunk: Arc<Vec<f32>>;
                     let vals: &[f32] = if single {

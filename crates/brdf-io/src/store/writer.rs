@@ -90,6 +90,10 @@ fn encode_chunk(
         Compression::Zstd { level } => {
             zstd::bulk::compress(&bytes, level).map_err(|e| Error::io(path, e))
         }
+        Compression::ZstdShuffle { level } => {
+            zstd::bulk::compress(&super::shuffle(&bytes, dtype.size()), level)
+                .map_err(|e| Error::io(path, e))
+        }
     }
 }
 
@@ -204,7 +208,7 @@ impl StoreWriter {
     /// Starts a store at `path` (written to a temporary file beside it until [`Self::finish`]).
     pub fn create(path: impl AsRef<Path>, info: StoreInfo, options: StoreOptions) -> Result<Self> {
         let path = path.as_ref().to_owned();
-        if let Compression::Zstd { level } = options.compression
+        if let Some(level) = options.compression.zstd_level()
             && !zstd::compression_level_range().contains(&level)
         {
             return Err(Error::StoreUsage {
