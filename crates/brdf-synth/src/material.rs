@@ -320,15 +320,18 @@ impl PInterface {
 fn ggx_albedo(mu: f64, alpha: f64, f: impl Fn(f64) -> f64) -> f64 {
     let wi = [(1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu];
     let n = E_SAMPLES;
+    let cos_phi: Vec<f64> = (0..n)
+        .map(|b| ((b as f64 + 0.5) / n as f64 * 2.0 * PI).cos())
+        .collect();
     let mut sum = 0.0;
     for a in 0..n {
         let u = (a as f64 + 0.5) / n as f64;
         let tan2 = alpha * alpha * u / (1.0 - u);
         let cos_h = 1.0 / (1.0 + tan2).sqrt();
         let sin_h = (1.0 - cos_h * cos_h).max(0.0).sqrt();
-        for b in 0..n {
-            let phi = (b as f64 + 0.5) / n as f64 * 2.0 * PI;
-            let h = [sin_h * phi.cos(), sin_h * phi.sin(), cos_h];
+        for cp in &cos_phi {
+            // wi lies in the xz plane: only the x component of h matters for wi . h.
+            let h = [sin_h * cp, 0.0, cos_h];
             let cos_d = dot(wi, h);
             if cos_d <= 0.0 {
                 continue;
@@ -348,22 +351,23 @@ fn ggx_albedo(mu: f64, alpha: f64, f: impl Fn(f64) -> f64) -> f64 {
 /// diffuse and sheen lobes and to couple the sheen with the diffuse lobe under it.
 fn albedo_table(shape: impl Fn(Vec3, Vec3) -> f64) -> Vec<f64> {
     let n = 48;
+    // Cosine-distributed outgoing directions, shared by every node.
+    let mut wos = Vec::with_capacity(n * n);
+    for a in 0..n {
+        let u = (a as f64 + 0.5) / n as f64;
+        let r = u.sqrt();
+        let z = (1.0 - u).sqrt();
+        for b in 0..n {
+            let phi = (b as f64 + 0.5) / n as f64 * 2.0 * PI;
+            wos.push([r * phi.cos(), r * phi.sin(), z]);
+        }
+    }
     (0..E_NODES)
         .map(|k| {
             let t = k as f64 / (E_NODES - 1) as f64;
             let mu = (t * t).max(1e-3);
             let wi = [(1.0 - mu * mu).sqrt(), 0.0, mu];
-            let mut sum = 0.0;
-            for a in 0..n {
-                let u = (a as f64 + 0.5) / n as f64;
-                let r = u.sqrt();
-                let z = (1.0 - u).sqrt();
-                for b in 0..n {
-                    let phi = (b as f64 + 0.5) / n as f64 * 2.0 * PI;
-                    sum += shape(wi, [r * phi.cos(), r * phi.sin(), z]);
-                }
-            }
-            sum * PI / (n * n) as f64
+            wos.iter().map(|wo| shape(wi, *wo)).sum::<f64>() * PI / wos.len() as f64
         })
         .collect()
 }

@@ -348,12 +348,27 @@ fn refracted_cos(n1_sin1: f64, n2: Complex) -> Complex {
 pub fn fresnel(cos1: f64, n1: f64, n2: Complex) -> f64 {
     let cos1 = cos1.clamp(0.0, 1.0);
     let sin1 = (1.0 - cos1 * cos1).max(0.0).sqrt();
-    if n2.im == 0.0 && n1 * sin1 >= n2.re {
-        return 1.0;
+    if n2.im == 0.0 {
+        return fresnel_dielectric(cos1, n1, n2.re);
     }
     let cos2 = refracted_cos(n1 * sin1, n2);
     let (rs, rp) = amplitudes(Complex::real(n1), Complex::real(cos1), n2, cos2);
     (0.5 * (rs.norm_sqr() + rp.norm_sqr())).clamp(0.0, 1.0)
+}
+
+/// Unpolarised Fresnel reflectance between two real media (`n1` -> `n2`) at incidence cosine
+/// `cos1` in [0, 1]; total internal reflection returns 1. Same as [`fresnel`] with a real `n2`,
+/// in real arithmetic.
+pub fn fresnel_dielectric(cos1: f64, n1: f64, n2: f64) -> f64 {
+    let cos1 = cos1.clamp(0.0, 1.0);
+    let sin2 = n1 / n2 * (1.0 - cos1 * cos1).max(0.0).sqrt();
+    if sin2 >= 1.0 {
+        return 1.0;
+    }
+    let cos2 = (1.0 - sin2 * sin2).sqrt();
+    let rs = (n1 * cos1 - n2 * cos2) / (n1 * cos1 + n2 * cos2);
+    let rp = (n2 * cos1 - n1 * cos2) / (n2 * cos1 + n1 * cos2);
+    (0.5 * (rs * rs + rp * rp)).clamp(0.0, 1.0)
 }
 
 /// Unpolarised reflectance of a thin film (index `n_film`, thickness `thickness_nm`) between an
@@ -406,6 +421,28 @@ mod tests {
         for c in [0.1, 0.5, 0.9] {
             assert!(fresnel(c, 1.0, Complex::real(1.6)) > fresnel(c, 1.0, Complex::real(1.5)));
         }
+    }
+
+    #[test]
+    fn real_and_complex_dielectric_paths_agree() {
+        for n2 in [1.33, 1.5, 2.4] {
+            for i in 0..=20 {
+                let c = i as f64 / 20.0;
+                let sin1 = (1.0 - c * c).sqrt();
+                let cos2 = refracted_cos(sin1, Complex::real(n2));
+                let (rs, rp) = amplitudes(
+                    Complex::real(1.0),
+                    Complex::real(c),
+                    Complex::real(n2),
+                    cos2,
+                );
+                let complex = 0.5 * (rs.norm_sqr() + rp.norm_sqr());
+                let real = fresnel_dielectric(c, 1.0, n2);
+                assert!((complex - real).abs() < 1e-12, "n {n2} cos {c}");
+            }
+        }
+        // Total internal reflection from the dense side.
+        assert_eq!(fresnel_dielectric(0.3, 1.5, 1.0), 1.0);
     }
 
     #[test]

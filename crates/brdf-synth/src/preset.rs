@@ -269,7 +269,12 @@ fn canonical() -> Vec<Material> {
         wall_paint("chm_orange", c(&cc::ORANGE), 0.7, 0.6),
         // Vinyl wrapping films (RGL: cm_* matte, vch_* gloss).
         vinyl("cm_military_green", c(&cc::FOLIAGE).scaled(1.3), 0.35, None),
-        vinyl("cm_toxic_green", c(&cc::YELLOW_GREEN), 0.3, None),
+        vinyl(
+            "cm_toxic_green",
+            c(&cc::YELLOW_GREEN).mix(0.4, c(&cc::GREEN)),
+            0.3,
+            None,
+        ),
         vinyl("cm_white", c(&cc::WHITE_9_5).scaled(0.95), 0.35, None),
         vinyl(
             "vch_dragon_eye_red",
