@@ -98,6 +98,43 @@ fn optimisers_improve_on_pca_and_lbfgs_beats_hooke_jeeves_per_evaluation() {
     }
 }
 
+/// The Gram pass is bit-identical whatever the number of threads (a store of many small chunks,
+/// so the parallel fold really splits the work).
+#[test]
+fn gram_pass_is_deterministic_across_thread_counts() {
+    let dir = tempfile::tempdir().unwrap();
+    let all = preset(0);
+    let path = dir.path().join("chunky.sbrdf");
+    let channels = Channels::parse_wavelengths("400:700:50").unwrap();
+    let options = StoreOptions {
+        chunk_len: Some(97),
+        ..StoreOptions::default()
+    };
+    write_store(&path, &all[..20], grid(), &channels, options, 0, |_| {}).unwrap();
+    let store = Store::open(&path).unwrap();
+    assert!(store.n_chunks() > 40, "{} chunks", store.n_chunks());
+    let transform = "log".parse().unwrap();
+    let grams: Vec<Vec<u64>> = [1, 2, 3, 5]
+        .iter()
+        .map(|&threads| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let pass = pool
+                .install(|| gplvm::gram_pass(&store, transform))
+                .unwrap();
+            (0..20)
+                .flat_map(|i| (0..20).map(move |j| (i, j)))
+                .map(|(i, j)| pass.gram[(i, j)].to_bits())
+                .collect()
+        })
+        .collect();
+    for g in &grams[1..] {
+        assert_eq!(g, &grams[0]);
+    }
+}
+
 #[test]
 fn fits_are_reproducible_for_a_seed() {
     let dir = tempfile::tempdir().unwrap();

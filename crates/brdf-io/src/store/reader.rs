@@ -22,6 +22,12 @@ use crate::grid::{AngularGrid, Channels};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum ReadMode {
     /// Memory-map the file (default): zero-copy chunks and lookups from the page cache.
+    ///
+    /// Contract (the one `unsafe` block of the store): the file must not be modified or
+    /// truncated by anyone while a [`Store`] maps it. specgp never does (stores are written to a
+    /// temporary file and renamed into place, so replacing a store is safe); if another process
+    /// rewrites the file in place, reads may return changed values, and truncating it makes
+    /// reads past the new end fault with SIGBUS. Use [`ReadMode::Buffered`] when that can happen.
     #[default]
     Mmap,
     /// Positioned reads (`pread`) into buffers: for file systems where mapping is unwise
@@ -63,6 +69,10 @@ struct ChunkCache {
     clock: AtomicU64,
 }
 
+/// Number of contiguous chunk segments [`Store::par_fold_chunks`] folds in parallel; fixed so
+/// that results do not depend on the thread count.
+const PAR_FOLD_SEGMENTS: usize = 32;
+
 /// An open dataset store. `Send + Sync`: share one `Store` (or `Arc<Store>`) between threads.
 pub struct Store {
     path: PathBuf,
@@ -84,7 +94,8 @@ fn corrupt(path: &Path, reason: impl Into<String>) -> Error {
 }
 
 impl Store {
-    /// Opens a store with the default options (memory-mapped).
+    /// Opens a store with the default options (memory-mapped; see [`ReadMode::Mmap`] for the
+    /// contract on the file).
     pub fn open(path: impl AsRef<Path>) -> Result<Self> {
         Self::open_with(path, OpenOptions::default())
     }
@@ -383,25 +394,33 @@ impl Store {
 
     /// Parallel fold over the chunks (rayon): each worker starts from `init()`, folds chunks in
     /// with `fold(acc, d_range, block)` (block as in [`Store::for_each_chunk`]), and the partial
-    /// results are combined with `reduce`.
+    /// results are combined with `reduce`. The grouping of chunks and the order of reduction are
+    /// fixed, so the result is bit-identical from run to run and on any number of threads.
     pub fn par_fold_chunks<T: Send>(
         &self,
         init: impl Fn() -> T + Sync + Send,
         fold: impl Fn(&mut T, Range<usize>, &[f32]) + Sync + Send,
         reduce: impl Fn(T, T) -> T + Sync + Send,
     ) -> Result<T> {
-        (0..self.n_chunks())
+        // Deterministic whatever the thread count and scheduling: the chunks are split into at
+        // most PAR_FOLD_SEGMENTS contiguous segments, each folded in chunk order, and the segment
+        // results are reduced left to right. Floating-point sums (the Gram matrix) are then
+        // bit-identical from run to run, which makes fits reproducible.
+        let n_chunks = self.n_chunks();
+        let per_segment = n_chunks.div_ceil(PAR_FOLD_SEGMENTS).max(1);
+        let partials = (0..n_chunks.div_ceil(per_segment))
             .into_par_iter()
-            .try_fold(
-                || (init(), Vec::new()),
-                |(mut acc, mut buf), c| {
+            .map(|s| {
+                let mut acc = init();
+                let mut buf = Vec::new();
+                for c in s * per_segment..((s + 1) * per_segment).min(n_chunks) {
                     let v = self.chunk_values(c, &mut buf)?;
                     fold(&mut acc, self.chunk_range(c), v);
-                    Ok::<_, Error>((acc, buf))
-                },
-            )
-            .map(|r| r.map(|(acc, _)| acc))
-            .try_reduce(&init, |a, b| Ok(reduce(a, b)))
+                }
+                Ok::<_, Error>(acc)
+            })
+            .collect::<Result<Vec<T>>>()?;
+        Ok(partials.into_iter().fold(init(), reduce))
     }
 
     /// The uncentred N x N Gram matrix `G[n][m] = sum_d y_n[d] y_m[d]` (row-major, f64

@@ -1,0 +1,97 @@
+//! Benchmark of the GPLVM fit (issue 5): the Gram pass against one plain sequential read of the
+//! same store, and the two optimisers (likelihood reached, evaluations, time) per transform.
+//!
+//! Usage: `cargo run --release -p gplvm --example fit_bench -- DATA.sbrdf`
+//! (make the store with `specgp synth --out DATA.sbrdf`; it is read from the page cache: the
+//! first, untimed read warms it).
+
+use std::io::Read;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use brdf_io::store::Store;
+use gplvm::{FitParams, OptimizerKind, fit_gram, gram_pass};
+
+fn sequential_read(path: &PathBuf) -> std::io::Result<(u64, f64)> {
+    let mut file = std::fs::File::open(path)?;
+    let mut buf = vec![0u8; 8 << 20];
+    let start = Instant::now();
+    let mut total = 0u64;
+    let mut checksum = 0u64;
+    loop {
+        let n = file.read(&mut buf)?;
+        if n == 0 {
+            break;
+        }
+        // Touch the data so the read cannot be elided.
+        checksum = checksum.wrapping_add(u64::from(buf[n - 1]));
+        total += n as u64;
+    }
+    std::hint::black_box(checksum);
+    Ok((total, start.elapsed().as_secs_f64()))
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let path = PathBuf::from(
+        std::env::args()
+            .nth(1)
+            .ok_or("usage: fit_bench DATA.sbrdf")?,
+    );
+    let store = Store::open(&path)?;
+    println!(
+        "store {}: N = {}, D = {}, {:.1} MB, grid {}, {} channels",
+        path.display(),
+        store.n_materials(),
+        store.d(),
+        store.file_bytes() as f64 / 1e6,
+        store.grid(),
+        store.channels().len()
+    );
+    sequential_read(&path)?; // warm the page cache
+    let mut reads = Vec::new();
+    let mut grams = Vec::new();
+    for _ in 0..3 {
+        reads.push(sequential_read(&path)?.1);
+        for t in ["raw", "log"] {
+            let transform = t.parse()?;
+            let pass = gram_pass(&store, transform)?;
+            grams.push((t, pass.seconds));
+        }
+    }
+    let best_read = reads.iter().cloned().fold(f64::INFINITY, f64::min);
+    println!(
+        "sequential read: {best_read:.3} s ({:.2} GB/s), best of 3",
+        store.file_bytes() as f64 / best_read / 1e9
+    );
+    for t in ["raw", "log"] {
+        let best = grams
+            .iter()
+            .filter(|g| g.0 == t)
+            .map(|g| g.1)
+            .fold(f64::INFINITY, f64::min);
+        println!(
+            "Gram pass ({t}): {best:.3} s = {:.2}x the sequential read, best of 3",
+            best / best_read
+        );
+    }
+    println!();
+    println!("| transform | optimizer | log-likelihood | PCA start | evaluations | time (s) |");
+    println!("|---|---|---|---|---|---|");
+    for t in ["raw", "log"] {
+        let pass = gram_pass(&store, t.parse()?)?;
+        for optimizer in [OptimizerKind::HookeJeeves, OptimizerKind::Lbfgs] {
+            let config = FitParams {
+                optimizer,
+                transform: t.into(),
+                ..FitParams::default()
+            }
+            .check()?;
+            let fit = fit_gram(pass.gram.as_ref(), pass.d_effective, &config)?;
+            println!(
+                "| {t} | {optimizer} | {:.6e} | {:.6e} | {} | {:.3} |",
+                fit.log_likelihood, fit.initial_log_likelihood, fit.evaluations, fit.seconds
+            );
+        }
+    }
+    Ok(())
+}
