@@ -482,6 +482,17 @@ fn writer_rejects_non_finite_and_bad_lengths_and_leaves_nothing() {
         assert!(w.finish().is_err());
         assert!(only_file(t.path()).is_empty());
     }
+    // Values beyond the f16 range are an error in an f16 store, not a silent infinity.
+    let opts16 = StoreOptions {
+        dtype: Dtype::F16,
+        ..Default::default()
+    };
+    let mut w = StoreWriter::create(&path, info.clone(), opts16).unwrap();
+    let mut row = vec![0.5f32; info.d()];
+    row[0] = 7.0e4; // cell 0 is above the horizon
+    let e = w.add_material("big", "s", &row).unwrap_err();
+    assert!(e.to_string().contains("exceeds the f16 range"), "{e}");
+    drop(w);
     // Too many values, too few values, duplicate names, empty store, grid mismatch.
     let mut w = StoreWriter::create(&path, info.clone(), StoreOptions::default()).unwrap();
     assert!(w.add_material("m", "s", &vec![0.0; info.d() + 1]).is_err());

@@ -307,6 +307,19 @@ impl StoreWriter {
         Err(e)
     }
 
+    /// An error when `v` (kept, i.e. above the horizon) does not fit the storage type.
+    fn check_range(&self, m: usize, index: usize, v: f32, valid: bool) -> Option<Error> {
+        let max = f32::from(half::f16::MAX);
+        (valid && self.options.dtype == Dtype::F16 && v.abs() > max).then(|| Error::StoreUsage {
+            path: self.path.clone(),
+            reason: format!(
+                "material {:?}: value {v} at index {index} exceeds the f16 range (|v| <= {max}); \
+                 store as f32 or clamp outliers",
+                self.materials[m].name
+            ),
+        })
+    }
+
     fn add_entry(&mut self, name: &str, source: &str) -> Result<()> {
         if name.is_empty() {
             return Err(self.usage("material names must not be empty".into()));
@@ -449,6 +462,9 @@ impl StoreWriter {
                         index: di,
                         value: v,
                     };
+                    return self.fail(e);
+                }
+                if let Some(e) = self.check_range(m, di, v, valid) {
                     return self.fail(e);
                 }
                 accumulate(&mut stats[m], &mut sums[m], v, valid);
@@ -698,6 +714,9 @@ impl MaterialWriter<'_> {
                 return w.fail(e);
             }
             let valid = w.mask[di / nc];
+            if let Some(e) = w.check_range(self.index, di, v, valid) {
+                return w.fail(e);
+            }
             accumulate(&mut stats, &mut sum, v, valid);
             let v = if valid { v } else { 0.0 };
             self.buf.extend_from_slice(&v.to_le_bytes());
