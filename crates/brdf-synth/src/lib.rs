@@ -11,6 +11,23 @@
 //!   deterministic per seed;
 //! - [`dataset`]: evaluation on an [`brdf_io::AngularGrid`] in memory;
 //! - [`stream`]: the same streamed into a `.sbrdf` store, for any grid size.
+//!
+//! A small dataset with known ground truth, for tests:
+//!
+//! ```
+//! use brdf_io::{AngularGrid, Channels};
+//! let grid = AngularGrid::new(4, 4, 8)?;
+//! let channels = Channels::parse_wavelengths("450:650:100")?;
+//! let data = brdf_synth::preset_dataset(grid, &channels, 0)?;
+//! assert_eq!((data.n(), data.d()), (51, 4 * 4 * 8 * 3));
+//! // The same values as evaluating a material directly at a bin centre.
+//! let gold = brdf_synth::preset_material("metal_gold", 0).unwrap();
+//! let i = data.names.iter().position(|n| n == "metal_gold").unwrap();
+//! let (wi, wo) = grid.bin_centre(0, 1, 2).to_dirs();
+//! let f = gold.eval(wi, wo, 550.0);
+//! assert!((data.row(i)[grid.index(0, 1, 2) * 3 + 1] - f).abs() < 1e-9 * f);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 
 pub mod dataset;
 pub mod error;
