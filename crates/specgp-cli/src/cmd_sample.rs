@@ -4,9 +4,11 @@
 //! Sources plug in through [`brdf_io::BrdfSource`]; [`open_source`] maps a SOURCE argument to one:
 //! - `FILE.bsdf`: an RGL file (spectral files may be evaluated at `--wavelengths`);
 //! - `FILE.binary`: a MERL file (nearest cell, as MERL's own lookup);
-//! - `DATA.sbrdf:MATERIAL`: a stored material (multilinear interpolation on the store's grid).
+//! - `DATA.sbrdf:MATERIAL`: a stored material (multilinear interpolation on the store's grid);
+//! - `MODEL.toml@X,Y`: the GP prediction (exact predictor) at a latent point, evaluated lazily
+//!   (nothing materialised; `--wavelengths` interpolates between stored wavelengths).
 //!
-//! Further kinds (`MODEL.toml@X,Y`) add one arm to [`open_source`].
+//! Further kinds add one arm to [`open_source`].
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -17,7 +19,8 @@ use brdf_io::{BrdfSource, Channels, Vec3};
 /// Arguments of `specgp sample`.
 #[derive(Debug, clap::Args)]
 pub struct SampleArgs {
-    /// The BRDF: an RGL `.bsdf` file, a MERL `.binary` file or `DATA.sbrdf:MATERIAL`.
+    /// The BRDF: an RGL `.bsdf` file, a MERL `.binary` file, `DATA.sbrdf:MATERIAL` or
+    /// `MODEL.toml@X,Y` (lazy GP prediction).
     pub source: String,
     /// CSV of direction pairs, one `wi_x,wi_y,wi_z,wo_x,wo_y,wo_z` row each (local frame,
     /// z = normal; a header line is allowed).
@@ -43,6 +46,9 @@ pub fn open_source(
         }
         Ok(())
     };
+    if let Some(m) = crate::cmd_predict::open_model_source(spec, wavelengths) {
+        return Ok(Box::new(m?));
+    }
     if let Some((path, name)) = brdf_io::store::parse_store_spec(spec) {
         only_native("the stored material")?;
         let m = brdf_io::store::StoreMaterial::open(&path, &name)
@@ -63,8 +69,8 @@ pub fn open_source(
             Ok(Box::new(brdf_io::merl::read_merl(path)?))
         }
         _ => bail!(
-            "unknown SOURCE {spec:?}: expected an RGL .bsdf file, a MERL .binary file or \
-             DATA.sbrdf:MATERIAL"
+            "unknown SOURCE {spec:?}: expected an RGL .bsdf file, a MERL .binary file, \
+             DATA.sbrdf:MATERIAL or MODEL.toml@X,Y"
         ),
     }
 }

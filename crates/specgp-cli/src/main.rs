@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 
 mod cmd_data;
 mod cmd_fit;
+mod cmd_predict;
 mod cmd_sample;
 mod cmd_synth;
 
@@ -41,6 +42,10 @@ enum Command {
     Fit(cmd_fit::FitArgs),
     /// Show the latent coordinates and log-likelihood of a model.
     Latent(cmd_fit::LatentArgs),
+    /// Materialise a predicted material (GP at a latent point, or linear interpolation).
+    Predict(cmd_predict::PredictArgs),
+    /// Reconstruction and leave-one-out errors of a model (GP and baselines).
+    Evaluate(cmd_predict::EvaluateArgs),
 }
 
 /// Arguments of `specgp grid`.
@@ -94,6 +99,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Grid(args) => grid_command(&args),
         Command::Fit(args) => cmd_fit::fit(&args),
         Command::Latent(args) => cmd_fit::latent(&args),
+        Command::Predict(args) => cmd_predict::predict(&args),
+        Command::Evaluate(args) => cmd_predict::evaluate(&args),
         Command::Import(args) => cmd_data::import(&args),
         Command::Info(args) => cmd_data::info(&args),
         Command::Export(args) => cmd_data::export(&args),

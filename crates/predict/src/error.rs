@@ -1,0 +1,77 @@
+//! The error type of `predict`.
+
+use std::path::PathBuf;
+
+/// Result alias of this crate.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// Everything that can go wrong while predicting or evaluating.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// The model's dataset store is not where the model says (moved or deleted).
+    #[error(
+        "model {model}: its dataset {dataset} does not exist (moved or deleted?); pass the store's new path explicitly"
+    )]
+    DatasetMissing {
+        /// The model file.
+        model: PathBuf,
+        /// The dataset path recorded in the model.
+        dataset: PathBuf,
+    },
+    /// The store does not match what the model was fitted on.
+    #[error("model {model} does not match dataset {dataset}: {what}")]
+    DatasetMismatch {
+        /// The model file.
+        model: PathBuf,
+        /// The store.
+        dataset: PathBuf,
+        /// What differs (checksum, grid, channels, materials, D).
+        what: String,
+    },
+    /// A latent point that cannot be used (NaN, wrong dimension).
+    #[error("invalid latent point {point:?}: {reason}")]
+    InvalidPoint {
+        /// The point as given.
+        point: Vec<f64>,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A requested wavelength outside the stored range (or wavelengths asked of an RGB dataset).
+    #[error(
+        "{dataset}: wavelength {wavelength_nm} nm is outside the stored range {min_nm}..={max_nm} nm"
+    )]
+    WavelengthOutOfRange {
+        /// The store.
+        dataset: PathBuf,
+        /// The wavelength asked for, in nm.
+        wavelength_nm: f64,
+        /// Smallest stored wavelength, in nm.
+        min_nm: f64,
+        /// Largest stored wavelength, in nm.
+        max_nm: f64,
+    },
+    /// An argument that does not fit (buffer length, coefficient count, material name, format).
+    #[error("invalid argument: {reason}")]
+    InvalidArgument {
+        /// What does not fit.
+        reason: String,
+    },
+    /// An output file that cannot be written in the requested format.
+    #[error("{path}: {reason}")]
+    Output {
+        /// The output file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+    /// An error from the dataset store or a file format.
+    #[error(transparent)]
+    Store(#[from] brdf_io::Error),
+    /// An error from the model (loading, refitting).
+    #[error(transparent)]
+    Model(#[from] gplvm::Error),
+    /// An error from the GP maths.
+    #[error(transparent)]
+    Gp(#[from] gp_core::GpError),
+}

@@ -1,0 +1,795 @@
+//! Errors of the GP and of the baselines (DESIGN.md section 5).
+//!
+//! Every predictor here is linear in the stored rows of the transformed data, `y* = sum_j c_j
+//! y_j`, so its squared error against a material `h` in the transformed ("model") space follows
+//! from the uncentred Gram matrix alone: `G_hh - 2 c^T G_h + c^T G c` ([`sq_error`]). The
+//! leave-one-out protocol ([`leave_one_out`]) therefore needs no pass over the data: refit
+//! without `h` from the subset Gram matrix, place `h` at the latent point minimising that error,
+//! and compare with baselines chosen the same way (with knowledge of `h`: these are oracles).
+//! Errors in BRDF space (after the inverse transform) of every method for every material come
+//! from one streaming pass ([`brdf_space_rmse`]: the coefficient matrix times each data block).
+//!
+//! Both spaces report the paper's Eq. 22 normalisation, `sqrt(sum_d (y_d - y*_d)^2 / (n_th n_td
+//! n_pd))`: the sum runs over all D values (cells x channels), divided by the angular count.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Instant;
+
+use brdf_io::store::Store;
+use faer::{Mat, MatRef, Par, Side};
+use gp_core::{GpRegression, all_but, centre_gram, subset_gram};
+use gp_core::{GplvmObjective, KernelParams, Learn};
+use gplvm::optim::{HookeJeevesSettings, hooke_jeeves};
+use gplvm::optim::{LbfgsSettings, lbfgs};
+use gplvm::{FitConfig, OptimizerKind, Transform, fit_gram};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::error::{Error, Result};
+use crate::predictor::{Predictor, PredictorKind, weights_to_coefficients};
+
+/// The prediction methods compared by the evaluation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// GP posterior mean (smooth predictor) at the best latent point of the refit.
+    Gp,
+    /// The single stored material closest to the held-out one.
+    Nearest,
+    /// `a y1 + (1 - a) y2` (best a in [0, 1]) between the two materials nearest to the GP's
+    /// latent point in the refit's latent space.
+    LerpLatent,
+    /// `a y1 + (1 - a) y2` for the best pair of materials and best a in [0, 1] (an oracle).
+    LerpBest,
+    /// Projection onto the leading q principal components of the other materials.
+    Pca,
+}
+
+impl Method {
+    /// All methods, in report order.
+    pub const ALL: [Method; 5] = [
+        Method::Gp,
+        Method::Nearest,
+        Method::LerpLatent,
+        Method::LerpBest,
+        Method::Pca,
+    ];
+
+    /// Name used in tables and JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Gp => "gp",
+            Self::Nearest => "nearest",
+            Self::LerpLatent => "lerp-latent",
+            Self::LerpBest => "lerp-best",
+            Self::Pca => "pca",
+        }
+    }
+}
+
+/// Squared error of the linear predictor `sum_j c_j y_j` against row `h`, from the uncentred
+/// Gram matrix `g` (N x N, `c` of length N): `G_hh - 2 c^T G_h + c^T G c`, clamped at 0.
+pub fn sq_error(g: MatRef<'_, f64>, h: usize, c: &[f64]) -> f64 {
+    let n = g.nrows();
+    let mut e = g[(h, h)];
+    for i in 0..n {
+        if c[i] == 0.0 {
+            continue;
+        }
+        let mut gi = 0.0;
+        for j in 0..n {
+            gi += g[(i, j)] * c[j];
+        }
+        e += c[i] * (gi - 2.0 * g[(h, i)]);
+    }
+    e.max(0.0)
+}
+
+/// One method's result for one held-out material.
+#[derive(Debug, Clone, Serialize)]
+pub struct MethodResult {
+    /// The method.
+    pub method: Method,
+    /// Coefficients over all N materials (0 at the held-out one).
+    pub coefficients: Vec<f64>,
+    /// Squared error in the transformed space (from the Gram matrix).
+    pub sq_error: f64,
+    /// What was chosen (materials, a, latent point).
+    pub detail: String,
+}
+
+/// Leave-one-out result for one material.
+#[derive(Debug, Clone, Serialize)]
+pub struct LooMaterial {
+    /// Index of the held-out material.
+    pub held_out: usize,
+    /// The GP's best latent point in the refit's latent space.
+    pub gp_point: Vec<f64>,
+    /// Log-likelihood of the refit.
+    pub refit_log_likelihood: f64,
+    /// Results in [`Method::ALL`] order.
+    pub methods: Vec<MethodResult>,
+}
+
+/// Best `a` in [0, 1] for `a y_i + (1 - a) y_j` against `y_h` and its squared error.
+fn best_lerp(g: MatRef<'_, f64>, h: usize, i: usize, j: usize) -> (f64, f64) {
+    let ru = g[(h, i)] - g[(h, j)] - g[(i, j)] + g[(j, j)];
+    let uu = g[(i, i)] - 2.0 * g[(i, j)] + g[(j, j)];
+    let rr = g[(h, h)] - 2.0 * g[(h, j)] + g[(j, j)];
+    let a = if uu > 0.0 {
+        (ru / uu).clamp(0.0, 1.0)
+    } else {
+        0.5
+    };
+    (a, (rr - 2.0 * a * ru + a * a * uu).max(0.0))
+}
+
+fn embed(n: usize, idx: &[usize], c: &[f64]) -> Vec<f64> {
+    let mut full = vec![0.0; n];
+    for (k, &i) in idx.iter().enumerate() {
+        full[i] = c[k];
+    }
+    full
+}
+
+/// Leave-one-out for material `h` from the uncentred Gram matrix `g` (N x N) of data with
+/// `d_eff` informative values per material, refitting with `config` (q = its latent dim).
+///
+/// The GP's latent point minimises the transformed-space error of the smooth posterior mean:
+/// multi-start from the `starts` training points of the refit with the smallest error, each
+/// refined by Hooke-Jeeves.
+///
+/// `warm`: the full model's latent points (N x q) and hyperparameters; the refit then starts
+/// from them (minus row `h`) instead of the PCA start of [`gplvm::fit_gram`].
+pub fn leave_one_out(
+    g: MatRef<'_, f64>,
+    d_eff: usize,
+    config: &FitConfig,
+    h: usize,
+    starts: usize,
+    warm: Option<(MatRef<'_, f64>, &KernelParams)>,
+) -> Result<LooMaterial> {
+    let n = g.nrows();
+    if n < 3 || h >= n {
+        return Err(Error::InvalidArgument {
+            reason: format!("leave-one-out needs N >= 3 and h < N (N = {n}, h = {h})"),
+        });
+    }
+    let others = all_but(n, h);
+    let n1 = others.len();
+    let g_oo = subset_gram(g, &others)?;
+    let fit = match warm {
+        Some((x_full, params)) => {
+            let x0 = Mat::from_fn(n1, x_full.ncols(), |i, k| x_full[(others[i], k)]);
+            refit_warm(g_oo.as_ref(), d_eff, config, x0.as_ref(), params)?
+        }
+        None => {
+            let f = fit_gram(g_oo.as_ref(), d_eff, config)?;
+            Refit {
+                x: f.x,
+                params: f.params,
+                log_likelihood: f.log_likelihood,
+            }
+        }
+    };
+    let gp = GpRegression::new(fit.x.as_ref(), fit.params.clone(), Par::Seq)?;
+    let q = fit.x.ncols();
+    let g_h: Vec<f64> = others.iter().map(|&j| g[(h, j)]).collect();
+    let g_hh = g[(h, h)];
+    let err_sub = |c: &[f64]| -> f64 {
+        let mut e = g_hh;
+        for i in 0..n1 {
+            let mut gi = 0.0;
+            for j in 0..n1 {
+                gi += g_oo[(i, j)] * c[j];
+            }
+            e += c[i] * (gi - 2.0 * g_h[i]);
+        }
+        e
+    };
+    let objective = |x: &[f64]| -> f64 {
+        gp.weights(x, gp_core::Predictor::Smooth)
+            .map(|w| err_sub(&weights_to_coefficients(&w)))
+            .unwrap_or(f64::INFINITY)
+    };
+    // Multi-start from the training points with the smallest error.
+    let points: Vec<Vec<f64>> = (0..n1)
+        .map(|i| (0..q).map(|k| fit.x[(i, k)]).collect())
+        .collect();
+    let mut scored: Vec<(f64, usize)> = points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| (objective(p), i))
+        .collect();
+    scored.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let spread = {
+        let mut s = 0.0;
+        for k in 0..q {
+            let m = points.iter().map(|p| p[k]).sum::<f64>() / n1 as f64;
+            s += points.iter().map(|p| (p[k] - m).powi(2)).sum::<f64>() / n1 as f64;
+        }
+        (s / q as f64).sqrt().max(1e-6)
+    };
+    let settings = HookeJeevesSettings {
+        initial_step: 0.1 * spread,
+        step_reduction: 0.5,
+        min_step: 1e-5 * spread,
+        max_evaluations: 1500,
+    };
+    let mut best = (scored[0].0, points[scored[0].1].clone());
+    for &(_, i) in scored.iter().take(starts.max(1)) {
+        let m = hooke_jeeves(&objective, &points[i], &settings)?;
+        if m.value < best.0 {
+            best = (m.value, m.x);
+        }
+    }
+    let gp_point = best.1;
+    let c_gp = weights_to_coefficients(&gp.weights(&gp_point, gp_core::Predictor::Smooth)?);
+    let c_gp = embed(n, &others, &c_gp);
+
+    // Nearest single material.
+    let nearest = others
+        .iter()
+        .copied()
+        .min_by(|&a, &b| {
+            let ea = g[(a, a)] - 2.0 * g[(h, a)];
+            let eb = g[(b, b)] - 2.0 * g[(h, b)];
+            ea.total_cmp(&eb)
+        })
+        .ok_or_else(|| Error::InvalidArgument {
+            reason: "no other material".into(),
+        })?;
+    let mut c_near = vec![0.0; n];
+    c_near[nearest] = 1.0;
+
+    // Linear interpolation between the two materials nearest to the GP's point.
+    let mut by_dist: Vec<(f64, usize)> = points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let d: f64 = p.iter().zip(&gp_point).map(|(a, b)| (a - b).powi(2)).sum();
+            (d, others[i])
+        })
+        .collect();
+    by_dist.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let (i1, i2) = (by_dist[0].1, by_dist[1].1);
+    let (a_lat, _) = best_lerp(g, h, i1, i2);
+    let mut c_lat = vec![0.0; n];
+    c_lat[i1] += a_lat;
+    c_lat[i2] += 1.0 - a_lat;
+
+    // Best pair overall.
+    let mut bp = (f64::INFINITY, 0, 0, 0.0);
+    for (x, &i) in others.iter().enumerate() {
+        for &j in &others[x + 1..] {
+            let (a, e) = best_lerp(g, h, i, j);
+            if e < bp.0 {
+                bp = (e, i, j, a);
+            }
+        }
+    }
+    let mut c_best = vec![0.0; n];
+    c_best[bp.1] += bp.3;
+    c_best[bp.2] += 1.0 - bp.3;
+
+    // PCA with q components of the others, projecting y_h - m.
+    let c_pca = embed(n, &others, &pca_projection(g, &others, h, q)?);
+
+    let names = |i: usize| i.to_string();
+    let methods = vec![
+        (Method::Gp, c_gp, format!("x = {gp_point:?}")),
+        (
+            Method::Nearest,
+            c_near,
+            format!("material {}", names(nearest)),
+        ),
+        (
+            Method::LerpLatent,
+            c_lat,
+            format!("materials {} and {}, a = {a_lat:.4}", names(i1), names(i2)),
+        ),
+        (
+            Method::LerpBest,
+            c_best,
+            format!(
+                "materials {} and {}, a = {:.4}",
+                names(bp.1),
+                names(bp.2),
+                bp.3
+            ),
+        ),
+        (Method::Pca, c_pca, format!("{q} components")),
+    ]
+    .into_iter()
+    .map(|(method, coefficients, detail)| MethodResult {
+        method,
+        sq_error: sq_error(g, h, &coefficients),
+        coefficients,
+        detail,
+    })
+    .collect();
+    Ok(LooMaterial {
+        held_out: h,
+        gp_point,
+        refit_log_likelihood: fit.log_likelihood,
+        methods,
+    })
+}
+
+/// A refitted latent space.
+#[derive(Debug, Clone)]
+pub struct Refit {
+    /// Latent points.
+    pub x: Mat<f64>,
+    /// Hyperparameters.
+    pub params: KernelParams,
+    /// Log-likelihood at the optimum.
+    pub log_likelihood: f64,
+}
+
+/// Refits the GPLVM to the uncentred Gram matrix `g` starting from latent points `x0` and
+/// hyperparameters `params` (warm start), with the optimiser and settings of `config` (the
+/// same objective as [`gplvm::fit_gram`]: data scaled as configured, values per data value).
+pub fn refit_warm(
+    g: MatRef<'_, f64>,
+    d_eff: usize,
+    config: &FitConfig,
+    x0: MatRef<'_, f64>,
+    params: &KernelParams,
+) -> Result<Refit> {
+    let p = &config.params;
+    let (s, _) = gplvm::fit::scaled_centred_gram(g, d_eff, p.data_scaling)?;
+    let n = s.nrows();
+    let objective = GplvmObjective::new(s, d_eff)?.with_prior(p.prior);
+    let learn = if p.learn_hyperparameters {
+        Learn::ALL
+    } else {
+        Learn::NONE
+    };
+    let flat = objective.flat(x0.ncols(), params.clone(), learn)?;
+    let theta0 = flat.pack(x0, params)?;
+    let per_value = 1.0 / (n as f64 * d_eff as f64);
+    let par = Par::Seq;
+    let best = match p.optimizer {
+        OptimizerKind::Lbfgs => lbfgs(
+            |t| {
+                let (v, mut gr) = flat.neg_log_likelihood_and_gradient(t, par)?;
+                gr.iter_mut().for_each(|x| *x *= per_value);
+                Ok((v * per_value, gr))
+            },
+            &theta0,
+            &LbfgsSettings {
+                max_iterations: p.max_iterations,
+                gradient_tolerance: p.gradient_tolerance,
+                cost_tolerance: p.cost_tolerance,
+                ..LbfgsSettings::default()
+            },
+        )?,
+        OptimizerKind::HookeJeeves => hooke_jeeves(
+            |t| {
+                flat.neg_log_likelihood(t, par)
+                    .map_or(f64::INFINITY, |v| v * per_value)
+            },
+            &theta0,
+            &HookeJeevesSettings {
+                initial_step: p.initial_step,
+                step_reduction: 0.5,
+                min_step: p.min_step,
+                max_evaluations: p.max_evaluations,
+            },
+        )?,
+    };
+    let (x, params) = flat.unpack(&best.x)?;
+    Ok(Refit {
+        x,
+        params,
+        log_likelihood: -best.value / per_value,
+    })
+}
+
+/// Coefficients over `others` of the projection of `y_h` onto the mean plus the leading `q`
+/// principal directions of the `others` rows: `y* = m + Y_c^T U Lambda^-1 U^T Y_c (y_h - m)`.
+pub fn pca_projection(
+    g: MatRef<'_, f64>,
+    others: &[usize],
+    h: usize,
+    q: usize,
+) -> Result<Vec<f64>> {
+    let n1 = others.len();
+    let g_oo = subset_gram(g, others)?;
+    let s = centre_gram(g_oo.as_ref())?;
+    let r: Vec<f64> = (0..n1)
+        .map(|i| (0..n1).map(|j| g_oo[(i, j)]).sum::<f64>() / n1 as f64)
+        .collect();
+    let t = r.iter().sum::<f64>() / n1 as f64;
+    let mh = others.iter().map(|&j| g[(h, j)]).sum::<f64>() / n1 as f64;
+    // s_h[j] = <y_j - m, y_h - m>.
+    let s_h: Vec<f64> = (0..n1).map(|j| g[(others[j], h)] - r[j] - mh + t).collect();
+    let eig = s
+        .self_adjoint_eigen(Side::Lower)
+        .map_err(|e| Error::InvalidArgument {
+            reason: format!("PCA eigen-decomposition failed: {e:?}"),
+        })?;
+    let vals = eig.S().column_vector();
+    let u = eig.U();
+    let top = vals[n1 - 1].max(0.0);
+    let mut beta = vec![0.0; n1];
+    for k in 0..q.min(n1) {
+        let col = n1 - 1 - k;
+        let lambda = vals[col];
+        if lambda.is_nan() || lambda <= 1e-12 * top {
+            continue;
+        }
+        let proj: f64 = (0..n1).map(|i| u[(i, col)] * s_h[i]).sum::<f64>() / lambda;
+        for (i, b) in beta.iter_mut().enumerate() {
+            *b += u[(i, col)] * proj;
+        }
+    }
+    Ok(weights_to_coefficients(&beta))
+}
+
+/// Eq. 22 RMSE in BRDF space of `M` linear predictors (rows of `coef`, `M x N`) against their
+/// target materials `targets` (length M), in one parallel streaming pass over `store`:
+/// `sqrt(sum_d (f_target[d] - inverse(sum_j c_j forward(f_j[d])))^2 / n_angles)`.
+/// `progress(done, total)` counts chunks.
+pub fn brdf_space_rmse(
+    store: &Store,
+    transform: Transform,
+    targets: &[usize],
+    coef: MatRef<'_, f64>,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Vec<f64>> {
+    let n = store.n_materials();
+    let m = coef.nrows();
+    if coef.ncols() != n || targets.len() != m || targets.iter().any(|&t| t >= n) {
+        return Err(Error::InvalidArgument {
+            reason: format!(
+                "coefficient matrix {}x{} and {} targets for {n} materials",
+                m,
+                coef.ncols(),
+                targets.len()
+            ),
+        });
+    }
+    let nc = store.channels().len();
+    let mask = store.validity_mask();
+    let done = AtomicUsize::new(0);
+    let total = store.n_chunks();
+    let sums = store.par_fold_chunks(
+        || (vec![0.0f64; m], Vec::<f64>::new(), Vec::<usize>::new()),
+        |(acc, t, cols), range, block| {
+            // Valid columns only: below-horizon cells are 0 in every material and prediction.
+            cols.clear();
+            cols.extend(
+                range
+                    .clone()
+                    .filter(|d| mask[d / nc])
+                    .map(|d| d - range.start),
+            );
+            t.clear();
+            for &j in cols.iter() {
+                t.extend(
+                    block[j * n..(j + 1) * n]
+                        .iter()
+                        .map(|v| transform.forward(f64::from(*v))),
+                );
+            }
+            let len = cols.len();
+            if len > 0 {
+                let tm = MatRef::from_column_major_slice(t, n, len);
+                let mut p = Mat::<f64>::zeros(m, len);
+                faer::linalg::matmul::matmul(
+                    p.as_mut(),
+                    faer::Accum::Replace,
+                    coef,
+                    tm,
+                    1.0,
+                    Par::Seq,
+                );
+                for (k, &j) in cols.iter().enumerate() {
+                    let row = &block[j * n..(j + 1) * n];
+                    for (r, a) in acc.iter_mut().enumerate() {
+                        let diff = f64::from(row[targets[r]]) - transform.inverse(p[(r, k)]);
+                        *a += diff * diff;
+                    }
+                }
+            }
+            let k = done.fetch_add(1, Ordering::Relaxed) + 1;
+            progress(k, total);
+        },
+        |(mut a, t, c), (b, _, _)| {
+            a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+            (a, t, c)
+        },
+    )?;
+    let n_angles = store.grid().len() as f64;
+    Ok(sums.0.into_iter().map(|s| (s / n_angles).sqrt()).collect())
+}
+
+/// Options of [`evaluate`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EvalOptions {
+    /// Run leave-one-out over every material (refits) and the baselines.
+    pub loo: bool,
+    /// Starting points of the GP's latent search per held-out material.
+    pub starts: usize,
+    /// Warm-start the refits from the full model's latent points (otherwise: PCA start, as a
+    /// fresh fit).
+    pub warm_start: bool,
+}
+
+impl Default for EvalOptions {
+    fn default() -> Self {
+        Self {
+            loo: false,
+            starts: 3,
+            warm_start: true,
+        }
+    }
+}
+
+/// Reconstruction errors of one training material (Eq. 22 normalisation).
+#[derive(Debug, Clone, Serialize)]
+pub struct ReconstructionRow {
+    /// Material name.
+    pub name: String,
+    /// Exact predictor at its own latent point, BRDF space.
+    pub exact_rmse: f64,
+    /// Smooth predictor at its own latent point, BRDF space.
+    pub smooth_rmse: f64,
+    /// Exact predictor, transformed space (from the Gram matrix).
+    pub exact_model_rmse: f64,
+    /// Smooth predictor, transformed space (from the Gram matrix).
+    pub smooth_model_rmse: f64,
+}
+
+/// One method's leave-one-out errors for one material.
+#[derive(Debug, Clone, Serialize)]
+pub struct LooEntry {
+    /// The method.
+    pub method: Method,
+    /// Eq. 22 RMSE in the transformed space (from the Gram matrix).
+    pub model_rmse: f64,
+    /// Eq. 22 RMSE in BRDF space.
+    pub brdf_rmse: f64,
+    /// What was chosen.
+    pub detail: String,
+}
+
+/// Leave-one-out errors of one material.
+#[derive(Debug, Clone, Serialize)]
+pub struct LooRow {
+    /// Material name.
+    pub name: String,
+    /// The GP's latent point in the refit.
+    pub gp_point: Vec<f64>,
+    /// Per method, in [`Method::ALL`] order.
+    pub methods: Vec<LooEntry>,
+}
+
+/// Mean and median of one column of errors.
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    /// `reconstruction-exact`, `reconstruction-smooth` or `loo-<method>`.
+    pub method: String,
+    /// Mean Eq. 22 RMSE in BRDF space.
+    pub brdf_mean: f64,
+    /// Median Eq. 22 RMSE in BRDF space.
+    pub brdf_median: f64,
+    /// Mean Eq. 22 RMSE in the transformed space.
+    pub model_mean: f64,
+    /// Median Eq. 22 RMSE in the transformed space.
+    pub model_median: f64,
+    /// For leave-one-out baselines: materials where the GP's BRDF-space error is lower.
+    pub gp_better: Option<usize>,
+}
+
+/// The result of [`evaluate`].
+#[derive(Debug, Clone, Serialize)]
+pub struct Evaluation {
+    /// The dataset store.
+    pub dataset: String,
+    /// The model's transform.
+    pub transform: String,
+    /// Latent dimension q.
+    pub latent_dim: usize,
+    /// Materials N.
+    pub n_materials: usize,
+    /// Angular cells n_th n_td n_pd (the Eq. 22 divisor).
+    pub n_angles: usize,
+    /// Per training material.
+    pub reconstruction: Vec<ReconstructionRow>,
+    /// Leave-one-out per material (with `--loo`).
+    pub loo: Option<Vec<LooRow>>,
+    /// Mean and median per method.
+    pub summary: Vec<Summary>,
+    /// Seconds spent refitting and searching (leave-one-out, from the Gram matrix).
+    pub loo_seconds: f64,
+    /// Seconds of the streaming pass.
+    pub pass_seconds: f64,
+}
+
+fn mean_median(v: &[f64]) -> (f64, f64) {
+    if v.is_empty() {
+        return (f64::NAN, f64::NAN);
+    }
+    let mean = v.iter().sum::<f64>() / v.len() as f64;
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let k = s.len();
+    let median = if k % 2 == 1 {
+        s[k / 2]
+    } else {
+        0.5 * (s[k / 2 - 1] + s[k / 2])
+    };
+    (mean, median)
+}
+
+/// Stages reported to the progress callback of [`evaluate`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    /// Leave-one-out refits (count: materials).
+    Refits,
+    /// The streaming pass (count: chunks).
+    Pass,
+}
+
+/// Reconstruction errors of every training material and, with `options.loo`, leave-one-out
+/// errors of the GP and the baselines; BRDF-space errors of everything from one pass.
+pub fn evaluate(
+    pred: &Predictor,
+    options: &EvalOptions,
+    progress: &(dyn Fn(Stage, usize, usize) + Sync),
+) -> Result<Evaluation> {
+    let model = pred.model();
+    let g = model.gram_matrix();
+    let n = pred.n_materials();
+    let n_angles = pred.grid().len();
+    let to_rmse = |sq: f64| (sq / n_angles as f64).sqrt();
+
+    let mut rows: Vec<Vec<f64>> = Vec::new();
+    let mut targets = Vec::new();
+    let mut recon_model = Vec::new();
+    for i in 0..n {
+        let x = &model.materials[i].coords;
+        let ce = pred.coefficients(x, PredictorKind::Exact)?;
+        let cs = pred.coefficients(x, PredictorKind::Smooth)?;
+        recon_model.push((
+            to_rmse(sq_error(g.as_ref(), i, &ce)),
+            to_rmse(sq_error(g.as_ref(), i, &cs)),
+        ));
+        rows.push(ce);
+        rows.push(cs);
+        targets.extend([i, i]);
+    }
+
+    let t0 = Instant::now();
+    let loo = if options.loo {
+        let config = model.config.clone().check()?;
+        let done = AtomicUsize::new(0);
+        let d_eff = model.dataset.d_effective;
+        let x_full = model.latent_matrix();
+        let params = crate::predictor::kernel_params(model)?;
+        let res: Vec<LooMaterial> = (0..n)
+            .into_par_iter()
+            .map(|h| {
+                let warm = options.warm_start.then(|| (x_full.as_ref(), &params));
+                let r = leave_one_out(g.as_ref(), d_eff, &config, h, options.starts, warm);
+                progress(Stage::Refits, done.fetch_add(1, Ordering::Relaxed) + 1, n);
+                r
+            })
+            .collect::<Result<_>>()?;
+        for r in &res {
+            for m in &r.methods {
+                rows.push(m.coefficients.clone());
+                targets.push(r.held_out);
+            }
+        }
+        Some(res)
+    } else {
+        None
+    };
+    let loo_seconds = t0.elapsed().as_secs_f64();
+
+    let t1 = Instant::now();
+    let coef = Mat::from_fn(rows.len(), n, |r, j| rows[r][j]);
+    let brdf = brdf_space_rmse(
+        pred.store(),
+        pred.transform(),
+        &targets,
+        coef.as_ref(),
+        &|k, t| progress(Stage::Pass, k, t),
+    )?;
+    let pass_seconds = t1.elapsed().as_secs_f64();
+
+    let reconstruction: Vec<ReconstructionRow> = (0..n)
+        .map(|i| ReconstructionRow {
+            name: model.materials[i].name.clone(),
+            exact_rmse: brdf[2 * i],
+            smooth_rmse: brdf[2 * i + 1],
+            exact_model_rmse: recon_model[i].0,
+            smooth_model_rmse: recon_model[i].1,
+        })
+        .collect();
+    let mut summary = Vec::new();
+    let col = |f: &dyn Fn(&ReconstructionRow) -> f64| -> Vec<f64> {
+        reconstruction.iter().map(f).collect()
+    };
+    for (name, b, m) in [
+        (
+            "reconstruction-exact",
+            col(&|r| r.exact_rmse),
+            col(&|r| r.exact_model_rmse),
+        ),
+        (
+            "reconstruction-smooth",
+            col(&|r| r.smooth_rmse),
+            col(&|r| r.smooth_model_rmse),
+        ),
+    ] {
+        let (bm, bmed) = mean_median(&b);
+        let (mm, mmed) = mean_median(&m);
+        summary.push(Summary {
+            method: name.into(),
+            brdf_mean: bm,
+            brdf_median: bmed,
+            model_mean: mm,
+            model_median: mmed,
+            gp_better: None,
+        });
+    }
+    let loo_rows = loo.map(|res| {
+        let k = Method::ALL.len();
+        res.iter()
+            .enumerate()
+            .map(|(r, l)| LooRow {
+                name: model.materials[l.held_out].name.clone(),
+                gp_point: l.gp_point.clone(),
+                methods: l
+                    .methods
+                    .iter()
+                    .enumerate()
+                    .map(|(mi, m)| LooEntry {
+                        method: m.method,
+                        model_rmse: to_rmse(m.sq_error),
+                        brdf_rmse: brdf[2 * n + r * k + mi],
+                        detail: m.detail.clone(),
+                    })
+                    .collect(),
+            })
+            .collect::<Vec<_>>()
+    });
+    if let Some(rows) = &loo_rows {
+        for (mi, method) in Method::ALL.iter().enumerate() {
+            let b: Vec<f64> = rows.iter().map(|r| r.methods[mi].brdf_rmse).collect();
+            let m: Vec<f64> = rows.iter().map(|r| r.methods[mi].model_rmse).collect();
+            let (bm, bmed) = mean_median(&b);
+            let (mm, mmed) = mean_median(&m);
+            let gp_better = (*method != Method::Gp).then(|| {
+                rows.iter()
+                    .filter(|r| r.methods[0].brdf_rmse < r.methods[mi].brdf_rmse)
+                    .count()
+            });
+            summary.push(Summary {
+                method: format!("loo-{}", method.name()),
+                brdf_mean: bm,
+                brdf_median: bmed,
+                model_mean: mm,
+                model_median: mmed,
+                gp_better,
+            });
+        }
+    }
+    Ok(Evaluation {
+        dataset: pred.store().path().display().to_string(),
+        transform: pred.transform().to_string(),
+        latent_dim: pred.latent_dim(),
+        n_materials: n,
+        n_angles,
+        reconstruction,
+        loo: loo_rows,
+        summary,
+        loo_seconds,
+        pass_seconds,
+    })
+}

@@ -1,0 +1,218 @@
+//! Materialising a predicted material: all its values, streamed chunk by chunk from the store
+//! to a `.sbrdf` (one material), a `.npy` (1 x D) or a MERL `.binary` file.
+//!
+//! Only one batch of chunks (a few MB) is in memory at a time, except for MERL output, which
+//! holds the RGB values of one material (3 x cells f32; 17 MB on MERL's grid).
+
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use brdf_io::npy::{NpyDtype, NpyWriter};
+use brdf_io::{Channels, StoreInfo, StoreOptions, StoreWriter};
+use rayon::prelude::*;
+
+use crate::error::{Error, Result};
+use crate::predictor::PredictedMaterial;
+
+/// File format of a materialised prediction, chosen by the output's extension.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum OutputFormat {
+    /// A one-material dataset store (`.sbrdf`).
+    Sbrdf,
+    /// A 1 x D `.npy` matrix (f32) in the store's dimension order.
+    Npy,
+    /// A MERL `.binary` file (RGB).
+    Merl,
+}
+
+impl OutputFormat {
+    /// The format of `path` from its extension (`.sbrdf`, `.npy`, `.binary`).
+    pub fn from_path(path: &Path) -> Result<Self> {
+        match path.extension().and_then(|e| e.to_str()) {
+            Some("sbrdf") => Ok(Self::Sbrdf),
+            Some("npy") => Ok(Self::Npy),
+            Some("binary") => Ok(Self::Merl),
+            _ => Err(Error::Output {
+                path: path.to_owned(),
+                reason: "unknown output format: expected a .sbrdf, .npy or .binary file".into(),
+            }),
+        }
+    }
+}
+
+/// What [`PredictedMaterial::materialize`] wrote.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct MaterializeReport {
+    /// The output file.
+    pub path: PathBuf,
+    /// Its format.
+    pub format: OutputFormat,
+    /// Values written (cells x output channels).
+    pub values: usize,
+    /// Size of the file in bytes.
+    pub bytes: u64,
+    /// Wall-clock seconds.
+    pub seconds: f64,
+}
+
+impl PredictedMaterial {
+    /// Streams all values of this material in the output dimension order
+    /// (`angular_index * n_out_channels + channel`) to `sink(range, values)`, in consecutive
+    /// blocks from 0 to D_out. Chunks of the store are combined in parallel batches (rayon);
+    /// `progress(done, total)` counts chunks.
+    pub fn stream_values(
+        &self,
+        mut sink: impl FnMut(Range<usize>, &[f32]) -> Result<()>,
+        mut progress: impl FnMut(usize, usize),
+    ) -> Result<()> {
+        let store = self.predictor().store().clone();
+        let n = store.n_materials();
+        let nc = store.channels().len();
+        let mask = store.validity_mask();
+        let sel = self.selection().clone();
+        let identity = sel.is_identity(nc);
+        let n_out = sel.taps.len();
+        let n_chunks = store.n_chunks();
+        let batch = (2 * rayon::current_num_threads()).max(1);
+        let mut cell = vec![0.0f64; nc];
+        let mut filled = 0usize;
+        let mut cell_index = 0usize;
+        let mut out_next = 0usize;
+        let mut out_buf: Vec<f32> = Vec::new();
+        let mut c0 = 0;
+        while c0 < n_chunks {
+            let c1 = (c0 + batch).min(n_chunks);
+            let parts: Vec<Result<Vec<f64>>> = (c0..c1)
+                .into_par_iter()
+                .map(|c| {
+                    let mut buf = Vec::new();
+                    let range = store.read_chunk(c, &mut buf)?;
+                    Ok(range
+                        .clone()
+                        .enumerate()
+                        .map(|(j, d)| {
+                            if mask[d / nc] {
+                                self.combine_row(&buf[j * n..(j + 1) * n])
+                            } else {
+                                0.0
+                            }
+                        })
+                        .collect())
+                })
+                .collect();
+            for part in parts {
+                let part = part?;
+                out_buf.clear();
+                if identity {
+                    out_buf.extend(part.iter().map(|v| *v as f32));
+                } else {
+                    for v in part {
+                        cell[filled] = v;
+                        filled += 1;
+                        if filled == nc {
+                            for &(lo, hi, t) in &sel.taps {
+                                let x = if t == 0.0 {
+                                    cell[lo]
+                                } else {
+                                    (1.0 - t) * cell[lo] + t * cell[hi]
+                                };
+                                out_buf.push(x as f32);
+                            }
+                            filled = 0;
+                            cell_index += 1;
+                        }
+                    }
+                }
+                if !out_buf.is_empty() {
+                    let r = out_next..out_next + out_buf.len();
+                    out_next = r.end;
+                    sink(r, &out_buf)?;
+                }
+            }
+            progress(c1, n_chunks);
+            c0 = c1;
+        }
+        debug_assert!(identity || cell_index * n_out == out_next);
+        Ok(())
+    }
+
+    /// Number of values of the output (cells x output channels).
+    pub fn output_len(&self) -> usize {
+        self.predictor().grid().len() * self.selection().taps.len()
+    }
+
+    /// Writes all values of this material to `path` (format from the extension; written to a
+    /// temporary file in the same directory and renamed into place).
+    ///
+    /// MERL `.binary` output needs RGB channels: spectral datasets would need the spectral ->
+    /// RGB conversion of DESIGN.md section 6, which this crate does not have yet (clear error).
+    pub fn materialize(
+        &self,
+        path: &Path,
+        progress: impl FnMut(usize, usize),
+    ) -> Result<MaterializeReport> {
+        let start = Instant::now();
+        let format = OutputFormat::from_path(path)?;
+        let total = self.output_len();
+        let grid = *self.predictor().grid();
+        match format {
+            OutputFormat::Npy => {
+                let mut w = NpyWriter::create(path, NpyDtype::F32, &[1, total])?;
+                self.stream_values(|_, v| Ok(w.write_f32(v)?), progress)?;
+                w.finish()?;
+            }
+            OutputFormat::Sbrdf => {
+                let info = StoreInfo {
+                    grid,
+                    channels: self.channels().clone(),
+                };
+                let mut w = StoreWriter::create(path, info, StoreOptions::default())?;
+                let source = format!(
+                    "specgp predict: {} over {} materials of {}",
+                    self.label(),
+                    self.coefficients().len(),
+                    self.predictor().store().path().display()
+                );
+                w.declare_materials(&[(self.label(), source.as_str())])?;
+                self.stream_values(|r, v| Ok(w.write_block(r, v)?), progress)?;
+                w.finish()?;
+            }
+            OutputFormat::Merl => {
+                if self.channels() != &Channels::Rgb {
+                    return Err(Error::Output {
+                        path: path.to_owned(),
+                        reason: "MERL .binary output needs an RGB dataset; spectral -> RGB \
+                                 conversion (DESIGN.md section 6) is not available in predict yet: \
+                                 write .sbrdf or .npy instead"
+                            .into(),
+                    });
+                }
+                let mut all = Vec::with_capacity(total);
+                self.stream_values(
+                    |_, v| {
+                        all.extend_from_slice(v);
+                        Ok(())
+                    },
+                    progress,
+                )?;
+                let merl = brdf_io::merl::MerlBrdf::from_dataset_order(grid, &all)?;
+                brdf_io::merl::write_merl(path, &merl)?;
+            }
+        }
+        let bytes = std::fs::metadata(path)
+            .map_err(|e| Error::Output {
+                path: path.to_owned(),
+                reason: e.to_string(),
+            })?
+            .len();
+        Ok(MaterializeReport {
+            path: path.to_owned(),
+            format,
+            values: total,
+            bytes,
+            seconds: start.elapsed().as_secs_f64(),
+        })
+    }
+}

@@ -1,0 +1,624 @@
+//! The [`Predictor`] (a model plus its dataset store) and the [`PredictedMaterial`] it returns.
+//!
+//! A predicted material is a coefficient vector `c` over the N stored materials: its value at
+//! a flat index `d` is `inverse(sum_i c_i forward(stored_i[d]))`, computed per lookup from the
+//! N stored values at `d` (one contiguous read). Nothing is materialised.
+
+use std::cell::RefCell;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use brdf_io::store::Store;
+use brdf_io::{AngularGrid, BrdfSource, Channels, HalfDiff, Vec3};
+use faer::Par;
+use gp_core::{GpRegression, KernelParams, LengthScale};
+use gplvm::{Model, Transform};
+
+use crate::error::{Error, Result};
+
+/// Which GP posterior mean is used (DESIGN.md section 4).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PredictorKind {
+    /// The paper's predictor: `k*` includes the noise term at a coinciding training point, so
+    /// training materials are reproduced exactly.
+    #[default]
+    Exact,
+    /// The noise-free posterior mean, continuous in the latent point.
+    Smooth,
+}
+
+impl From<PredictorKind> for gp_core::Predictor {
+    fn from(k: PredictorKind) -> Self {
+        match k {
+            PredictorKind::Exact => gp_core::Predictor::Exact,
+            PredictorKind::Smooth => gp_core::Predictor::Smooth,
+        }
+    }
+}
+
+impl std::fmt::Display for PredictorKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Exact => "exact",
+            Self::Smooth => "smooth",
+        })
+    }
+}
+
+struct Inner {
+    model: Model,
+    model_path: PathBuf,
+    store: Arc<Store>,
+    gp: GpRegression,
+    n: usize,
+    grid: AngularGrid,
+    channels: Channels,
+    transform: Transform,
+}
+
+/// A fitted model bound to its dataset store: GP weights, variances and predicted materials.
+///
+/// `Send + Sync` and cheap to clone (an `Arc`): clone one per thread or share a reference.
+#[derive(Clone)]
+pub struct Predictor {
+    inner: Arc<Inner>,
+}
+
+impl std::fmt::Debug for Predictor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Predictor")
+            .field("model", &self.inner.model_path)
+            .field("dataset", &self.inner.store.path())
+            .field("n", &self.inner.n)
+            .finish()
+    }
+}
+
+/// Kernel hyperparameters of a model.
+pub fn kernel_params(model: &Model) -> Result<KernelParams> {
+    let h = &model.hyperparameters;
+    let ls = match h.length_scale.as_slice() {
+        [l] => LengthScale::Isotropic(*l),
+        many => LengthScale::Ard(many.to_vec()),
+    };
+    Ok(KernelParams::new(h.signal_variance, ls, h.noise)?)
+}
+
+impl Predictor {
+    /// Loads the model file at `model_path` and opens the dataset store it records.
+    ///
+    /// A missing store is an [`Error::DatasetMissing`] naming both paths; a store whose checksum,
+    /// grid, channels, material count or D differ from the model's is an
+    /// [`Error::DatasetMismatch`].
+    pub fn open(model_path: &Path) -> Result<Self> {
+        Self::open_with_dataset(model_path, None)
+    }
+
+    /// As [`open`](Self::open), reading the store from `dataset` when given (a moved store).
+    pub fn open_with_dataset(model_path: &Path, dataset: Option<&Path>) -> Result<Self> {
+        let model = Model::load(model_path)?;
+        let path = match dataset {
+            Some(p) => p.to_owned(),
+            None => {
+                let p = &model.dataset.path;
+                if p.is_relative() {
+                    model_path.parent().unwrap_or(Path::new(".")).join(p)
+                } else {
+                    p.clone()
+                }
+            }
+        };
+        if !path.is_file() {
+            return Err(Error::DatasetMissing {
+                model: model_path.to_owned(),
+                dataset: path,
+            });
+        }
+        let store = Arc::new(Store::open(&path)?);
+        Self::with_store(model, model_path, store)
+    }
+
+    /// Binds an in-memory `model` (read from `model_path`, used in messages) to `store`,
+    /// validating that they belong together.
+    pub fn with_store(model: Model, model_path: &Path, store: Arc<Store>) -> Result<Self> {
+        let mismatch = |what: String| Error::DatasetMismatch {
+            model: model_path.to_owned(),
+            dataset: store.path().to_owned(),
+            what,
+        };
+        let h = store.header();
+        let checksum = format!("{}:{}", h.checksum.algorithm, h.checksum.value);
+        if checksum != model.dataset.checksum {
+            return Err(mismatch(format!(
+                "checksum differs (model {}, store {checksum}): the store was rewritten since the fit",
+                model.dataset.checksum
+            )));
+        }
+        if store.grid().to_string() != model.dataset.grid {
+            return Err(mismatch(format!(
+                "grid differs (model {}, store {})",
+                model.dataset.grid,
+                store.grid()
+            )));
+        }
+        if store.channels().labels() != model.dataset.channels {
+            return Err(mismatch(format!(
+                "channels differ (model {} channels, store {})",
+                model.dataset.channels.len(),
+                store.channels().len()
+            )));
+        }
+        let n = store.n_materials();
+        if n != model.materials.len() || store.d() != model.dataset.d {
+            return Err(mismatch(format!(
+                "size differs (model {} materials x D = {}, store {n} x {})",
+                model.materials.len(),
+                model.dataset.d,
+                store.d()
+            )));
+        }
+        for (i, (m, s)) in model.materials.iter().zip(store.names()).enumerate() {
+            if m.name != s {
+                return Err(mismatch(format!(
+                    "material {i} is {:?} in the model and {s:?} in the store",
+                    m.name
+                )));
+            }
+        }
+        if let Some(m) = model
+            .materials
+            .iter()
+            .find(|m| m.coords.iter().any(|v| !v.is_finite()))
+        {
+            return Err(Error::InvalidPoint {
+                point: m.coords.clone(),
+                reason: format!(
+                    "material {:?} of model {} has a non-finite latent point",
+                    m.name,
+                    model_path.display()
+                ),
+            });
+        }
+        let gp = GpRegression::new(
+            model.latent_matrix().as_ref(),
+            kernel_params(&model)?,
+            Par::Seq,
+        )?;
+        Ok(Self {
+            inner: Arc::new(Inner {
+                transform: model.transform,
+                grid: *store.grid(),
+                channels: store.channels().clone(),
+                n,
+                gp,
+                store,
+                model_path: model_path.to_owned(),
+                model,
+            }),
+        })
+    }
+
+    /// The model.
+    pub fn model(&self) -> &Model {
+        &self.inner.model
+    }
+
+    /// The dataset store.
+    pub fn store(&self) -> &Arc<Store> {
+        &self.inner.store
+    }
+
+    /// The GP conditioned on the model's latent points.
+    pub fn gp(&self) -> &GpRegression {
+        &self.inner.gp
+    }
+
+    /// Number of training materials N.
+    pub fn n_materials(&self) -> usize {
+        self.inner.n
+    }
+
+    /// Latent dimension q.
+    pub fn latent_dim(&self) -> usize {
+        self.inner.model.latent_dim
+    }
+
+    /// The dataset's angular grid.
+    pub fn grid(&self) -> &AngularGrid {
+        &self.inner.grid
+    }
+
+    /// The dataset's channels.
+    pub fn channels(&self) -> &Channels {
+        &self.inner.channels
+    }
+
+    /// The model's data transform.
+    pub fn transform(&self) -> Transform {
+        self.inner.transform
+    }
+
+    /// Index of the training material called `name`.
+    pub fn material_index(&self, name: &str) -> Result<usize> {
+        self.inner
+            .model
+            .materials
+            .iter()
+            .position(|m| m.name == name)
+            .ok_or_else(|| Error::InvalidArgument {
+                reason: format!(
+                    "no material {name:?} in model {}",
+                    self.inner.model_path.display()
+                ),
+            })
+    }
+
+    fn check_point(&self, x: &[f64]) -> Result<()> {
+        if x.len() != self.latent_dim() {
+            return Err(Error::InvalidPoint {
+                point: x.to_vec(),
+                reason: format!(
+                    "the model's latent space has {} dimensions",
+                    self.latent_dim()
+                ),
+            });
+        }
+        if x.iter().any(|v| !v.is_finite()) {
+            return Err(Error::InvalidPoint {
+                point: x.to_vec(),
+                reason: "coordinates must be finite".into(),
+            });
+        }
+        Ok(())
+    }
+
+    /// GP posterior weights `w = K^-1 k*` at latent point `x` (length N).
+    pub fn gp_weights(&self, x: &[f64], kind: PredictorKind) -> Result<Vec<f64>> {
+        self.check_point(x)?;
+        Ok(self.inner.gp.weights(x, kind.into())?)
+    }
+
+    /// Coefficients `c` of the posterior mean as a combination of the stored rows (transformed
+    /// space): `y* = m + sum_i w_i (y_i - m) = sum_i c_i y_i`, `c_i = w_i + (1 - sum_j w_j) / N`.
+    /// The data scale of the model cancels.
+    pub fn coefficients(&self, x: &[f64], kind: PredictorKind) -> Result<Vec<f64>> {
+        let w = self.gp_weights(x, kind)?;
+        Ok(weights_to_coefficients(&w))
+    }
+
+    /// Predictive variance at `x` in model units: `s^2 + mu - k*^T K^-1 k*` for the centred
+    /// transformed data divided by sqrt(`data_scale`). Multiply by `model().data_scale` for the
+    /// variance of one transformed value ([`variance_transformed`](Self::variance_transformed)).
+    pub fn variance(&self, x: &[f64]) -> Result<f64> {
+        self.check_point(x)?;
+        Ok(self.inner.gp.variance(x)?)
+    }
+
+    /// Predictive variance of one transformed value (the units of `transform.forward(f)`).
+    pub fn variance_transformed(&self, x: &[f64]) -> Result<f64> {
+        Ok(self.variance(x)? * self.inner.model.data_scale)
+    }
+
+    /// The GP prediction at latent point `x`.
+    pub fn predict(&self, x: &[f64], kind: PredictorKind) -> Result<PredictedMaterial> {
+        let c = self.coefficients(x, kind)?;
+        let label = format!(
+            "gp-{kind}@{}",
+            x.iter()
+                .map(|v| format!("{v}"))
+                .collect::<Vec<_>>()
+                .join(",")
+        );
+        self.from_coefficients(c, label)
+    }
+
+    /// The paper's linear interpolation `y = a y1 + (1 - a) y2` between two training materials,
+    /// taken in the model's transformed space (the values themselves for `raw`, as in the
+    /// paper; `ln(1 + f/c)` for `log`).
+    pub fn lerp(&self, name1: &str, name2: &str, a: f64) -> Result<PredictedMaterial> {
+        if !a.is_finite() {
+            return Err(Error::InvalidArgument {
+                reason: format!("interpolation factor must be finite, got {a}"),
+            });
+        }
+        let (i, j) = (self.material_index(name1)?, self.material_index(name2)?);
+        let mut c = vec![0.0; self.inner.n];
+        c[i] += a;
+        c[j] += 1.0 - a;
+        self.from_coefficients(c, format!("lerp({name1},{name2},{a})"))
+    }
+
+    /// A training material itself (coefficient vector `e_i`).
+    pub fn training(&self, name: &str) -> Result<PredictedMaterial> {
+        let i = self.material_index(name)?;
+        let mut c = vec![0.0; self.inner.n];
+        c[i] = 1.0;
+        self.from_coefficients(c, name.to_owned())
+    }
+
+    /// Any linear predictor: the material `inverse(sum_i c_i forward(y_i))`.
+    pub fn from_coefficients(&self, c: Vec<f64>, label: String) -> Result<PredictedMaterial> {
+        if c.len() != self.inner.n {
+            return Err(Error::InvalidArgument {
+                reason: format!("{} coefficients for {} materials", c.len(), self.inner.n),
+            });
+        }
+        if c.iter().any(|v| !v.is_finite()) {
+            return Err(Error::InvalidArgument {
+                reason: "non-finite coefficient".into(),
+            });
+        }
+        let selection = ChannelSelection::all(&self.inner.channels);
+        Ok(PredictedMaterial {
+            pred: self.clone(),
+            coef: c.into(),
+            selection: Arc::new(selection),
+            label,
+        })
+    }
+}
+
+/// `c_i = w_i + (1 - sum_j w_j) / N`: GP weights on centred rows as coefficients on raw rows.
+pub fn weights_to_coefficients(w: &[f64]) -> Vec<f64> {
+    let n = w.len().max(1) as f64;
+    let shift = (1.0 - w.iter().sum::<f64>()) / n;
+    w.iter().map(|v| v + shift).collect()
+}
+
+/// Output channels of a predicted material and how each comes from the stored channels.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChannelSelection {
+    /// The output channel axis.
+    pub channels: Channels,
+    /// Per output channel: stored channels `lo`, `hi` and weight `t` of `hi`
+    /// (value = (1 - t) f_lo + t f_hi, linear in wavelength, in BRDF space).
+    pub taps: Vec<(usize, usize, f64)>,
+}
+
+impl ChannelSelection {
+    /// All stored channels, unchanged.
+    pub fn all(channels: &Channels) -> Self {
+        Self {
+            channels: channels.clone(),
+            taps: (0..channels.len()).map(|c| (c, c, 0.0)).collect(),
+        }
+    }
+
+    /// Wavelengths `wanted` from the `stored` spectral channels, linearly interpolated between
+    /// neighbouring stored wavelengths. Errors outside the stored range or for RGB data.
+    pub fn wavelengths(stored: &Channels, wanted: &Channels, dataset: &Path) -> Result<Self> {
+        let (Channels::Spectral(s), Channels::Spectral(w)) = (stored, wanted) else {
+            return Err(Error::InvalidArgument {
+                reason: format!(
+                    "{}: wavelength selection needs spectral data and spectral wavelengths",
+                    dataset.display()
+                ),
+            });
+        };
+        let (min, max) = (s[0], s[s.len() - 1]);
+        let mut taps = Vec::with_capacity(w.len());
+        for &l in w {
+            if !(l >= min - 1e-9 && l <= max + 1e-9) {
+                return Err(Error::WavelengthOutOfRange {
+                    dataset: dataset.to_owned(),
+                    wavelength_nm: l,
+                    min_nm: min,
+                    max_nm: max,
+                });
+            }
+            let hi = s.partition_point(|&x| x < l).min(s.len() - 1);
+            if (s[hi] - l).abs() <= 1e-9 || hi == 0 {
+                taps.push((hi, hi, 0.0));
+            } else {
+                let lo = hi - 1;
+                taps.push((lo, hi, (l - s[lo]) / (s[hi] - s[lo])));
+            }
+        }
+        Ok(Self {
+            channels: wanted.clone(),
+            taps,
+        })
+    }
+
+    /// Whether the selection is the identity.
+    pub fn is_identity(&self, stored: usize) -> bool {
+        self.taps.len() == stored
+            && self
+                .taps
+                .iter()
+                .enumerate()
+                .all(|(c, &(lo, hi, t))| lo == c && hi == c && t == 0.0)
+    }
+}
+
+thread_local! {
+    static SCRATCH: RefCell<Vec<f32>> = const { RefCell::new(Vec::new()) };
+}
+
+/// A predicted BRDF: coefficients over the stored materials, evaluated lazily.
+///
+/// Each value costs one read of the N stored values at its index and N multiply-adds (plus N
+/// forward transforms and one inverse under `log`); a thread-local scratch buffer avoids
+/// allocations. `Send + Sync`, cheap to clone. Implements [`BrdfSource`] (f in 1/sr; values of
+/// a linear predictor may be slightly negative where it extrapolates: they are not clamped).
+#[derive(Clone)]
+pub struct PredictedMaterial {
+    pred: Predictor,
+    coef: Arc<[f64]>,
+    selection: Arc<ChannelSelection>,
+    label: String,
+}
+
+impl std::fmt::Debug for PredictedMaterial {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PredictedMaterial")
+            .field("label", &self.label)
+            .field("channels", &self.selection.channels.len())
+            .finish()
+    }
+}
+
+impl PredictedMaterial {
+    /// The predictor it comes from.
+    pub fn predictor(&self) -> &Predictor {
+        &self.pred
+    }
+
+    /// Its coefficients over the stored materials (transformed space).
+    pub fn coefficients(&self) -> &[f64] {
+        &self.coef
+    }
+
+    /// A short description (`gp-exact@X,Y`, `lerp(a,b,0.3)`, a material name).
+    pub fn label(&self) -> &str {
+        &self.label
+    }
+
+    /// The output channels.
+    pub fn channels(&self) -> &Channels {
+        &self.selection.channels
+    }
+
+    /// The channel selection in use.
+    pub fn selection(&self) -> &ChannelSelection {
+        &self.selection
+    }
+
+    /// The same material evaluated at `wavelengths` (linear interpolation between stored
+    /// wavelengths; a wavelength outside the stored range is an error).
+    pub fn with_wavelengths(&self, wavelengths: &Channels) -> Result<Self> {
+        let sel = ChannelSelection::wavelengths(
+            &self.pred.inner.channels,
+            wavelengths,
+            self.pred.inner.store.path(),
+        )?;
+        Ok(Self {
+            selection: Arc::new(sel),
+            ..self.clone()
+        })
+    }
+
+    /// The predicted value at flat index `d` of the stored dimension order
+    /// (`angular_index * n_channels + channel`), in 1/sr.
+    pub fn value_at(&self, d: usize) -> Result<f64> {
+        let inner = &*self.pred.inner;
+        SCRATCH.with(|s| {
+            let mut s = s.borrow_mut();
+            s.resize(inner.n, 0.0);
+            inner.store.values_at(d, &mut s)?;
+            Ok(combine(inner.transform, &self.coef, &s))
+        })
+    }
+
+    /// Values of the output channels at angular cell `a` (flat angular index) into `out`.
+    pub fn eval_cell(&self, a: usize, out: &mut [f64]) -> Result<()> {
+        self.check_out(out)?;
+        let nc = self.pred.inner.channels.len();
+        let sel = &*self.selection;
+        for (o, &(lo, hi, t)) in out.iter_mut().zip(&sel.taps) {
+            let v_lo = self.value_at(a * nc + lo)?;
+            *o = if t == 0.0 {
+                v_lo
+            } else {
+                (1.0 - t) * v_lo + t * self.value_at(a * nc + hi)?
+            };
+        }
+        Ok(())
+    }
+
+    fn check_out(&self, out: &[f64]) -> Result<()> {
+        if out.len() != self.selection.taps.len() {
+            return Err(Error::InvalidArgument {
+                reason: format!(
+                    "output has {} slots for {} channels",
+                    out.len(),
+                    self.selection.taps.len()
+                ),
+            });
+        }
+        Ok(())
+    }
+
+    /// Values at half/difference angles `hd`: multilinear interpolation of predicted cell values
+    /// with [`AngularGrid::interpolation_stencil`] (as `DATA.sbrdf:MATERIAL` sources do).
+    pub fn eval_half_diff(&self, hd: &HalfDiff, out: &mut [f64]) -> Result<()> {
+        self.check_out(out)?;
+        let stencil = self.pred.inner.grid.interpolation_stencil(hd);
+        out.iter_mut().for_each(|o| *o = 0.0);
+        let mut cell = [0.0f64; 8];
+        let mut heap = Vec::new();
+        let buf: &mut [f64] = if out.len() <= 8 {
+            &mut cell[..out.len()]
+        } else {
+            heap.resize(out.len(), 0.0);
+            &mut heap
+        };
+        for (a, w) in stencil {
+            if w == 0.0 {
+                continue;
+            }
+            self.eval_cell(a, buf)?;
+            for (o, v) in out.iter_mut().zip(buf.iter()) {
+                *o += w * v;
+            }
+        }
+        Ok(())
+    }
+
+    /// Values for the direction pair (wi, wo) (local frame, z = normal); 0 when either
+    /// direction is at or below the horizon or the pair is degenerate.
+    pub fn eval_dirs(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+        match HalfDiff::from_dirs(wi, wo) {
+            Some(hd) if wi[2] > 0.0 && wo[2] > 0.0 => self.eval_half_diff(&hd, out),
+            _ => {
+                self.check_out(out)?;
+                out.iter_mut().for_each(|o| *o = 0.0);
+                Ok(())
+            }
+        }
+    }
+
+    /// The value of one chunk row (N stored values at one index) under this material.
+    #[inline]
+    pub(crate) fn combine_row(&self, row: &[f32]) -> f64 {
+        combine(self.pred.inner.transform, &self.coef, row)
+    }
+}
+
+/// `inverse(sum_i c_i forward(v_i))`.
+#[inline]
+pub(crate) fn combine(t: Transform, c: &[f64], v: &[f32]) -> f64 {
+    match t {
+        Transform::Raw => {
+            let mut acc = 0.0;
+            for (ci, vi) in c.iter().zip(v) {
+                acc += ci * f64::from(*vi);
+            }
+            acc
+        }
+        Transform::Log { offset } => {
+            // Same arithmetic as `Transform::forward` (bit-identical transformed values).
+            let mut acc = 0.0;
+            for (ci, vi) in c.iter().zip(v) {
+                acc += ci * (f64::from(*vi).max(0.0) / offset).ln_1p();
+            }
+            offset * acc.exp_m1()
+        }
+    }
+}
+
+impl BrdfSource for PredictedMaterial {
+    fn channels(&self) -> Channels {
+        self.selection.channels.clone()
+    }
+
+    fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
+        self.eval_dirs(wi, wo, out).map_err(|e| match e {
+            Error::Store(e) => e,
+            other => brdf_io::Error::InvalidArgument {
+                reason: other.to_string(),
+            },
+        })
+    }
+}

@@ -1,0 +1,530 @@
+//! Accuracy and bad-input tests of the prediction service on small synthetic stores.
+#![allow(clippy::needless_range_loop)]
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use brdf_io::store::Store;
+use brdf_io::{AngularGrid, BrdfSource, Channels, StoreOptions};
+use faer::{Mat, Par, Side};
+use gplvm::{FitParams, Model, Transform};
+use predict::evaluate::{EvalOptions, Method, evaluate, leave_one_out, sq_error};
+use predict::{Error, Predictor, PredictorKind};
+
+struct Fixture {
+    _dir: tempfile::TempDir,
+    store: PathBuf,
+    model: PathBuf,
+}
+
+fn grid() -> AngularGrid {
+    AngularGrid::new(8, 8, 16).unwrap()
+}
+
+fn channels() -> Channels {
+    Channels::parse_wavelengths("400:700:50").unwrap()
+}
+
+fn write_store(path: &Path, n: usize, seed: u64, grid: AngularGrid) {
+    let materials = brdf_synth::preset(seed);
+    // Spread the picks over the preset's families.
+    let step = materials.len() / n;
+    let picked: Vec<_> = (0..n).map(|i| materials[i * step].clone()).collect();
+    brdf_synth::write_store(
+        path,
+        &picked,
+        grid,
+        &channels(),
+        StoreOptions::default(),
+        seed,
+        |_| {},
+    )
+    .unwrap();
+}
+
+fn fixture(n: usize, transform: &str) -> Fixture {
+    let dir = tempfile::tempdir().unwrap();
+    let store = dir.path().join("data.sbrdf");
+    write_store(&store, n, 0, grid());
+    let params = FitParams {
+        transform: transform.into(),
+        max_iterations: 300,
+        ..FitParams::default()
+    };
+    let model = gplvm::fit_store(&store, &params.check().unwrap()).unwrap();
+    let model_path = dir.path().join("model.toml");
+    model.save(&model_path).unwrap();
+    Fixture {
+        _dir: dir,
+        store,
+        model: model_path,
+    }
+}
+
+/// Dense solve of a small SPD system by Gaussian elimination with partial pivoting.
+fn dense_solve(a: &Mat<f64>, b: &[f64]) -> Vec<f64> {
+    let n = b.len();
+    let mut m: Vec<Vec<f64>> = (0..n)
+        .map(|i| {
+            let mut r: Vec<f64> = (0..n).map(|j| a[(i, j)]).collect();
+            r.push(b[i]);
+            r
+        })
+        .collect();
+    for k in 0..n {
+        let p = (k..n)
+            .max_by(|&x, &y| m[x][k].abs().total_cmp(&m[y][k].abs()))
+            .unwrap();
+        m.swap(k, p);
+        for i in k + 1..n {
+            let f = m[i][k] / m[k][k];
+            for j in k..=n {
+                m[i][j] -= f * m[k][j];
+            }
+        }
+    }
+    let mut x = vec![0.0; n];
+    for i in (0..n).rev() {
+        let s: f64 = (i + 1..n).map(|j| m[i][j] * x[j]).sum();
+        x[i] = (m[i][n] - s) / m[i][i];
+    }
+    x
+}
+
+fn rel(a: f64, b: f64) -> f64 {
+    (a - b).abs() / a.abs().max(b.abs()).max(1e-300)
+}
+
+#[test]
+fn posterior_mean_and_variance_equal_a_dense_reference() {
+    let f = fixture(10, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    let model = pred.model().clone();
+    let n = pred.n_materials();
+    let h = &model.hyperparameters;
+    let (s2, l, mu) = (h.signal_variance, h.length_scale[0], h.noise);
+    let xs = model.latent_matrix();
+    let k = |a: &[f64], b: &[f64]| {
+        let r2: f64 = a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum();
+        s2 * (-0.5 * r2 / (l * l)).exp()
+    };
+    let row = |i: usize| -> Vec<f64> { (0..xs.ncols()).map(|j| xs[(i, j)]).collect() };
+    let kk = Mat::from_fn(n, n, |i, j| {
+        k(&row(i), &row(j)) + if i == j { mu } else { 0.0 }
+    });
+    // A point between materials 2 and 5.
+    let x: Vec<f64> = row(2)
+        .iter()
+        .zip(row(5))
+        .map(|(a, b)| 0.6 * a + 0.4 * b)
+        .collect();
+    let kstar: Vec<f64> = (0..n).map(|i| k(&row(i), &x)).collect();
+    let w_ref = dense_solve(&kk, &kstar);
+    let w = pred.gp_weights(&x, PredictorKind::Smooth).unwrap();
+    for i in 0..n {
+        assert!(
+            (w[i] - w_ref[i]).abs() < 1e-7 * (1.0 + w_ref[i].abs()),
+            "w[{i}] = {} vs {}",
+            w[i],
+            w_ref[i]
+        );
+    }
+    let var_ref = s2 + mu - kstar.iter().zip(&w_ref).map(|(a, b)| a * b).sum::<f64>();
+    let var = pred.variance(&x).unwrap();
+    assert!(
+        (var - var_ref).abs() < 1e-9 * (1.0 + var_ref),
+        "{var} vs {var_ref}"
+    );
+    assert!(var > 0.0 && var < s2 + mu);
+    assert_eq!(
+        pred.variance_transformed(&x).unwrap(),
+        var * model.data_scale
+    );
+
+    // Posterior mean y* = m + sum w_i (y_i - m) in the transformed space, then the inverse.
+    let material = pred.predict(&x, PredictorKind::Smooth).unwrap();
+    let store = Store::open(&f.store).unwrap();
+    let t = model.transform;
+    let mut vals = vec![0f32; n];
+    let nc = store.channels().len();
+    let mask = store.validity_mask().to_vec();
+    let mut checked = 0;
+    for d in (0..store.d()).step_by(37) {
+        if !mask[d / nc] {
+            continue;
+        }
+        store.values_at(d, &mut vals).unwrap();
+        let y: Vec<f64> = vals.iter().map(|v| t.forward(f64::from(*v))).collect();
+        let m = y.iter().sum::<f64>() / n as f64;
+        let ystar = m + (0..n).map(|i| w_ref[i] * (y[i] - m)).sum::<f64>();
+        let want = t.inverse(ystar);
+        let got = material.value_at(d).unwrap();
+        assert!(
+            (got - want).abs() <= 1e-7 * want.abs() + 1e-12,
+            "d = {d}: {got} vs {want}"
+        );
+        checked += 1;
+    }
+    assert!(checked > 50);
+}
+
+#[test]
+fn lazy_lookups_equal_the_materialised_values() {
+    let f = fixture(8, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    let x = vec![0.3, -0.2];
+    let material = pred.predict(&x, PredictorKind::Exact).unwrap();
+    let out = f._dir.path().join("pred.npy");
+    let report = material.materialize(&out, |_, _| {}).unwrap();
+    let arr = brdf_io::npy::read(&out).unwrap();
+    let values = arr.to_f32();
+    assert_eq!(values.len(), pred.store().d());
+    assert_eq!(report.values, values.len());
+    let mut nonzero = 0;
+    for (d, v) in values.iter().enumerate() {
+        let lazy = material.value_at(d).unwrap() as f32;
+        assert_eq!(lazy.to_bits(), v.to_bits(), "d = {d}");
+        nonzero += usize::from(*v != 0.0);
+    }
+    assert!(nonzero > values.len() / 3);
+
+    // A wavelength subset (interpolated) to .sbrdf equals eval_cell.
+    let sub = material
+        .with_wavelengths(&Channels::parse_wavelengths("425,500,610").unwrap())
+        .unwrap();
+    let out = f._dir.path().join("pred.sbrdf");
+    sub.materialize(&out, |_, _| {}).unwrap();
+    let written = Store::open(&out).unwrap();
+    assert_eq!(written.n_materials(), 1);
+    assert_eq!(written.channels().len(), 3);
+    let mut row = vec![0f32; written.d()];
+    written.material_row(0, 0..written.d(), &mut row).unwrap();
+    let mut cell = [0.0; 3];
+    for a in 0..pred.grid().len() {
+        sub.eval_cell(a, &mut cell).unwrap();
+        for c in 0..3 {
+            assert_eq!((cell[c] as f32).to_bits(), row[a * 3 + c].to_bits());
+        }
+        // 425 nm is halfway between the stored 400 and 450 nm.
+        let (lo, hi) = (
+            material.value_at(a * 7).unwrap(),
+            material.value_at(a * 7 + 1).unwrap(),
+        );
+        assert!((cell[0] - 0.5 * (lo + hi)).abs() <= 1e-12 * (1.0 + lo.abs() + hi.abs()));
+    }
+
+    // (wi, wo) at a bin centre equals the cell; below the horizon gives 0.
+    let g = pred.grid();
+    let a = g.index(3, 2, 5);
+    let (wi, wo) = g.bin_centre(3, 2, 5).to_dirs();
+    let mut by_dirs = vec![0.0; 7];
+    let mut by_cell = vec![0.0; 7];
+    BrdfSource::eval(&material, wi, wo, &mut by_dirs).unwrap();
+    material.eval_cell(a, &mut by_cell).unwrap();
+    for c in 0..7 {
+        assert!((by_dirs[c] - by_cell[c]).abs() <= 1e-9 * by_cell[c].abs().max(1e-12));
+    }
+    BrdfSource::eval(&material, [0.0, 0.0, 1.0], [0.0, 0.6, -0.8], &mut by_dirs).unwrap();
+    assert!(by_dirs.iter().all(|v| *v == 0.0));
+}
+
+#[test]
+fn exact_predictor_reproduces_training_materials_and_lerp_is_linear() {
+    let f = fixture(8, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    let ev = evaluate(&pred, &EvalOptions::default(), &|_, _, _| {}).unwrap();
+    let store = pred.store();
+    let typical = (store.header().stats.sum_sq / store.d() as f64).sqrt();
+    for r in &ev.reconstruction {
+        assert!(
+            r.exact_rmse < 1e-6 * typical,
+            "{}: {} (typical value {typical})",
+            r.name,
+            r.exact_rmse
+        );
+        // The smooth predictor shrinks towards the mean: a visible but small error.
+        assert!(r.smooth_rmse > r.exact_rmse, "{}", r.name);
+    }
+    // Direct lookups at a training point equal the stored values to f32 precision.
+    let name = &pred.model().materials[3].name;
+    let m = pred
+        .predict(
+            &pred.model().materials[3].coords.clone(),
+            PredictorKind::Exact,
+        )
+        .unwrap();
+    let mut row = vec![0f32; store.d()];
+    store.material_row(3, 0..store.d(), &mut row).unwrap();
+    for d in (0..store.d()).step_by(11) {
+        let v = m.value_at(d).unwrap();
+        assert!(
+            (v - f64::from(row[d])).abs() <= 1e-5 * f64::from(row[d]).abs() + 1e-9,
+            "{name} d = {d}: {v} vs {}",
+            row[d]
+        );
+    }
+    // lerp(a, b, t) in the transformed space.
+    let (a, b) = (
+        pred.model().materials[1].name.clone(),
+        pred.model().materials[6].name.clone(),
+    );
+    let l = pred.lerp(&a, &b, 0.25).unwrap();
+    let t = pred.transform();
+    let mut vals = vec![0f32; pred.n_materials()];
+    for d in (0..store.d()).step_by(53) {
+        store.values_at(d, &mut vals).unwrap();
+        let want =
+            t.inverse(0.25 * t.forward(f64::from(vals[1])) + 0.75 * t.forward(f64::from(vals[6])));
+        let got = l.value_at(d).unwrap();
+        assert!(
+            (got - want).abs() <= 1e-12 * (1.0 + want.abs()),
+            "{got} vs {want}"
+        );
+    }
+}
+
+fn dense_data(n: usize, d: usize) -> Mat<f64> {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    // Materials on a low-dimensional manifold plus noise, so the methods differ.
+    let basis: Vec<Vec<f64>> = (0..3)
+        .map(|_| (0..d).map(|_| rng.random_range(-1.0..1.0)).collect())
+        .collect();
+    Mat::from_fn(n, d, |i, j| {
+        let t = i as f64 / n as f64 * 3.0;
+        2.0 + t.sin() * basis[0][j]
+            + t.cos() * basis[1][j]
+            + 0.3 * t * basis[2][j]
+            + 0.05 * ((i * 31 + j * 17) % 13) as f64 / 13.0
+    })
+}
+
+#[test]
+fn leave_one_out_via_the_gram_matrix_equals_brute_force() {
+    let (n, d) = (9, 40);
+    let y = dense_data(n, d);
+    let g = gp_core::gram_from_data(y.as_ref(), Par::Seq).unwrap();
+    let config = FitParams {
+        transform: "raw".into(),
+        max_iterations: 300,
+        ..FitParams::default()
+    }
+    .check()
+    .unwrap();
+    let q = config.params.latent_dim;
+    let dist2 = |a: &[f64], i: usize| -> f64 { (0..d).map(|j| (a[j] - y[(i, j)]).powi(2)).sum() };
+    for h in [0, 4, 8] {
+        let loo = leave_one_out(g.as_ref(), d, &config, h, 3, None).unwrap();
+        let others: Vec<usize> = (0..n).filter(|&i| i != h).collect();
+        let combine = |c: &[f64]| -> Vec<f64> {
+            (0..d)
+                .map(|j| (0..n).map(|i| c[i] * y[(i, j)]).sum())
+                .collect()
+        };
+        for m in &loo.methods {
+            assert_eq!(
+                m.coefficients[h], 0.0,
+                "{:?} uses the held-out row",
+                m.method
+            );
+            let ystar = combine(&m.coefficients);
+            let brute = dist2(&ystar, h);
+            assert!(
+                rel(brute, m.sq_error) < 1e-8,
+                "{:?}: Gram {} vs dense {brute}",
+                m.method,
+                m.sq_error
+            );
+            assert!((m.sq_error - sq_error(g.as_ref(), h, &m.coefficients)).abs() < 1e-12);
+        }
+        let by = |k: Method| loo.methods.iter().find(|m| m.method == k).unwrap();
+        // Nearest: brute-force argmin of the dense distances.
+        let yh: Vec<f64> = (0..d).map(|j| y[(h, j)]).collect();
+        let best_single = others
+            .iter()
+            .map(|&i| dist2(&yh, i))
+            .fold(f64::INFINITY, f64::min);
+        assert!(rel(best_single, by(Method::Nearest).sq_error) < 1e-10);
+        // Best pair: dense search over pairs and a on a fine grid is never better.
+        let mut grid_best = f64::INFINITY;
+        for (x, &i) in others.iter().enumerate() {
+            for &j in &others[x + 1..] {
+                for k in 0..=200 {
+                    let a = k as f64 / 200.0;
+                    let ys: Vec<f64> = (0..d)
+                        .map(|c| a * y[(i, c)] + (1.0 - a) * y[(j, c)])
+                        .collect();
+                    grid_best = grid_best.min(dist2(&ys, h));
+                }
+            }
+        }
+        let lb = by(Method::LerpBest).sq_error;
+        assert!(
+            lb <= grid_best + 1e-9 && grid_best <= lb * 1.01 + 1e-9,
+            "{lb} vs {grid_best}"
+        );
+        assert!(lb <= by(Method::LerpLatent).sq_error + 1e-12);
+        assert!(lb <= by(Method::Nearest).sq_error + 1e-12);
+        // PCA: dense eigen-decomposition of the others' D x D covariance, projection of y_h.
+        let mean: Vec<f64> = (0..d)
+            .map(|j| others.iter().map(|&i| y[(i, j)]).sum::<f64>() / others.len() as f64)
+            .collect();
+        let yc = Mat::from_fn(others.len(), d, |r, j| y[(others[r], j)] - mean[j]);
+        let cov = yc.transpose() * &yc;
+        let eig = cov.self_adjoint_eigen(Side::Lower).unwrap();
+        let u = eig.U();
+        let mut proj = mean.clone();
+        for k in 0..q {
+            let col = d - 1 - k;
+            let dot: f64 = (0..d).map(|j| u[(j, col)] * (yh[j] - mean[j])).sum();
+            for j in 0..d {
+                proj[j] += dot * u[(j, col)];
+            }
+        }
+        let pca = combine(&by(Method::Pca).coefficients);
+        for j in 0..d {
+            assert!(
+                (pca[j] - proj[j]).abs() < 1e-8,
+                "PCA j = {j}: {} vs {}",
+                pca[j],
+                proj[j]
+            );
+        }
+        // GP: the coefficients equal the dense posterior mean over the others at the GP point,
+        // with the model refitted on the others' dense data.
+        let y_o = Mat::from_fn(others.len(), d, |r, j| y[(others[r], j)]);
+        let g_o = gp_core::gram_from_data(y_o.as_ref(), Par::Seq).unwrap();
+        let fit = gplvm::fit_gram(g_o.as_ref(), d, &config).unwrap();
+        let gp = gp_core::GpRegression::new(fit.x.as_ref(), fit.params, Par::Seq).unwrap();
+        let w = gp
+            .weights(&loo.gp_point, gp_core::Predictor::Smooth)
+            .unwrap();
+        let mean_o = gp_core::column_mean(y_o.as_ref());
+        let dense = gp_core::posterior_mean(&w, y_o.as_ref(), &mean_o).unwrap();
+        let via_c = combine(&by(Method::Gp).coefficients);
+        for j in 0..d {
+            assert!((dense[j] - via_c[j]).abs() < 1e-9 * (1.0 + dense[j].abs()));
+        }
+        // The GP's point is a local minimum: nudging it does not reduce the error.
+        let e0 = dist2(&dense, h);
+        for axis in 0..q {
+            for s in [-1e-3, 1e-3] {
+                let mut x = loo.gp_point.clone();
+                x[axis] += s;
+                let w = gp.weights(&x, gp_core::Predictor::Smooth).unwrap();
+                let p = gp_core::posterior_mean(&w, y_o.as_ref(), &mean_o).unwrap();
+                assert!(
+                    dist2(&p, h) >= e0 * (1.0 - 1e-6),
+                    "not a minimum along {axis}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn brdf_space_errors_equal_model_space_errors_for_raw_data() {
+    let f = fixture(6, "raw");
+    let pred = Predictor::open(&f.model).unwrap();
+    let ev = evaluate(
+        &pred,
+        &EvalOptions {
+            loo: true,
+            starts: 2,
+            warm_start: true,
+        },
+        &|_, _, _| {},
+    )
+    .unwrap();
+    let loo = ev.loo.as_ref().unwrap();
+    assert_eq!(loo.len(), 6);
+    for row in loo {
+        assert_eq!(row.methods.len(), Method::ALL.len());
+        for m in &row.methods {
+            // Raw transform: the transformed space is BRDF space; the Gram formula and the
+            // streaming pass agree up to cancellation in G_hh - 2 c^T G_h + c^T G c.
+            assert!(
+                (m.brdf_rmse - m.model_rmse).abs() <= 1e-5 * m.brdf_rmse.max(1e-3),
+                "{} {:?}: {} vs {}",
+                row.name,
+                m.method,
+                m.brdf_rmse,
+                m.model_rmse
+            );
+        }
+    }
+    assert_eq!(ev.summary.len(), 2 + Method::ALL.len());
+}
+
+#[test]
+fn bad_inputs_give_clear_errors() {
+    let f = fixture(6, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    let e = pred
+        .predict(&[f64::NAN, 0.0], PredictorKind::Exact)
+        .unwrap_err();
+    assert!(matches!(e, Error::InvalidPoint { .. }), "{e}");
+    assert!(e.to_string().contains("finite"));
+    let e = pred
+        .predict(&[0.0, 0.0, 1.0], PredictorKind::Exact)
+        .unwrap_err();
+    assert!(e.to_string().contains("2 dimensions"), "{e}");
+    let m = pred.predict(&[0.0, 0.0], PredictorKind::Exact).unwrap();
+    let e = m
+        .with_wavelengths(&Channels::parse_wavelengths("380,500").unwrap())
+        .unwrap_err();
+    assert!(matches!(e, Error::WavelengthOutOfRange { .. }), "{e}");
+    assert!(
+        e.to_string().contains("380 nm") && e.to_string().contains("400..=700"),
+        "{e}"
+    );
+    let e = m.with_wavelengths(&Channels::Rgb).unwrap_err();
+    assert!(e.to_string().contains("spectral"), "{e}");
+    let e = m
+        .materialize(&f._dir.path().join("x.binary"), |_, _| {})
+        .unwrap_err();
+    assert!(e.to_string().contains("RGB"), "{e}");
+    assert!(!f._dir.path().join("x.binary").exists());
+    let e = m
+        .materialize(&f._dir.path().join("x.png"), |_, _| {})
+        .unwrap_err();
+    assert!(e.to_string().contains(".sbrdf"), "{e}");
+    assert!(pred.lerp("nope", "also-nope", 0.5).is_err());
+
+    // The dataset moved.
+    let moved = f._dir.path().join("moved.sbrdf");
+    std::fs::rename(&f.store, &moved).unwrap();
+    let e = Predictor::open(&f.model).unwrap_err();
+    assert!(matches!(e, Error::DatasetMissing { .. }), "{e}");
+    let msg = e.to_string();
+    assert!(
+        msg.contains("model.toml") && msg.contains("data.sbrdf"),
+        "{msg}"
+    );
+    // ... and can be passed explicitly.
+    Predictor::open_with_dataset(&f.model, Some(&moved)).unwrap();
+
+    // Same path, different content: checksum mismatch.
+    write_store(&f.store, 6, 5, grid());
+    let e = Predictor::open(&f.model).unwrap_err();
+    assert!(matches!(e, Error::DatasetMismatch { .. }), "{e}");
+    assert!(e.to_string().contains("checksum"), "{e}");
+
+    // A store on another grid (checksum patched to get past the first check).
+    let other = f._dir.path().join("other.sbrdf");
+    write_store(&other, 6, 0, AngularGrid::new(4, 8, 16).unwrap());
+    let store = Arc::new(Store::open(&other).unwrap());
+    let mut model = Model::load(&f.model).unwrap();
+    let h = store.header();
+    model.dataset.checksum = format!("{}:{}", h.checksum.algorithm, h.checksum.value);
+    let e = Predictor::with_store(model.clone(), &f.model, store.clone()).unwrap_err();
+    assert!(e.to_string().contains("grid differs"), "{e}");
+
+    // A NaN latent point inside a model.
+    let store = Arc::new(Store::open(&moved).unwrap());
+    let mut model = Model::load(&f.model).unwrap();
+    model.materials[2].coords[0] = f64::NAN;
+    let e = Predictor::with_store(model, &f.model, store).unwrap_err();
+    assert!(matches!(e, Error::InvalidPoint { .. }), "{e}");
+    let _ = Transform::Raw;
+}

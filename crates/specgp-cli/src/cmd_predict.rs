@@ -1,0 +1,249 @@
+//! `specgp predict` (materialise a predicted material) and `specgp evaluate` (reconstruction and
+//! leave-one-out errors), plus the `MODEL.toml@X,Y` source of `specgp sample`.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use anyhow::{Context, bail};
+use brdf_io::Channels;
+use indicatif::{ProgressBar, ProgressStyle};
+use predict::evaluate::{EvalOptions, Stage, evaluate as run_evaluation};
+use predict::{PredictedMaterial, Predictor, PredictorKind};
+
+/// Arguments of `specgp predict`.
+#[derive(Debug, clap::Args)]
+pub struct PredictArgs {
+    /// Model file (TOML) written by `specgp fit`.
+    pub model: PathBuf,
+    /// Latent point X,Y[,...] to predict at.
+    #[arg(
+        long,
+        allow_hyphen_values = true,
+        conflicts_with = "lerp",
+        required_unless_present = "lerp"
+    )]
+    pub at: Option<String>,
+    /// The paper's linear interpolation NAME1,NAME2,A: a y1 + (1 - a) y2 of two training
+    /// materials, in the model's transformed space.
+    #[arg(long)]
+    pub lerp: Option<String>,
+    /// Output file: `.sbrdf` (one material), `.npy` (1 x D f32) or `.binary` (MERL, RGB data).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Wavelengths START:END:STEP or a comma list in nm (linear interpolation between stored
+    /// wavelengths; default: the stored ones).
+    #[arg(long)]
+    pub wavelengths: Option<String>,
+    /// Use the exact predictor (the paper's; reproduces training materials; default).
+    #[arg(long, conflicts_with = "smooth")]
+    pub exact: bool,
+    /// Use the smooth predictor (noise-free posterior mean).
+    #[arg(long)]
+    pub smooth: bool,
+    /// Print the predictive variance at the point.
+    #[arg(long)]
+    pub variance: bool,
+    /// Read the dataset from this store instead of the path recorded in the model.
+    #[arg(long)]
+    pub dataset: Option<PathBuf>,
+}
+
+/// Arguments of `specgp evaluate`.
+#[derive(Debug, clap::Args)]
+pub struct EvaluateArgs {
+    /// Model file (TOML) written by `specgp fit`.
+    pub model: PathBuf,
+    /// Also run leave-one-out over every material: GP, nearest material, linear interpolation
+    /// and PCA.
+    #[arg(long)]
+    pub loo: bool,
+    /// Write the full results (per material and summary) as JSON.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Starting points of the latent search per held-out material.
+    #[arg(long, default_value_t = 3)]
+    pub starts: usize,
+    /// Refit each leave-one-out model from the PCA start (a fresh fit) instead of warm-starting
+    /// from the full model's latent points.
+    #[arg(long)]
+    pub cold: bool,
+    /// Read the dataset from this store instead of the path recorded in the model.
+    #[arg(long)]
+    pub dataset: Option<PathBuf>,
+}
+
+/// Parses a latent point `X,Y[,...]`.
+pub fn parse_point(s: &str) -> anyhow::Result<Vec<f64>> {
+    s.split(',')
+        .map(|t| {
+            t.trim()
+                .parse::<f64>()
+                .with_context(|| format!("latent point {s:?}: {t:?} is not a number"))
+        })
+        .collect()
+}
+
+fn bar(len: u64, what: &str) -> ProgressBar {
+    let pb = ProgressBar::new(len);
+    pb.set_style(
+        ProgressStyle::with_template(&format!(
+            "{what} [{{elapsed_precise}}] {{bar:40}} {{pos}}/{{len}} ({{eta}} left)"
+        ))
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    pb
+}
+
+/// Opens `MODEL.toml@X,Y` (exact predictor) as a lazy predicted material, or `None` when `spec`
+/// does not have that form.
+pub fn open_model_source(
+    spec: &str,
+    wavelengths: Option<&Channels>,
+) -> Option<anyhow::Result<PredictedMaterial>> {
+    let (model, point) = spec.rsplit_once('@')?;
+    if !model.ends_with(".toml") {
+        return None;
+    }
+    Some((|| {
+        let x = parse_point(point)?;
+        let pred = Predictor::open(Path::new(model)).with_context(|| format!("opening {model}"))?;
+        let mut m = pred.predict(&x, PredictorKind::Exact)?;
+        if let Some(w) = wavelengths {
+            m = m.with_wavelengths(w)?;
+        }
+        Ok(m)
+    })())
+}
+
+/// Runs `specgp predict`.
+pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
+    let pred = Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
+        .with_context(|| format!("opening model {}", args.model.display()))?;
+    let kind = if args.smooth {
+        PredictorKind::Smooth
+    } else {
+        PredictorKind::Exact
+    };
+    let mut material = match (&args.at, &args.lerp) {
+        (Some(at), _) => {
+            let x = parse_point(at)?;
+            if args.variance {
+                let v = pred.variance(&x)?;
+                println!(
+                    "variance {v:e} (model units: centred transformed data / sqrt(data_scale)); \
+                     {:e} per transformed value (std {:e}, transform {})",
+                    v * pred.model().data_scale,
+                    (v * pred.model().data_scale).sqrt(),
+                    pred.transform()
+                );
+            }
+            pred.predict(&x, kind)?
+        }
+        (None, Some(l)) => {
+            let parts: Vec<&str> = l.split(',').map(str::trim).collect();
+            let [a, b, t] = parts.as_slice() else {
+                bail!("--lerp {l:?}: expected NAME1,NAME2,A");
+            };
+            let t: f64 = t
+                .parse()
+                .with_context(|| format!("--lerp {l:?}: A = {t:?} is not a number"))?;
+            if args.variance {
+                bail!("--variance applies to a latent point (--at), not to --lerp");
+            }
+            pred.lerp(a, b, t)?
+        }
+        (None, None) => bail!("give --at X,Y or --lerp NAME1,NAME2,A"),
+    };
+    if let Some(spec) = &args.wavelengths {
+        material = material.with_wavelengths(&Channels::parse_wavelengths(spec)?)?;
+    }
+    let pb = bar(pred.store().n_chunks() as u64, "predict");
+    let report = material
+        .materialize(&args.out, |done, _| pb.set_position(done as u64))
+        .with_context(|| format!("writing {}", args.out.display()))?;
+    pb.finish_and_clear();
+    println!(
+        "wrote {}: {} ({} values, {} bytes, {:.2} s)",
+        report.path.display(),
+        material.label(),
+        report.values,
+        report.bytes,
+        report.seconds
+    );
+    Ok(())
+}
+
+/// Runs `specgp evaluate`.
+pub fn evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
+    let pred = Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
+        .with_context(|| format!("opening model {}", args.model.display()))?;
+    let options = EvalOptions {
+        loo: args.loo,
+        starts: args.starts,
+        warm_start: !args.cold,
+    };
+    let bars: Mutex<(Option<ProgressBar>, Option<ProgressBar>)> = Mutex::new((None, None));
+    let progress = |stage: Stage, done: usize, total: usize| {
+        let mut b = bars.lock().unwrap_or_else(|p| p.into_inner());
+        let slot = match stage {
+            Stage::Refits => &mut b.0,
+            Stage::Pass => &mut b.1,
+        };
+        let pb = slot.get_or_insert_with(|| {
+            bar(
+                total as u64,
+                match stage {
+                    Stage::Refits => "leave-one-out refits",
+                    Stage::Pass => "error pass",
+                },
+            )
+        });
+        pb.set_position(done as u64);
+        if done == total {
+            pb.finish_and_clear();
+        }
+    };
+    let ev = run_evaluation(&pred, &options, &progress)?;
+    println!(
+        "{} materials, transform {}, q = {}, Eq. 22 RMSE (divided by {} angular cells)",
+        ev.n_materials, ev.transform, ev.latent_dim, ev.n_angles
+    );
+    println!(
+        "{:<24} {:>12} {:>12} {:>12} {:>12} {:>10}",
+        "method", "brdf mean", "brdf median", "model mean", "model median", "gp better"
+    );
+    for s in &ev.summary {
+        println!(
+            "{:<24} {:>12.5e} {:>12.5e} {:>12.5e} {:>12.5e} {:>10}",
+            s.method,
+            s.brdf_mean,
+            s.brdf_median,
+            s.model_mean,
+            s.model_median,
+            s.gp_better
+                .map_or(String::new(), |k| format!("{k}/{}", ev.n_materials))
+        );
+    }
+    if args.loo {
+        println!(
+            "leave-one-out refits and searches {:.2} s, error pass {:.2} s",
+            ev.loo_seconds, ev.pass_seconds
+        );
+    }
+    if let Some(path) = &args.json {
+        let text = serde_json::to_string_pretty(&ev)?;
+        let dir = match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let mut tmp = tempfile::NamedTempFile::new_in(&dir)
+            .with_context(|| format!("creating a temporary file next to {}", path.display()))?;
+        tmp.write_all(text.as_bytes())
+            .and_then(|()| tmp.flush())
+            .with_context(|| format!("writing {}", path.display()))?;
+        tmp.persist(path)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
+}
