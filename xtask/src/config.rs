@@ -1,0 +1,432 @@
+//! Pipeline configs (`configs/NAME.toml`): parsed with unknown keys rejected, then validated by
+//! [`PipelineParams::check`] into a [`PipelineConfig`]. Paths in a config are relative to the
+//! project root.
+
+use std::path::{Path, PathBuf};
+
+use brdf_io::store::Dtype;
+use brdf_io::{AngularGrid, Channels};
+use gplvm::{FitConfig, FitParams};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+
+/// A pipeline config as written in TOML, before validation.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct PipelineParams {
+    /// Short name (the default output directory is `out/NAME`).
+    pub name: String,
+    /// One line saying what the run is for (quoted in the report).
+    #[serde(default)]
+    pub description: String,
+    /// Where the materials come from.
+    pub data: DataParams,
+    /// A fit config file (`configs/fit/*.toml`); exclusive with `[fit]`.
+    #[serde(default)]
+    pub fit_config: Option<PathBuf>,
+    /// Fit parameters inline (the keys of `gplvm::FitParams`); exclusive with `fit_config`.
+    #[serde(default)]
+    pub fit: Option<FitParams>,
+    /// Latent points to predict at.
+    #[serde(default)]
+    pub predict: PredictParams,
+    /// Error measures.
+    #[serde(default)]
+    pub evaluate: EvaluateParams,
+    /// Figures.
+    #[serde(default)]
+    pub render: RenderParams,
+}
+
+/// The `[data]` table.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct DataParams {
+    /// `synth`, `nbrdf`, `merl` or `rgl`.
+    pub kind: String,
+    /// Angular resolution `TH,TD,PD`.
+    pub grid: String,
+    /// Wavelengths `START:END:STEP` or a comma list (synth; rgl: default the files' own).
+    #[serde(default)]
+    pub wavelengths: Option<String>,
+    /// Seed of the synthetic preset (synth only).
+    #[serde(default)]
+    pub seed: Option<u64>,
+    /// Stored value type, `f32` or `f16`.
+    #[serde(default)]
+    pub dtype: Option<String>,
+    /// Input files (merl, rgl).
+    #[serde(default)]
+    pub files: Vec<PathBuf>,
+    /// The `(N, 675)` weights `.npy` (nbrdf).
+    #[serde(default)]
+    pub weights: Option<PathBuf>,
+    /// Material names, one per weights row (nbrdf).
+    #[serde(default)]
+    pub names: Option<PathBuf>,
+    /// Only these materials (synth and nbrdf; default all).
+    #[serde(default)]
+    pub only: Option<Vec<String>>,
+}
+
+/// The `[predict]` table.
+#[derive(Debug, Clone, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct PredictParams {
+    /// Latent points, each of the model's latent dimension.
+    #[serde(default)]
+    pub points: Vec<Vec<f64>>,
+    /// Pairs of material names: predict at the midpoint of their latent points.
+    #[serde(default)]
+    pub midpoints: Vec<[String; 2]>,
+    /// `exact` (reproduces training materials) or `smooth` (no noise term in k*).
+    #[serde(default)]
+    pub predictor: Option<String>,
+    /// Materialise every prediction to `.npy` (timed).
+    #[serde(default)]
+    pub materialize: bool,
+}
+
+/// The `[evaluate]` table.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct EvaluateParams {
+    /// Leave-one-out errors (GP, linear interpolation, PCA).
+    #[serde(default = "yes")]
+    pub loo: bool,
+}
+
+impl Default for EvaluateParams {
+    fn default() -> Self {
+        Self { loo: true }
+    }
+}
+
+/// The `[render]` table.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RenderParams {
+    /// Render figures at all.
+    #[serde(default = "yes")]
+    pub enabled: bool,
+    /// Sphere size in pixels.
+    #[serde(default = "default_size")]
+    pub size: u32,
+    /// At most this many training materials in the comparison sheet.
+    #[serde(default = "default_sheet")]
+    pub sheet_materials: usize,
+}
+
+impl Default for RenderParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            size: default_size(),
+            sheet_materials: default_sheet(),
+        }
+    }
+}
+
+fn yes() -> bool {
+    true
+}
+fn default_size() -> u32 {
+    128
+}
+fn default_sheet() -> usize {
+    8
+}
+
+/// Where the materials come from (validated).
+#[derive(Debug, Clone, PartialEq)]
+pub enum DataSource {
+    /// The embedded synthetic preset (brdf-synth).
+    Synth {
+        /// Wavelength axis.
+        channels: Channels,
+        /// Preset seed.
+        seed: u64,
+        /// Only these preset materials (all when `None`).
+        only: Option<Vec<String>>,
+    },
+    /// Neural-BRDF networks evaluated on the grid.
+    Nbrdf {
+        /// Weights `.npy`.
+        weights: PathBuf,
+        /// Names file.
+        names: PathBuf,
+        /// Only these materials.
+        only: Option<Vec<String>>,
+    },
+    /// MERL `.binary` files.
+    Merl {
+        /// The files.
+        files: Vec<PathBuf>,
+    },
+    /// RGL `.bsdf` files.
+    Rgl {
+        /// The files.
+        files: Vec<PathBuf>,
+        /// Wavelengths (the first file's own channels when `None`).
+        channels: Option<Channels>,
+    },
+}
+
+impl DataSource {
+    /// `synth`, `nbrdf`, `merl` or `rgl`.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Self::Synth { .. } => "synth",
+            Self::Nbrdf { .. } => "nbrdf",
+            Self::Merl { .. } => "merl",
+            Self::Rgl { .. } => "rgl",
+        }
+    }
+}
+
+/// Validated data settings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DataConfig {
+    /// The source.
+    pub source: DataSource,
+    /// Angular grid.
+    pub grid: AngularGrid,
+    /// Stored value type.
+    pub dtype: Dtype,
+}
+
+/// Which GP predictor to use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PredictorChoice {
+    /// k* includes the noise term at training points: training materials are reproduced.
+    Exact,
+    /// k* without the noise term.
+    Smooth,
+}
+
+/// Validated prediction settings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PredictConfig {
+    /// Explicit latent points.
+    pub points: Vec<Vec<f64>>,
+    /// Midpoints of pairs of named materials.
+    pub midpoints: Vec<[String; 2]>,
+    /// The predictor.
+    pub predictor: PredictorChoice,
+    /// Materialise every prediction.
+    pub materialize: bool,
+}
+
+/// A validated pipeline config.
+#[derive(Debug, Clone)]
+pub struct PipelineConfig {
+    /// The config file it came from.
+    pub path: PathBuf,
+    /// The parameters as written (recorded in `results.json`).
+    pub params: PipelineParams,
+    /// Data settings.
+    pub data: DataConfig,
+    /// Fit settings.
+    pub fit: FitConfig,
+    /// Where the fit settings came from (a file, `[fit]` or the defaults).
+    pub fit_source: String,
+    /// Prediction settings.
+    pub predict: PredictConfig,
+}
+
+impl PipelineConfig {
+    /// Reads and validates `path`; relative paths inside are resolved against `root`.
+    pub fn load(path: &Path, root: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let params: PipelineParams = toml::from_str(&text).map_err(|e| Error::Config {
+            path: path.to_owned(),
+            reason: e.to_string(),
+        })?;
+        params.check(path, root)
+    }
+}
+
+impl PipelineParams {
+    /// Validates every value; `path` names the config in errors, `root` anchors its paths.
+    pub fn check(self, path: &Path, root: &Path) -> Result<PipelineConfig> {
+        let bad = |reason: String| Error::Config {
+            path: path.to_owned(),
+            reason,
+        };
+        if self.name.is_empty()
+            || !self
+                .name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+        {
+            return Err(bad(format!(
+                "name must be non-empty ASCII letters, digits, '-' or '_', got {:?}",
+                self.name
+            )));
+        }
+        let d = &self.data;
+        let grid: AngularGrid = d
+            .grid
+            .parse()
+            .map_err(|e| bad(format!("data.grid {:?}: {e}", d.grid)))?;
+        let dtype: Dtype = match &d.dtype {
+            None => Dtype::F32,
+            Some(s) => s
+                .parse()
+                .map_err(|e| bad(format!("data.dtype {s:?}: {e}")))?,
+        };
+        let wavelengths = |spec: &str| {
+            Channels::parse_wavelengths(spec)
+                .map_err(|e| bad(format!("data.wavelengths {spec:?}: {e}")))
+        };
+        let resolve = |p: &Path| root.join(p);
+        let not_for = |key: &str, present: bool| {
+            if present {
+                Err(bad(format!("data.{key} is not used by kind {:?}", d.kind)))
+            } else {
+                Ok(())
+            }
+        };
+        let source = match d.kind.as_str() {
+            "synth" => {
+                not_for("files", !d.files.is_empty())?;
+                not_for("weights", d.weights.is_some())?;
+                not_for("names", d.names.is_some())?;
+                let spec = d
+                    .wavelengths
+                    .as_deref()
+                    .unwrap_or(brdf_synth::DEFAULT_WAVELENGTHS);
+                if let Some(only) = &d.only {
+                    let names: Vec<String> =
+                        brdf_synth::preset(0).into_iter().map(|m| m.name).collect();
+                    if let Some(missing) = only.iter().find(|n| !names.contains(n)) {
+                        return Err(bad(format!(
+                            "data.only: no preset material named {missing:?}"
+                        )));
+                    }
+                    if only.len() < 3 {
+                        return Err(bad("data.only needs at least 3 materials".into()));
+                    }
+                }
+                DataSource::Synth {
+                    channels: wavelengths(spec)?,
+                    seed: d.seed.unwrap_or(0),
+                    only: d.only.clone(),
+                }
+            }
+            "nbrdf" => {
+                not_for("files", !d.files.is_empty())?;
+                not_for("wavelengths", d.wavelengths.is_some())?;
+                not_for("seed", d.seed.is_some())?;
+                let weights = d
+                    .weights
+                    .as_deref()
+                    .ok_or_else(|| bad("data.weights is required for kind \"nbrdf\"".into()))?;
+                let names = d
+                    .names
+                    .as_deref()
+                    .ok_or_else(|| bad("data.names is required for kind \"nbrdf\"".into()))?;
+                DataSource::Nbrdf {
+                    weights: resolve(weights),
+                    names: resolve(names),
+                    only: d.only.clone(),
+                }
+            }
+            "merl" | "rgl" => {
+                not_for("weights", d.weights.is_some())?;
+                not_for("names", d.names.is_some())?;
+                not_for("seed", d.seed.is_some())?;
+                not_for("only", d.only.is_some())?;
+                if d.files.len() < 3 {
+                    return Err(bad(format!(
+                        "data.files must list at least 3 files for kind {:?}, got {}",
+                        d.kind,
+                        d.files.len()
+                    )));
+                }
+                let files = d.files.iter().map(|f| resolve(f)).collect();
+                if d.kind == "merl" {
+                    not_for("wavelengths", d.wavelengths.is_some())?;
+                    DataSource::Merl { files }
+                } else {
+                    DataSource::Rgl {
+                        files,
+                        channels: d.wavelengths.as_deref().map(wavelengths).transpose()?,
+                    }
+                }
+            }
+            other => {
+                return Err(bad(format!(
+                    "data.kind {other:?}: expected synth, nbrdf, merl or rgl"
+                )));
+            }
+        };
+
+        let (fit_params, fit_source) = match (&self.fit_config, &self.fit) {
+            (Some(_), Some(_)) => {
+                return Err(bad(
+                    "give either fit_config = \"FILE\" or a [fit] table, not both".into(),
+                ));
+            }
+            (Some(file), None) => {
+                let p =
+                    FitParams::from_toml_file(&resolve(file)).map_err(|e| bad(e.to_string()))?;
+                (p, file.display().to_string())
+            }
+            (None, Some(p)) => (p.clone(), "[fit] table".to_string()),
+            (None, None) => (FitParams::default(), "FitParams::default()".to_string()),
+        };
+        let fit = fit_params
+            .check()
+            .map_err(|e| bad(format!("fit ({fit_source}): {e}")))?;
+        let q = fit.params.latent_dim;
+
+        let p = &self.predict;
+        for (i, x) in p.points.iter().enumerate() {
+            if x.len() != q {
+                return Err(bad(format!(
+                    "predict.points[{i}] has {} coordinates, the latent dimension is {q}",
+                    x.len()
+                )));
+            }
+            if x.iter().any(|v| !v.is_finite()) {
+                return Err(bad(format!("predict.points[{i}] is not finite: {x:?}")));
+            }
+        }
+        let predictor = match p.predictor.as_deref() {
+            None | Some("exact") => PredictorChoice::Exact,
+            Some("smooth") => PredictorChoice::Smooth,
+            Some(other) => {
+                return Err(bad(format!(
+                    "predict.predictor {other:?}: expected exact or smooth"
+                )));
+            }
+        };
+        if self.render.size < 16 || self.render.size > 2048 {
+            return Err(bad(format!(
+                "render.size must be in 16..=2048, got {}",
+                self.render.size
+            )));
+        }
+        let predict = PredictConfig {
+            points: p.points.clone(),
+            midpoints: p.midpoints.clone(),
+            predictor,
+            materialize: p.materialize,
+        };
+        Ok(PipelineConfig {
+            path: path.to_owned(),
+            data: DataConfig {
+                source,
+                grid,
+                dtype,
+            },
+            fit,
+            fit_source,
+            predict,
+            params: self,
+        })
+    }
+}

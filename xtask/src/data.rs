@@ -1,0 +1,156 @@
+//! The data stage: a `.sbrdf` store from the synthetic preset or imported files, through the
+//! library crates (brdf-synth, brdf-io) exactly as `specgp synth` / `specgp import` do.
+
+use std::path::Path;
+use std::time::Instant;
+
+use brdf_io::store::Compression;
+use brdf_io::{Channels, ImportReport, StoreInfo, StoreOptions, StoreWriter};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::config::{DataConfig, DataSource};
+use crate::error::{Error, Result};
+
+/// A progress bar on stderr (hidden when stderr is not a terminal, e.g. in tests).
+pub fn bar(len: u64, what: &str) -> ProgressBar {
+    let pb = ProgressBar::new(len);
+    pb.set_style(
+        ProgressStyle::with_template(&format!(
+            "{what} [{{elapsed_precise}}] {{bar:40}} {{pos}}/{{len}} {{msg}}"
+        ))
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    pb
+}
+
+/// Writes the dataset of `config` to the store `out`; returns the import report (empty for
+/// synthetic data) and the seconds taken.
+pub fn build_store(config: &DataConfig, out: &Path) -> Result<(ImportReport, f64)> {
+    let start = Instant::now();
+    let options = StoreOptions {
+        dtype: config.dtype,
+        compression: Compression::None,
+        ..StoreOptions::default()
+    };
+    let err = |e: &dyn std::fmt::Display| Error::stage("data", out, e);
+    let report = match &config.source {
+        DataSource::Synth {
+            channels,
+            seed,
+            only,
+        } => {
+            let mut materials = brdf_synth::preset(*seed);
+            if let Some(only) = only {
+                materials.retain(|m| only.contains(&m.name));
+            }
+            let pb = bar(config.grid.len() as u64, "synth");
+            brdf_synth::write_store(
+                out,
+                &materials,
+                config.grid,
+                channels,
+                options,
+                *seed,
+                |done| pb.set_position(done as u64),
+            )
+            .map_err(|e| err(&e))?;
+            pb.finish_and_clear();
+            ImportReport::new()
+        }
+        DataSource::Nbrdf {
+            weights,
+            names,
+            only,
+        } => {
+            let set = brdf_io::nbrdf::NbrdfSet::open(weights, names)
+                .map_err(|e| Error::stage("data", weights, e))?;
+            let rows: Vec<usize> = match only {
+                Some(list) => list
+                    .iter()
+                    .map(|n| {
+                        set.find(n.trim()).ok_or_else(|| {
+                            Error::stage("data", names, format!("no material named {n:?}"))
+                        })
+                    })
+                    .collect::<Result<_>>()?,
+                None => (0..set.len()).collect(),
+            };
+            import_each(out, config, Channels::Rgb, options, rows.len(), |i| {
+                let net = set
+                    .material(rows[i])
+                    .map_err(|e| Error::stage("data", weights, e))?;
+                let (values, report) = net
+                    .resample_with(&config.grid, brdf_io::nbrdf::NbrdfOptions::default())
+                    .map_err(|e| Error::stage("data", weights, e))?;
+                let source = format!("{} row {}", weights.display(), rows[i]);
+                Ok((net.name().to_owned(), source, values, report))
+            })?
+        }
+        DataSource::Merl { files } => {
+            import_each(out, config, Channels::Rgb, options, files.len(), |i| {
+                let file = &files[i];
+                let brdf =
+                    brdf_io::merl::read_merl(file).map_err(|e| Error::stage("data", file, e))?;
+                let (values, report) =
+                    brdf.resample(&config.grid, brdf_io::merl::Resampling::Average);
+                Ok((stem(file), file.display().to_string(), values, report))
+            })?
+        }
+        DataSource::Rgl { files, channels } => {
+            use brdf_io::rgl::RglBsdf;
+            let channels = match channels {
+                Some(c) => c.clone(),
+                None => RglBsdf::open(&files[0])
+                    .map_err(|e| Error::stage("data", &files[0], e))?
+                    .native_channels()
+                    .clone(),
+            };
+            import_each(out, config, channels.clone(), options, files.len(), |i| {
+                let file = &files[i];
+                let (values, report) = RglBsdf::open(file)
+                    .and_then(|b| b.resample(&config.grid, &channels))
+                    .map_err(|e| Error::stage("data", file, e))?;
+                Ok((stem(file), file.display().to_string(), values, report))
+            })?
+        }
+    };
+    Ok((report, start.elapsed().as_secs_f64()))
+}
+
+type Loaded = (String, String, Vec<f32>, ImportReport);
+
+fn import_each(
+    out: &Path,
+    config: &DataConfig,
+    channels: Channels,
+    options: StoreOptions,
+    count: usize,
+    mut load: impl FnMut(usize) -> Result<Loaded>,
+) -> Result<ImportReport> {
+    let info = StoreInfo {
+        grid: config.grid,
+        channels,
+    };
+    let store_err = |e: brdf_io::Error| Error::stage("data", out, e);
+    let mut writer = StoreWriter::create(out, info, options).map_err(store_err)?;
+    let pb = bar(count as u64, "import");
+    let mut total = ImportReport::new();
+    for i in 0..count {
+        let (name, source, values, report) = load(i)?;
+        pb.set_message(name.clone());
+        writer
+            .add_material(&name, &source, &values)
+            .map_err(store_err)?;
+        total = total.merge(&report);
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    writer.finish().map_err(store_err)?;
+    Ok(total)
+}
+
+fn stem(path: &Path) -> String {
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| path.display().to_string())
+}

@@ -1,0 +1,80 @@
+//! `cargo xtask pipeline CONFIG [--out DIR]` and `cargo xtask bench [--config FILE]`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context as _;
+use clap::Parser;
+use xtask::{PipelineConfig, project_root};
+
+#[derive(Debug, Parser)]
+#[command(name = "xtask", about = "specgp pipelines and benchmarks")]
+struct Cli {
+    /// Log progress (tracing, info level; RUST_LOG overrides).
+    #[arg(short, long, global = true)]
+    verbose: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, clap::Subcommand)]
+enum Command {
+    /// Data -> fit -> predict -> evaluate -> figures -> DIR/report.md + DIR/results.json.
+    Pipeline {
+        /// Pipeline config (`configs/NAME.toml`).
+        config: PathBuf,
+        /// Output directory (default `out/NAME`).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+}
+
+/// A path as given, or relative to the project root when it does not exist as given.
+fn locate(path: &Path, root: &Path) -> PathBuf {
+    if path.exists() || path.is_absolute() {
+        path.to_owned()
+    } else {
+        root.join(path)
+    }
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+        tracing_subscriber::EnvFilter::new(if cli.verbose { "info" } else { "warn" })
+    });
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .init();
+    match run(&cli) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: &Cli) -> anyhow::Result<()> {
+    let root = project_root();
+    match &cli.command {
+        Command::Pipeline { config, out } => {
+            let path = locate(config, &root);
+            let config = PipelineConfig::load(&path, &root)?;
+            let out = out
+                .clone()
+                .unwrap_or_else(|| root.join("out").join(&config.params.name));
+            let results = xtask::run(&config, &out)
+                .with_context(|| format!("pipeline {}", path.display()))?;
+            eprintln!(
+                "pipeline {}: {} materials, log-likelihood {:.6e}, {:.1} s; report {}",
+                results.name,
+                results.data.n_materials,
+                results.fit.log_likelihood,
+                results.total_seconds,
+                out.join("report.md").display()
+            );
+        }
+    }
+    Ok(())
+}

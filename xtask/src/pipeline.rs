@@ -1,0 +1,255 @@
+//! `cargo xtask pipeline CONFIG`: data -> fit -> predict -> evaluate -> figures, then
+//! `report.md` and `results.json` (every number of the report) in the output directory.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::config::PipelineConfig;
+use crate::data::build_store;
+use crate::error::{Error, Result};
+use crate::report;
+
+/// What happened to one stage.
+#[derive(Debug, Clone, Serialize)]
+pub struct StageStatus {
+    /// Stage name.
+    pub name: String,
+    /// `done`, `skipped` (by the config) or `not available` (the crate has not landed).
+    pub status: String,
+    /// Wall-clock seconds (0 when not run).
+    pub seconds: f64,
+}
+
+/// The data stage's numbers.
+#[derive(Debug, Clone, Serialize)]
+pub struct DataResults {
+    /// `synth`, `nbrdf`, `merl` or `rgl`.
+    pub kind: String,
+    /// Store file (relative to the output directory).
+    pub store: String,
+    /// Number of materials N.
+    pub n_materials: usize,
+    /// Angular grid `TH,TD,PD`.
+    pub grid: String,
+    /// Number of channels.
+    pub n_channels: usize,
+    /// Channel labels.
+    pub channels: Vec<String>,
+    /// Values per material D.
+    pub d: usize,
+    /// Stored value type.
+    pub dtype: String,
+    /// Store size in bytes.
+    pub store_bytes: u64,
+    /// Values outside the valid range reported by the import (0 for synthetic data).
+    pub import_outliers: usize,
+    /// Negative values clamped by the import.
+    pub import_negatives_clamped: usize,
+    /// Seconds to build the store.
+    pub seconds: f64,
+}
+
+/// The fit stage's numbers.
+#[derive(Debug, Clone, Serialize)]
+pub struct FitResults {
+    /// Where the fit settings came from.
+    pub config: String,
+    /// Model file (relative to the output directory).
+    pub model: String,
+    /// Optimiser.
+    pub optimizer: String,
+    /// Transform.
+    pub transform: String,
+    /// Latent dimension q.
+    pub latent_dim: usize,
+    /// Final log-likelihood (the model file's `fit.log_likelihood`).
+    pub log_likelihood: f64,
+    /// Log-likelihood at the PCA start.
+    pub initial_log_likelihood: f64,
+    /// Optimiser iterations.
+    pub iterations: u64,
+    /// Objective evaluations.
+    pub evaluations: u64,
+    /// Why the optimiser stopped.
+    pub stop_reason: String,
+    /// Kernel signal variance s^2.
+    pub signal_variance: f64,
+    /// Length-scale(s).
+    pub length_scale: Vec<f64>,
+    /// Noise mu.
+    pub noise: f64,
+    /// Condition number estimate of K.
+    pub condition_number: f64,
+    /// Fraction of variance in the first q principal components.
+    pub pca_explained: f64,
+    /// Seconds of the Gram pass.
+    pub gram_seconds: f64,
+    /// Seconds of the optimisation.
+    pub optimize_seconds: f64,
+    /// Total wall-clock seconds of the stage.
+    pub seconds: f64,
+}
+
+/// One material's latent point.
+#[derive(Debug, Clone, Serialize)]
+pub struct LatentRow {
+    /// Material name.
+    pub name: String,
+    /// Latent coordinates.
+    pub coords: Vec<f64>,
+}
+
+/// Everything a pipeline run measured (`results.json`).
+#[derive(Debug, Clone, Serialize)]
+pub struct Results {
+    /// Config name.
+    pub name: String,
+    /// Config description.
+    pub description: String,
+    /// Config file.
+    pub config_file: String,
+    /// The config as parsed.
+    pub config: crate::config::PipelineParams,
+    /// Stages in order.
+    pub stages: Vec<StageStatus>,
+    /// Data stage.
+    pub data: DataResults,
+    /// Fit stage.
+    pub fit: FitResults,
+    /// Latent coordinates of the training materials.
+    pub latent: Vec<LatentRow>,
+    /// Total wall-clock seconds.
+    pub total_seconds: f64,
+}
+
+/// The project root: the parent of the xtask crate.
+pub fn project_root() -> PathBuf {
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+    manifest.parent().unwrap_or(manifest).to_owned()
+}
+
+/// Writes `bytes` to `path` through a temporary file in the same directory.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let tmp = dir.join(format!(
+        ".{}.tmp{}",
+        path.file_name()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        std::process::id()
+    ));
+    std::fs::write(&tmp, bytes).map_err(|e| Error::io(&tmp, e))?;
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        Error::io(path, e)
+    })
+}
+
+/// Runs the pipeline of `config` into `out` (created if needed) and writes `report.md` and
+/// `results.json` there.
+pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
+    let total = Instant::now();
+    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    let mut stages = Vec::new();
+
+    // Data.
+    let store_path = out.join("data.sbrdf");
+    tracing::info!(store = %store_path.display(), kind = config.data.source.kind(), "data");
+    let (import, data_seconds) = build_store(&config.data, &store_path)?;
+    let store =
+        brdf_io::Store::open(&store_path).map_err(|e| Error::stage("data", &store_path, e))?;
+    let data = DataResults {
+        kind: config.data.source.kind().into(),
+        store: "data.sbrdf".into(),
+        n_materials: store.n_materials(),
+        grid: store.grid().to_string(),
+        n_channels: store.channels().len(),
+        channels: store.channels().labels(),
+        d: store.d(),
+        dtype: config.data.dtype.name().into(),
+        store_bytes: store.file_bytes(),
+        import_outliers: import.outliers,
+        import_negatives_clamped: import.negatives_clamped,
+        seconds: data_seconds,
+    };
+    drop(store);
+    stages.push(StageStatus {
+        name: "data".into(),
+        status: "done".into(),
+        seconds: data_seconds,
+    });
+
+    // Fit.
+    let model_path = out.join("model.toml");
+    let fit_start = Instant::now();
+    tracing::info!(config = %config.fit_source, "fit");
+    let model = gplvm::fit_store(&store_path, &config.fit)
+        .map_err(|e| Error::stage("fit", &store_path, e))?;
+    model
+        .save(&model_path)
+        .map_err(|e| Error::stage("fit", &model_path, e))?;
+    let fit_seconds = fit_start.elapsed().as_secs_f64();
+    let fit = FitResults {
+        config: config.fit_source.clone(),
+        model: "model.toml".into(),
+        optimizer: model.fit.optimizer.clone(),
+        transform: model.transform.to_string(),
+        latent_dim: model.latent_dim,
+        log_likelihood: model.fit.log_likelihood,
+        initial_log_likelihood: model.fit.initial_log_likelihood,
+        iterations: model.fit.iterations,
+        evaluations: model.fit.evaluations,
+        stop_reason: model.fit.stop_reason.clone(),
+        signal_variance: model.hyperparameters.signal_variance,
+        length_scale: model.hyperparameters.length_scale.clone(),
+        noise: model.hyperparameters.noise,
+        condition_number: model.fit.condition_number,
+        pca_explained: model.fit.pca_explained,
+        gram_seconds: model.fit.gram_seconds,
+        optimize_seconds: model.fit.optimize_seconds,
+        seconds: fit_seconds,
+    };
+    stages.push(StageStatus {
+        name: "fit".into(),
+        status: "done".into(),
+        seconds: fit_seconds,
+    });
+    let latent = model
+        .materials
+        .iter()
+        .map(|m| LatentRow {
+            name: m.name.clone(),
+            coords: m.coords.clone(),
+        })
+        .collect();
+
+    for name in ["predict", "evaluate", "render"] {
+        stages.push(StageStatus {
+            name: name.into(),
+            status: "not available".into(),
+            seconds: 0.0,
+        });
+    }
+
+    let results = Results {
+        name: config.params.name.clone(),
+        description: config.params.description.clone(),
+        config_file: config.path.display().to_string(),
+        config: config.params.clone(),
+        stages,
+        data,
+        fit,
+        latent,
+        total_seconds: total.elapsed().as_secs_f64(),
+    };
+    let json = serde_json::to_string_pretty(&results)
+        .map_err(|e| Error::stage("report", out.join("results.json"), e))?;
+    write_atomic(&out.join("results.json"), json.as_bytes())?;
+    write_atomic(
+        &out.join("report.md"),
+        report::markdown(&results).as_bytes(),
+    )?;
+    Ok(results)
+}

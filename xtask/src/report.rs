@@ -1,0 +1,159 @@
+//! `report.md`: the results of a pipeline run as markdown tables, readable on its own.
+
+use std::fmt::Write as _;
+
+use crate::pipeline::Results;
+
+/// A number in short scientific or fixed notation.
+pub fn num(v: f64) -> String {
+    if v == 0.0 {
+        "0".into()
+    } else if !v.is_finite() {
+        format!("{v}")
+    } else if v.abs() >= 1e5 || v.abs() < 1e-3 {
+        format!("{v:.3e}")
+    } else {
+        format!("{v:.4}")
+    }
+}
+
+/// Bytes as KiB/MiB/GiB.
+pub fn bytes(b: u64) -> String {
+    let b = b as f64;
+    if b >= 1024.0 * 1024.0 * 1024.0 {
+        format!("{:.2} GiB", b / (1024.0 * 1024.0 * 1024.0))
+    } else if b >= 1024.0 * 1024.0 {
+        format!("{:.1} MiB", b / (1024.0 * 1024.0))
+    } else {
+        format!("{:.1} KiB", b / 1024.0)
+    }
+}
+
+/// The report of `r` as markdown.
+pub fn markdown(r: &Results) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# specgp pipeline report: {}\n", r.name);
+    if !r.description.is_empty() {
+        let _ = writeln!(s, "{}\n", r.description);
+    }
+    let _ = writeln!(
+        s,
+        "Config `{}`; regenerate with `cargo xtask pipeline {}`. Every number below is also in \
+         `results.json`. Total run time {:.1} s.\n",
+        r.config_file, r.config_file, r.total_seconds
+    );
+
+    let _ = writeln!(
+        s,
+        "## Stages\n\n| stage | status | seconds |\n|---|---|---:|"
+    );
+    for st in &r.stages {
+        let _ = writeln!(s, "| {} | {} | {:.2} |", st.name, st.status, st.seconds);
+    }
+
+    let d = &r.data;
+    let _ = writeln!(s, "\n## Data\n\n| quantity | value |\n|---|---|");
+    let _ = writeln!(s, "| source | {} |", d.kind);
+    let _ = writeln!(s, "| materials N | {} |", d.n_materials);
+    let _ = writeln!(s, "| grid (theta_h, theta_d, phi_d) | {} |", d.grid);
+    let channels = if d.n_channels <= 4 {
+        d.channels.join(", ")
+    } else {
+        format!(
+            "{} ({} .. {} nm)",
+            d.n_channels,
+            d.channels.first().map(String::as_str).unwrap_or(""),
+            d.channels.last().map(String::as_str).unwrap_or("")
+        )
+    };
+    let _ = writeln!(s, "| channels | {channels} |");
+    let _ = writeln!(s, "| values per material D | {} |", d.d);
+    let _ = writeln!(
+        s,
+        "| store (`{}`, {}) | {} |",
+        d.store,
+        d.dtype,
+        bytes(d.store_bytes)
+    );
+    if d.kind != "synth" {
+        let _ = writeln!(
+            s,
+            "| import: outliers / negatives clamped | {} / {} |",
+            d.import_outliers, d.import_negatives_clamped
+        );
+    }
+    let _ = writeln!(s, "| seconds | {:.2} |", d.seconds);
+
+    let f = &r.fit;
+    let _ = writeln!(s, "\n## Fit\n\n| quantity | value |\n|---|---|");
+    let _ = writeln!(s, "| settings | {} |", f.config);
+    let _ = writeln!(s, "| optimiser | {} |", f.optimizer);
+    let _ = writeln!(s, "| transform | {} |", f.transform);
+    let _ = writeln!(s, "| latent dimension q | {} |", f.latent_dim);
+    let _ = writeln!(
+        s,
+        "| log-likelihood (PCA start -> final) | {} -> {} |",
+        num(f.initial_log_likelihood),
+        num(f.log_likelihood)
+    );
+    let _ = writeln!(
+        s,
+        "| iterations / evaluations | {} / {} |",
+        f.iterations, f.evaluations
+    );
+    let _ = writeln!(s, "| stop reason | {} |", f.stop_reason);
+    let ls: Vec<String> = f.length_scale.iter().map(|v| num(*v)).collect();
+    let _ = writeln!(
+        s,
+        "| s^2, l, mu | {}, {}, {} |",
+        num(f.signal_variance),
+        ls.join("/"),
+        num(f.noise)
+    );
+    let _ = writeln!(s, "| condition number of K | {} |", num(f.condition_number));
+    let _ = writeln!(
+        s,
+        "| PCA variance explained by q components | {:.1} % |",
+        100.0 * f.pca_explained
+    );
+    let _ = writeln!(
+        s,
+        "| seconds (Gram pass + optimisation = stage) | {:.2} + {:.2} = {:.2} |",
+        f.gram_seconds, f.optimize_seconds, f.seconds
+    );
+
+    let _ = writeln!(s, "\n## Latent space\n");
+    let q = r.latent.first().map_or(0, |l| l.coords.len());
+    let _ = write!(s, "| material |");
+    for k in 0..q {
+        let _ = write!(s, " x{} |", k + 1);
+    }
+    let _ = write!(s, "\n|---|");
+    for _ in 0..q {
+        let _ = write!(s, "---:|");
+    }
+    let _ = writeln!(s);
+    for l in &r.latent {
+        let _ = write!(s, "| {} |", l.name);
+        for c in &l.coords {
+            let _ = write!(s, " {c:.4} |");
+        }
+        let _ = writeln!(s);
+    }
+
+    let missing: Vec<&str> = r
+        .stages
+        .iter()
+        .filter(|st| st.status == "not available")
+        .map(|st| st.name.as_str())
+        .collect();
+    if !missing.is_empty() {
+        let _ = writeln!(
+            s,
+            "\n## Not available in this build\n\nStages {} are not wired in yet; no numbers are \
+             reported for them.",
+            missing.join(", ")
+        );
+    }
+    s
+}

@@ -1,0 +1,113 @@
+//! End to end: `configs/quick.toml` through the whole pipeline into a temporary directory, then
+//! the report's numbers checked against the model file and the data.
+
+use std::path::Path;
+
+use xtask::{PipelineConfig, project_root};
+
+fn load(root: &Path, rel: &str) -> PipelineConfig {
+    PipelineConfig::load(&root.join(rel), root).unwrap()
+}
+
+#[test]
+fn quick_pipeline_report_matches_the_model_and_data() {
+    let root = project_root();
+    let config = load(&root, "configs/quick.toml");
+    let dir = tempfile::tempdir().unwrap();
+    let results = xtask::run(&config, dir.path()).unwrap();
+
+    // results.json parses and says what the returned results say.
+    let text = std::fs::read_to_string(dir.path().join("results.json")).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let ll = json["fit"]["log_likelihood"].as_f64().unwrap();
+    assert!(ll.is_finite());
+    assert_eq!(ll, results.fit.log_likelihood);
+
+    // The log-likelihood is the model file's.
+    let model = gplvm::Model::load(&dir.path().join("model.toml")).unwrap();
+    assert_eq!(model.fit.log_likelihood, ll);
+    assert!(ll > json["fit"]["initial_log_likelihood"].as_f64().unwrap());
+
+    // Number of materials: the preset's, in the data, the model and the latent table.
+    let n = brdf_synth::N_MATERIALS;
+    assert_eq!(json["data"]["n_materials"].as_u64().unwrap() as usize, n);
+    assert_eq!(model.materials.len(), n);
+    let latent = json["latent"].as_array().unwrap();
+    assert_eq!(latent.len(), n);
+    for (row, m) in latent.iter().zip(&model.materials) {
+        assert_eq!(row["name"].as_str().unwrap(), m.name);
+        let coords: Vec<f64> = row["coords"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        assert_eq!(coords, m.coords);
+    }
+    // D = cells x channels of the configured grid and wavelengths.
+    assert_eq!(json["data"]["d"].as_u64().unwrap(), 8 * 8 * 16 * 7);
+    assert!(json["data"]["store_bytes"].as_u64().unwrap() > (n * 8 * 8 * 16 * 7) as u64);
+
+    // Every stage is accounted for with a finite non-negative time.
+    for st in json["stages"].as_array().unwrap() {
+        let s = st["seconds"].as_f64().unwrap();
+        assert!(s.is_finite() && s >= 0.0, "{st}");
+    }
+
+    // The markdown report quotes the numbers.
+    let report = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
+    assert!(report.contains(&format!("| materials N | {n} |")));
+    assert!(report.contains(&xtask::report::num(ll)));
+}
+
+#[test]
+fn configs_in_the_repository_all_validate() {
+    let root = project_root();
+    let mut seen = 0;
+    for entry in std::fs::read_dir(root.join("configs")).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml")
+            && path.file_name().is_some_and(|n| n != "bench.toml")
+        {
+            PipelineConfig::load(&path, &root).unwrap_or_else(|e| panic!("{e}"));
+            seen += 1;
+        }
+    }
+    assert!(seen >= 2, "found {seen} configs");
+}
+
+#[test]
+fn unknown_keys_and_bad_values_are_named() {
+    let root = project_root();
+    let dir = tempfile::tempdir().unwrap();
+    let base = std::fs::read_to_string(root.join("configs/quick.toml")).unwrap();
+    let cases = [
+        (base.replace("seed = 0", "seed = 0\ncolour = 1"), "colour"),
+        (
+            base.replace("grid = \"8,8,16\"", "grid = \"8,0,16\""),
+            "data.grid",
+        ),
+        (
+            base.replace("kind = \"synth\"", "kind = \"mat\""),
+            "data.kind",
+        ),
+        (
+            base.replace("points = [[0.0, 0.0]]", "points = [[0.0]]"),
+            "predict.points[0]",
+        ),
+        (
+            base.replace(
+                "fit_config = \"configs/fit/default.toml\"",
+                "[fit]\nlatent_dim = 0\n",
+            ),
+            "latent_dim",
+        ),
+    ];
+    for (i, (text, needle)) in cases.iter().enumerate() {
+        let path = dir.path().join(format!("bad{i}.toml"));
+        std::fs::write(&path, text).unwrap();
+        let err = PipelineConfig::load(&path, &root).unwrap_err().to_string();
+        assert!(err.contains(needle), "case {i}: {err}");
+        assert!(err.contains(&format!("bad{i}.toml")), "case {i}: {err}");
+    }
+}
