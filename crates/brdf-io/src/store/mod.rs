@@ -375,6 +375,16 @@ pub(crate) fn decode_values(bytes: &[u8], dtype: Dtype, out: &mut [f32]) {
             }
         }
         Dtype::F16 => {
+            // Vectorised (F16C when the CPU has it) on aligned little-endian input.
+            if cfg!(target_endian = "little")
+                && let Ok(bits) = bytemuck::try_cast_slice::<u8, u16>(bytes)
+                && bits.len() == out.len()
+            {
+                use half::slice::{HalfBitsSliceExt, HalfFloatSliceExt};
+                bits.reinterpret_cast::<half::f16>()
+                    .convert_to_f32_slice(out);
+                return;
+            }
             for (o, b) in out.iter_mut().zip(bytes.chunks_exact(2)) {
                 *o = half::f16::from_le_bytes([b[0], b[1]]).to_f32();
             }
