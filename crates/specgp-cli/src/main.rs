@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 
 mod cmd_data;
 mod cmd_fit;
+mod cmd_render;
 mod cmd_predict;
 mod cmd_sample;
 mod cmd_synth;
@@ -42,6 +43,8 @@ enum Command {
     Fit(cmd_fit::FitArgs),
     /// Show the latent coordinates and log-likelihood of a model.
     Latent(cmd_fit::LatentArgs),
+    /// Render a sphere preview of a BRDF source (spectral -> sRGB PNG).
+    Render(cmd_render::RenderArgs),
     /// Materialise a predicted material (GP at a latent point, or linear interpolation).
     Predict(cmd_predict::PredictArgs),
     /// Reconstruction and leave-one-out errors of a model (GP and baselines).
@@ -99,6 +102,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Grid(args) => grid_command(&args),
         Command::Fit(args) => cmd_fit::fit(&args),
         Command::Latent(args) => cmd_fit::latent(&args),
+        Command::Render(args) => cmd_render::render(&args),
         Command::Predict(args) => cmd_predict::predict(&args),
         Command::Evaluate(args) => cmd_predict::evaluate(&args),
         Command::Import(args) => cmd_data::import(&args),

@@ -1,0 +1,3 @@
+//! Render benchmarks (filled in below).
+
+fn main() {}

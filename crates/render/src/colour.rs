@@ -1,0 +1,532 @@
+//! Colour: spectra -> CIE XYZ (1931 2-degree observer) under an illuminant -> linear sRGB ->
+//! sRGB-encoded 8-bit values; CIELAB and the CIEDE2000 colour difference.
+//!
+//! Spectral integration ([`SpectralWeights`]): a source's spectrum, known at its wavelengths
+//! `lambda_k`, is read as the piecewise-linear function through those samples (constant beyond
+//! the first and last sample). Then `XYZ = sum_k w_k f(lambda_k)` with
+//! `w_k = integral of cmf(lambda) S(lambda) phi_k(lambda) d lambda / integral of ybar S`, where
+//! `phi_k` is the hat function of sample k and `S` the illuminant; the integral runs over
+//! 360-780 nm on a 1 nm trapezoid grid with the 5 nm CIE tables linearly interpolated. The
+//! weights of a constant spectrum sum to the illuminant's white, so a perfect white diffuser has
+//! Y = 1 exactly, whatever the source's sampling. Channels whose three weights are all zero are
+//! not needed ([`SpectralWeights::needed`]).
+
+use crate::cie;
+use crate::error::{Error, Result};
+
+/// A CIE illuminant.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Illuminant {
+    /// Average daylight, 6504 K (sRGB's white).
+    #[default]
+    D65,
+    /// Horizon daylight, 5003 K.
+    D50,
+    /// Incandescent tungsten, 2856 K.
+    A,
+}
+
+impl Illuminant {
+    /// The relative spectral power at 360, 365, ..., 780 nm.
+    pub fn table(self) -> &'static [f64; cie::LEN] {
+        match self {
+            Self::D65 => &cie::D65,
+            Self::D50 => &cie::D50,
+            Self::A => &cie::A,
+        }
+    }
+
+    /// Relative spectral power at `nm` (linear interpolation of the 5 nm table; 0 outside
+    /// 360-780 nm).
+    pub fn spd(self, nm: f64) -> f64 {
+        interp_table(self.table(), nm)
+    }
+
+    /// XYZ of a perfect white diffuser under this illuminant, normalised to Y = 1.
+    pub fn white_xyz(self) -> [f64; 3] {
+        let w = SpectralWeights::new_raw(&[cie::START_NM], self);
+        [w.x[0], w.y[0], w.z[0]]
+    }
+}
+
+impl std::str::FromStr for Illuminant {
+    type Err = Error;
+
+    fn from_str(s: &str) -> Result<Self> {
+        match s.trim().to_ascii_uppercase().as_str() {
+            "D65" => Ok(Self::D65),
+            "D50" => Ok(Self::D50),
+            "A" => Ok(Self::A),
+            _ => Err(Error::InvalidArgument {
+                reason: format!("unknown illuminant {s:?} (expected D65, D50 or A)"),
+            }),
+        }
+    }
+}
+
+impl std::fmt::Display for Illuminant {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::D65 => "D65",
+            Self::D50 => "D50",
+            Self::A => "A",
+        })
+    }
+}
+
+/// Linear interpolation of a 5 nm CIE table; 0 outside its range.
+fn interp_table(t: &[f64; cie::LEN], nm: f64) -> f64 {
+    let u = (nm - cie::START_NM) / cie::STEP_NM;
+    if !(0.0..=(cie::LEN - 1) as f64).contains(&u) {
+        return 0.0;
+    }
+    let i = (u.floor() as usize).min(cie::LEN - 2);
+    let f = u - i as f64;
+    t[i] * (1.0 - f) + t[i + 1] * f
+}
+
+/// The CIE 1931 2-degree colour-matching functions at `nm` (linear interpolation of the 5 nm
+/// table; 0 outside 360-780 nm).
+pub fn cmf(nm: f64) -> [f64; 3] {
+    let col = |c: usize| {
+        let mut t = [0.0; cie::LEN];
+        for (o, row) in t.iter_mut().zip(cie::CMF_1931_2DEG.iter()) {
+            *o = row[c];
+        }
+        interp_table(&t, nm)
+    };
+    [col(0), col(1), col(2)]
+}
+
+/// Quadrature weights taking a spectrum sampled at given wavelengths to CIE XYZ (Y = 1 for a
+/// perfect white diffuser) under an illuminant; see the module docs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpectralWeights {
+    /// Weights of X, one per source wavelength.
+    pub x: Vec<f64>,
+    /// Weights of Y.
+    pub y: Vec<f64>,
+    /// Weights of Z.
+    pub z: Vec<f64>,
+}
+
+impl SpectralWeights {
+    /// Weights for a spectrum sampled at `wavelengths` (nm, strictly increasing) under
+    /// `illuminant`.
+    pub fn new(wavelengths: &[f64], illuminant: Illuminant) -> Result<Self> {
+        if wavelengths.is_empty()
+            || wavelengths.iter().any(|w| !w.is_finite())
+            || wavelengths.windows(2).any(|w| w[1] <= w[0])
+        {
+            return Err(Error::InvalidArgument {
+                reason: format!(
+                    "wavelengths must be finite, non-empty and strictly increasing, got {} values",
+                    wavelengths.len()
+                ),
+            });
+        }
+        Ok(Self::new_raw(wavelengths, illuminant))
+    }
+
+    fn new_raw(wl: &[f64], illuminant: Illuminant) -> Self {
+        let n = wl.len();
+        let (mut x, mut y, mut z) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        let mut norm = 0.0;
+        // 1 nm trapezoid over 360..=780 nm.
+        let steps = 420;
+        for s in 0..=steps {
+            let nm = cie::START_NM + s as f64;
+            let q = if s == 0 || s == steps { 0.5 } else { 1.0 };
+            let e = illuminant.spd(nm) * q;
+            let c = cmf(nm);
+            norm += c[1] * e;
+            // Hat-function coefficients of the source sampling at nm.
+            let (k0, k1, f) = bracket(wl, nm);
+            for (k, a) in [(k0, 1.0 - f), (k1, f)] {
+                if a != 0.0 {
+                    x[k] += a * c[0] * e;
+                    y[k] += a * c[1] * e;
+                    z[k] += a * c[2] * e;
+                }
+            }
+        }
+        for v in x.iter_mut().chain(y.iter_mut()).chain(z.iter_mut()) {
+            *v /= norm;
+        }
+        Self { x, y, z }
+    }
+
+    /// Number of wavelengths.
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    /// Whether there are no wavelengths.
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    /// Indices of the wavelengths with a non-zero weight: the only ones the observer needs.
+    pub fn needed(&self) -> Vec<usize> {
+        (0..self.len())
+            .filter(|&k| self.x[k] != 0.0 || self.y[k] != 0.0 || self.z[k] != 0.0)
+            .collect()
+    }
+
+    /// XYZ of a spectrum given at the weights' wavelengths.
+    pub fn xyz(&self, spectrum: &[f64]) -> [f64; 3] {
+        let mut o = [0.0; 3];
+        for (k, &v) in spectrum.iter().enumerate().take(self.len()) {
+            o[0] += self.x[k] * v;
+            o[1] += self.y[k] * v;
+            o[2] += self.z[k] * v;
+        }
+        o
+    }
+}
+
+/// The two source samples around `nm` and the interpolation fraction towards the second
+/// (constant extension beyond the ends).
+fn bracket(wl: &[f64], nm: f64) -> (usize, usize, f64) {
+    let n = wl.len();
+    if nm <= wl[0] {
+        return (0, 0, 0.0);
+    }
+    if nm >= wl[n - 1] {
+        return (n - 1, n - 1, 0.0);
+    }
+    let k1 = wl.partition_point(|&w| w <= nm);
+    let k0 = k1 - 1;
+    (k0, k1, (nm - wl[k0]) / (wl[k1] - wl[k0]))
+}
+
+/// XYZ (D65 white) -> linear sRGB (IEC 61966-2-1).
+pub const XYZ_TO_SRGB: [[f64; 3]; 3] = [
+    [3.2404542, -1.5371385, -0.4985314],
+    [-0.9692660, 1.8760108, 0.0415560],
+    [0.0556434, -0.2040259, 1.0572252],
+];
+
+/// Linear sRGB -> XYZ (D65 white), the inverse of [`XYZ_TO_SRGB`].
+pub const SRGB_TO_XYZ: [[f64; 3]; 3] = [
+    [0.4124564, 0.3575761, 0.1804375],
+    [0.2126729, 0.7151522, 0.0721750],
+    [0.0193339, 0.1191920, 0.9503041],
+];
+
+fn mat_vec(m: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
+    [
+        m[0][0] * v[0] + m[0][1] * v[1] + m[0][2] * v[2],
+        m[1][0] * v[0] + m[1][1] * v[1] + m[1][2] * v[2],
+        m[2][0] * v[0] + m[2][1] * v[1] + m[2][2] * v[2],
+    ]
+}
+
+fn mat_mul(a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
+    let mut o = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            o[i][j] = (0..3).map(|k| a[i][k] * b[k][j]).sum();
+        }
+    }
+    o
+}
+
+/// Bradford chromatic adaptation matrix from white `from` to white `to` (XYZ).
+pub fn bradford(from: [f64; 3], to: [f64; 3]) -> [[f64; 3]; 3] {
+    const M: [[f64; 3]; 3] = [
+        [0.8951, 0.2664, -0.1614],
+        [-0.7502, 1.7135, 0.0367],
+        [0.0389, -0.0685, 1.0296],
+    ];
+    const M_INV: [[f64; 3]; 3] = [
+        [0.9869929, -0.1470543, 0.1599627],
+        [0.4323053, 0.5183603, 0.0492912],
+        [-0.0085287, 0.0400428, 0.9684867],
+    ];
+    let s = mat_vec(&M, from);
+    let d = mat_vec(&M, to);
+    let diag = [
+        [d[0] / s[0], 0.0, 0.0],
+        [0.0, d[1] / s[1], 0.0],
+        [0.0, 0.0, d[2] / s[2]],
+    ];
+    mat_mul(&M_INV, &mat_mul(&diag, &M))
+}
+
+/// XYZ -> linear sRGB.
+pub fn xyz_to_linear_srgb(xyz: [f64; 3]) -> [f64; 3] {
+    mat_vec(&XYZ_TO_SRGB, xyz)
+}
+
+/// Linear sRGB -> XYZ (D65).
+pub fn linear_srgb_to_xyz(rgb: [f64; 3]) -> [f64; 3] {
+    mat_vec(&SRGB_TO_XYZ, rgb)
+}
+
+/// The sRGB transfer curve (linear -> encoded), for values in [0, 1] (clamped).
+pub fn srgb_encode(v: f64) -> f64 {
+    let v = if v.is_finite() {
+        v.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    if v <= 0.003_130_8 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// The inverse sRGB transfer curve (encoded -> linear).
+pub fn srgb_decode(v: f64) -> f64 {
+    if v <= 0.040_45 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// A linear value in [0, 1] -> 8-bit sRGB code.
+pub fn to_srgb8(v: f64) -> u8 {
+    (srgb_encode(v) * 255.0).round() as u8
+}
+
+/// How spectra become linear sRGB: an illuminant, with Bradford adaptation of its white to D65
+/// (so a white diffuser stays neutral under A or D50; the illuminant changes colour rendition,
+/// not white balance).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ColourPipeline {
+    /// The illuminant.
+    pub illuminant: Illuminant,
+    /// XYZ under the illuminant -> linear sRGB (adaptation included).
+    pub to_rgb: [[f64; 3]; 3],
+}
+
+impl ColourPipeline {
+    /// The pipeline for `illuminant`.
+    pub fn new(illuminant: Illuminant) -> Self {
+        let m = if illuminant == Illuminant::D65 {
+            XYZ_TO_SRGB
+        } else {
+            let adapt = bradford(illuminant.white_xyz(), Illuminant::D65.white_xyz());
+            mat_mul(&XYZ_TO_SRGB, &adapt)
+        };
+        Self {
+            illuminant,
+            to_rgb: m,
+        }
+    }
+
+    /// Per-channel linear-sRGB weights for a source with `channels`: `rgb = W * values`
+    /// (3 rows, one column per channel). RGB sources pass through (identity).
+    pub fn channel_weights(&self, channels: &brdf_io::Channels) -> Result<[Vec<f64>; 3]> {
+        match channels {
+            brdf_io::Channels::Rgb => Ok([
+                vec![1.0, 0.0, 0.0],
+                vec![0.0, 1.0, 0.0],
+                vec![0.0, 0.0, 1.0],
+            ]),
+            brdf_io::Channels::Spectral(wl) => {
+                let w = SpectralWeights::new(wl, self.illuminant)?;
+                let m = &self.to_rgb;
+                let row = |r: usize| -> Vec<f64> {
+                    (0..w.len())
+                        .map(|k| m[r][0] * w.x[k] + m[r][1] * w.y[k] + m[r][2] * w.z[k])
+                        .collect()
+                };
+                Ok([row(0), row(1), row(2)])
+            }
+        }
+    }
+
+    /// Linear sRGB of a reflectance spectrum sampled at `wavelengths`.
+    pub fn reflectance_to_rgb(&self, wavelengths: &[f64], spectrum: &[f64]) -> Result<[f64; 3]> {
+        let w = SpectralWeights::new(wavelengths, self.illuminant)?;
+        Ok(mat_vec(&self.to_rgb, w.xyz(spectrum)))
+    }
+}
+
+/// CIE XYZ -> CIELAB relative to `white` (XYZ, same scale).
+pub fn xyz_to_lab(xyz: [f64; 3], white: [f64; 3]) -> [f64; 3] {
+    let f = |t: f64| {
+        const D: f64 = 6.0 / 29.0;
+        if t > D * D * D {
+            t.cbrt()
+        } else {
+            t / (3.0 * D * D) + 4.0 / 29.0
+        }
+    };
+    let (fx, fy, fz) = (
+        f(xyz[0] / white[0]),
+        f(xyz[1] / white[1]),
+        f(xyz[2] / white[2]),
+    );
+    [116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)]
+}
+
+/// Linear sRGB -> CIELAB (D65 white, sRGB white = Y 1).
+pub fn linear_srgb_to_lab(rgb: [f64; 3]) -> [f64; 3] {
+    xyz_to_lab(linear_srgb_to_xyz(rgb), linear_srgb_to_xyz([1.0, 1.0, 1.0]))
+}
+
+/// The CIEDE2000 colour difference between two CIELAB colours (kL = kC = kH = 1), following
+/// Sharma, Wu and Dalal, "The CIEDE2000 color-difference formula: implementation notes,
+/// supplementary test data, and mathematical observations", Color Res. Appl. 30 (2005).
+pub fn delta_e_2000(lab1: [f64; 3], lab2: [f64; 3]) -> f64 {
+    use std::f64::consts::PI;
+    let [l1, a1, b1] = lab1;
+    let [l2, a2, b2] = lab2;
+    let c1 = a1.hypot(b1);
+    let c2 = a2.hypot(b2);
+    let cbar = 0.5 * (c1 + c2);
+    let c7 = cbar.powi(7);
+    let g = 0.5 * (1.0 - (c7 / (c7 + 25f64.powi(7))).sqrt());
+    let a1p = (1.0 + g) * a1;
+    let a2p = (1.0 + g) * a2;
+    let c1p = a1p.hypot(b1);
+    let c2p = a2p.hypot(b2);
+    let hue = |b: f64, a: f64| {
+        if a == 0.0 && b == 0.0 {
+            0.0
+        } else {
+            let h = b.atan2(a);
+            if h < 0.0 { h + 2.0 * PI } else { h }
+        }
+    };
+    let h1p = hue(b1, a1p);
+    let h2p = hue(b2, a2p);
+    let dlp = l2 - l1;
+    let dcp = c2p - c1p;
+    let dhp = if c1p * c2p == 0.0 {
+        0.0
+    } else {
+        let d = h2p - h1p;
+        if d > PI {
+            d - 2.0 * PI
+        } else if d < -PI {
+            d + 2.0 * PI
+        } else {
+            d
+        }
+    };
+    let dhp_big = 2.0 * (c1p * c2p).sqrt() * (dhp / 2.0).sin();
+    let lbarp = 0.5 * (l1 + l2);
+    let cbarp = 0.5 * (c1p + c2p);
+    let hbarp = if c1p * c2p == 0.0 {
+        h1p + h2p
+    } else if (h1p - h2p).abs() <= PI {
+        0.5 * (h1p + h2p)
+    } else if h1p + h2p < 2.0 * PI {
+        0.5 * (h1p + h2p + 2.0 * PI)
+    } else {
+        0.5 * (h1p + h2p - 2.0 * PI)
+    };
+    let deg = PI / 180.0;
+    let t = 1.0 - 0.17 * (hbarp - 30.0 * deg).cos()
+        + 0.24 * (2.0 * hbarp).cos()
+        + 0.32 * (3.0 * hbarp + 6.0 * deg).cos()
+        - 0.20 * (4.0 * hbarp - 63.0 * deg).cos();
+    let dtheta = 30.0 * deg * (-(((hbarp / deg) - 275.0) / 25.0).powi(2)).exp();
+    let cbarp7 = cbarp.powi(7);
+    let rc = 2.0 * (cbarp7 / (cbarp7 + 25f64.powi(7))).sqrt();
+    let l50 = (lbarp - 50.0).powi(2);
+    let sl = 1.0 + 0.015 * l50 / (20.0 + l50).sqrt();
+    let sc = 1.0 + 0.045 * cbarp;
+    let sh = 1.0 + 0.015 * cbarp * t;
+    let rt = -(2.0 * dtheta).sin() * rc;
+    let (tl, tc, th) = (dlp / sl, dcp / sc, dhp_big / sh);
+    (tl * tl + tc * tc + th * th + rt * tc * th).sqrt()
+}
+
+/// CIEDE2000 between two linear sRGB colours (D65).
+pub fn delta_e_2000_rgb(a: [f64; 3], b: [f64; 3]) -> f64 {
+    delta_e_2000(linear_srgb_to_lab(a), linear_srgb_to_lab(b))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn d65_white_point() {
+        let w = Illuminant::D65.white_xyz();
+        let want = [0.95047, 1.0, 1.08883];
+        for c in 0..3 {
+            // The 5 nm tables over 360-780 nm give Z within 2e-4 of the 1 nm value.
+            assert!((w[c] - want[c]).abs() < 2e-4, "{w:?} vs {want:?}");
+        }
+        assert_eq!(w[1], 1.0);
+    }
+
+    #[test]
+    fn white_diffuser_is_linear_one() {
+        for wl in [
+            (360..=1000).step_by(20).map(f64::from).collect::<Vec<_>>(),
+            (400..=700).step_by(10).map(f64::from).collect(),
+            vec![550.0],
+        ] {
+            let p = ColourPipeline::new(Illuminant::D65);
+            let rgb = p.reflectance_to_rgb(&wl, &vec![1.0; wl.len()]).unwrap();
+            for c in rgb {
+                assert!((c - 1.0).abs() < 1e-3, "{rgb:?}");
+            }
+            // Adapted illuminants keep white neutral.
+            for ill in [Illuminant::A, Illuminant::D50] {
+                let rgb = ColourPipeline::new(ill)
+                    .reflectance_to_rgb(&wl, &vec![0.5; wl.len()])
+                    .unwrap();
+                for c in rgb {
+                    assert!((c - 0.5).abs() < 2e-3, "{ill}: {rgb:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn needed_channels_skip_the_infrared() {
+        let wl: Vec<f64> = (360..=1000).step_by(20).map(f64::from).collect();
+        let w = SpectralWeights::new(&wl, Illuminant::D65).unwrap();
+        let needed = w.needed();
+        // 360..=780 plus the hat of 800 nm reaching down to 780 (weight 0 at one end point only
+        // with the trapezoid: 800 nm's hat is zero at 780).
+        assert_eq!(needed.first(), Some(&0));
+        assert_eq!(wl[*needed.last().unwrap()], 780.0);
+        assert!(SpectralWeights::new(&[500.0, 400.0], Illuminant::A).is_err());
+    }
+
+    #[test]
+    fn srgb_curve_round_trips() {
+        for v in [0.0, 0.001, 0.0031308, 0.2, 0.5, 1.0] {
+            assert!((srgb_decode(srgb_encode(v)) - v).abs() < 1e-12);
+        }
+        assert_eq!(to_srgb8(1.0), 255);
+        assert_eq!(to_srgb8(0.0), 0);
+        assert_eq!(to_srgb8(0.2159), 128);
+    }
+
+    /// Rows of Table 1 of Sharma, Wu and Dalal (2005).
+    #[test]
+    fn ciede2000_matches_sharma_table() {
+        let rows: [([f64; 3], [f64; 3], f64); 12] = [
+            ([50.0, 2.6772, -79.7751], [50.0, 0.0, -82.7485], 2.0425),
+            ([50.0, 3.1571, -77.2803], [50.0, 0.0, -82.7485], 2.8615),
+            ([50.0, 2.8361, -74.0200], [50.0, 0.0, -82.7485], 3.4412),
+            ([50.0, -1.3802, -84.2814], [50.0, 0.0, -82.7485], 1.0000),
+            ([50.0, 0.0, 0.0], [50.0, -1.0, 2.0], 2.3669),
+            ([50.0, 2.49, -0.001], [50.0, -2.49, 0.0009], 7.1792),
+            ([50.0, 2.49, -0.001], [50.0, -2.49, 0.0011], 7.2195),
+            ([50.0, -0.001, 2.49], [50.0, 0.0009, -2.49], 4.8045),
+            ([50.0, 2.5, 0.0], [50.0, 0.0, -2.5], 4.3065),
+            ([50.0, 2.5, 0.0], [73.0, 25.0, -18.0], 27.1492),
+            ([50.0, 2.5, 0.0], [61.0, -5.0, 29.0], 22.8977),
+            ([50.0, 2.5, 0.0], [56.0, -27.0, -3.0], 31.9030),
+        ];
+        for (a, b, want) in rows {
+            let d = delta_e_2000(a, b);
+            assert!((d - want).abs() < 1e-4, "{a:?} {b:?}: {d} vs {want}");
+            assert!((delta_e_2000(b, a) - want).abs() < 1e-4);
+        }
+        assert_eq!(delta_e_2000([40.0, 10.0, -3.0], [40.0, 10.0, -3.0]), 0.0);
+    }
+}

@@ -1,0 +1,18 @@
+//! Colour and pictures for specgp: spectral -> CIE XYZ -> sRGB ([`colour`]), sphere previews of
+//! any [`brdf_io::BrdfSource`] ([`sphere`]), latent-space maps ([`map`]) and comparison sheets
+//! ([`sheet`]), written as 8-bit sRGB PNGs ([`image`]).
+//!
+//! Everything renders through `BrdfSource::eval`, so a lazily predicted material is rendered
+//! without being materialised.
+
+pub mod cie;
+pub mod colour;
+pub mod error;
+pub mod font;
+pub mod image;
+pub mod sphere;
+
+pub use colour::{ColourPipeline, Illuminant, SpectralWeights, delta_e_2000, delta_e_2000_rgb};
+pub use error::{Error, Result};
+pub use image::Image;
+pub use sphere::{SphereOptions, render_sphere};
