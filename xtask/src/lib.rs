@@ -10,6 +10,7 @@ pub mod data;
 pub mod error;
 pub mod pipeline;
 pub mod report;
+pub mod stages;
 
 pub use config::{PipelineConfig, PipelineParams};
 pub use error::{Error, Result};

@@ -120,6 +120,10 @@ pub struct Results {
     pub fit: FitResults,
     /// Latent coordinates of the training materials.
     pub latent: Vec<LatentRow>,
+    /// Predictions at the configured latent points (predict stage).
+    pub predictions: Vec<crate::stages::PredictionRow>,
+    /// Reconstruction and leave-one-out errors (evaluate stage; `None` if not run).
+    pub evaluation: Option<predict::evaluate::Evaluation>,
     /// Total wall-clock seconds.
     pub total_seconds: f64,
 }
@@ -225,13 +229,37 @@ pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
         })
         .collect();
 
-    for name in ["predict", "evaluate", "render"] {
-        stages.push(StageStatus {
-            name: name.into(),
-            status: "not available".into(),
-            seconds: 0.0,
-        });
-    }
+    // Predict.
+    let t = Instant::now();
+    let pred = crate::stages::open(&model_path)?;
+    let predictions = crate::stages::predict_points(&pred, config, out)?;
+    stages.push(StageStatus {
+        name: "predict".into(),
+        status: if predictions.is_empty() {
+            "skipped".into()
+        } else {
+            "done".into()
+        },
+        seconds: t.elapsed().as_secs_f64(),
+    });
+
+    // Evaluate.
+    let t = Instant::now();
+    let evaluation = Some(crate::stages::run_evaluate(
+        &pred,
+        config.params.evaluate.loo,
+    )?);
+    stages.push(StageStatus {
+        name: "evaluate".into(),
+        status: "done".into(),
+        seconds: t.elapsed().as_secs_f64(),
+    });
+
+    stages.push(StageStatus {
+        name: "render".into(),
+        status: "not available".into(),
+        seconds: 0.0,
+    });
 
     let results = Results {
         name: config.params.name.clone(),
@@ -242,6 +270,8 @@ pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
         data,
         fit,
         latent,
+        predictions,
+        evaluation,
         total_seconds: total.elapsed().as_secs_f64(),
     };
     let json = serde_json::to_string_pretty(&results)

@@ -141,6 +141,9 @@ pub fn markdown(r: &Results) -> String {
         let _ = writeln!(s);
     }
 
+    predictions(&mut s, r);
+    evaluation(&mut s, r);
+
     let missing: Vec<&str> = r
         .stages
         .iter()
@@ -156,4 +159,110 @@ pub fn markdown(r: &Results) -> String {
         );
     }
     s
+}
+
+fn predictions(s: &mut String, r: &Results) {
+    if r.predictions.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        s,
+        "\n## Predictions\n\nA prediction is N coefficients over the measured materials \
+         (computed in `weights us`); a lazy lookup of one angular cell, all channels, costs N \
+         multiply-adds per value (`lookup us`, mean over up to 4096 cells). Materialising writes \
+         all D values.\n"
+    );
+    let _ = writeln!(
+        s,
+        "| point | latent x | predictor | variance | weights us | lookup us | mean value (1/sr) | materialised | seconds |\n|---|---|---|---:|---:|---:|---:|---|---:|"
+    );
+    for p in &r.predictions {
+        let x: Vec<String> = p.point.iter().map(|v| format!("{v:.3}")).collect();
+        let file = p.file.as_ref().map_or("-".to_string(), |f| {
+            format!("[`{f}`]({f}) ({})", bytes(p.file_bytes))
+        });
+        let _ = writeln!(
+            s,
+            "| {} | ({}) | {} | {} | {:.1} | {:.2} | {} | {} | {:.3} |",
+            p.label,
+            x.join(", "),
+            p.predictor,
+            num(p.variance),
+            p.weights_us,
+            p.lookup_us,
+            num(p.lookup_mean),
+            file,
+            p.materialize_seconds
+        );
+    }
+}
+
+fn evaluation(s: &mut String, r: &Results) {
+    let Some(e) = &r.evaluation else {
+        return;
+    };
+    let _ = writeln!(
+        s,
+        "\n## Errors\n\nRMSE with the paper's Eq. 22 normalisation (sum over all D values, \
+         divided by the {} angular cells), in BRDF space (1/sr) and in the model's transformed \
+         space ({}). Reconstruction: each training material predicted at its own latent point. \
+         Leave-one-out: refit without the material, place it at the latent point that best \
+         reconstructs it (GP, smooth predictor) and compare with baselines chosen with knowledge \
+         of it (nearest material; linear interpolation between the two materials nearest the GP \
+         point or the best pair; PCA with q components). Streaming pass {:.2} s, refits {:.2} s.\n",
+        e.n_angles, e.transform, e.pass_seconds, e.loo_seconds
+    );
+    let _ = writeln!(
+        s,
+        "| method | BRDF mean | BRDF median | model mean | model median | GP better on |\n|---|---:|---:|---:|---:|---:|"
+    );
+    for m in &e.summary {
+        let better = m
+            .gp_better
+            .map_or("-".to_string(), |k| format!("{k}/{}", e.n_materials));
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {} |",
+            m.method,
+            num(m.brdf_mean),
+            num(m.brdf_median),
+            num(m.model_mean),
+            num(m.model_median),
+            better
+        );
+    }
+    let _ = writeln!(s, "\n### Per material (BRDF-space RMSE)\n");
+    let _ = write!(
+        s,
+        "| material | reconstruction exact | reconstruction smooth |"
+    );
+    let methods: Vec<&str> = e
+        .loo
+        .as_ref()
+        .and_then(|l| l.first())
+        .map(|row| row.methods.iter().map(|m| m.method.name()).collect())
+        .unwrap_or_default();
+    for m in &methods {
+        let _ = write!(s, " loo {m} |");
+    }
+    let _ = write!(s, "\n|---|---:|---:|");
+    for _ in &methods {
+        let _ = write!(s, "---:|");
+    }
+    let _ = writeln!(s);
+    for (i, row) in e.reconstruction.iter().enumerate() {
+        let _ = write!(
+            s,
+            "| {} | {} | {} |",
+            row.name,
+            num(row.exact_rmse),
+            num(row.smooth_rmse)
+        );
+        if let Some(loo) = e.loo.as_ref().and_then(|l| l.get(i)) {
+            for m in &loo.methods {
+                let _ = write!(s, " {} |", num(m.brdf_rmse));
+            }
+        }
+        let _ = writeln!(s);
+    }
 }

@@ -54,6 +54,45 @@ fn quick_pipeline_report_matches_the_model_and_data() {
         assert!(s.is_finite() && s >= 0.0, "{st}");
     }
 
+    // Evaluation: every error finite and non-negative; the exact predictor reproduces the
+    // training materials (the paper's ~0 reconstruction error).
+    let eval = &json["evaluation"];
+    let recon = eval["reconstruction"].as_array().unwrap();
+    assert_eq!(recon.len(), n);
+    let finite = |v: &serde_json::Value| {
+        let x = v.as_f64().unwrap();
+        assert!(x.is_finite() && x >= 0.0, "{v}");
+        x
+    };
+    let mut smooth_max = 0.0f64;
+    for row in recon {
+        let exact = finite(&row["exact_rmse"]);
+        assert!(exact < 1e-8, "{row}");
+        assert!(finite(&row["exact_model_rmse"]) < 1e-6, "{row}");
+        smooth_max = smooth_max.max(finite(&row["smooth_rmse"]));
+        finite(&row["smooth_model_rmse"]);
+    }
+    // The smooth predictor does not interpolate: some material is visibly off.
+    assert!(smooth_max > 1e-6, "{smooth_max}");
+    let loo = eval["loo"].as_array().unwrap();
+    assert_eq!(loo.len(), n);
+    for row in loo {
+        for m in row["methods"].as_array().unwrap() {
+            finite(&m["brdf_rmse"]);
+            finite(&m["model_rmse"]);
+        }
+    }
+    // Predictions: the configured point and midpoint, materialised with the right size.
+    let preds = json["predictions"].as_array().unwrap();
+    assert_eq!(preds.len(), 2);
+    for p in preds {
+        assert!(finite(&p["variance"]) > 0.0 || p["label"] != "point 1");
+        let file = dir.path().join(p["file"].as_str().unwrap());
+        let bytes = std::fs::metadata(&file).unwrap().len();
+        assert_eq!(bytes, p["file_bytes"].as_u64().unwrap());
+        assert!(bytes >= (8 * 8 * 16 * 7 * 4) as u64);
+    }
+
     // The markdown report quotes the numbers.
     let report = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
     assert!(report.contains(&format!("| materials N | {n} |")));
@@ -96,10 +135,7 @@ fn unknown_keys_and_bad_values_are_named() {
             "predict.points[0]",
         ),
         (
-            base.replace(
-                "fit_config = \"configs/fit/default.toml\"",
-                "[fit]\nlatent_dim = 0\n",
-            ),
+            base.replace("[fit]\nlatent_dim = 2", "[fit]\nlatent_dim = 0\n"),
             "latent_dim",
         ),
     ];

@@ -1,0 +1,151 @@
+//! The predict and evaluate stages, through the predict crate.
+
+use std::path::Path;
+use std::time::Instant;
+
+use predict::evaluate::{EvalOptions, Evaluation, Stage, evaluate};
+use predict::{Predictor, PredictorKind};
+use serde::Serialize;
+
+use crate::config::{PipelineConfig, PredictorChoice};
+use crate::data::bar;
+use crate::error::{Error, Result};
+
+/// One prediction at a latent point.
+#[derive(Debug, Clone, Serialize)]
+pub struct PredictionRow {
+    /// What the point is (`point 1`, `mid(a, b)`).
+    pub label: String,
+    /// Latent coordinates.
+    pub point: Vec<f64>,
+    /// `exact` or `smooth`.
+    pub predictor: String,
+    /// Predictive variance of one transformed value.
+    pub variance: f64,
+    /// Microseconds to compute the N coefficients (the lazy prediction itself).
+    pub weights_us: f64,
+    /// Microseconds per lazy lookup of one angular cell, all channels (mean over many cells).
+    pub lookup_us: f64,
+    /// Mean of the predicted values over the looked-up cells (1/sr).
+    pub lookup_mean: f64,
+    /// Materialised file (relative to the output directory), when asked.
+    pub file: Option<String>,
+    /// Size of the materialised file in bytes (0 when not materialised).
+    pub file_bytes: u64,
+    /// Seconds to materialise all D values (0 when not materialised).
+    pub materialize_seconds: f64,
+}
+
+fn kind(choice: PredictorChoice) -> PredictorKind {
+    match choice {
+        PredictorChoice::Exact => PredictorKind::Exact,
+        PredictorChoice::Smooth => PredictorKind::Smooth,
+    }
+}
+
+/// Opens the model at `model_path` with its store.
+pub fn open(model_path: &Path) -> Result<Predictor> {
+    Predictor::open(model_path).map_err(|e| Error::stage("predict", model_path, e))
+}
+
+/// Microseconds per lazy lookup of one cell (all channels) over up to `count` cells spread over
+/// the grid, and the mean looked-up value.
+pub fn time_lookups(m: &predict::PredictedMaterial, count: usize) -> Result<(f64, f64)> {
+    let pred = m.predictor();
+    let cells = pred.grid().len();
+    let nc = m.channels().len();
+    let mut out = vec![0.0; nc];
+    let step = (cells / count.max(1)).max(1);
+    let mut sum = 0.0;
+    let mut k = 0usize;
+    let start = Instant::now();
+    for a in (0..cells).step_by(step).take(count) {
+        m.eval_cell(a, &mut out)
+            .map_err(|e| Error::stage("predict", pred.model().dataset.path.clone(), e))?;
+        sum += out.iter().sum::<f64>();
+        k += 1;
+    }
+    let us = start.elapsed().as_secs_f64() * 1e6 / k.max(1) as f64;
+    Ok((us, sum / (k * nc).max(1) as f64))
+}
+
+/// Predicts at every configured point (explicit points, then midpoints of named pairs).
+pub fn predict_points(
+    pred: &Predictor,
+    config: &PipelineConfig,
+    out: &Path,
+) -> Result<Vec<PredictionRow>> {
+    let model = pred.model();
+    let mut points: Vec<(String, Vec<f64>)> = config
+        .predict
+        .points
+        .iter()
+        .enumerate()
+        .map(|(i, x)| (format!("point {}", i + 1), x.clone()))
+        .collect();
+    for [a, b] in &config.predict.midpoints {
+        let find = |name: &str| {
+            model
+                .materials
+                .iter()
+                .find(|m| m.name == name)
+                .map(|m| m.coords.clone())
+                .ok_or_else(|| Error::Config {
+                    path: config.path.clone(),
+                    reason: format!("predict.midpoints: no material named {name:?} in the data"),
+                })
+        };
+        let (xa, xb) = (find(a)?, find(b)?);
+        let mid = xa.iter().zip(&xb).map(|(p, q)| 0.5 * (p + q)).collect();
+        points.push((format!("mid({a}, {b})"), mid));
+    }
+    let k = kind(config.predict.predictor);
+    let mut rows = Vec::new();
+    for (i, (label, x)) in points.into_iter().enumerate() {
+        let err = |e: predict::Error| Error::stage("predict", out.join("model.toml"), e);
+        let t = Instant::now();
+        let m = pred.predict(&x, k).map_err(err)?;
+        let weights_us = t.elapsed().as_secs_f64() * 1e6;
+        let variance = pred.variance_transformed(&x).map_err(err)?;
+        let (lookup_us, lookup_mean) = time_lookups(&m, 4096)?;
+        let (file, file_bytes, materialize_seconds) = if config.predict.materialize {
+            let name = format!("prediction-{}.npy", i + 1);
+            let r = m.materialize(&out.join(&name), |_, _| {}).map_err(err)?;
+            (Some(name), r.bytes, r.seconds)
+        } else {
+            (None, 0, 0.0)
+        };
+        rows.push(PredictionRow {
+            label,
+            point: x,
+            predictor: k.to_string(),
+            variance,
+            weights_us,
+            lookup_us,
+            lookup_mean,
+            file,
+            file_bytes,
+            materialize_seconds,
+        });
+    }
+    Ok(rows)
+}
+
+/// Reconstruction errors and, with `loo`, leave-one-out errors (predict crate).
+pub fn run_evaluate(pred: &Predictor, loo: bool) -> Result<Evaluation> {
+    let n = pred.n_materials() as u64;
+    let pb = bar(n, "evaluate");
+    let options = EvalOptions {
+        loo,
+        ..EvalOptions::default()
+    };
+    let r = evaluate(pred, &options, &|stage, done, total| {
+        if stage == Stage::Refits {
+            pb.set_length(total as u64);
+            pb.set_position(done as u64);
+        }
+    })
+    .map_err(|e| Error::stage("evaluate", pred.model().dataset.path.clone(), e));
+    pb.finish_and_clear();
+    r
+}
