@@ -516,6 +516,9 @@ pub struct EvalOptions {
     /// Warm-start the refits from the full model's latent points (otherwise: PCA start, as a
     /// fresh fit).
     pub warm_start: bool,
+    /// Cap on the optimiser iterations of each leave-one-out refit (L-BFGS iterations;
+    /// Hooke-Jeeves gets `cap * 2 N q` evaluations); `None` uses the model's fit configuration.
+    pub refit_iterations: Option<u64>,
 }
 
 impl Default for EvalOptions {
@@ -524,6 +527,7 @@ impl Default for EvalOptions {
             loo: false,
             starts: 3,
             warm_start: true,
+            refit_iterations: Some(200),
         }
     }
 }
@@ -665,7 +669,13 @@ pub fn evaluate(
 
     let t0 = Instant::now();
     let loo = if options.loo {
-        let config = model.config.clone().check()?;
+        let mut config = model.config.clone().check()?;
+        if let Some(cap) = options.refit_iterations {
+            let p = &mut config.params;
+            p.max_iterations = p.max_iterations.min(cap);
+            let evals = cap as usize * 2 * n * model.latent_dim;
+            p.max_evaluations = p.max_evaluations.min(evals);
+        }
         let done = AtomicUsize::new(0);
         let d_eff = model.dataset.d_effective;
         let x_full = model.latent_matrix();

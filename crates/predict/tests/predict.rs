@@ -432,6 +432,7 @@ fn brdf_space_errors_equal_model_space_errors_for_raw_data() {
             loo: true,
             starts: 2,
             warm_start: true,
+            refit_iterations: Some(50),
         },
         &|_, _, _| {},
     )

@@ -68,6 +68,10 @@ pub struct EvaluateArgs {
     /// from the full model's latent points.
     #[arg(long)]
     pub cold: bool,
+    /// Cap on the optimiser iterations of each leave-one-out refit (0: the model's own
+    /// configuration).
+    #[arg(long, default_value_t = 200)]
+    pub refit_iterations: u64,
     /// Read the dataset from this store instead of the path recorded in the model.
     #[arg(long)]
     pub dataset: Option<PathBuf>,
@@ -182,6 +186,7 @@ pub fn evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
         loo: args.loo,
         starts: args.starts,
         warm_start: !args.cold,
+        refit_iterations: (args.refit_iterations > 0).then_some(args.refit_iterations),
     };
     let bars: Mutex<(Option<ProgressBar>, Option<ProgressBar>)> = Mutex::new((None, None));
     let progress = |stage: Stage, done: usize, total: usize| {
