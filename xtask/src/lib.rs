@@ -8,6 +8,7 @@
 pub mod config;
 pub mod data;
 pub mod error;
+pub mod figures;
 pub mod pipeline;
 pub mod report;
 pub mod stages;

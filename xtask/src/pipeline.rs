@@ -124,6 +124,8 @@ pub struct Results {
     pub predictions: Vec<crate::stages::PredictionRow>,
     /// Reconstruction and leave-one-out errors (evaluate stage; `None` if not run).
     pub evaluation: Option<predict::evaluate::Evaluation>,
+    /// Figures and rendered (Delta E) errors (render stage; `None` if not run).
+    pub figures: Option<crate::figures::Figures>,
     /// Total wall-clock seconds.
     pub total_seconds: f64,
 }
@@ -255,10 +257,24 @@ pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
         seconds: t.elapsed().as_secs_f64(),
     });
 
+    // Render.
+    let t = Instant::now();
+    let r = &config.params.render;
+    let figures = if r.enabled {
+        Some(crate::figures::render_figures(
+            &pred,
+            &predictions,
+            r.size as usize,
+            r.sheet_materials,
+            out,
+        )?)
+    } else {
+        None
+    };
     stages.push(StageStatus {
         name: "render".into(),
-        status: "not available".into(),
-        seconds: 0.0,
+        status: if figures.is_some() { "done" } else { "skipped" }.into(),
+        seconds: t.elapsed().as_secs_f64(),
     });
 
     let results = Results {
@@ -272,6 +288,7 @@ pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
         latent,
         predictions,
         evaluation,
+        figures,
         total_seconds: total.elapsed().as_secs_f64(),
     };
     let json = serde_json::to_string_pretty(&results)

@@ -143,6 +143,7 @@ pub fn markdown(r: &Results) -> String {
 
     predictions(&mut s, r);
     evaluation(&mut s, r);
+    figures(&mut s, r);
 
     let missing: Vec<&str> = r
         .stages
@@ -264,5 +265,30 @@ fn evaluation(s: &mut String, r: &Results) {
             }
         }
         let _ = writeln!(s);
+    }
+}
+
+fn figures(s: &mut String, r: &Results) {
+    let Some(f) = &r.figures else {
+        return;
+    };
+    let _ = writeln!(
+        s,
+        "\n## Figures\n\nSpheres under a directional light and a dim uniform environment, D65, \
+         spectral -> CIE XYZ -> sRGB ({:.2} s per sphere). Mean CIE Delta E 2000 between the \
+         measured spheres and the smooth GP reconstructions in the sheet: **{:.2}**.\n",
+        f.seconds_per_sphere, f.mean_delta_e
+    );
+    for (file, caption) in &f.files {
+        let _ = writeln!(s, "![{file}]({file})\n\n*{caption}*\n");
+    }
+    if !f.delta_e.is_empty() {
+        let _ = writeln!(
+            s,
+            "| material | Delta E 2000 (smooth reconstruction) |\n|---|---:|"
+        );
+        for d in &f.delta_e {
+            let _ = writeln!(s, "| {} | {:.3} |", d.name, d.mean_delta_e);
+        }
     }
 }

@@ -93,6 +93,21 @@ fn quick_pipeline_report_matches_the_model_and_data() {
         assert!(bytes >= (8 * 8 * 16 * 7 * 4) as u64);
     }
 
+    // Figures exist and the rendered errors are finite and non-negative.
+    for f in json["figures"]["files"].as_array().unwrap() {
+        let file = dir.path().join(f[0].as_str().unwrap());
+        assert!(
+            std::fs::metadata(&file).unwrap().len() > 100,
+            "{}",
+            file.display()
+        );
+    }
+    let de = json["figures"]["delta_e"].as_array().unwrap();
+    assert_eq!(de.len(), 3);
+    for d in de {
+        finite(&d["mean_delta_e"]);
+    }
+
     // The markdown report quotes the numbers.
     let report = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
     assert!(report.contains(&format!("| materials N | {n} |")));

@@ -1,0 +1,214 @@
+//! The render stage: sphere sheets (measured against GP reconstruction, with Delta E 2000),
+//! spheres of the predictions and a latent-space scatter, through the render crate.
+
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+use brdf_io::store::StoreMaterial;
+use predict::{Predictor, PredictorKind};
+use render::{Image, SphereOptions, delta_e_2000_rgb, render_sphere};
+use serde::Serialize;
+
+use crate::error::{Error, Result};
+use crate::stages::PredictionRow;
+
+/// Delta E of one material's sphere: measured against the smooth GP reconstruction.
+#[derive(Debug, Clone, Serialize)]
+pub struct SphereDeltaE {
+    /// Material name.
+    pub name: String,
+    /// Mean CIE Delta E 2000 over the pixels covered by both spheres.
+    pub mean_delta_e: f64,
+}
+
+/// What the render stage drew.
+#[derive(Debug, Clone, Serialize)]
+pub struct Figures {
+    /// Figure files (relative to the output directory) and captions.
+    pub files: Vec<(String, String)>,
+    /// Per material in the sheet: Delta E of the smooth reconstruction.
+    pub delta_e: Vec<SphereDeltaE>,
+    /// Mean of `delta_e`.
+    pub mean_delta_e: f64,
+    /// Seconds per sphere (mean).
+    pub seconds_per_sphere: f64,
+}
+
+const BG: [f64; 3] = [0.18, 0.18, 0.18];
+const INK: [f64; 3] = [0.9, 0.9, 0.9];
+
+/// Mean Delta E 2000 between two renders over the pixels fully covered in both.
+pub fn mean_delta_e(a: &Image, b: &Image) -> f64 {
+    let mut sum = 0.0;
+    let mut k = 0usize;
+    for i in 0..a.rgb.len().min(b.rgb.len()) {
+        if a.alpha[i] >= 0.99 && b.alpha[i] >= 0.99 {
+            sum += delta_e_2000_rgb(a.rgb[i], b.rgb[i]);
+            k += 1;
+        }
+    }
+    if k == 0 { f64::NAN } else { sum / k as f64 }
+}
+
+fn label(img: &mut Image, x: usize, y: usize, width: usize, text: &str) {
+    let t = render::font::fit(text, width, 1);
+    img.text(x as i64, y as i64, &t, 1, INK);
+}
+
+fn err(path: &Path, e: impl std::fmt::Display) -> Error {
+    Error::stage("render", path, e)
+}
+
+/// Renders the figures of a pipeline run into `out`.
+pub fn render_figures(
+    pred: &Predictor,
+    predictions: &[PredictionRow],
+    size: usize,
+    sheet_materials: usize,
+    out: &Path,
+) -> Result<Figures> {
+    let opts = SphereOptions {
+        size,
+        ..SphereOptions::default()
+    };
+    let model = pred.model();
+    let n = model.materials.len();
+    let store: Arc<brdf_io::Store> = pred.store().clone();
+    let mut files = Vec::new();
+    let mut spheres = 0usize;
+    let start = Instant::now();
+
+    // Sheet: measured (top) against the smooth GP reconstruction (bottom).
+    let k = sheet_materials.min(n).max(1);
+    let picks: Vec<usize> = (0..k).map(|j| j * n / k).collect();
+    let cell = size + 8;
+    let label_h = 12;
+    let mut sheet = Image::new(k * cell + 4, 2 * (cell + label_h) + 4, BG);
+    let mut delta_e = Vec::new();
+    let sheet_path = out.join("sheet.png");
+    for (col, &i) in picks.iter().enumerate() {
+        let name = &model.materials[i].name;
+        let measured =
+            StoreMaterial::by_index(store.clone(), i).map_err(|e| err(&sheet_path, e))?;
+        let a = render_sphere(&measured, &opts).map_err(|e| err(&sheet_path, e))?;
+        let rec = pred
+            .predict(&model.materials[i].coords, PredictorKind::Smooth)
+            .map_err(|e| err(&sheet_path, e))?;
+        let b = render_sphere(&rec, &opts).map_err(|e| err(&sheet_path, e))?;
+        spheres += 2;
+        let de = mean_delta_e(&a, &b);
+        let x = 4 + col * cell;
+        sheet.blit(&a, x as i64, 4);
+        label(&mut sheet, x, 4 + size + 2, size, name);
+        let y2 = 4 + cell + label_h;
+        sheet.blit(&b, x as i64, y2 as i64);
+        label(&mut sheet, x, y2 + size + 2, size, &format!("dE {de:.2}"));
+        delta_e.push(SphereDeltaE {
+            name: name.clone(),
+            mean_delta_e: de,
+        });
+    }
+    sheet
+        .save_png(&sheet_path)
+        .map_err(|e| err(&sheet_path, e))?;
+    files.push((
+        "sheet.png".to_string(),
+        "Top: measured spheres; bottom: the smooth GP prediction at each material's own latent \
+         point, with the mean CIE Delta E 2000 over the sphere."
+            .to_string(),
+    ));
+
+    // Predictions.
+    if !predictions.is_empty() {
+        let path = out.join("predictions.png");
+        let mut img = Image::new(predictions.len() * cell + 4, cell + 2 * label_h + 4, BG);
+        for (col, p) in predictions.iter().enumerate() {
+            let kind = if p.predictor == "smooth" {
+                PredictorKind::Smooth
+            } else {
+                PredictorKind::Exact
+            };
+            let m = pred.predict(&p.point, kind).map_err(|e| err(&path, e))?;
+            let s = render_sphere(&m, &opts).map_err(|e| err(&path, e))?;
+            spheres += 1;
+            let x = 4 + col * cell;
+            img.blit(&s, x as i64, 4);
+            label(&mut img, x, 4 + size + 2, size, &p.label);
+            let coords: Vec<String> = p.point.iter().map(|v| format!("{v:.2}")).collect();
+            label(&mut img, x, 4 + size + 2 + label_h, size, &coords.join(","));
+        }
+        img.save_png(&path).map_err(|e| err(&path, e))?;
+        files.push((
+            "predictions.png".to_string(),
+            "Spheres of the predicted materials at the configured latent points.".to_string(),
+        ));
+    }
+
+    // Latent scatter (first two coordinates).
+    if model.latent_dim >= 2 {
+        let path = out.join("latent.png");
+        let w = 640usize;
+        let mut img = Image::new(w, w, BG);
+        let pts: Vec<[f64; 2]> = model
+            .materials
+            .iter()
+            .map(|m| [m.coords[0], m.coords[1]])
+            .chain(predictions.iter().map(|p| [p.point[0], p.point[1]]))
+            .collect();
+        let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
+        for p in &pts {
+            for a in 0..2 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        let margin = 40.0;
+        let span = (0..2)
+            .map(|a| (hi[a] - lo[a]).max(1e-12))
+            .fold(0.0, f64::max);
+        let to_px = |p: [f64; 2]| {
+            let s = (w as f64 - 2.0 * margin) / span;
+            (
+                margin + (p[0] - lo[0]) * s,
+                w as f64 - margin - (p[1] - lo[1]) * s,
+            )
+        };
+        for (m, p) in model.materials.iter().zip(&pts) {
+            let (x, y) = to_px(*p);
+            img.disc(x, y, 3.5, [0.3, 0.7, 1.0]);
+            img.text(x as i64 + 5, y as i64 - 3, &m.name, 1, INK);
+        }
+        for (p, row) in pts[n..].iter().zip(predictions) {
+            let (x, y) = to_px(*p);
+            img.disc(x, y, 4.5, [1.0, 0.5, 0.1]);
+            img.text(x as i64 + 6, y as i64 - 3, &row.label, 1, [1.0, 0.7, 0.4]);
+        }
+        img.text(
+            8,
+            8,
+            "latent space (x1 right, x2 up): blue = materials, orange = predictions",
+            1,
+            INK,
+        );
+        img.save_png(&path).map_err(|e| err(&path, e))?;
+        files.push((
+            "latent.png".to_string(),
+            "The training materials (blue) and the predicted points (orange) in the first two \
+             latent coordinates, equal scale on both axes."
+                .to_string(),
+        ));
+    }
+
+    let finite: Vec<f64> = delta_e
+        .iter()
+        .map(|d| d.mean_delta_e)
+        .filter(|v| v.is_finite())
+        .collect();
+    Ok(Figures {
+        files,
+        mean_delta_e: finite.iter().sum::<f64>() / finite.len().max(1) as f64,
+        delta_e,
+        seconds_per_sphere: start.elapsed().as_secs_f64() / spheres.max(1) as f64,
+    })
+}
