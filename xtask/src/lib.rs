@@ -5,11 +5,13 @@
 //! the later stages, [`report`] writes `report.md`; [`bench`] sweeps settings for run time
 //! against error and [`plot`] draws the result.
 
+pub mod bench;
 pub mod config;
 pub mod data;
 pub mod error;
 pub mod figures;
 pub mod pipeline;
+pub mod plot;
 pub mod report;
 pub mod stages;
 

@@ -26,6 +26,15 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Run time against error sweeps -> DIR/bench.md, bench.json, bench.png.
+    Bench {
+        /// Bench config.
+        #[arg(long, default_value = "configs/bench.toml")]
+        config: PathBuf,
+        /// Output directory (default `out/bench`).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
 }
 
 /// A path as given, or relative to the project root when it does not exist as given.
@@ -73,6 +82,21 @@ fn run(cli: &Cli) -> anyhow::Result<()> {
                 results.fit.log_likelihood,
                 results.total_seconds,
                 out.join("report.md").display()
+            );
+        }
+        Command::Bench { config, out } => {
+            let path = locate(config, &root);
+            let bench = xtask::bench::BenchConfig::load(&path)?;
+            let out = out
+                .clone()
+                .unwrap_or_else(|| root.join("out").join("bench"));
+            let rows = xtask::bench::run(&bench, &path, &out)
+                .with_context(|| format!("bench {}", path.display()))?;
+            eprintln!(
+                "bench: {} points, {} on the Pareto front; {}",
+                rows.len(),
+                rows.iter().filter(|r| r.pareto).count(),
+                out.join("bench.md").display()
             );
         }
     }

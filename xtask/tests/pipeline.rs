@@ -103,7 +103,7 @@ fn quick_pipeline_report_matches_the_model_and_data() {
         );
     }
     let de = json["figures"]["delta_e"].as_array().unwrap();
-    assert_eq!(de.len(), 3);
+    assert_eq!(de.len(), 2);
     for d in de {
         finite(&d["mean_delta_e"]);
     }

@@ -1,0 +1,570 @@
+//! `cargo xtask bench`: run time against error. Every sweep varies one setting of a base point
+//! (angular resolution, wavelength sampling, storage precision, latent dimension, transform,
+//! optimiser, predictor); each point is synthesised, fitted, predicted (lazy and full) and
+//! evaluated (reconstruction, leave-one-out, Delta E), then tabulated and plotted with its
+//! Pareto front.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use brdf_io::store::Dtype;
+use brdf_io::{AngularGrid, Channels};
+use gplvm::{FitParams, OptimizerKind};
+use predict::{Predictor, PredictorKind};
+use serde::{Deserialize, Serialize};
+
+use crate::config::{DataConfig, DataSource};
+use crate::error::{Error, Result};
+use crate::pipeline::write_atomic;
+
+/// The settings of one bench point.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Settings {
+    /// Angular grid `TH,TD,PD`.
+    pub grid: String,
+    /// Wavelengths `START:END:STEP`.
+    pub wavelengths: String,
+    /// `f32` or `f16`.
+    pub dtype: String,
+    /// Latent dimension q.
+    pub latent_dim: usize,
+    /// `raw` or `log`.
+    pub transform: String,
+    /// `lbfgs` or `hooke-jeeves`.
+    pub optimizer: String,
+    /// `exact` or `smooth` (the reconstruction error; leave-one-out always uses the smooth mean).
+    pub predictor: String,
+}
+
+/// Values to sweep, one list per setting (each sweep varies one setting of the base point).
+#[derive(Debug, Clone, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Sweeps {
+    /// Angular grids.
+    #[serde(default)]
+    pub grid: Vec<String>,
+    /// Wavelength samplings.
+    #[serde(default)]
+    pub wavelengths: Vec<String>,
+    /// Storage precisions.
+    #[serde(default)]
+    pub dtype: Vec<String>,
+    /// Latent dimensions.
+    #[serde(default)]
+    pub latent_dim: Vec<usize>,
+    /// Transforms.
+    #[serde(default)]
+    pub transform: Vec<String>,
+    /// Optimisers.
+    #[serde(default)]
+    pub optimizer: Vec<String>,
+    /// Predictors.
+    #[serde(default)]
+    pub predictor: Vec<String>,
+}
+
+/// `configs/bench.toml`.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct BenchConfig {
+    /// The point every sweep starts from.
+    pub base: Settings,
+    /// L-BFGS iteration cap of the fits.
+    pub max_iterations: u64,
+    /// Hooke-Jeeves evaluation cap of the fits.
+    pub max_evaluations: usize,
+    /// Spheres (measured against the smooth reconstruction) for Delta E; 0 disables it.
+    pub delta_e_materials: usize,
+    /// Sphere size for Delta E.
+    pub sphere_size: usize,
+    /// The sweeps.
+    pub sweep: Sweeps,
+}
+
+impl BenchConfig {
+    /// Reads and validates `path` (every swept point is checked before anything runs).
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let c: Self = toml::from_str(&text).map_err(|e| Error::Config {
+            path: path.to_owned(),
+            reason: e.to_string(),
+        })?;
+        for (_, _, s) in c.points() {
+            s.check().map_err(|reason| Error::Config {
+                path: path.to_owned(),
+                reason,
+            })?;
+        }
+        Ok(c)
+    }
+
+    /// (sweep, value, settings) of every point; the base point once, as sweep `base`.
+    pub fn points(&self) -> Vec<(String, String, Settings)> {
+        let mut out = vec![("base".to_string(), "-".to_string(), self.base.clone())];
+        let mut add = |axis: &str, value: String, s: Settings| {
+            if s != self.base {
+                out.push((axis.to_string(), value, s));
+            }
+        };
+        let b = &self.base;
+        let sw = &self.sweep;
+        for v in &sw.grid {
+            add(
+                "grid",
+                v.clone(),
+                Settings {
+                    grid: v.clone(),
+                    ..b.clone()
+                },
+            );
+        }
+        for v in &sw.wavelengths {
+            add(
+                "wavelengths",
+                v.clone(),
+                Settings {
+                    wavelengths: v.clone(),
+                    ..b.clone()
+                },
+            );
+        }
+        for v in &sw.dtype {
+            add(
+                "dtype",
+                v.clone(),
+                Settings {
+                    dtype: v.clone(),
+                    ..b.clone()
+                },
+            );
+        }
+        for v in &sw.latent_dim {
+            add(
+                "latent_dim",
+                v.to_string(),
+                Settings {
+                    latent_dim: *v,
+                    ..b.clone()
+                },
+            );
+        }
+        for v in &sw.transform {
+            add(
+                "transform",
+                v.clone(),
+                Settings {
+                    transform: v.clone(),
+                    ..b.clone()
+                },
+            );
+        }
+        for v in &sw.optimizer {
+            add(
+                "optimizer",
+                v.clone(),
+                Settings {
+                    optimizer: v.clone(),
+                    ..b.clone()
+                },
+            );
+        }
+        for v in &sw.predictor {
+            add(
+                "predictor",
+                v.clone(),
+                Settings {
+                    predictor: v.clone(),
+                    ..b.clone()
+                },
+            );
+        }
+        out
+    }
+}
+
+impl Settings {
+    fn parsed(&self) -> std::result::Result<(AngularGrid, Channels, Dtype), String> {
+        let grid: AngularGrid = self
+            .grid
+            .parse()
+            .map_err(|e| format!("grid {:?}: {e}", self.grid))?;
+        let channels = Channels::parse_wavelengths(&self.wavelengths)
+            .map_err(|e| format!("wavelengths {:?}: {e}", self.wavelengths))?;
+        let dtype: Dtype = self
+            .dtype
+            .parse()
+            .map_err(|e| format!("dtype {:?}: {e}", self.dtype))?;
+        Ok((grid, channels, dtype))
+    }
+
+    fn fit_params(&self, max_iterations: u64, max_evaluations: usize) -> FitParams {
+        FitParams {
+            latent_dim: self.latent_dim,
+            optimizer: self.optimizer.parse().unwrap_or(OptimizerKind::Lbfgs),
+            transform: self.transform.clone(),
+            max_iterations,
+            max_evaluations,
+            ..FitParams::default()
+        }
+    }
+
+    fn kind(&self) -> PredictorKind {
+        if self.predictor == "smooth" {
+            PredictorKind::Smooth
+        } else {
+            PredictorKind::Exact
+        }
+    }
+
+    /// Checks every value.
+    pub fn check(&self) -> std::result::Result<(), String> {
+        self.parsed()?;
+        self.optimizer
+            .parse::<OptimizerKind>()
+            .map_err(|e| e.to_string())?;
+        if !matches!(self.predictor.as_str(), "exact" | "smooth") {
+            return Err(format!(
+                "predictor {:?}: expected exact or smooth",
+                self.predictor
+            ));
+        }
+        self.fit_params(1, 1)
+            .check()
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    }
+}
+
+/// The measurements of one bench point.
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchRow {
+    /// Which sweep (`base`, `grid`, ...).
+    pub sweep: String,
+    /// The swept value.
+    pub value: String,
+    /// All settings.
+    pub settings: Settings,
+    /// Values per material D.
+    pub d: usize,
+    /// Channels.
+    pub n_channels: usize,
+    /// Store size in bytes.
+    pub store_bytes: u64,
+    /// Seconds to synthesise the store.
+    pub data_seconds: f64,
+    /// Seconds to fit (Gram pass + optimisation).
+    pub fit_seconds: f64,
+    /// Final log-likelihood.
+    pub log_likelihood: f64,
+    /// Microseconds for one lazy prediction (the N coefficients).
+    pub predict_lazy_us: f64,
+    /// Microseconds per lazy lookup of one cell (all channels).
+    pub lookup_us: f64,
+    /// Seconds to materialise one prediction (all D values, `.npy`).
+    pub predict_full_seconds: f64,
+    /// Mean Eq. 22 reconstruction RMSE (BRDF space) of the chosen predictor.
+    pub reconstruction_rmse: f64,
+    /// Mean Eq. 22 leave-one-out RMSE of the GP (BRDF space).
+    pub loo_rmse: f64,
+    /// `loo_rmse / sqrt(n_channels)`: comparable across wavelength samplings.
+    pub loo_rmse_per_channel: f64,
+    /// Median Eq. 22 leave-one-out RMSE of the GP (BRDF space).
+    pub loo_rmse_median: f64,
+    /// Mean Delta E 2000 of the smooth reconstruction's spheres (NaN when disabled).
+    pub delta_e: f64,
+    /// Seconds of the evaluation (refits + streaming pass).
+    pub evaluate_seconds: f64,
+    /// On the Pareto front of (fit seconds, per-channel leave-one-out error).
+    pub pareto: bool,
+}
+
+/// Runs every point of `config`, writes `bench.md`, `bench.json` and `bench.png` into `out`.
+pub fn run(config: &BenchConfig, config_path: &Path, out: &Path) -> Result<Vec<BenchRow>> {
+    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    let scratch = out.join("scratch");
+    std::fs::create_dir_all(&scratch).map_err(|e| Error::io(&scratch, e))?;
+    let mut stores: BTreeMap<(String, String, String), (PathBuf, f64)> = BTreeMap::new();
+    let points = config.points();
+    let mut rows = Vec::new();
+    for (k, (sweep, value, s)) in points.iter().enumerate() {
+        eprintln!("bench {}/{}: {sweep} = {value}", k + 1, points.len());
+        let (grid, channels, dtype) = s.parsed().map_err(|reason| Error::Config {
+            path: config_path.to_owned(),
+            reason,
+        })?;
+        let key = (s.grid.clone(), s.wavelengths.clone(), s.dtype.clone());
+        let (store_path, data_seconds) = match stores.get(&key) {
+            Some(v) => v.clone(),
+            None => {
+                let path = scratch.join(format!("data-{}.sbrdf", stores.len()));
+                let dc = DataConfig {
+                    source: DataSource::Synth {
+                        channels: channels.clone(),
+                        seed: 0,
+                        only: None,
+                    },
+                    grid,
+                    dtype,
+                };
+                let (_, secs) = crate::data::build_store(&dc, &path)?;
+                stores.insert(key, (path.clone(), secs));
+                (path, secs)
+            }
+        };
+        let fit_config = s
+            .fit_params(config.max_iterations, config.max_evaluations)
+            .check()
+            .map_err(|e| Error::Config {
+                path: config_path.to_owned(),
+                reason: e.to_string(),
+            })?;
+        let t = Instant::now();
+        let model = gplvm::fit_store(&store_path, &fit_config)
+            .map_err(|e| Error::stage("fit", &store_path, e))?;
+        let fit_seconds = t.elapsed().as_secs_f64();
+        let model_path = scratch.join(format!("model-{k}.toml"));
+        model
+            .save(&model_path)
+            .map_err(|e| Error::stage("fit", &model_path, e))?;
+        let store_bytes = std::fs::metadata(&store_path)
+            .map_err(|e| Error::io(&store_path, e))?
+            .len();
+        let pred =
+            Predictor::open(&model_path).map_err(|e| Error::stage("predict", &model_path, e))?;
+        let perr = |e: predict::Error| Error::stage("predict", &model_path, e);
+
+        // Lazy and full prediction at the midpoint of the first two materials.
+        let x: Vec<f64> = model.materials[0]
+            .coords
+            .iter()
+            .zip(&model.materials[1].coords)
+            .map(|(a, b)| 0.5 * (a + b))
+            .collect();
+        let reps = 200;
+        let t = Instant::now();
+        let mut m = pred.predict(&x, s.kind()).map_err(perr)?;
+        for _ in 1..reps {
+            m = pred.predict(&x, s.kind()).map_err(perr)?;
+        }
+        let predict_lazy_us = t.elapsed().as_secs_f64() * 1e6 / reps as f64;
+        let (lookup_us, _) = crate::stages::time_lookups(&m, 4096)?;
+        let full = m
+            .materialize(&scratch.join("prediction.npy"), |_, _| {})
+            .map_err(perr)?;
+
+        // Errors.
+        let t = Instant::now();
+        let eval = crate::stages::run_evaluate(&pred, true)?;
+        let evaluate_seconds = t.elapsed().as_secs_f64();
+        let summary = |name: &str| eval.summary.iter().find(|r| r.method == name);
+        let recon_name = if s.kind() == PredictorKind::Smooth {
+            "reconstruction-smooth"
+        } else {
+            "reconstruction-exact"
+        };
+        let reconstruction_rmse = summary(recon_name).map_or(f64::NAN, |r| r.brdf_mean);
+        let (loo_rmse, loo_rmse_median) =
+            summary("loo-gp").map_or((f64::NAN, f64::NAN), |r| (r.brdf_mean, r.brdf_median));
+        let delta_e = if config.delta_e_materials > 0 {
+            delta_e_of(&pred, config.delta_e_materials, config.sphere_size)?
+        } else {
+            f64::NAN
+        };
+        rows.push(BenchRow {
+            sweep: sweep.clone(),
+            value: value.clone(),
+            settings: s.clone(),
+            d: pred.store().d(),
+            n_channels: channels.len(),
+            store_bytes,
+            data_seconds,
+            fit_seconds,
+            log_likelihood: model.fit.log_likelihood,
+            predict_lazy_us,
+            lookup_us,
+            predict_full_seconds: full.seconds,
+            reconstruction_rmse,
+            loo_rmse,
+            loo_rmse_per_channel: loo_rmse / (channels.len() as f64).sqrt(),
+            loo_rmse_median,
+            delta_e,
+            evaluate_seconds,
+            pareto: false,
+        });
+    }
+    mark_pareto(&mut rows);
+    let _ = std::fs::remove_dir_all(&scratch);
+
+    let json = serde_json::to_string_pretty(&rows)
+        .map_err(|e| Error::stage("bench", out.join("bench.json"), e))?;
+    write_atomic(&out.join("bench.json"), json.as_bytes())?;
+    write_atomic(
+        &out.join("bench.md"),
+        markdown(&rows, config_path).as_bytes(),
+    )?;
+    crate::plot::pareto_plot(&rows, &out.join("bench.png"))?;
+    Ok(rows)
+}
+
+/// Mean Delta E 2000 of `k` materials' spheres: measured against the smooth reconstruction.
+fn delta_e_of(pred: &Predictor, k: usize, size: usize) -> Result<f64> {
+    let opts = render::SphereOptions {
+        size,
+        ..render::SphereOptions::default()
+    };
+    let model = pred.model();
+    let n = model.materials.len();
+    let k = k.min(n).max(1);
+    let path = pred.model().dataset.path.clone();
+    let mut sum = 0.0;
+    for j in 0..k {
+        let i = j * n / k;
+        let measured = brdf_io::store::StoreMaterial::by_index(pred.store().clone(), i)
+            .map_err(|e| Error::stage("render", &path, e))?;
+        let a = render::render_sphere(&measured, &opts)
+            .map_err(|e| Error::stage("render", &path, e))?;
+        let rec = pred
+            .predict(&model.materials[i].coords, PredictorKind::Smooth)
+            .map_err(|e| Error::stage("render", &path, e))?;
+        let b = render::render_sphere(&rec, &opts).map_err(|e| Error::stage("render", &path, e))?;
+        sum += crate::figures::mean_delta_e(&a, &b);
+    }
+    Ok(sum / k as f64)
+}
+
+/// Marks the rows not dominated in (fit seconds, per-channel leave-one-out error).
+pub fn mark_pareto(rows: &mut [BenchRow]) {
+    let pts: Vec<(f64, f64)> = rows
+        .iter()
+        .map(|r| (r.fit_seconds, r.loo_rmse_per_channel))
+        .collect();
+    for (i, r) in rows.iter_mut().enumerate() {
+        let (t, e) = pts[i];
+        r.pareto = t.is_finite()
+            && e.is_finite()
+            && !pts
+                .iter()
+                .enumerate()
+                .any(|(j, &(t2, e2))| j != i && t2 <= t && e2 <= e && (t2 < t || e2 < e));
+    }
+}
+
+fn markdown(rows: &[BenchRow], config_path: &Path) -> String {
+    use crate::report::{bytes, num};
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "# specgp bench: run time against error\n\nConfig `{}`; regenerate with `cargo xtask \
+         bench --config {}`. The 51 synthetic materials; each sweep varies one setting of the \
+         base point. Errors are the paper's Eq. 22 RMSE in BRDF space (1/sr), means over the \
+         materials; `LOO/ch` divides the leave-one-out error by sqrt(channels) so wavelength \
+         samplings compare. Delta E: smooth reconstruction against the measured sphere. \
+         Pareto (*): no other point is both faster to fit and better in LOO/ch.\n",
+        config_path.display(),
+        config_path.display()
+    );
+    let _ = writeln!(
+        s,
+        "| sweep | value | D | store | fit s | lazy predict us | lookup us | full predict s | reconstruction | LOO | LOO median | LOO/ch | Delta E | Pareto |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|:-:|"
+    );
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {:.2} | {:.1} | {:.2} | {:.3} | {} | {} | {} | {} | {} | {} |",
+            r.sweep,
+            r.value,
+            r.d,
+            bytes(r.store_bytes),
+            r.fit_seconds,
+            r.predict_lazy_us,
+            r.lookup_us,
+            r.predict_full_seconds,
+            num(r.reconstruction_rmse),
+            num(r.loo_rmse),
+            num(r.loo_rmse_median),
+            num(r.loo_rmse_per_channel),
+            if r.delta_e.is_finite() {
+                format!("{:.3}", r.delta_e)
+            } else {
+                "-".into()
+            },
+            if r.pareto { "*" } else { "" }
+        );
+    }
+    let _ = writeln!(s, "\n![run time against error](bench.png)");
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(t: f64, e: f64) -> BenchRow {
+        BenchRow {
+            sweep: "s".into(),
+            value: "v".into(),
+            settings: Settings {
+                grid: "4,4,8".into(),
+                wavelengths: "400:700:100".into(),
+                dtype: "f32".into(),
+                latent_dim: 2,
+                transform: "log".into(),
+                optimizer: "lbfgs".into(),
+                predictor: "exact".into(),
+            },
+            d: 1,
+            n_channels: 1,
+            store_bytes: 0,
+            data_seconds: 0.0,
+            fit_seconds: t,
+            log_likelihood: 0.0,
+            predict_lazy_us: 0.0,
+            lookup_us: 0.0,
+            predict_full_seconds: 0.0,
+            reconstruction_rmse: 0.0,
+            loo_rmse: e,
+            loo_rmse_per_channel: e,
+            loo_rmse_median: e,
+            delta_e: f64::NAN,
+            evaluate_seconds: 0.0,
+            pareto: false,
+        }
+    }
+
+    #[test]
+    fn pareto_front_keeps_exactly_the_undominated_points() {
+        let mut rows = vec![
+            row(1.0, 5.0),      // front: fastest
+            row(2.0, 3.0),      // front
+            row(3.0, 4.0),      // dominated by (2, 3)
+            row(4.0, 1.0),      // front: most accurate
+            row(4.0, 1.0),      // a tie is not dominated
+            row(5.0, f64::NAN), // no error: never on the front
+        ];
+        mark_pareto(&mut rows);
+        let front: Vec<bool> = rows.iter().map(|r| r.pareto).collect();
+        assert_eq!(front, [true, true, false, true, true, false]);
+    }
+
+    #[test]
+    fn bench_config_in_the_repository_validates_and_dedupes_the_base() {
+        let path = crate::project_root().join("configs/bench.toml");
+        let c = BenchConfig::load(&path).unwrap();
+        let pts = c.points();
+        assert_eq!(pts[0].0, "base");
+        // No swept point repeats the base point.
+        assert!(pts[1..].iter().all(|(_, _, s)| *s != c.base));
+        // A bad value is named with the file.
+        let dir = tempfile::tempdir().unwrap();
+        let bad = dir.path().join("bench.toml");
+        let text = std::fs::read_to_string(&path)
+            .unwrap()
+            .replace("latent_dim = [1,", "latent_dim = [0,");
+        std::fs::write(&bad, text).unwrap();
+        let e = BenchConfig::load(&bad).unwrap_err().to_string();
+        assert!(e.contains("bench.toml") && e.contains("latent_dim"), "{e}");
+    }
+}
