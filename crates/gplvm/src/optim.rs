@@ -40,7 +40,9 @@ impl Default for HookeJeevesSettings {
 /// Settings of L-BFGS.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LbfgsSettings {
-    /// Number of correction pairs kept.
+    /// Number of correction pairs kept. The GPLVM has N q parameters and each evaluation costs
+    /// O(N^3), so a long memory is nearly free; on the default synthetic set (N q = 102) a
+    /// memory of 100 needs 115 evaluations on raw data where 10 needs 744 (fit_bench example).
     pub memory: usize,
     /// Maximum number of iterations.
     pub max_iterations: u64,
@@ -53,7 +55,7 @@ pub struct LbfgsSettings {
 impl Default for LbfgsSettings {
     fn default() -> Self {
         Self {
-            memory: 10,
+            memory: 100,
             max_iterations: 2_000,
             gradient_tolerance: 1e-6,
             cost_tolerance: 1e-12,
