@@ -185,6 +185,25 @@ impl SpectralWeights {
     }
 }
 
+/// The spectral channels the observer needs under `illuminant` (non-zero weight), when they are
+/// fewer than all: a source restricted to them renders the same colours with fewer lookups.
+/// `None` for RGB channels or when every wavelength is needed.
+pub fn needed_wavelengths(
+    channels: &brdf_io::Channels,
+    illuminant: Illuminant,
+) -> Result<Option<brdf_io::Channels>> {
+    let brdf_io::Channels::Spectral(wl) = channels else {
+        return Ok(None);
+    };
+    let needed = SpectralWeights::new(wl, illuminant)?.needed();
+    if needed.len() == wl.len() {
+        return Ok(None);
+    }
+    Ok(Some(brdf_io::Channels::Spectral(
+        needed.into_iter().map(|k| wl[k]).collect(),
+    )))
+}
+
 /// The two source samples around `nm` and the interpolation fraction towards the second
 /// (constant extension beyond the ends).
 fn bracket(wl: &[f64], nm: f64) -> (usize, usize, f64) {
@@ -493,6 +512,26 @@ mod tests {
         assert_eq!(needed.first(), Some(&0));
         assert_eq!(wl[*needed.last().unwrap()], 780.0);
         assert!(SpectralWeights::new(&[500.0, 400.0], Illuminant::A).is_err());
+        let sub = needed_wavelengths(&brdf_io::Channels::Spectral(wl.clone()), Illuminant::D65)
+            .unwrap()
+            .unwrap();
+        assert_eq!(sub.len(), 22); // 360..=780 in 20 nm steps
+        // Restricting a spectrum to the needed wavelengths keeps its colour.
+        let spec: Vec<f64> = wl.iter().map(|l| (l / 300.0).sin().abs()).collect();
+        let p = ColourPipeline::new(Illuminant::D65);
+        let brdf_io::Channels::Spectral(sw) = &sub else {
+            unreachable!()
+        };
+        let a = p.reflectance_to_rgb(&wl, &spec).unwrap();
+        let b = p.reflectance_to_rgb(sw, &spec[..22]).unwrap();
+        for c in 0..3 {
+            assert!((a[c] - b[c]).abs() < 1e-12, "{a:?} {b:?}");
+        }
+        assert!(
+            needed_wavelengths(&brdf_io::Channels::Rgb, Illuminant::D65)
+                .unwrap()
+                .is_none()
+        );
     }
 
     #[test]

@@ -177,6 +177,12 @@ pub fn text_width(text: &str, scale: usize) -> usize {
     if n == 0 { 0 } else { (n * ADVANCE - 1) * scale }
 }
 
+/// `text` cut to at most `width` pixels at `scale` (whole characters).
+pub fn fit(text: &str, width: usize, scale: usize) -> String {
+    let max = (width / scale.max(1) + 1) / ADVANCE;
+    text.chars().take(max).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -199,5 +205,7 @@ mod tests {
         assert_eq!(glyph('a'), glyph('A'));
         assert_eq!(glyph(' '), [0; 7]);
         assert_eq!(text_width("ab", 2), 22);
+        assert_eq!(fit("abcdef", 17, 1), "abc");
+        assert_eq!(text_width(&fit("abcdef", 17, 1), 1), 17);
     }
 }

@@ -5,14 +5,20 @@
 //! Everything renders through `BrdfSource::eval`, so a lazily predicted material is rendered
 //! without being materialised.
 
+pub mod cache;
 pub mod cie;
 pub mod colour;
 pub mod error;
 pub mod font;
 pub mod image;
+pub mod map;
+pub mod sheet;
 pub mod sphere;
 
+pub use cache::CellCache;
 pub use colour::{ColourPipeline, Illuminant, SpectralWeights, delta_e_2000, delta_e_2000_rgb};
 pub use error::{Error, Result};
 pub use image::Image;
+pub use map::{MapOptions, latent_map};
+pub use sheet::{ComparisonSheet, comparison_sheet, path_comparison, sphere_rows};
 pub use sphere::{SphereOptions, render_sphere};

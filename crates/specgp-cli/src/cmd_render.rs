@@ -62,10 +62,65 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
         exposure: args.exposure,
         ..SphereOptions::default()
     };
-    let source = open_source(&args.source, None)?;
     let start = std::time::Instant::now();
+    let source = open_render_source(&args.source, opts.illuminant)?;
     let img = render::render_sphere(source.as_ref(), &opts)
         .with_context(|| format!("rendering {}", args.source))?;
+    finish(args, img, start)
+}
+
+/// A lazily predicted material behind a per-cell cache: each touched cell is predicted once
+/// (N multiply-adds per value), nothing else is materialised.
+pub fn cached_prediction(m: predict::PredictedMaterial) -> render::CellCache<'static> {
+    let grid = *m.predictor().grid();
+    let channels = m.channels().clone();
+    render::CellCache::new(
+        grid,
+        channels,
+        Box::new(move |a, out: &mut [f64]| {
+            m.eval_cell(a, out)
+                .map_err(|e| brdf_io::Error::InvalidArgument {
+                    reason: e.to_string(),
+                })
+        }),
+    )
+}
+
+/// Opens SOURCE for rendering: only the wavelengths the observer needs are looked up where the
+/// source can select them; model points (`MODEL.toml@X,Y`) are predicted lazily through a cell
+/// cache.
+pub fn open_render_source(
+    spec: &str,
+    illuminant: Illuminant,
+) -> anyhow::Result<Box<dyn brdf_io::BrdfSource>> {
+    // Ask the source only for the wavelengths the observer needs, where it can select them
+    // (spectral .bsdf files and model points); other sources return all their channels.
+    if let Some(m) = crate::cmd_predict::open_model_source(spec, None) {
+        let mut m = m?;
+        if let Some(w) = render::colour::needed_wavelengths(m.channels(), illuminant)? {
+            m = m.with_wavelengths(&w)?;
+        }
+        return Ok(Box::new(cached_prediction(m)));
+    }
+    let mut source = open_source(spec, None)?;
+    let needed = render::colour::needed_wavelengths(&source.channels(), illuminant)?;
+    if let Some(sub) = needed {
+        match open_source(spec, Some(&sub)) {
+            Ok(s) => {
+                tracing::info!(
+                    wavelengths = sub.len(),
+                    "looking up only the wavelengths the observer needs"
+                );
+                source = s;
+            }
+            Err(e) => tracing::debug!("source keeps all its channels: {e:#}"),
+        }
+    }
+    Ok(source)
+}
+
+/// Composites over the background and writes the PNG.
+fn finish(args: &RenderArgs, img: render::Image, start: std::time::Instant) -> anyhow::Result<()> {
     let img = match args.background.as_str() {
         "none" => img,
         g => {
@@ -83,6 +138,114 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
         out = %args.out.display(),
         "rendered {}",
         args.source
+    );
+    Ok(())
+}
+
+/// Arguments of `specgp map`.
+#[derive(Debug, clap::Args)]
+pub struct MapArgs {
+    /// The model file (TOML) written by `specgp fit`.
+    pub model: PathBuf,
+    /// Output PNG.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Add a panel of rendered spheres of predicted materials across the latent space.
+    #[arg(long)]
+    pub thumbnails: bool,
+    /// Thumbnails per axis (with --thumbnails).
+    #[arg(long, default_value_t = 6)]
+    pub grid: usize,
+    /// Side of the plot area in pixels.
+    #[arg(long, default_value_t = 640)]
+    pub size: usize,
+    /// Thumbnail sphere size in pixels.
+    #[arg(long, default_value_t = 64)]
+    pub thumbnail_size: usize,
+    /// The dataset store, when it moved since fitting (default: the path in the model).
+    #[arg(long)]
+    pub dataset: Option<PathBuf>,
+}
+
+/// Runs `specgp map`: latent points of the first two axes (other axes at 0 for the shading and
+/// thumbnails), predictive variance of the GP (`predict::Predictor::variance`), thumbnails of
+/// the exact predictor's materials (lazy, only the observer's wavelengths looked up).
+pub fn map(args: &MapArgs) -> anyhow::Result<()> {
+    let start = std::time::Instant::now();
+    let model = gplvm::Model::load(&args.model)?;
+    if model.latent_dim < 1 {
+        bail!("{}: the model has no latent axes", args.model.display());
+    }
+    let q = model.latent_dim;
+    let full = |p: [f64; 2]| {
+        let mut x = vec![0.0; q];
+        x[0] = p[0];
+        if q > 1 {
+            x[1] = p[1];
+        }
+        x
+    };
+    let points: Vec<(String, [f64; 2])> = model
+        .materials
+        .iter()
+        .map(|m| {
+            (
+                m.name.clone(),
+                [m.coords[0], m.coords.get(1).copied().unwrap_or(0.0)],
+            )
+        })
+        .collect();
+    let opts = render::MapOptions {
+        size: args.size,
+        thumbnails: if args.thumbnails { args.grid } else { 0 },
+        sphere: SphereOptions {
+            size: args.thumbnail_size,
+            ..SphereOptions::default()
+        },
+        ..render::MapOptions::default()
+    };
+    let img = if args.thumbnails {
+        let pred = predict::Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
+            .with_context(|| format!("opening model {}", args.model.display()))?;
+        let needed = render::colour::needed_wavelengths(pred.channels(), opts.sphere.illuminant)?;
+        let variance = |p: [f64; 2]| -> render::Result<f64> {
+            pred.variance(&full(p))
+                .map_err(|e| render::Error::InvalidArgument {
+                    reason: e.to_string(),
+                })
+        };
+        let source_at = |p: [f64; 2]| -> render::Result<Box<dyn brdf_io::BrdfSource + '_>> {
+            let err = |e: predict::Error| render::Error::InvalidArgument {
+                reason: e.to_string(),
+            };
+            let mut m = pred
+                .predict(&full(p), predict::PredictorKind::Exact)
+                .map_err(err)?;
+            if let Some(w) = &needed {
+                m = m.with_wavelengths(w).map_err(err)?;
+            }
+            Ok(Box::new(cached_prediction(m)))
+        };
+        render::latent_map(&points, &variance, Some(&source_at), &opts)?
+    } else {
+        // The variance needs only the latent points and hyperparameters, not the data.
+        let params = predict::kernel_params(&model)?;
+        let gp =
+            gp_core::GpRegression::new(model.latent_matrix().as_ref(), params, faer::Par::Seq)?;
+        let variance = |p: [f64; 2]| -> render::Result<f64> {
+            gp.variance(&full(p))
+                .map_err(|e| render::Error::InvalidArgument {
+                    reason: e.to_string(),
+                })
+        };
+        render::latent_map(&points, &variance, None, &opts)?
+    };
+    img.save_png(&args.out)?;
+    tracing::info!(
+        seconds = start.elapsed().as_secs_f64(),
+        out = %args.out.display(),
+        "latent map of {}",
+        args.model.display()
     );
     Ok(())
 }

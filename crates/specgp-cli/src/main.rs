@@ -45,6 +45,8 @@ enum Command {
     Latent(cmd_fit::LatentArgs),
     /// Render a sphere preview of a BRDF source (spectral -> sRGB PNG).
     Render(cmd_render::RenderArgs),
+    /// Draw the latent space: materials labelled, predictive variance shaded, thumbnails.
+    Map(cmd_render::MapArgs),
     /// Materialise a predicted material (GP at a latent point, or linear interpolation).
     Predict(cmd_predict::PredictArgs),
     /// Reconstruction and leave-one-out errors of a model (GP and baselines).
@@ -103,6 +105,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Fit(args) => cmd_fit::fit(&args),
         Command::Latent(args) => cmd_fit::latent(&args),
         Command::Render(args) => cmd_render::render(&args),
+        Command::Map(args) => cmd_render::map(&args),
         Command::Predict(args) => cmd_predict::predict(&args),
         Command::Evaluate(args) => cmd_predict::evaluate(&args),
         Command::Import(args) => cmd_data::import(&args),

@@ -1,0 +1,122 @@
+//! A per-cell cache for grid sources: a BRDF defined by values at the bin centres of an
+//! [`AngularGrid`], multilinearly interpolated with [`AngularGrid::interpolation_stencil`] (as
+//! stored materials and lazily predicted materials are), computed once per touched cell.
+//!
+//! Rendering a sphere looks up many direction pairs whose stencils share cells; a lazily
+//! predicted material costs N multiply-adds per value, so computing each touched cell once
+//! (thread-safe, on first use) and interpolating the cached values renders it without
+//! materialising the cells the picture never touches. The result is the same arithmetic as
+//! the wrapped source's own interpolation (same stencil, same order).
+
+use std::sync::OnceLock;
+
+use brdf_io::{AngularGrid, BrdfSource, Channels, HalfDiff, Vec3};
+
+/// Computes the values of every channel at one angular cell (flat index).
+pub type CellFn<'a> = dyn Fn(usize, &mut [f64]) -> brdf_io::Result<()> + Sync + 'a;
+
+/// A grid source with lazily computed, cached cell values; see the module docs.
+pub struct CellCache<'a> {
+    grid: AngularGrid,
+    channels: Channels,
+    cell: Box<CellFn<'a>>,
+    cache: Vec<OnceLock<Box<[f64]>>>,
+}
+
+impl<'a> CellCache<'a> {
+    /// Wraps `cell`, which fills the values of `channels` at a flat cell index of `grid`.
+    pub fn new(grid: AngularGrid, channels: Channels, cell: Box<CellFn<'a>>) -> Self {
+        let cache = (0..grid.len()).map(|_| OnceLock::new()).collect();
+        Self {
+            grid,
+            channels,
+            cell,
+            cache,
+        }
+    }
+
+    /// Number of cells computed so far.
+    pub fn computed_cells(&self) -> usize {
+        self.cache.iter().filter(|c| c.get().is_some()).count()
+    }
+
+    fn cell(&self, a: usize) -> brdf_io::Result<&[f64]> {
+        if let Some(v) = self.cache[a].get() {
+            return Ok(v);
+        }
+        let mut v = vec![0.0; self.channels.len()];
+        (self.cell)(a, &mut v)?;
+        // Another thread may have filled it meanwhile: both computed the same values.
+        Ok(self.cache[a].get_or_init(|| v.into_boxed_slice()))
+    }
+}
+
+impl BrdfSource for CellCache<'_> {
+    fn channels(&self) -> Channels {
+        self.channels.clone()
+    }
+
+    fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
+        if out.len() != self.channels.len() {
+            return Err(brdf_io::Error::InvalidArgument {
+                reason: format!(
+                    "output has {} slots for {} channels",
+                    out.len(),
+                    self.channels.len()
+                ),
+            });
+        }
+        out.fill(0.0);
+        let hd = match HalfDiff::from_dirs(wi, wo) {
+            Some(hd) if wi[2] > 0.0 && wo[2] > 0.0 => hd,
+            _ => return Ok(()),
+        };
+        for (a, w) in self.grid.interpolation_stencil(&hd) {
+            if w == 0.0 {
+                continue;
+            }
+            for (o, v) in out.iter_mut().zip(self.cell(a)?) {
+                *o += w * v;
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn interpolates_cached_cells_and_computes_each_once() {
+        let grid = AngularGrid::new(4, 4, 8).unwrap();
+        let calls = std::sync::atomic::AtomicUsize::new(0);
+        let cache = CellCache::new(
+            grid,
+            Channels::Rgb,
+            Box::new(|a, out: &mut [f64]| {
+                calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                out.copy_from_slice(&[a as f64, 1.0, 2.0]);
+                Ok(())
+            }),
+        );
+        let mut out = [0.0; 3];
+        // At a bin centre the value is the cell's own.
+        let (wi, wo) = grid.bin_centre(1, 2, 3).to_dirs();
+        cache.eval(wi, wo, &mut out).unwrap();
+        assert!(
+            (out[0] - grid.index(1, 2, 3) as f64).abs() < 1e-9,
+            "{out:?}"
+        );
+        assert!((out[1] - 1.0).abs() < 1e-12 && (out[2] - 2.0).abs() < 1e-12);
+        let first = calls.load(std::sync::atomic::Ordering::Relaxed);
+        cache.eval(wi, wo, &mut out).unwrap();
+        assert_eq!(calls.load(std::sync::atomic::Ordering::Relaxed), first);
+        assert_eq!(cache.computed_cells(), first);
+        cache
+            .eval([0.0, 0.0, 1.0], [0.0, 0.5, -1.0], &mut out)
+            .unwrap();
+        assert_eq!(out, [0.0; 3]);
+        assert!(cache.eval(wi, wo, &mut [0.0; 2]).is_err());
+    }
+}

@@ -1,0 +1,137 @@
+//! Comparison sheets and latent maps on synthetic materials. Set `RENDER_TEST_OUT=DIR` to keep
+//! the pictures for a look.
+
+use brdf_io::{BrdfSource, Channels, Vec3};
+use render::sphere::SphereOptions;
+use render::{MapOptions, comparison_sheet, latent_map, path_comparison};
+
+struct Synth(brdf_synth::PreparedMaterial);
+
+impl BrdfSource for Synth {
+    fn channels(&self) -> Channels {
+        Channels::Spectral(self.0.wavelengths().to_vec())
+    }
+    fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
+        self.0.eval(wi, wo, out);
+        Ok(())
+    }
+}
+
+/// `a` x first + (1 - a) x second, channel by channel.
+struct Mix<'a>(&'a dyn BrdfSource, &'a dyn BrdfSource, f64);
+
+impl BrdfSource for Mix<'_> {
+    fn channels(&self) -> Channels {
+        self.0.channels()
+    }
+    fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
+        let mut b = vec![0.0; out.len()];
+        self.0.eval(wi, wo, out)?;
+        self.1.eval(wi, wo, &mut b)?;
+        for (o, v) in out.iter_mut().zip(b) {
+            *o = self.2 * *o + (1.0 - self.2) * v;
+        }
+        Ok(())
+    }
+}
+
+fn synth(name: &str) -> Synth {
+    let wl: Vec<f64> = (360..=1000).step_by(20).map(f64::from).collect();
+    Synth(brdf_synth::preset_material(name, 0).unwrap().prepare(&wl))
+}
+
+fn keep(img: &render::Image, name: &str) {
+    if let Some(dir) = std::env::var_os("RENDER_TEST_OUT") {
+        img.save_png(&std::path::Path::new(&dir).join(name))
+            .unwrap();
+    }
+}
+
+#[test]
+fn comparison_sheet_reports_zero_for_identical_and_more_for_different() {
+    let red = synth("carpaint_solid_red");
+    let gold = synth("metal_gold");
+    let near = Mix(&red, &gold, 0.9);
+    let opts = SphereOptions {
+        size: 40,
+        ..SphereOptions::default()
+    };
+    let rows = vec![
+        (
+            "RED".to_string(),
+            vec![&red as &dyn BrdfSource, &red, &near],
+        ),
+        (
+            "GOLD".to_string(),
+            vec![&gold as &dyn BrdfSource, &near, &red],
+        ),
+    ];
+    let sheet = comparison_sheet(&["MEASURED", "EXACT", "SMOOTH"], &rows, &opts, 10.0).unwrap();
+    keep(&sheet.image, "sheet.png");
+    let m = &sheet.mean_delta_e;
+    println!("mean dE00 per row: {m:?}");
+    assert_eq!(m[0][0], 0.0, "identical renderings");
+    assert!(m[0][1] > 0.5 && m[0][1] < m[1][1], "{m:?}");
+    assert!(m[1][1] > 10.0, "red vs gold {m:?}");
+    assert!(comparison_sheet(&["A"], &rows, &opts, 10.0).is_err());
+}
+
+#[test]
+fn path_comparison_and_map_draw() {
+    let a = synth("acrylic_felt_white");
+    let b = synth("carpaint_solid_red");
+    let t = [0.0, 0.5, 1.0];
+    let mixes: Vec<Mix> = t.iter().map(|&x| Mix(&b, &a, x)).collect();
+    let path: Vec<&dyn BrdfSource> = mixes.iter().map(|m| m as &dyn BrdfSource).collect();
+    let opts = SphereOptions {
+        size: 32,
+        ..SphereOptions::default()
+    };
+    let img = path_comparison(&path, &path, &t, &opts).unwrap();
+    keep(&img, "path.png");
+    // The middle sphere of the top row is between its neighbours in redness.
+    assert!(path_comparison(&path[..2], &path, &t, &opts).is_err());
+
+    let points = vec![
+        ("WHITE".to_string(), [-1.0, 0.0]),
+        ("RED".to_string(), [1.0, 0.5]),
+    ];
+    let var = |p: [f64; 2]| -> render::Result<f64> {
+        let d = |q: [f64; 2]| ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2)).min(4.0);
+        Ok(d(points[0].1).min(d(points[1].1)))
+    };
+    let src = |p: [f64; 2]| -> render::Result<Box<dyn BrdfSource + '_>> {
+        let x = ((p[0] + 1.0) / 2.0).clamp(0.0, 1.0);
+        Ok(Box::new(Mix(&b, &a, x)))
+    };
+    let mopts = MapOptions {
+        size: 160,
+        thumbnails: 3,
+        sphere: SphereOptions {
+            size: 24,
+            ..SphereOptions::default()
+        },
+        variance_samples: 16,
+    };
+    let map = latent_map(&points, &var, Some(&src), &mopts).unwrap();
+    keep(&map, "map.png");
+    assert_eq!(map.width, 40 + 160 + 40 + 3 * 24 + 40);
+    // Near a point the variance is low (light background), far away high (darker).
+    let [x0, x1, y0, y1] = render::map::extent(&points);
+    let px = |p: [f64; 2]| {
+        let x = 40.0 + (p[0] - x0) / (x1 - x0) * 160.0;
+        let y = 40.0 + (y1 - p[1]) / (y1 - y0) * 160.0;
+        map.get(x as usize, y as usize)
+    };
+    let near = px([-1.0, 0.1 + 0.1]);
+    let far = px([0.0, y0 + 0.05]);
+    assert!(near[0] > far[0] + 0.1, "near {near:?} far {far:?}");
+    // The right panel has red-ish and white-ish spheres.
+    let row = 40 + 24 + 12;
+    let left = map.get(40 + 160 + 40 + 12, row);
+    let right = map.get(40 + 160 + 40 + 2 * 24 + 12, row);
+    assert!(
+        right[0] > 2.0 * right[2] && (left[0] - left[2]).abs() < 0.1 * left[0],
+        "{left:?} {right:?}"
+    );
+}
