@@ -1,0 +1,146 @@
+//! `specgp synth` -> `fit` -> `export`: the model's log-likelihood equals an independent
+//! recomputation from the exported data (issue 5's acceptance test), and `latent --json` reports
+//! the model's coordinates.
+
+use std::path::Path;
+use std::process::Command;
+
+use brdf_io::AngularGrid;
+use brdf_io::npy::{NpyData, read};
+use faer::{Mat, Par};
+use gp_core::KernelParams;
+use gplvm::Model;
+
+fn specgp(args: &[&str], dir: &Path) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_specgp"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("run specgp");
+    assert!(
+        out.status.success(),
+        "specgp {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+#[test]
+fn model_log_likelihood_matches_recomputation_from_export() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    specgp(
+        &[
+            "synth",
+            "--out",
+            "data.sbrdf",
+            "--grid",
+            "8,8,16",
+            "--wavelengths",
+            "400:700:100",
+        ],
+        d,
+    );
+    for (transform, model_name) in [("raw", "raw.toml"), ("log", "log.toml")] {
+        specgp(
+            &[
+                "fit",
+                "data.sbrdf",
+                "--out",
+                model_name,
+                "--transform",
+                transform,
+                "--latent-dim",
+                "3",
+            ],
+            d,
+        );
+    }
+    specgp(
+        &["export", "data.sbrdf", "--out", "y.npy", "--dtype", "f64"],
+        d,
+    );
+    let y = read(d.join("y.npy")).unwrap();
+    let NpyData::F64(values) = y.data else {
+        panic!("expected f64 export")
+    };
+    let (n, cols) = (y.shape[0], y.shape[1]);
+
+    for model_name in ["raw.toml", "log.toml"] {
+        let model = Model::load(&d.join(model_name)).unwrap();
+        assert_eq!(model.materials.len(), n);
+        let grid: AngularGrid = model.dataset.grid.parse().unwrap();
+        let nc = model.dataset.channels.len();
+        let mask = grid.validity_mask();
+        let keep: Vec<usize> = (0..cols).filter(|&j| mask[j / nc]).collect();
+        assert_eq!(keep.len(), model.dataset.d_effective);
+        // Transform, centre over materials, divide by the recorded scale.
+        let mut yt = Mat::<f64>::zeros(n, keep.len());
+        for (c, &j) in keep.iter().enumerate() {
+            let col: Vec<f64> = (0..n)
+                .map(|i| model.transform.forward(values[i * cols + j]))
+                .collect();
+            let mean = col.iter().sum::<f64>() / n as f64;
+            for i in 0..n {
+                yt[(i, c)] = (col[i] - mean) / model.data_scale.sqrt();
+            }
+        }
+        let h = &model.hyperparameters;
+        let params =
+            KernelParams::isotropic(h.signal_variance, h.length_scale[0], h.noise).unwrap();
+        let x = model.latent_matrix();
+        let direct = gp_core::log_likelihood_from_data(
+            yt.as_ref(),
+            x.as_ref(),
+            &params,
+            model.prior,
+            Par::Seq,
+        )
+        .unwrap();
+        let rel = (direct - model.fit.log_likelihood).abs() / direct.abs();
+        assert!(
+            rel < 1e-8,
+            "{model_name}: model {} vs recomputed {direct} (relative {rel:e})",
+            model.fit.log_likelihood
+        );
+        assert!(model.fit.log_likelihood > model.fit.initial_log_likelihood);
+
+        let json: serde_json::Value =
+            serde_json::from_str(&specgp(&["latent", model_name, "--json"], d)).unwrap();
+        let first = &json["materials"][0];
+        assert_eq!(first["name"], model.materials[0].name.as_str());
+        assert_eq!(
+            first["coords"][2].as_f64().unwrap(),
+            model.materials[0].coords[2]
+        );
+    }
+}
+
+#[test]
+fn fit_errors_name_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_specgp"))
+        .args(["fit", "missing.sbrdf", "--out", "m.toml"])
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("missing.sbrdf"), "{err}");
+    assert!(!dir.path().join("m.toml").exists());
+    std::fs::write(dir.path().join("bad.toml"), "latent_dim = 2\nwhat = 1\n").unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_specgp"))
+        .args([
+            "fit",
+            "missing.sbrdf",
+            "--out",
+            "m.toml",
+            "--config",
+            "bad.toml",
+        ])
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("bad.toml") && err.contains("what"), "{err}");
+}
