@@ -453,6 +453,14 @@ pub fn brdf_space_rmse(
     }
     let nc = store.channels().len();
     let mask = store.validity_mask();
+    let forward = |f: f64| match transform {
+        Transform::Log { offset } => crate::predictor::fast_ln_1p(f.max(0.0) / offset),
+        t => t.forward(f),
+    };
+    let inverse = |y: f64| match transform {
+        Transform::Log { offset } => offset * crate::predictor::fast_exp_m1(y),
+        t => t.inverse(y),
+    };
     let done = AtomicUsize::new(0);
     let total = store.n_chunks();
     let sums = store.par_fold_chunks(
@@ -471,7 +479,7 @@ pub fn brdf_space_rmse(
                 t.extend(
                     block[j * n..(j + 1) * n]
                         .iter()
-                        .map(|v| transform.forward(f64::from(*v))),
+                        .map(|v| forward(f64::from(*v))),
                 );
             }
             let len = cols.len();
@@ -489,7 +497,7 @@ pub fn brdf_space_rmse(
                 for (k, &j) in cols.iter().enumerate() {
                     let row = &block[j * n..(j + 1) * n];
                     for (r, a) in acc.iter_mut().enumerate() {
-                        let diff = f64::from(row[targets[r]]) - transform.inverse(p[(r, k)]);
+                        let diff = f64::from(row[targets[r]]) - inverse(p[(r, k)]);
                         *a += diff * diff;
                     }
                 }
