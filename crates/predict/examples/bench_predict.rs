@@ -7,6 +7,7 @@
 //! - `lookups`: lazy spectral values at random flat indices, one thread;
 //! - `materialize`: one sequential read of the store vs one full prediction streamed to `.npy`
 //!   (same run, page cache warm for both);
+//! - `SIDECAR=1` in the environment: build (once) and use the forward-transformed sidecar store;
 //! - `loo`: leave-one-out over every material from the Gram matrix (refits + searches), no pass.
 
 use std::hint::black_box;
@@ -23,7 +24,24 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .get(1)
         .ok_or("usage: bench_predict MODEL.toml [what]")?;
     let what = args.get(2).map_or("all", String::as_str);
-    let pred = Predictor::open(Path::new(model))?;
+    let mut pred = Predictor::open(Path::new(model))?;
+    if std::env::var("SIDECAR").is_ok_and(|v| v == "1") {
+        let side = pred.transformed_store_path();
+        if !side.is_file() {
+            let t = Instant::now();
+            pred.build_transformed_store(&side, |_, _| {})?;
+            println!(
+                "sidecar: wrote {} in {:.2} s",
+                side.display(),
+                t.elapsed().as_secs_f64()
+            );
+        }
+        pred = pred.with_transformed_store(&side)?;
+        println!(
+            "using the forward-transformed sidecar store {}",
+            side.display()
+        );
+    }
     let n = pred.n_materials();
     let q = pred.latent_dim();
     println!(

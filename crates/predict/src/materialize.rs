@@ -67,7 +67,8 @@ impl PredictedMaterial {
         mut sink: impl FnMut(Range<usize>, &[f32]) -> Result<()>,
         mut progress: impl FnMut(usize, usize),
     ) -> Result<()> {
-        let store = self.predictor().store().clone();
+        let (store, transformed) = self.predictor().lookup_store();
+        let store = store.clone();
         let n = store.n_materials();
         let nc = store.channels().len();
         let mask = store.validity_mask();
@@ -94,7 +95,7 @@ impl PredictedMaterial {
                         .enumerate()
                         .map(|(j, d)| {
                             if mask[d / nc] {
-                                self.combine_row(&buf[j * n..(j + 1) * n])
+                                self.combine_row(&buf[j * n..(j + 1) * n], transformed)
                             } else {
                                 0.0
                             }

@@ -46,7 +46,10 @@ impl std::fmt::Display for PredictorKind {
     }
 }
 
+#[derive(Clone)]
 struct Inner {
+    /// Sidecar store of forward-transformed values (see [`Predictor::with_transformed_store`]).
+    forward_store: Option<Arc<Store>>,
     model: Model,
     model_path: PathBuf,
     store: Arc<Store>,
@@ -187,6 +190,7 @@ impl Predictor {
         )?;
         Ok(Self {
             inner: Arc::new(Inner {
+                forward_store: None,
                 transform: model.transform,
                 grid: *store.grid(),
                 channels: store.channels().clone(),
@@ -197,6 +201,129 @@ impl Predictor {
                 model,
             }),
         })
+    }
+
+    /// Default path of the sidecar store of forward-transformed values:
+    /// `DATA.sbrdf.<transform>.sbrdf` next to the dataset (e.g. `synth.sbrdf.log-0.01.sbrdf`).
+    pub fn transformed_store_path(&self) -> PathBuf {
+        let p = self.inner.store.path();
+        let tag = match self.inner.transform {
+            Transform::Raw => "raw".to_owned(),
+            Transform::Log { offset } => format!("log-{offset}"),
+        };
+        let mut name = p.file_name().unwrap_or_default().to_os_string();
+        name.push(format!(".{tag}.sbrdf"));
+        p.with_file_name(name)
+    }
+
+    fn transformed_source(&self) -> String {
+        let h = self.inner.store.header();
+        format!(
+            "forward-transformed values ({}) of dataset checksum {}:{}",
+            self.inner.transform, h.checksum.algorithm, h.checksum.value
+        )
+    }
+
+    /// Writes the sidecar store of forward-transformed values `forward(f)` (f32, same layout,
+    /// names and grid) to `path`, streaming the dataset once. With it
+    /// ([`with_transformed_store`](Self::with_transformed_store)) a lookup under `log` costs
+    /// what it costs under `raw`: N multiply-adds, no logarithms. The transformed values are
+    /// rounded to f32 (relative error ~6e-8 in y, so up to ~y 6e-8 relative in f).
+    pub fn build_transformed_store(
+        &self,
+        path: &Path,
+        progress: impl FnMut(usize, usize),
+    ) -> Result<()> {
+        let mut progress = progress;
+        let store = &self.inner.store;
+        let info = brdf_io::StoreInfo {
+            grid: *store.grid(),
+            channels: store.channels().clone(),
+        };
+        let options = brdf_io::StoreOptions {
+            chunk_len: Some(store.header().layout.chunk_len),
+            ..brdf_io::StoreOptions::default()
+        };
+        let mut w = brdf_io::StoreWriter::create(path, info, options)?;
+        let source = self.transformed_source();
+        let names: Vec<(&str, &str)> = store
+            .names()
+            .into_iter()
+            .map(|n| (n, source.as_str()))
+            .collect();
+        w.declare_materials(&names)?;
+        let t = self.inner.transform;
+        let nc = store.channels().len();
+        let n = self.inner.n;
+        let mask = store.validity_mask();
+        let total = store.n_chunks();
+        let mut out = Vec::new();
+        let mut k = 0;
+        let mut result = Ok(());
+        store.for_each_chunk(|range, block| {
+            if result.is_err() {
+                return;
+            }
+            out.clear();
+            for (j, d) in range.clone().enumerate() {
+                let valid = mask[d / nc];
+                out.extend(block[j * n..(j + 1) * n].iter().map(|v| {
+                    if valid {
+                        t.forward(f64::from(*v)) as f32
+                    } else {
+                        0.0
+                    }
+                }));
+            }
+            result = w.write_block(range, &out);
+            k += 1;
+            progress(k, total);
+        })?;
+        result?;
+        w.finish()?;
+        Ok(())
+    }
+
+    /// This predictor reading forward-transformed values from the sidecar store at `path`
+    /// (written by [`build_transformed_store`](Self::build_transformed_store); checked against
+    /// the dataset's checksum, transform, names, grid and channels).
+    pub fn with_transformed_store(&self, path: &Path) -> Result<Self> {
+        let side = Store::open(path)?;
+        let store = &self.inner.store;
+        let source = self.transformed_source();
+        let ok = side.grid() == store.grid()
+            && side.channels() == store.channels()
+            && side.names() == store.names()
+            && side.header().materials.iter().all(|m| m.source == source);
+        if !ok {
+            return Err(Error::DatasetMismatch {
+                model: self.inner.model_path.clone(),
+                dataset: path.to_owned(),
+                what: format!(
+                    "not the forward-transformed sidecar of {} (expected source {source:?})",
+                    store.path().display()
+                ),
+            });
+        }
+        let mut inner = (*self.inner).clone();
+        inner.forward_store = Some(Arc::new(side));
+        Ok(Self {
+            inner: Arc::new(inner),
+        })
+    }
+
+    /// Whether lookups read the forward-transformed sidecar store.
+    pub fn uses_transformed_store(&self) -> bool {
+        self.inner.forward_store.is_some()
+    }
+
+    /// The store lookups read (the sidecar when in use, else the dataset) and whether its
+    /// values are already transformed.
+    pub(crate) fn lookup_store(&self) -> (&Arc<Store>, bool) {
+        match &self.inner.forward_store {
+            Some(s) => (s, true),
+            None => (&self.inner.store, false),
+        }
     }
 
     /// The model.
@@ -506,8 +633,13 @@ impl PredictedMaterial {
         SCRATCH.with(|s| {
             let mut s = s.borrow_mut();
             s.resize(inner.n, 0.0);
-            inner.store.values_at(d, &mut s)?;
-            Ok(combine(inner.transform, &self.coef, &s))
+            let (store, transformed) = self.pred.lookup_store();
+            store.values_at(d, &mut s)?;
+            Ok(if transformed {
+                combine_transformed(inner.transform, &self.coef, &s)
+            } else {
+                combine(inner.transform, &self.coef, &s)
+            })
         })
     }
 
@@ -579,10 +711,15 @@ impl PredictedMaterial {
         }
     }
 
-    /// The value of one chunk row (N stored values at one index) under this material.
+    /// The value of one chunk row (N values at one index) under this material; `transformed`:
+    /// the row holds forward-transformed values (sidecar store).
     #[inline]
-    pub(crate) fn combine_row(&self, row: &[f32]) -> f64 {
-        combine(self.pred.inner.transform, &self.coef, row)
+    pub(crate) fn combine_row(&self, row: &[f32], transformed: bool) -> f64 {
+        if transformed {
+            combine_transformed(self.pred.inner.transform, &self.coef, row)
+        } else {
+            combine(self.pred.inner.transform, &self.coef, row)
+        }
     }
 }
 
@@ -668,6 +805,19 @@ const INV: [f64; 16] = [
     1.0 / 14.0,
     1.0 / 15.0,
 ];
+
+/// `inverse(sum_i c_i y_i)` for already transformed values `y`.
+#[inline]
+pub(crate) fn combine_transformed(t: Transform, c: &[f64], y: &[f32]) -> f64 {
+    let mut acc = 0.0;
+    for (ci, yi) in c.iter().zip(y) {
+        acc += ci * f64::from(*yi);
+    }
+    match t {
+        Transform::Raw => acc,
+        Transform::Log { offset } => offset * fast_exp_m1(acc),
+    }
+}
 
 /// `inverse(sum_i c_i forward(v_i))`.
 #[inline]

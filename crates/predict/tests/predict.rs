@@ -529,3 +529,47 @@ fn bad_inputs_give_clear_errors() {
     assert!(matches!(e, Error::InvalidPoint { .. }), "{e}");
     let _ = Transform::Raw;
 }
+
+#[test]
+fn the_transformed_sidecar_store_gives_the_same_predictions() {
+    let f = fixture(8, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    let side = pred.transformed_store_path();
+    assert!(
+        side.to_string_lossy()
+            .ends_with("data.sbrdf.log-0.01.sbrdf"),
+        "{side:?}"
+    );
+    let mut calls = 0;
+    pred.build_transformed_store(&side, |_, _| calls += 1)
+        .unwrap();
+    assert_eq!(calls, pred.store().n_chunks());
+    let fast = pred.with_transformed_store(&side).unwrap();
+    assert!(fast.uses_transformed_store() && !pred.uses_transformed_store());
+    let x = [0.2, 0.1];
+    let (a, b) = (
+        pred.predict(&x, PredictorKind::Smooth).unwrap(),
+        fast.predict(&x, PredictorKind::Smooth).unwrap(),
+    );
+    let mut worst = 0.0f64;
+    for d in 0..pred.store().d() {
+        let (u, v) = (a.value_at(d).unwrap(), b.value_at(d).unwrap());
+        // f32 rounding of the transformed values: ~6e-8 relative in y, times y <= ~12.
+        worst = worst.max((u - v).abs() / u.abs().max(1e-3));
+    }
+    assert!(worst < 2e-6, "worst relative difference {worst:e}");
+    // Lazy equals materialised with the sidecar too.
+    let out = f._dir.path().join("fast.npy");
+    b.materialize(&out, |_, _| {}).unwrap();
+    let values = brdf_io::npy::read(&out).unwrap().to_f32();
+    for (d, v) in values.iter().enumerate() {
+        assert_eq!(
+            (b.value_at(d).unwrap() as f32).to_bits(),
+            v.to_bits(),
+            "d = {d}"
+        );
+    }
+    // A sidecar of another dataset is refused.
+    let e = pred.with_transformed_store(&f.store).unwrap_err();
+    assert!(e.to_string().contains("forward-transformed"), "{e}");
+}

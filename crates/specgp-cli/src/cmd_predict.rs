@@ -47,6 +47,11 @@ pub struct PredictArgs {
     /// Read the dataset from this store instead of the path recorded in the model.
     #[arg(long)]
     pub dataset: Option<PathBuf>,
+    /// Build (once, next to the dataset: `DATA.sbrdf.<transform>.sbrdf`) and use the sidecar
+    /// store of forward-transformed values: no logarithms per lookup under `log`. `sample`
+    /// uses an existing sidecar automatically.
+    #[arg(long)]
+    pub sidecar: bool,
 }
 
 /// Arguments of `specgp evaluate`.
@@ -111,7 +116,12 @@ pub fn open_model_source(
     }
     Some((|| {
         let x = parse_point(point)?;
-        let pred = Predictor::open(Path::new(model)).with_context(|| format!("opening {model}"))?;
+        let mut pred =
+            Predictor::open(Path::new(model)).with_context(|| format!("opening {model}"))?;
+        let side = pred.transformed_store_path();
+        if pred.transform() != gplvm::Transform::Raw && side.is_file() {
+            pred = pred.with_transformed_store(&side)?;
+        }
         let mut m = pred.predict(&x, PredictorKind::Exact)?;
         if let Some(w) = wavelengths {
             m = m.with_wavelengths(w)?;
@@ -122,8 +132,19 @@ pub fn open_model_source(
 
 /// Runs `specgp predict`.
 pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
-    let pred = Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
+    let mut pred = Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
         .with_context(|| format!("opening model {}", args.model.display()))?;
+    if args.sidecar {
+        let side = pred.transformed_store_path();
+        if !side.is_file() {
+            let pb = bar(pred.store().n_chunks() as u64, "sidecar");
+            pred.build_transformed_store(&side, |done, _| pb.set_position(done as u64))
+                .with_context(|| format!("writing {}", side.display()))?;
+            pb.finish_and_clear();
+            println!("wrote the forward-transformed sidecar {}", side.display());
+        }
+        pred = pred.with_transformed_store(&side)?;
+    }
     let kind = if args.smooth {
         PredictorKind::Smooth
     } else {
