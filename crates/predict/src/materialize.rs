@@ -147,8 +147,9 @@ impl PredictedMaterial {
     /// Writes all values of this material to `path` (format from the extension; written to a
     /// temporary file in the same directory and renamed into place).
     ///
-    /// MERL `.binary` output needs RGB channels: spectral datasets would need the spectral ->
-    /// RGB conversion of DESIGN.md section 6, which this crate does not have yet (clear error).
+    /// MERL `.binary` output needs RGB channels here (clear error for spectral data; the CLI
+    /// converts spectral predictions to sRGB with `render::ColourPipeline` and
+    /// [`stream_values`](Self::stream_values)).
     pub fn materialize(
         &self,
         path: &Path,
@@ -184,10 +185,11 @@ impl PredictedMaterial {
                 if self.channels() != &Channels::Rgb {
                     return Err(Error::Output {
                         path: path.to_owned(),
-                        reason: "MERL .binary output needs an RGB dataset; spectral -> RGB \
-                                 conversion (DESIGN.md section 6) is not available in predict yet: \
-                                 write .sbrdf or .npy instead"
-                            .into(),
+                        reason:
+                            "MERL .binary output of PredictedMaterial::materialize needs an RGB \
+                                 dataset (this crate has no colour conversion; `specgp predict` \
+                                 converts spectral predictions to sRGB with crates/render)"
+                                .into(),
                     });
                 }
                 let mut all = Vec::with_capacity(total);

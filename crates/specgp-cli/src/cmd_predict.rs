@@ -28,7 +28,8 @@ pub struct PredictArgs {
     /// materials, in the model's transformed space.
     #[arg(long)]
     pub lerp: Option<String>,
-    /// Output file: `.sbrdf` (one material), `.npy` (1 x D f32) or `.binary` (MERL, RGB data).
+    /// Output file: `.sbrdf` (one material), `.npy` (1 x D f32) or `.binary` (MERL RGB;
+    /// spectral data are converted to linear sRGB under D65).
     #[arg(long)]
     pub out: PathBuf,
     /// Wavelengths START:END:STEP or a comma list in nm (linear interpolation between stored
@@ -184,9 +185,16 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
         material = material.with_wavelengths(&Channels::parse_wavelengths(spec)?)?;
     }
     let pb = bar(pred.store().n_chunks() as u64, "predict");
-    let report = material
-        .materialize(&args.out, |done, _| pb.set_position(done as u64))
-        .with_context(|| format!("writing {}", args.out.display()))?;
+    let spectral_merl = args.out.extension().is_some_and(|e| e == "binary")
+        && material.channels() != &Channels::Rgb;
+    let report = if spectral_merl {
+        write_spectral_merl(&material, &args.out, &pb)
+    } else {
+        material
+            .materialize(&args.out, |done, _| pb.set_position(done as u64))
+            .map_err(anyhow::Error::from)
+    }
+    .with_context(|| format!("writing {}", args.out.display()))?;
     pb.finish_and_clear();
     println!(
         "wrote {}: {} ({} values, {} bytes, {:.2} s)",
@@ -197,6 +205,49 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
         report.seconds
     );
     Ok(())
+}
+
+/// Streams a spectral prediction, converts every cell to linear sRGB (CIE 1931 2-degree
+/// observer under D65, white diffuser -> Y = 1; `render::ColourPipeline`, DESIGN.md section 6)
+/// and writes a MERL `.binary` file (values in 1/sr).
+fn write_spectral_merl(
+    material: &PredictedMaterial,
+    out: &Path,
+    pb: &ProgressBar,
+) -> anyhow::Result<predict::MaterializeReport> {
+    let start = std::time::Instant::now();
+    let weights = render::ColourPipeline::new(render::Illuminant::D65)
+        .channel_weights(material.channels())?;
+    let grid = *material.predictor().grid();
+    let nc = material.channels().len();
+    let mut rgb = Vec::with_capacity(3 * grid.len());
+    let mut cell = vec![0.0f64; nc];
+    let mut filled = 0;
+    material.stream_values(
+        |_, values| {
+            for v in values {
+                cell[filled] = f64::from(*v);
+                filled += 1;
+                if filled == nc {
+                    for w in &weights {
+                        rgb.push(w.iter().zip(&cell).map(|(a, b)| a * b).sum::<f64>() as f32);
+                    }
+                    filled = 0;
+                }
+            }
+            Ok(())
+        },
+        |done, _| pb.set_position(done as u64),
+    )?;
+    let merl = brdf_io::merl::MerlBrdf::from_dataset_order(grid, &rgb)?;
+    brdf_io::merl::write_merl(out, &merl)?;
+    Ok(predict::MaterializeReport {
+        path: out.to_owned(),
+        format: predict::OutputFormat::Merl,
+        values: rgb.len(),
+        bytes: std::fs::metadata(out)?.len(),
+        seconds: start.elapsed().as_secs_f64(),
+    })
 }
 
 /// Runs `specgp evaluate`.
@@ -272,4 +323,22 @@ pub fn evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
             .with_context(|| format!("writing {}", path.display()))?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_points_and_recognises_model_sources() {
+        assert_eq!(parse_point("0.5,-1e-3").unwrap(), vec![0.5, -1e-3]);
+        let e = parse_point("0.5,x").unwrap_err().to_string();
+        assert!(e.contains("\"x\" is not a number"), "{e}");
+        assert!(open_model_source("data.sbrdf:felt", None).is_none());
+        assert!(open_model_source("file.bsdf", None).is_none());
+        let e = open_model_source("/nonexistent/m.toml@0,0", None)
+            .unwrap()
+            .unwrap_err();
+        assert!(format!("{e:#}").contains("/nonexistent/m.toml"), "{e:#}");
+    }
 }
