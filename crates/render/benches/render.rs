@@ -1,3 +1,0 @@
-//! Render benchmarks (filled in below).
-
-fn main() {}

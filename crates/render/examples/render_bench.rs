@@ -1,0 +1,141 @@
+//! Benchmark: a 256 x 256 sphere of a predicted material, rendered lazily (per-cell cache over
+//! `PredictedMaterial::eval_cell`, only the observer's wavelengths) against
+//! materialise-then-render (`PredictedMaterial::materialize` to a `.sbrdf`, then render the
+//! stored material), and the uncached lazy source.
+//!
+//! ```sh
+//! specgp synth --out /tmp/b/synth.sbrdf && specgp fit /tmp/b/synth.sbrdf --out /tmp/b/model.toml
+//! cargo run --release -p render --example render_bench -- /tmp/b/model.toml [SIZE]
+//! ```
+//! The latent point is the midpoint of the first two materials.
+
+use std::time::Instant;
+
+use render::{CellCache, SphereOptions, render_sphere};
+
+fn cached(m: predict::PredictedMaterial) -> CellCache<'static> {
+    let grid = *m.predictor().grid();
+    let channels = m.channels().clone();
+    CellCache::new(
+        grid,
+        channels,
+        Box::new(move |a, out: &mut [f64]| {
+            m.eval_cell(a, out)
+                .map_err(|e| brdf_io::Error::InvalidArgument {
+                    reason: e.to_string(),
+                })
+        }),
+    )
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().collect();
+    let model =
+        std::path::PathBuf::from(args.get(1).ok_or("usage: render_bench MODEL.toml [SIZE]")?);
+    let size: usize = args.get(2).map(|s| s.parse()).transpose()?.unwrap_or(256);
+    let pred = predict::Predictor::open(&model)?;
+    let mats = &pred.model().materials;
+    let x: Vec<f64> = mats[0]
+        .coords
+        .iter()
+        .zip(&mats[1].coords)
+        .map(|(a, b)| 0.5 * (a + b))
+        .collect();
+    let opts = SphereOptions {
+        size,
+        ..SphereOptions::default()
+    };
+    println!(
+        "model {} ({} materials, grid {}, {} channels), point {x:?}, {size}x{size}, {} rayon threads",
+        model.display(),
+        mats.len(),
+        pred.grid(),
+        pred.channels().len(),
+        rayon::current_num_threads()
+    );
+    let needed = render::colour::needed_wavelengths(pred.channels(), opts.illuminant)?;
+    let lazy_material = || -> Result<predict::PredictedMaterial, Box<dyn std::error::Error>> {
+        let mut m = pred.predict(&x, predict::PredictorKind::Exact)?;
+        if let Some(w) = &needed {
+            m = m.with_wavelengths(w)?;
+        }
+        Ok(m)
+    };
+    // Lazy, cached (fresh cache every run).
+    let mut lazy = Vec::new();
+    let mut reference = None;
+    let mut cells = 0;
+    for _ in 0..5 {
+        let t = Instant::now();
+        let src = cached(lazy_material()?);
+        let img = render_sphere(&src, &opts)?;
+        lazy.push(t.elapsed().as_secs_f64());
+        cells = src.computed_cells();
+        reference = Some(img);
+        if lazy.len() == 5 {
+            // The same render again on the warm cache: the cost of the lookups alone.
+            let t = Instant::now();
+            render_sphere(&src, &opts)?;
+            println!(
+                "render on a warm cache (no prediction): {:.3} s",
+                t.elapsed().as_secs_f64()
+            );
+        }
+    }
+    let lazy = median(lazy);
+    println!(
+        "lazy (cell cache, {} wavelengths): {lazy:.3} s median of 5, {cells} of {} cells computed",
+        needed.as_ref().map_or(pred.channels().len(), |w| w.len()),
+        pred.grid().len()
+    );
+    // Materialise then render.
+    let dir = tempfile::tempdir()?;
+    let mut mat = Vec::new();
+    for run in 0..3 {
+        let t = Instant::now();
+        let m = pred.predict(&x, predict::PredictorKind::Exact)?;
+        let path = dir.path().join(format!("m{run}.sbrdf"));
+        m.materialize(&path, |_, _| {})?;
+        let t_mat = t.elapsed().as_secs_f64();
+        let src = brdf_io::store::StoreMaterial::open(&path, m.label())?;
+        let img = render_sphere(&src, &opts)?;
+        let total = t.elapsed().as_secs_f64();
+        mat.push(total);
+        if run == 0 {
+            let diff = img
+                .rgb
+                .iter()
+                .zip(&reference.as_ref().ok_or("no lazy image")?.rgb)
+                .map(|(a, b)| (0..3).map(|c| (a[c] - b[c]).abs()).fold(0.0, f64::max))
+                .fold(0.0, f64::max);
+            println!(
+                "materialise {t_mat:.3} s + render {:.3} s; max |lazy - materialised| = {diff:.2e} (f32 storage)",
+                total - t_mat
+            );
+        }
+    }
+    let mat = median(mat);
+    println!(
+        "materialise-then-render: {mat:.3} s median of 3; lazy is {:.1}x faster",
+        mat / lazy
+    );
+    // Lazy without the cache (every lookup predicts its 8 stencil cells), at a quarter of the
+    // size (1/16 of the pixels) to keep the benchmark short.
+    let small = SphereOptions {
+        size: (size / 4).max(8),
+        ..opts.clone()
+    };
+    let t = Instant::now();
+    render_sphere(&lazy_material()?, &small)?;
+    println!(
+        "lazy without cache at {0}x{0}: {1:.3} s",
+        small.size,
+        t.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
