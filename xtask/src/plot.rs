@@ -91,7 +91,7 @@ pub fn pareto_plot(rows: &[BenchRow], path: &Path) -> Result<()> {
     line(&mut img, (LEFT, TOP), (LEFT, TOP + ph), 1.5, INK);
     img.text(
         LEFT as i64,
-        12,
+        4,
         "specgp bench: fit time against leave-one-out error (log-log)",
         2,
         INK,
