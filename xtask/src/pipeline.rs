@@ -101,6 +101,72 @@ pub struct LatentRow {
     pub coords: Vec<f64>,
 }
 
+/// Mean errors of one kind of material.
+#[derive(Debug, Clone, Serialize)]
+pub struct KindRow {
+    /// `diffuse`, `glossy` or `metallic`.
+    pub kind: String,
+    /// Number of materials.
+    pub n: usize,
+    /// Mean Eq. 22 reconstruction RMSE of the exact predictor (BRDF space).
+    pub reconstruction_exact: f64,
+    /// Mean Eq. 22 reconstruction RMSE of the smooth predictor (BRDF space).
+    pub reconstruction_smooth: f64,
+    /// Mean Eq. 22 leave-one-out RMSE of the GP (BRDF space; NaN without leave-one-out).
+    pub loo_gp: f64,
+}
+
+/// The kind of a synthetic preset family: diffuse, glossy (coated, plastic, fabric) or metallic.
+pub fn kind_of(family: brdf_synth::Family) -> &'static str {
+    use brdf_synth::Family as F;
+    match family {
+        F::Felt | F::Paper | F::Cardboard | F::WallPaint | F::Leaf | F::Diffuser => "diffuse",
+        F::Vinyl | F::Satin | F::CarPaint => "glossy",
+        F::PaintedMetal | F::Metal | F::Iridescent => "metallic",
+    }
+}
+
+/// Errors by kind of material for a synthetic dataset (empty for other data).
+pub fn by_kind(config: &PipelineConfig, e: &predict::evaluate::Evaluation) -> Vec<KindRow> {
+    let crate::config::DataSource::Synth { seed, .. } = &config.data.source else {
+        return Vec::new();
+    };
+    let families: std::collections::HashMap<String, brdf_synth::Family> = brdf_synth::preset(*seed)
+        .into_iter()
+        .map(|m| (m.name, m.family))
+        .collect();
+    ["diffuse", "glossy", "metallic"]
+        .iter()
+        .map(|kind| {
+            let idx: Vec<usize> = e
+                .reconstruction
+                .iter()
+                .enumerate()
+                .filter(|(_, r)| families.get(&r.name).map(|f| kind_of(*f)) == Some(*kind))
+                .map(|(i, _)| i)
+                .collect();
+            let mean = |f: &dyn Fn(usize) -> f64| {
+                idx.iter().map(|&i| f(i)).sum::<f64>() / idx.len().max(1) as f64
+            };
+            KindRow {
+                kind: (*kind).to_string(),
+                n: idx.len(),
+                reconstruction_exact: mean(&|i| e.reconstruction[i].exact_rmse),
+                reconstruction_smooth: mean(&|i| e.reconstruction[i].smooth_rmse),
+                loo_gp: e.loo.as_ref().map_or(f64::NAN, |l| {
+                    mean(&|i| {
+                        l[i].methods
+                            .iter()
+                            .find(|m| m.method == predict::evaluate::Method::Gp)
+                            .map_or(f64::NAN, |m| m.brdf_rmse)
+                    })
+                }),
+            }
+        })
+        .filter(|r| r.n > 0)
+        .collect()
+}
+
 /// Everything a pipeline run measured (`results.json`).
 #[derive(Debug, Clone, Serialize)]
 pub struct Results {
@@ -124,6 +190,8 @@ pub struct Results {
     pub predictions: Vec<crate::stages::PredictionRow>,
     /// Reconstruction and leave-one-out errors (evaluate stage; `None` if not run).
     pub evaluation: Option<predict::evaluate::Evaluation>,
+    /// Errors grouped by kind of material (synthetic data only: the preset's families).
+    pub by_kind: Vec<KindRow>,
     /// Figures and rendered (Delta E) errors (render stage; `None` if not run).
     pub figures: Option<crate::figures::Figures>,
     /// Total wall-clock seconds.
@@ -287,6 +355,9 @@ pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
         fit,
         latent,
         predictions,
+        by_kind: evaluation
+            .as_ref()
+            .map_or_else(Vec::new, |e| by_kind(config, e)),
         evaluation,
         figures,
         total_seconds: total.elapsed().as_secs_f64(),

@@ -93,6 +93,23 @@ fn quick_pipeline_report_matches_the_model_and_data() {
         assert!(bytes >= (8 * 8 * 16 * 7 * 4) as u64);
     }
 
+    // Errors by kind cover every material once, and match the per-material means.
+    let kinds = json["by_kind"].as_array().unwrap();
+    let total: u64 = kinds.iter().map(|k| k["n"].as_u64().unwrap()).sum();
+    assert_eq!(total as usize, n);
+    let weighted: f64 = kinds
+        .iter()
+        .map(|k| k["n"].as_f64().unwrap() * finite(&k["reconstruction_smooth"]))
+        .sum();
+    let direct: f64 = recon
+        .iter()
+        .map(|r| r["smooth_rmse"].as_f64().unwrap())
+        .sum();
+    assert!(
+        (weighted - direct).abs() <= 1e-9 * direct.max(1.0),
+        "{weighted} vs {direct}"
+    );
+
     // Figures exist and the rendered errors are finite and non-negative.
     for f in json["figures"]["files"].as_array().unwrap() {
         let file = dir.path().join(f[0].as_str().unwrap());
