@@ -89,7 +89,18 @@ fn path_comparison_and_map_draw() {
     };
     let img = path_comparison(&path, &path, &t, &opts).unwrap();
     keep(&img, "path.png");
-    // The middle sphere of the top row is between its neighbours in redness.
+    // Along the path the spheres get redder: R / G at the sphere centres increases.
+    let label_w = render::font::text_width("GP PATH", 1).max(40);
+    let redness: Vec<f64> = (0..3)
+        .map(|c| {
+            let p = img.get(label_w + 8 + c * (32 + 8) + 16, 8 + 16);
+            p[0] / p[1]
+        })
+        .collect();
+    assert!(
+        redness[0] < redness[1] && redness[1] < redness[2] && redness[0] < 1.1,
+        "{redness:?}"
+    );
     assert!(path_comparison(&path[..2], &path, &t, &opts).is_err());
 
     let points = vec![

@@ -261,4 +261,41 @@ mod tests {
         assert!(parse_light("200,0").is_err());
         assert!(parse_light("x,0").is_err());
     }
+
+    #[test]
+    fn renders_a_real_rgl_file_to_png() {
+        let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../../shared/data/rgl-rgb/vch_golden_yellow_rgb.bsdf");
+        if !file.is_file() {
+            eprintln!("skipping: {} is absent", file.display());
+            return;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("s.png");
+        let args = RenderArgs {
+            source: file.to_str().unwrap().into(),
+            out: out.clone(),
+            size: 32,
+            light: "45,135".into(),
+            illuminant: "D65".into(),
+            exposure: 0.0,
+            background: "0.5".into(),
+        };
+        render(&args).unwrap();
+        let (w, h, px) = render::image::read_png_rgba8(&out).unwrap();
+        assert_eq!((w, h), (32, 32));
+        // Corner: the grey background; the sphere's lower right: yellow (R > G > B).
+        assert_eq!(&px[..4], &[128, 128, 128, 255]);
+        let i = (22 * 32 + 20) * 4;
+        assert!(
+            px[i] > px[i + 1] && px[i + 1] > px[i + 2],
+            "{:?}",
+            &px[i..i + 4]
+        );
+        let bad = RenderArgs {
+            illuminant: "F2".into(),
+            ..args
+        };
+        assert!(render(&bad).is_err());
+    }
 }
