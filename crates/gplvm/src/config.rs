@@ -115,7 +115,7 @@ pub struct FitParams {
 impl Default for FitParams {
     fn default() -> Self {
         Self {
-            latent_dim: 2,
+            latent_dim: 5,
             optimizer: OptimizerKind::Lbfgs,
             transform: "log".into(),
             data_scaling: DataScaling::UnitVariance,

@@ -453,14 +453,8 @@ pub fn brdf_space_rmse(
     }
     let nc = store.channels().len();
     let mask = store.validity_mask();
-    let forward = |f: f64| match transform {
-        Transform::Log { offset } => crate::predictor::fast_ln_1p(f.max(0.0) / offset),
-        t => t.forward(f),
-    };
-    let inverse = |y: f64| match transform {
-        Transform::Log { offset } => offset * crate::predictor::fast_exp_m1(y),
-        t => t.inverse(y),
-    };
+    let forward = |f: f64| transform.forward(f);
+    let inverse = |y: f64| transform.inverse(y);
     let done = AtomicUsize::new(0);
     let total = store.n_chunks();
     let sums = store.par_fold_chunks(

@@ -24,6 +24,6 @@ pub mod predictor;
 pub use error::{Error, Result};
 pub use materialize::{MaterializeReport, OutputFormat};
 pub use predictor::{
-    ChannelSelection, PredictedMaterial, Predictor, PredictorKind, fast_exp_m1, fast_ln_1p,
-    kernel_params, weights_to_coefficients,
+    ChannelSelection, PredictedMaterial, Predictor, PredictorKind, kernel_params,
+    weights_to_coefficients,
 };
