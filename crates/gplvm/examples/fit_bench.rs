@@ -1,8 +1,9 @@
 //! Benchmark of the GPLVM fit (issue 5): the Gram pass against one plain sequential read of the
 //! same store, and the two optimisers (likelihood reached, evaluations, time) per transform.
 //!
-//! Usage: `cargo run --release -p gplvm --example fit_bench -- DATA.sbrdf [lbfgs]`
-//! (`lbfgs` skips Hooke-Jeeves, which takes tens of seconds)
+//! Usage: `cargo run --release -p gplvm --example fit_bench -- DATA.sbrdf [all|lbfgs] [Q]`
+//! (`lbfgs` skips Hooke-Jeeves, which takes tens of seconds; Q is the latent dimension, default
+//! the default fit's)
 //! (make the store with `specgp synth --out DATA.sbrdf`; it is read from the page cache: the
 //! first, untimed read warms it).
 
@@ -76,8 +77,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
     }
     println!();
-    println!("| transform | optimizer | log-likelihood | PCA start | evaluations | time (s) |");
-    println!("|---|---|---|---|---|---|");
+    println!("| transform | q | optimizer | log-likelihood | PCA start | evaluations | time (s) |");
+    println!("|---|---|---|---|---|---|---|");
     for t in ["raw", "log"] {
         let pass = gram_pass(&store, t.parse()?)?;
         let lbfgs_only = std::env::args().nth(2).as_deref() == Some("lbfgs");
@@ -85,16 +86,26 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             if lbfgs_only && optimizer == OptimizerKind::HookeJeeves {
                 continue;
             }
+            let defaults = FitParams::default();
+            let latent_dim = match std::env::args().nth(3) {
+                Some(q) => q.parse()?,
+                None => defaults.latent_dim,
+            };
             let config = FitParams {
                 optimizer,
+                latent_dim,
                 transform: t.into(),
-                ..FitParams::default()
+                ..defaults
             }
             .check()?;
             let fit = fit_gram(pass.gram.as_ref(), pass.d_effective, &config)?;
             println!(
-                "| {t} | {optimizer} | {:.6e} | {:.6e} | {} | {:.3} |",
-                fit.log_likelihood, fit.initial_log_likelihood, fit.evaluations, fit.seconds
+                "| {t} | {} | {optimizer} | {:.6e} | {:.6e} | {} | {:.3} |",
+                fit.x.ncols(),
+                fit.log_likelihood,
+                fit.initial_log_likelihood,
+                fit.evaluations,
+                fit.seconds
             );
         }
     }
