@@ -8,8 +8,8 @@ use clap::{Parser, Subcommand};
 
 mod cmd_data;
 mod cmd_fit;
-mod cmd_render;
 mod cmd_predict;
+mod cmd_render;
 mod cmd_sample;
 mod cmd_synth;
 
