@@ -76,37 +76,16 @@ impl StoreMaterial {
         let g = self.store.grid();
         let nc = self.n_channels();
         self.check_out(out)?;
-        let c = g.continuous_coords(hd);
-        let clamp_axis = |x: f64, n: usize| -> (usize, usize, f64) {
-            let x = x.clamp(0.0, (n - 1) as f64);
-            let i0 = x.floor() as usize;
-            let i1 = (i0 + 1).min(n - 1);
-            (i0, i1, x - i0 as f64)
-        };
-        let wrap_axis = |x: f64, n: usize| -> (usize, usize, f64) {
-            let f = x.floor();
-            let i0 = (f as i64).rem_euclid(n as i64) as usize;
-            (i0, (i0 + 1) % n, x - f)
-        };
-        let (h0, h1, th) = clamp_axis(c[0], g.n_theta_h);
-        let (d0, d1, td) = clamp_axis(c[1], g.n_theta_d);
-        let (p0, p1, tp) = wrap_axis(c[2], g.n_phi_d);
         out[..nc].iter_mut().for_each(|o| *o = 0.0);
         let mut vals = vec![0f32; nc];
-        for (hi, wh) in [(h0, 1.0 - th), (h1, th)] {
-            for (di, wd) in [(d0, 1.0 - td), (d1, td)] {
-                for (pi, wp) in [(p0, 1.0 - tp), (p1, tp)] {
-                    let w = wh * wd * wp;
-                    if w == 0.0 {
-                        continue;
-                    }
-                    let a = g.index(hi, di, pi);
-                    self.store
-                        .material_row(self.index, a * nc..(a + 1) * nc, &mut vals)?;
-                    for (o, v) in out.iter_mut().zip(&vals) {
-                        *o += w * f64::from(*v);
-                    }
-                }
+        for (a, w) in g.interpolation_stencil(hd) {
+            if w == 0.0 {
+                continue;
+            }
+            self.store
+                .material_row(self.index, a * nc..(a + 1) * nc, &mut vals)?;
+            for (o, v) in out.iter_mut().zip(&vals) {
+                *o += w * f64::from(*v);
             }
         }
         Ok(())
