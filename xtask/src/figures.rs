@@ -1,5 +1,5 @@
 //! The render stage: sphere sheets (measured against GP reconstruction, with Delta E 2000),
-//! spheres of the predictions and a latent-space scatter, through the render crate.
+//! spheres of the predictions and the latent map, through the render crate.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -163,57 +163,37 @@ pub fn render_figures(
         ));
     }
 
-    // Latent scatter (first two coordinates).
+    // Latent map (render crate): materials and predictions over the predictive variance, in the
+    // first two latent axes (other coordinates 0, the prior mean).
     if model.latent_dim >= 2 {
         let path = out.join("latent.png");
-        let w = 640usize;
-        let mut img = Image::new(w, w, BG);
-        let pts: Vec<[f64; 2]> = model
+        let q = model.latent_dim;
+        let points: Vec<render::map::LabelledPoint> = model
             .materials
             .iter()
-            .map(|m| [m.coords[0], m.coords[1]])
-            .chain(predictions.iter().map(|p| [p.point[0], p.point[1]]))
-            .collect();
-        let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
-        for p in &pts {
-            for a in 0..2 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
-        let margin = 40.0;
-        let span = (0..2)
-            .map(|a| (hi[a] - lo[a]).max(1e-12))
-            .fold(0.0, f64::max);
-        let to_px = |p: [f64; 2]| {
-            let s = (w as f64 - 2.0 * margin) / span;
-            (
-                margin + (p[0] - lo[0]) * s,
-                w as f64 - margin - (p[1] - lo[1]) * s,
+            .map(|m| (m.name.clone(), [m.coords[0], m.coords[1]]))
+            .chain(
+                predictions
+                    .iter()
+                    .map(|p| (p.label.clone(), [p.point[0], p.point[1]])),
             )
+            .collect();
+        let variance = |p: [f64; 2]| -> render::Result<f64> {
+            let mut x = vec![0.0; q];
+            x[0] = p[0];
+            x[1] = p[1];
+            pred.variance(&x)
+                .map_err(|e| render::Error::InvalidArgument {
+                    reason: e.to_string(),
+                })
         };
-        for (m, p) in model.materials.iter().zip(&pts) {
-            let (x, y) = to_px(*p);
-            img.disc(x, y, 3.5, [0.3, 0.7, 1.0]);
-            img.text(x as i64 + 5, y as i64 - 3, &m.name, 1, INK);
-        }
-        for (p, row) in pts[n..].iter().zip(predictions) {
-            let (x, y) = to_px(*p);
-            img.disc(x, y, 4.5, [1.0, 0.5, 0.1]);
-            img.text(x as i64 + 6, y as i64 - 3, &row.label, 1, [1.0, 0.7, 0.4]);
-        }
-        img.text(
-            8,
-            8,
-            "latent space (x1 right, x2 up): blue = materials, orange = predictions",
-            1,
-            INK,
-        );
+        let img = render::latent_map(&points, &variance, None, &render::MapOptions::default())
+            .map_err(|e| err(&path, e))?;
         img.save_png(&path).map_err(|e| err(&path, e))?;
         files.push((
             "latent.png".to_string(),
-            "The training materials (blue) and the predicted points (orange) in the first two \
-             latent coordinates, equal scale on both axes."
+            "The training materials and the predicted points in the first two latent \
+             coordinates (equal scales), over the GP's predictive variance."
                 .to_string(),
         ));
     }
