@@ -46,7 +46,9 @@ fn fixture(n: usize, transform: &str) -> Fixture {
     let dir = tempfile::tempdir().unwrap();
     let store = dir.path().join("data.sbrdf");
     write_store(&store, n, 0, grid());
+    // The tests use 2-D latent points (the default fit has q = 5).
     let params = FitParams {
+        latent_dim: 2,
         transform: transform.into(),
         max_iterations: 300,
         ..FitParams::default()
