@@ -428,8 +428,7 @@ fn delta_e_of(pred: &Predictor, k: usize, size: usize) -> Result<f64> {
         let rec = pred
             .predict(&model.materials[i].coords, PredictorKind::Smooth)
             .map_err(|e| Error::stage("render", &path, e))?;
-        let dir = path.parent().unwrap_or(Path::new("."));
-        let rec = crate::figures::materialised(&rec, dir, &format!("delta-e-{i}"))?;
+        let rec = render::cache::predicted(rec);
         let b = render::render_sphere(&rec, &opts).map_err(|e| Error::stage("render", &path, e))?;
         sum += crate::figures::mean_delta_e(&a, &b);
     }

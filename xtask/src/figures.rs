@@ -56,20 +56,6 @@ fn label(img: &mut Image, x: usize, y: usize, width: usize, text: &str) {
     img.text(x as i64, y as i64, &t, 1, INK);
 }
 
-/// A predicted material as a renderable source: materialised once to a one-material store in
-/// `scratch` (D x N multiply-adds), so the sphere's many lookups read stored values instead of
-/// combining N materials (with the inverse transform) at every one.
-pub fn materialised(
-    m: &predict::PredictedMaterial,
-    scratch: &Path,
-    name: &str,
-) -> Result<StoreMaterial> {
-    let path = scratch.join(format!("{name}.sbrdf"));
-    m.materialize(&path, |_, _| {}).map_err(|e| err(&path, e))?;
-    let store = brdf_io::Store::open(&path).map_err(|e| err(&path, e))?;
-    StoreMaterial::by_index(Arc::new(store), 0).map_err(|e| err(&path, e))
-}
-
 fn err(path: &Path, e: impl std::fmt::Display) -> Error {
     Error::stage("render", path, e)
 }
@@ -91,8 +77,6 @@ pub fn render_figures(
     let store: Arc<brdf_io::Store> = pred.store().clone();
     let mut files = Vec::new();
     let mut spheres = 0usize;
-    let scratch = out.join("scratch");
-    std::fs::create_dir_all(&scratch).map_err(|e| Error::io(&scratch, e))?;
     let start = Instant::now();
 
     // Sheet: measured (top) against the smooth GP reconstruction (bottom).
@@ -111,7 +95,7 @@ pub fn render_figures(
         let rec = pred
             .predict(&model.materials[i].coords, PredictorKind::Smooth)
             .map_err(|e| err(&sheet_path, e))?;
-        let rec = materialised(&rec, &scratch, &format!("reconstruction-{i}"))?;
+        let rec = render::cache::predicted(rec);
         let b = render_sphere(&rec, &opts).map_err(|e| err(&sheet_path, e))?;
         spheres += 2;
         let de = mean_delta_e(&a, &b);
@@ -147,7 +131,7 @@ pub fn render_figures(
                 PredictorKind::Exact
             };
             let m = pred.predict(&p.point, kind).map_err(|e| err(&path, e))?;
-            let m = materialised(&m, &scratch, &format!("prediction-{col}"))?;
+            let m = render::cache::predicted(m);
             let s = render_sphere(&m, &opts).map_err(|e| err(&path, e))?;
             spheres += 1;
             let x = 4 + col * cell;
@@ -198,7 +182,6 @@ pub fn render_figures(
         ));
     }
 
-    let _ = std::fs::remove_dir_all(&scratch);
     let finite: Vec<f64> = delta_e
         .iter()
         .map(|d| d.mean_delta_e)

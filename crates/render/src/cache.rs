@@ -12,6 +12,23 @@ use std::sync::OnceLock;
 
 use brdf_io::{AngularGrid, BrdfSource, Channels, HalfDiff, Vec3};
 
+/// A lazily predicted material behind a cell cache: each touched cell is predicted once
+/// (N multiply-adds per value), nothing else is materialised. Use it to render a latent point.
+pub fn predicted(m: predict::PredictedMaterial) -> CellCache<'static> {
+    let grid = *m.predictor().grid();
+    let channels = m.channels().clone();
+    CellCache::new(
+        grid,
+        channels,
+        Box::new(move |a, out: &mut [f64]| {
+            m.eval_cell(a, out)
+                .map_err(|e| brdf_io::Error::InvalidArgument {
+                    reason: e.to_string(),
+                })
+        }),
+    )
+}
+
 /// Computes the values of every channel at one angular cell (flat index).
 pub type CellFn<'a> = dyn Fn(usize, &mut [f64]) -> brdf_io::Result<()> + Sync + 'a;
 

@@ -69,23 +69,6 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
     finish(args, img, start)
 }
 
-/// A lazily predicted material behind a per-cell cache: each touched cell is predicted once
-/// (N multiply-adds per value), nothing else is materialised.
-pub fn cached_prediction(m: predict::PredictedMaterial) -> render::CellCache<'static> {
-    let grid = *m.predictor().grid();
-    let channels = m.channels().clone();
-    render::CellCache::new(
-        grid,
-        channels,
-        Box::new(move |a, out: &mut [f64]| {
-            m.eval_cell(a, out)
-                .map_err(|e| brdf_io::Error::InvalidArgument {
-                    reason: e.to_string(),
-                })
-        }),
-    )
-}
-
 /// Opens SOURCE for rendering: only the wavelengths the observer needs are looked up where the
 /// source can select them; model points (`MODEL.toml@X,Y`) are predicted lazily through a cell
 /// cache.
@@ -100,7 +83,7 @@ pub fn open_render_source(
         if let Some(w) = render::colour::needed_wavelengths(m.channels(), illuminant)? {
             m = m.with_wavelengths(&w)?;
         }
-        return Ok(Box::new(cached_prediction(m)));
+        return Ok(Box::new(render::cache::predicted(m)));
     }
     let mut source = open_source(spec, None)?;
     let needed = render::colour::needed_wavelengths(&source.channels(), illuminant)?;
@@ -224,7 +207,7 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
             if let Some(w) = &needed {
                 m = m.with_wavelengths(w).map_err(err)?;
             }
-            Ok(Box::new(cached_prediction(m)))
+            Ok(Box::new(render::cache::predicted(m)))
         };
         render::latent_map(&points, &variance, Some(&source_at), &opts)?
     } else {
