@@ -11,22 +11,8 @@
 
 use std::time::Instant;
 
-use render::{CellCache, SphereOptions, render_sphere};
-
-fn cached(m: predict::PredictedMaterial) -> CellCache<'static> {
-    let grid = *m.predictor().grid();
-    let channels = m.channels().clone();
-    CellCache::new(
-        grid,
-        channels,
-        Box::new(move |a, out: &mut [f64]| {
-            m.eval_cell(a, out)
-                .map_err(|e| brdf_io::Error::InvalidArgument {
-                    reason: e.to_string(),
-                })
-        }),
-    )
-}
+use render::cache::predicted;
+use render::{SphereOptions, render_sphere};
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -90,7 +76,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut cells = 0;
     for _ in 0..5 {
         let t = Instant::now();
-        let src = cached(lazy_material()?);
+        let src = predicted(lazy_material()?);
         let img = render_sphere(&src, &opts)?;
         lazy.push(t.elapsed().as_secs_f64());
         cells = src.computed_cells();
