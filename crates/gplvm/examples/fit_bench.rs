@@ -102,10 +102,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             println!(
                 "| {t} | {} | {optimizer} | {:.6e} | {:.6e} | {} | {:.3} |",
                 fit.x.ncols(),
-                fit.log_likelihood,
-                fit.initial_log_likelihood,
-                fit.evaluations,
-                fit.seconds
+                fit.report.log_likelihood,
+                fit.report.initial_log_likelihood,
+                fit.report.evaluations,
+                fit.report.optimize_seconds
             );
         }
     }

@@ -82,26 +82,9 @@ pub struct Fit {
     pub params: KernelParams,
     /// Variance divisor applied to the centred data.
     pub data_scale: f64,
-    /// Final log-likelihood.
-    pub log_likelihood: f64,
-    /// Log-likelihood at the PCA start.
-    pub initial_log_likelihood: f64,
-    /// Norm of the gradient at the optimum.
-    pub gradient_norm: f64,
-    /// Jitter used at the optimum.
-    pub jitter: f64,
-    /// Condition-number estimate of K at the optimum.
-    pub condition_number: f64,
-    /// Iterations over all restarts.
-    pub iterations: u64,
-    /// Objective evaluations over all restarts.
-    pub evaluations: u64,
-    /// Why the winning run stopped.
-    pub stop_reason: String,
-    /// Seconds spent optimising.
-    pub seconds: f64,
-    /// Share of variance in the leading q principal components.
-    pub pca_explained: f64,
+    /// Diagnostics as written to the model file (`gram_seconds` is 0 here: [`fit_store`] fills
+    /// it in, since the Gram pass happens outside [`fit_gram`]).
+    pub report: FitReport,
 }
 
 fn template_params(config: &FitConfig) -> Result<KernelParams> {
@@ -282,16 +265,20 @@ pub fn fit_gram(g: MatRef<'_, f64>, d: usize, config: &FitConfig) -> Result<Fit>
         x,
         params,
         data_scale,
-        log_likelihood: eval.value,
-        initial_log_likelihood,
-        gradient_norm,
-        jitter: eval.factor.jitter,
-        condition_number: eval.factor.condition_estimate,
-        iterations,
-        evaluations,
-        stop_reason: best.stop_reason,
-        seconds,
-        pca_explained: pca.explained(q),
+        report: FitReport {
+            optimizer: p.optimizer.to_string(),
+            log_likelihood: eval.value,
+            initial_log_likelihood,
+            gradient_norm,
+            jitter: eval.factor.jitter,
+            condition_number: eval.factor.condition_estimate,
+            iterations,
+            evaluations,
+            stop_reason: best.stop_reason,
+            gram_seconds: 0.0,
+            optimize_seconds: seconds,
+            pca_explained: pca.explained(q),
+        },
     })
 }
 
@@ -325,18 +312,8 @@ pub fn fit_store(path: &Path, config: &FitConfig) -> Result<Model> {
             noise: fit.params.noise(),
         },
         fit: FitReport {
-            optimizer: config.params.optimizer.to_string(),
-            log_likelihood: fit.log_likelihood,
-            initial_log_likelihood: fit.initial_log_likelihood,
-            gradient_norm: fit.gradient_norm,
-            jitter: fit.jitter,
-            condition_number: fit.condition_number,
-            iterations: fit.iterations,
-            evaluations: fit.evaluations,
-            stop_reason: fit.stop_reason,
             gram_seconds: pass.seconds,
-            optimize_seconds: fit.seconds,
-            pca_explained: fit.pca_explained,
+            ..fit.report
         },
         config: config.params.clone(),
         materials: store

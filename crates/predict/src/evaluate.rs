@@ -168,7 +168,7 @@ pub fn leave_one_out(
             Refit {
                 x: f.x,
                 params: f.params,
-                log_likelihood: f.log_likelihood,
+                log_likelihood: f.report.log_likelihood,
             }
         }
     };
