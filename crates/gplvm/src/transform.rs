@@ -8,6 +8,7 @@
 use std::fmt;
 use std::str::FromStr;
 
+use brdf_io::store::GramTransform;
 use serde::{Deserialize, Serialize};
 
 use crate::error::Error;
@@ -123,6 +124,131 @@ pub fn fast_exp_m1(y: f64) -> f64 {
     }
 }
 
+/// `out[i] = ln(1 + max(input[i], 0) * scale)` in f64 with relative error below 1e-14 (tested
+/// against [`f64::ln_1p`]); the loop vectorises (4 lanes with AVX2 + FMA, selected at run time).
+/// The same reduction as [`fast_ln_1p`] with two changes that keep every operation in SIMD
+/// lanes: the exponent becomes a float through the 2^52 trick (AVX2 has no 64-bit integer to
+/// float conversion), and the rounding of `u = 1 + x` is corrected by `(x - (u - 1)) (2 - u)^+`,
+/// an estimate of `(x - (u - 1)) / u` that is good to 2e-16 of the result.
+pub fn ln_1p_scaled_f64(input: &[f32], scale: f64, out: &mut [f64]) {
+    assert_eq!(input.len(), out.len());
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the CPU supports AVX2 and FMA (checked just above), the only requirement
+            // of a `#[target_feature]` function.
+            unsafe { ln_1p_scaled_f64_avx2(input, scale, out) };
+            return;
+        }
+    }
+    for (o, v) in out.iter_mut().zip(input) {
+        *o = ln_1p_lanes(f64::from(*v) * scale);
+    }
+}
+
+/// [`ln_1p_scaled_f64`] compiled for AVX2 + FMA.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn ln_1p_scaled_f64_avx2(input: &[f32], scale: f64, out: &mut [f64]) {
+    for (o, v) in out.iter_mut().zip(input) {
+        *o = ln_1p_lanes(f64::from(*v) * scale);
+    }
+}
+
+/// One value of [`ln_1p_scaled_f64`] (negative inputs give 0).
+#[inline(always)]
+fn ln_1p_lanes(x: f64) -> f64 {
+    use std::f64::consts::{LN_2, SQRT_2};
+    const TWO_52: f64 = 4_503_599_627_370_496.0;
+    let x = x.max(0.0);
+    let u = 1.0 + x;
+    let bits = u.to_bits();
+    // u >= 1: the sign bit is 0, so bits >> 52 is the biased exponent.
+    let biased = f64::from_bits((bits >> 52) | TWO_52.to_bits()) - TWO_52;
+    let m0 = f64::from_bits((bits & 0x000f_ffff_ffff_ffff) | 0x3ff0_0000_0000_0000);
+    let big = m0 > SQRT_2;
+    let m = if big { 0.5 * m0 } else { m0 };
+    let e = biased - if big { 1022.0 } else { 1023.0 };
+    let s = (m - 1.0) / (m + 1.0);
+    let z = s * s;
+    // 1 + z/3 + z^2/5 + ... + z^8/17 by Estrin's scheme (short dependency chains).
+    let z2 = z * z;
+    let z4 = z2 * z2;
+    let p01 = 1.0 + z * (1.0 / 3.0);
+    let p23 = 1.0 / 5.0 + z * (1.0 / 7.0);
+    let p45 = 1.0 / 9.0 + z * (1.0 / 11.0);
+    let p67 = 1.0 / 13.0 + z * (1.0 / 15.0);
+    let p03 = p01 + z2 * p23;
+    let p47 = p45 + z2 * p67;
+    let p = p03 + z4 * (p47 + z4 * (1.0 / 17.0));
+    let ln_u = e * LN_2 + 2.0 * s * p;
+    ln_u + (x - (u - 1.0)) * (2.0 - u).max(0.0)
+}
+
+/// `ln(1 + x)` in f32 for `x >= 0`, in place over a slice, within 3 f32 ulps (tested against
+/// [`f64::ln_1p`]); no calls and no branches, so the loop vectorises (8 lanes with AVX2 + FMA,
+/// selected at run time). `u = 1 + x = m 2^e` with `m` in [sqrt(1/2), sqrt(2)), `ln m` by the
+/// Cephes `logf` polynomial in `m - 1`, plus `(x - (u - 1)) / u` for the rounding of `u`.
+pub fn ln_1p_f32_in_place(values: &mut [f32]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the CPU supports AVX2 and FMA (checked just above), the only requirement
+            // of a `#[target_feature]` function.
+            unsafe { ln_1p_f32_avx2(values) };
+            return;
+        }
+    }
+    values.iter_mut().for_each(|v| *v = ln_1p_f32(*v));
+}
+
+/// [`ln_1p_f32_in_place`] compiled for AVX2 + FMA.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn ln_1p_f32_avx2(values: &mut [f32]) {
+    values.iter_mut().for_each(|v| *v = ln_1p_f32(*v));
+}
+
+/// One value of [`ln_1p_f32_in_place`] (negative inputs give 0).
+#[inline(always)]
+fn ln_1p_f32(x: f32) -> f32 {
+    const SQRT_HALF: f32 = std::f32::consts::FRAC_1_SQRT_2;
+    let x = x.max(0.0);
+    let u = 1.0 + x;
+    let bits = u.to_bits();
+    // u >= 1, so the exponent field is >= 127.
+    let e0 = ((bits >> 23) & 0xff) as i32 - 126;
+    // mantissa scaled into [0.5, 1), then into [sqrt(1/2), sqrt(2)).
+    let m0 = f32::from_bits((bits & 0x007f_ffff) | 0x3f00_0000);
+    let low = m0 < SQRT_HALF;
+    let e = (e0 - i32::from(low)) as f32;
+    let t = if low { m0 + m0 - 1.0 } else { m0 - 1.0 };
+    let z = t * t;
+    let mut p = 7.037_683_6e-2_f32;
+    p = p * t - 1.151_461e-1;
+    p = p * t + 1.167_699_9e-1;
+    p = p * t - 1.242_014_1e-1;
+    p = p * t + 1.424_932_3e-1;
+    p = p * t - 1.666_805_8e-1;
+    p = p * t + 2.000_071_4e-1;
+    p = p * t - 2.499_999_4e-1;
+    p = p * t + 3.333_333e-1;
+    let ln_m = t + (p * t * z - 0.5 * z);
+    // ln 2 = 0.693359375 - 2.12194440e-4 (Cephes' split: the first part is exact in f32).
+    let ln_u = ln_m + e * -2.121_944_4e-4 + e * 0.693_359_4;
+    // ln(1 + x) = ln(u) + ln(1 + (x - (u - 1)) / u), the correction exact to first order.
+    let correction = (x - (u - 1.0)) / u;
+    ln_u + correction
+}
+
 /// 1/k for k = 0..=15 (0 unused).
 const INV: [f64; 16] = [
     0.0,
@@ -142,6 +268,32 @@ const INV: [f64; 16] = [
     1.0 / 14.0,
     1.0 / 15.0,
 ];
+
+impl GramTransform for Transform {
+    /// Batch version of [`Transform::forward`] (vectorised; within 1e-14 of it).
+    fn to_f64(&self, input: &[f32], out: &mut [f64]) {
+        match *self {
+            Self::Raw => {
+                for (o, v) in out.iter_mut().zip(input) {
+                    *o = f64::from(*v);
+                }
+            }
+            Self::Log { offset } => ln_1p_scaled_f64(input, 1.0 / offset, out),
+        }
+    }
+
+    /// f32 version of [`Transform::forward`] (relative error within a few f32 ulps).
+    fn in_place_f32(&self, values: &mut [f32]) {
+        match *self {
+            Self::Raw => {}
+            Self::Log { offset } => {
+                let scale = (1.0 / offset) as f32;
+                values.iter_mut().for_each(|v| *v *= scale);
+                ln_1p_f32_in_place(values);
+            }
+        }
+    }
+}
 
 impl fmt::Display for Transform {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -237,6 +389,73 @@ mod tests {
             let v = std::f64::consts::SQRT_2 - 1.0 + f64::from(k) * 1e-12;
             assert!((fast_ln_1p(v) - v.ln_1p()).abs() < 1e-15);
         }
+    }
+
+    #[test]
+    fn batch_f64_ln_1p_matches_the_standard_library() {
+        let mut xs = vec![
+            0.0f32, -3.0, 1e-30, 1e-8, 5.9e-8, 1e-4, 0.4142, 0.4143, 1.0, 3.0,
+        ];
+        let mut x = 1e-30f64;
+        while x < 1e30 {
+            for k in [1.0, 1.37, 2.9, 7.3] {
+                xs.push((x * k) as f32);
+            }
+            x *= 1.13;
+        }
+        for scale in [1.0, 100.0, 1.0 / 3.0] {
+            let mut out = vec![0.0; xs.len()];
+            ln_1p_scaled_f64(&xs, scale, &mut out);
+            for (v, y) in xs.iter().zip(&out) {
+                let want = (f64::from(*v).max(0.0) * scale).ln_1p();
+                let err = (y - want).abs() / want.max(f64::MIN_POSITIVE);
+                assert!(
+                    err < 1e-14 || (want == 0.0 && *y == 0.0),
+                    "x = {v}: {y} vs {want}"
+                );
+            }
+        }
+        // and the Gram transform agrees with the scalar forward transform.
+        let t = Transform::Log { offset: 0.01 };
+        let mut out = vec![0.0; xs.len()];
+        t.to_f64(&xs, &mut out);
+        for (v, y) in xs.iter().zip(&out) {
+            let want = t.forward(f64::from(*v));
+            assert!((y - want).abs() <= 1e-14 * want.abs(), "x = {v}");
+        }
+    }
+
+    #[test]
+    fn f32_ln_1p_is_within_a_few_ulps() {
+        let mut xs = vec![0.0f32, 1e-30, 1e-8, 5.9e-8, 1e-4, 0.4142, 0.4143, 1.0, 3.0];
+        let mut x = 1e-12f64;
+        while x < 1e9 {
+            for k in [1.0, 1.37, 2.9, 7.3] {
+                xs.push((x * k) as f32);
+            }
+            x *= 1.31;
+        }
+        let mut ys = xs.clone();
+        ln_1p_f32_in_place(&mut ys);
+        let mut scalar = xs.clone();
+        scalar.iter_mut().for_each(|v| *v = ln_1p_f32(*v));
+        for ((x, y), s) in xs.iter().zip(&ys).zip(&scalar) {
+            let want = f64::from(*x).ln_1p();
+            let err = (f64::from(*y) - want).abs() / want.max(f64::from(f32::MIN_POSITIVE));
+            assert!(
+                err < 3.0 * f64::from(f32::EPSILON),
+                "x = {x}: {y} vs {want} ({err:e})"
+            );
+            // the vectorised and the scalar path agree up to FMA contraction.
+            assert!((y - s).abs() <= 2.0 * f32::EPSILON * y.abs(), "x = {x}");
+        }
+        let mut neg = [-1.0f32, -1e-3];
+        ln_1p_f32_in_place(&mut neg);
+        assert_eq!(neg, [0.0, 0.0]);
+        // The Gram transform applies 1 / offset first.
+        let mut v = [0.5f32, 2.0];
+        Transform::Log { offset: 0.5 }.in_place_f32(&mut v);
+        assert!((v[0] - 2f32.ln()).abs() < 1e-7 && (v[1] - 5f32.ln()).abs() < 1e-6);
     }
 
     proptest! {

@@ -23,10 +23,12 @@
 //! payload), and the JSON [`StoreHeader`] (grid, channels, names, sources, layout, statistics and
 //! the xxh3-64 checksum of chunks + table).
 
+mod gram;
 mod reader;
 mod sample;
 mod writer;
 
+pub use gram::{GramPrecision, GramTransform, Identity, MIXED_BLOCK};
 pub use reader::{OpenOptions, ReadMode, Store};
 pub use sample::{StoreMaterial, parse_store_spec};
 pub use writer::{MaterialWriter, StoreWriter};

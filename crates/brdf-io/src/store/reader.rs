@@ -10,6 +10,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 use rayon::prelude::*;
 use xxhash_rust::xxh3::Xxh3;
 
+use super::gram::{GramAccumulator, GramPrecision, GramTransform, Identity};
 use super::writer::read_exact_at;
 use super::{
     Compression, Dtype, FORMAT_VERSION, MAGIC, PAYLOAD_OFFSET, PREFIX_LEN, StoreHeader,
@@ -423,55 +424,29 @@ impl Store {
         Ok(partials.into_iter().fold(init(), reduce))
     }
 
-    /// The uncentred N x N Gram matrix `G[n][m] = sum_d y_n[d] y_m[d]` (row-major, f64
-    /// accumulation), in one parallel streaming pass.
+    /// The uncentred N x N Gram matrix `G[n][m] = sum_d y_n[d] y_m[d]` (row-major), exact f64
+    /// arithmetic, in one parallel streaming pass.
     pub fn gram(&self) -> Result<Vec<f64>> {
-        self.gram_with(f64::from)
+        self.gram_with(&Identity, GramPrecision::F64)
     }
 
-    /// The Gram matrix of transformed values `t(y)`; below-horizon cells count as 0 whatever
-    /// `t` gives (so `t = ln` is safe there).
-    pub fn gram_with(&self, t: impl Fn(f32) -> f64 + Sync + Send) -> Result<Vec<f64>> {
-        use faer::linalg::matmul::triangular::{BlockStructure, matmul};
+    /// The Gram matrix of transformed values `t(y)` over the valid cells (below-horizon cells
+    /// are skipped whatever `t` gives, so `t = ln` is safe there), in the chosen arithmetic.
+    /// Deterministic: bit-identical from run to run and on any number of threads.
+    pub fn gram_with<T: GramTransform + ?Sized>(
+        &self,
+        t: &T,
+        precision: GramPrecision,
+    ) -> Result<Vec<f64>> {
         let n = self.n_materials();
         let nc = self.channels().len();
         let mask = self.validity_mask();
-        let g = self.par_fold_chunks(
-            || (faer::Mat::<f64>::zeros(n, n), Vec::<f64>::new()),
-            |(g, conv), range, block| {
-                conv.clear();
-                conv.reserve(block.len());
-                for (i, row) in block.chunks_exact(n).enumerate() {
-                    if mask[(range.start + i) / nc] {
-                        conv.extend(row.iter().map(|v| t(*v)));
-                    } else {
-                        conv.extend(std::iter::repeat_n(0.0, n));
-                    }
-                }
-                let a = faer::MatRef::from_column_major_slice(conv, n, range.len());
-                matmul(
-                    g.as_mut(),
-                    BlockStructure::TriangularLower,
-                    faer::Accum::Add,
-                    a,
-                    BlockStructure::Rectangular,
-                    a.transpose(),
-                    BlockStructure::Rectangular,
-                    1.0,
-                    faer::Par::Seq,
-                );
-            },
-            |(a, _), (b, _)| (a + b, Vec::new()),
+        let acc = self.par_fold_chunks(
+            || GramAccumulator::new(n, precision, t),
+            |acc, range, block| acc.push_chunk(range, block, |d| mask[d / nc]),
+            GramAccumulator::merge,
         )?;
-        let g = g.0;
-        let mut out = vec![0.0; n * n];
-        for i in 0..n {
-            for j in 0..=i {
-                out[i * n + j] = g[(i, j)];
-                out[j * n + i] = g[(i, j)];
-            }
-        }
-        Ok(out)
+        Ok(acc.finish())
     }
 
     fn cached_chunk(&self, c: usize) -> Result<Arc<Vec<f32>>> {
