@@ -10,7 +10,6 @@
 //! passes after a warm-up), the full streaming Gram pass (mmap and buffered), 10^6 random
 //! all-material lookups. Deletes everything it wrote.
 
-use std::io::Read;
 use std::path::Path;
 use std::time::Instant;
 
@@ -54,22 +53,8 @@ fn write(path: &Path, info: &StoreInfo, n: usize, options: StoreOptions) -> f64 
 }
 
 fn read_bandwidth(path: &Path) -> f64 {
-    let mut best = 0.0f64;
-    let mut buf = vec![0u8; 8 << 20];
-    for _ in 0..3 {
-        let t = Instant::now();
-        let mut f = std::fs::File::open(path).unwrap();
-        let mut total = 0u64;
-        loop {
-            let k = f.read(&mut buf).unwrap();
-            if k == 0 {
-                break;
-            }
-            total += k as u64;
-        }
-        best = best.max(total as f64 / t.elapsed().as_secs_f64());
-    }
-    best
+    let (bytes, secs) = brdf_io::store::sequential_read_seconds(path, 3).unwrap();
+    bytes as f64 / secs
 }
 
 fn gram_rate(store: &Store) -> (f64, Vec<f64>) {
@@ -104,11 +89,7 @@ fn stream_rate(store: &Store) -> f64 {
     for _ in 0..2 {
         let t = Instant::now();
         let s = store
-            .par_fold_chunks(
-                || 0.0f64,
-                |acc, _, block| *acc += sum(block),
-                |a, b| a + b,
-            )
+            .par_fold_chunks(|| 0.0f64, |acc, _, block| *acc += sum(block), |a, b| a + b)
             .unwrap();
         assert!(s.is_finite());
         best = best.min(t.elapsed().as_secs_f64());

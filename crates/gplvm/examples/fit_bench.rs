@@ -7,31 +7,10 @@
 //! (make the store with `specgp synth --out DATA.sbrdf`; it is read from the page cache: the
 //! first, untimed read warms it).
 
-use std::io::Read;
 use std::path::PathBuf;
-use std::time::Instant;
 
 use brdf_io::store::{GramPrecision, Store};
 use gplvm::{FitParams, OptimizerKind, fit_gram, gram_pass};
-
-fn sequential_read(path: &PathBuf) -> std::io::Result<(u64, f64)> {
-    let mut file = std::fs::File::open(path)?;
-    let mut buf = vec![0u8; 8 << 20];
-    let start = Instant::now();
-    let mut total = 0u64;
-    let mut checksum = 0u64;
-    loop {
-        let n = file.read(&mut buf)?;
-        if n == 0 {
-            break;
-        }
-        // Touch the data so the read cannot be elided.
-        checksum = checksum.wrapping_add(u64::from(buf[n - 1]));
-        total += n as u64;
-    }
-    std::hint::black_box(checksum);
-    Ok((total, start.elapsed().as_secs_f64()))
-}
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let path = PathBuf::from(
@@ -49,12 +28,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         store.grid(),
         store.channels().len()
     );
-    sequential_read(&path)?; // warm the page cache
     let mut reads = Vec::new();
     let mut grams = Vec::new();
     let precisions = [GramPrecision::F64, GramPrecision::Mixed];
     for _ in 0..3 {
-        reads.push(sequential_read(&path)?.1);
+        reads.push(brdf_io::store::sequential_read_seconds(&path, 1)?.1);
         for t in ["raw", "log"] {
             for precision in precisions {
                 let pass = gram_pass(&store, t.parse()?, precision)?;
@@ -124,7 +102,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("| transform | q | optimizer | log-likelihood | PCA start | evaluations | time (s) |");
     println!("|---|---|---|---|---|---|---|");
     for t in ["raw", "log"] {
-        let pass = gram_pass(&store, t.parse()?, GramPrecision::Mixed)?;
+        let pass = gram_pass(&store, t.parse()?, GramPrecision::F64)?;
         let lbfgs_only = std::env::args().nth(2).as_deref() == Some("lbfgs");
         for optimizer in [OptimizerKind::HookeJeeves, OptimizerKind::Lbfgs] {
             if lbfgs_only && optimizer == OptimizerKind::HookeJeeves {

@@ -69,7 +69,6 @@ impl PredictedMaterial {
     ) -> Result<()> {
         let (store, transformed) = self.predictor().lookup_store();
         let store = store.clone();
-        let n = store.n_materials();
         let nc = store.channels().len();
         let mask = store.validity_mask();
         let sel = self.selection().clone();
@@ -90,17 +89,7 @@ impl PredictedMaterial {
                 .map(|c| {
                     let mut buf = Vec::new();
                     let range = store.read_chunk(c, &mut buf)?;
-                    Ok(range
-                        .clone()
-                        .enumerate()
-                        .map(|(j, d)| {
-                            if mask[d / nc] {
-                                self.combine_row(&buf[j * n..(j + 1) * n], transformed)
-                            } else {
-                                0.0
-                            }
-                        })
-                        .collect())
+                    Ok(self.combine_chunk(range, &buf, transformed, mask, nc))
                 })
                 .collect();
             for part in parts {

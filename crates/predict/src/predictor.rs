@@ -711,36 +711,117 @@ impl PredictedMaterial {
         }
     }
 
-    /// The value of one chunk row (N values at one index) under this material; `transformed`:
-    /// the row holds forward-transformed values (sidecar store).
-    #[inline]
-    pub(crate) fn combine_row(&self, row: &[f32], transformed: bool) -> f64 {
-        if transformed {
-            combine_transformed(self.pred.inner.transform, &self.coef, row)
+    /// The values of one chunk (`block[(d - range.start) * N + i]`) under this material, 0 at
+    /// below-horizon indices (`mask` per angular cell, `nc` channels); `transformed`: the block
+    /// holds forward-transformed values (sidecar store). Vectorised in batches over the chunk;
+    /// bit-identical to [`PredictedMaterial::value_at`] at every index.
+    pub(crate) fn combine_chunk(
+        &self,
+        range: std::ops::Range<usize>,
+        block: &[f32],
+        transformed: bool,
+        mask: &[bool],
+        nc: usize,
+    ) -> Vec<f64> {
+        let t = self.pred.inner.transform;
+        let n = self.coef.len();
+        let valid = |d: usize| mask[d / nc];
+        let mut out: Vec<f64> = if transformed || t == Transform::Raw {
+            range
+                .clone()
+                .zip(block.chunks_exact(n))
+                .map(|(d, row)| {
+                    if valid(d) {
+                        dot_f32(&self.coef, row)
+                    } else {
+                        0.0
+                    }
+                })
+                .collect()
         } else {
-            combine(self.pred.inner.transform, &self.coef, row)
-        }
+            let mut wide = vec![0.0; block.len()];
+            t.forward_batch(block, &mut wide);
+            range
+                .clone()
+                .zip(wide.chunks_exact(n))
+                .map(|(d, row)| {
+                    if valid(d) {
+                        dot_f64(&self.coef, row)
+                    } else {
+                        0.0
+                    }
+                })
+                .collect()
+        };
+        // inverse(0) = 0 under every transform, so masked cells stay 0.
+        t.inverse_in_place(&mut out);
+        out
     }
 }
 
 /// `inverse(sum_i c_i y_i)` for already transformed values `y`.
 #[inline]
 pub(crate) fn combine_transformed(t: Transform, c: &[f64], y: &[f32]) -> f64 {
-    let mut acc = 0.0;
-    for (ci, yi) in c.iter().zip(y) {
-        acc += ci * f64::from(*yi);
-    }
-    t.inverse(acc)
+    t.inverse(dot_f32(c, y))
 }
 
-/// `inverse(sum_i c_i forward(v_i))`.
+/// `inverse(sum_i c_i forward(v_i))`: the forward transform of the row runs as one vectorised
+/// batch ([`Transform::forward_batch`], the same arithmetic as materialisation).
 #[inline]
 pub(crate) fn combine(t: Transform, c: &[f64], v: &[f32]) -> f64 {
-    let mut acc = 0.0;
-    for (ci, vi) in c.iter().zip(v) {
-        acc += ci * t.forward(f64::from(*vi));
+    match t {
+        Transform::Raw => dot_f32(c, v),
+        Transform::Log { .. } => WIDE.with(|w| {
+            let mut w = w.borrow_mut();
+            w.resize(v.len(), 0.0);
+            t.forward_batch(v, &mut w);
+            t.inverse(dot_f64(c, &w))
+        }),
     }
-    t.inverse(acc)
+}
+
+thread_local! {
+    static WIDE: RefCell<Vec<f64>> = const { RefCell::new(Vec::new()) };
+}
+
+/// `sum_i c_i y_i` with four independent partial sums (vectorises; one running sum would wait
+/// on the latency of every addition). Every lookup and materialisation path uses it, so they
+/// agree bit for bit.
+#[inline]
+pub(crate) fn dot_f32(c: &[f64], y: &[f32]) -> f64 {
+    let mut part = [0f64; 4];
+    let (cc, yc) = (c.chunks_exact(4), y.chunks_exact(4));
+    let rest: f64 = cc
+        .remainder()
+        .iter()
+        .zip(yc.remainder())
+        .map(|(a, b)| a * f64::from(*b))
+        .sum();
+    for (a, b) in cc.zip(yc) {
+        for k in 0..4 {
+            part[k] += a[k] * f64::from(b[k]);
+        }
+    }
+    (part[0] + part[1]) + (part[2] + part[3]) + rest
+}
+
+/// [`dot_f32`] for f64 values.
+#[inline]
+pub(crate) fn dot_f64(c: &[f64], y: &[f64]) -> f64 {
+    let mut part = [0f64; 4];
+    let (cc, yc) = (c.chunks_exact(4), y.chunks_exact(4));
+    let rest: f64 = cc
+        .remainder()
+        .iter()
+        .zip(yc.remainder())
+        .map(|(a, b)| a * b)
+        .sum();
+    for (a, b) in cc.zip(yc) {
+        for k in 0..4 {
+            part[k] += a[k] * b[k];
+        }
+    }
+    (part[0] + part[1]) + (part[2] + part[3]) + rest
 }
 
 impl BrdfSource for PredictedMaterial {

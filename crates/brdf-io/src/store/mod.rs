@@ -397,3 +397,39 @@ pub(crate) fn decode_values(bytes: &[u8], dtype: Dtype, out: &mut [f32]) {
 pub(crate) fn hex64(h: u64) -> String {
     format!("{h:016x}")
 }
+
+/// The baseline every throughput benchmark of specgp compares against: one plain sequential
+/// read of the file at `path` from the page cache, single-threaded, 8 MiB `read` calls into one
+/// buffer (each buffer touched so nothing is elided). Returns (bytes, seconds of the fastest of
+/// `repeats` reads, after one untimed read that warms the cache). On a VM whose kernel tiers
+/// memory (DAMON), the first reads of a file that has not been touched for a while can be several
+/// times slower: benchmarks call this before and after the measured operation and keep the best.
+pub fn sequential_read_seconds(
+    path: &std::path::Path,
+    repeats: usize,
+) -> std::io::Result<(u64, f64)> {
+    use std::io::Read;
+    let mut buf = vec![0u8; 8 << 20];
+    let mut best = f64::INFINITY;
+    let mut bytes = 0;
+    for round in 0..=repeats.max(1) {
+        let start = std::time::Instant::now();
+        let mut file = std::fs::File::open(path)?;
+        let mut total = 0u64;
+        let mut touch = 0u64;
+        loop {
+            let k = file.read(&mut buf)?;
+            if k == 0 {
+                break;
+            }
+            touch = touch.wrapping_add(u64::from(buf[k - 1]));
+            total += k as u64;
+        }
+        std::hint::black_box(touch);
+        bytes = total;
+        if round > 0 {
+            best = best.min(start.elapsed().as_secs_f64());
+        }
+    }
+    Ok((bytes, best))
+}
