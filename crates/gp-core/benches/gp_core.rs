@@ -33,6 +33,18 @@ fn likelihood(c: &mut Criterion) {
         });
     }
     group.finish();
+    // What one L-BFGS step of the default fit evaluates: N = 51, q = 5, sequential.
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let y = rand_mat(&mut rng, 51, 64);
+    let g = gram_from_data(y.as_ref(), Par::Seq).unwrap();
+    let obj = GplvmObjective::from_uncentred_gram(g.as_ref(), 1_500_000)
+        .unwrap()
+        .with_prior(true);
+    let x = rand_mat(&mut rng, 51, 5);
+    let p = KernelParams::paper();
+    c.bench_function("gplvm_value_and_gradient_n51_q5_seq", |b| {
+        b.iter(|| black_box(obj.evaluate(x.as_ref(), &p, Par::Seq).unwrap().value))
+    });
 }
 
 fn weights(c: &mut Criterion) {

@@ -347,11 +347,22 @@ impl KernelParams {
     pub fn rbf_matrix(&self, x: MatRef<'_, f64>) -> Result<Mat<f64>> {
         let rows = self.rows_of(x, "latent points X")?;
         let n = rows.len();
+        // Scaled rows z = x / l once, so each pair costs q multiply-adds and one exp.
+        let z: Vec<Vec<f64>> = rows
+            .iter()
+            .map(|r| {
+                r.iter()
+                    .enumerate()
+                    .map(|(j, v)| v / self.length_scale.axis(j))
+                    .collect()
+            })
+            .collect();
         let mut k = Mat::<f64>::zeros(n, n);
         for j in 0..n {
             k[(j, j)] = self.signal_variance;
             for i in (j + 1)..n {
-                let v = self.rbf(&rows[i], &rows[j]);
+                let r2: f64 = z[i].iter().zip(&z[j]).map(|(a, b)| (a - b) * (a - b)).sum();
+                let v = self.signal_variance * (-0.5 * r2).exp();
                 k[(i, j)] = v;
                 k[(j, i)] = v;
             }
@@ -424,6 +435,18 @@ impl KernelParams {
     ///
     /// Cost `O(N^2 q)`. The raw gradients divide by the parameter (`dF/dθ = dF/dlog θ / θ`).
     pub fn backprop(&self, x: MatRef<'_, f64>, dk: MatRef<'_, f64>) -> Result<KernelGradient> {
+        let k_rbf = self.rbf_matrix(x)?;
+        self.backprop_with_rbf(x, dk, k_rbf.as_ref())
+    }
+
+    /// [`KernelParams::backprop`] given `K_rbf(X)` (from [`KernelParams::rbf_matrix`] or the
+    /// off-diagonal of [`KernelParams::kernel_matrix`]), so no kernel value is computed twice.
+    pub(crate) fn backprop_with_rbf(
+        &self,
+        x: MatRef<'_, f64>,
+        dk: MatRef<'_, f64>,
+        k_rbf: MatRef<'_, f64>,
+    ) -> Result<KernelGradient> {
         let rows = self.rows_of(x, "latent points X")?;
         let n = rows.len();
         let q = x.ncols();
@@ -446,24 +469,36 @@ impl KernelParams {
                 1.0 / (l * l)
             })
             .collect();
-        let mut gx = Mat::<f64>::zeros(n, q);
+        // W[n][m] = sym(dF/dK)[n][m] K_rbf[n][m] off the diagonal. With row sums r = W 1 and
+        // the points centred (the kernel part is translation-invariant; centring keeps the
+        // differences below exact), every sum over pairs becomes a product with W X:
+        //   dF/dx_n       = -2/l^2 (r_n x_n - (W X)_n)
+        //   dF/dlog l_j   = 1/l_j^2 sum_nm W_nm (x_nj - x_mj)^2 = 2/l_j^2 sum_n x_nj (r_n x_nj - (W X)_nj)
+        let mut w = Mat::<f64>::zeros(n, n);
         let mut d_log_s2 = 0.0;
-        let mut d_log_l_axis = vec![0.0f64; q];
-        let mut diff = vec![0.0f64; q];
-        for nidx in 0..n {
+        for m in 0..n {
             // Diagonal: K_rbf[n,n] = s^2 contributes only to the amplitude.
-            d_log_s2 += dk[(nidx, nidx)] * self.signal_variance;
-            for m in (nidx + 1)..n {
-                let kv = self.rbf(&rows[nidx], &rows[m]);
-                let w = 0.5 * (dk[(nidx, m)] + dk[(m, nidx)]) * kv;
-                d_log_s2 += 2.0 * w;
-                for j in 0..q {
-                    diff[j] = rows[nidx][j] - rows[m][j];
-                    let g = -2.0 * inv_l2[j] * w * diff[j];
-                    gx[(nidx, j)] += g;
-                    gx[(m, j)] -= g;
-                    d_log_l_axis[j] += 2.0 * w * diff[j] * diff[j] * inv_l2[j];
-                }
+            d_log_s2 += dk[(m, m)] * self.signal_variance;
+            for i in (m + 1)..n {
+                let v = 0.5 * (dk[(i, m)] + dk[(m, i)]) * k_rbf[(i, m)];
+                w[(i, m)] = v;
+                w[(m, i)] = v;
+                d_log_s2 += 2.0 * v;
+            }
+        }
+        let mean: Vec<f64> = (0..q)
+            .map(|j| rows.iter().map(|r| r[j]).sum::<f64>() / n as f64)
+            .collect();
+        let xc = Mat::from_fn(n, q, |i, j| rows[i][j] - mean[j]);
+        let r: Vec<f64> = (0..n).map(|i| (0..n).map(|m| w[(i, m)]).sum()).collect();
+        let wx = &w * &xc;
+        let mut gx = Mat::<f64>::zeros(n, q);
+        let mut d_log_l_axis = vec![0.0f64; q];
+        for j in 0..q {
+            for i in 0..n {
+                let t = r[i] * xc[(i, j)] - wx[(i, j)];
+                gx[(i, j)] = -2.0 * inv_l2[j] * t;
+                d_log_l_axis[j] += 2.0 * inv_l2[j] * xc[(i, j)] * t;
             }
         }
         let mut trace = 0.0;

@@ -160,7 +160,11 @@ impl GplvmObjective {
     ) -> Result<CholeskyFactor> {
         self.check_x(x)?;
         let k = params.kernel_matrix(x)?;
-        CholeskyFactor::with_policy(k.as_ref(), self.policy, par).map_err(|e| match e {
+        self.factor_matrix(k.as_ref(), par)
+    }
+
+    fn factor_matrix(&self, k: MatRef<'_, f64>, par: Par) -> Result<CholeskyFactor> {
+        CholeskyFactor::with_policy(k, self.policy, par).map_err(|e| match e {
             GpError::NotPositiveDefinite {
                 n,
                 attempts,
@@ -230,7 +234,9 @@ impl GplvmObjective {
         params: &KernelParams,
         par: Par,
     ) -> Result<GplvmEval> {
-        let f = self.factor(x, params, par)?;
+        self.check_x(x)?;
+        let k = params.kernel_matrix(x)?;
+        let f = self.factor_matrix(k.as_ref(), par)?;
         let n = self.n();
         let kinv = f.inverse();
         // B = K^-1 S, A = K^-1 S K^-1 = B K^-1.
@@ -259,7 +265,8 @@ impl GplvmObjective {
             }
         }
         let value = self.assemble(f.log_det(), trace, x)?;
-        let g = params.backprop(x, dk.as_ref())?;
+        // K's off-diagonal is K_rbf's (the noise sits on the diagonal only).
+        let g = params.backprop_with_rbf(x, dk.as_ref(), k.as_ref())?;
         let mut grad_x = g.x;
         if self.prior {
             for j in 0..x.ncols() {
