@@ -45,6 +45,18 @@ fn likelihood(c: &mut Criterion) {
     c.bench_function("gplvm_value_and_gradient_n51_q5_seq", |b| {
         b.iter(|| black_box(obj.evaluate(x.as_ref(), &p, Par::Seq).unwrap().value))
     });
+    // The same through the flat interface the optimisers call (no condition estimate).
+    let flat = obj.flat(5, p.clone(), gp_core::Learn::NONE).unwrap();
+    let theta = flat.pack(x.as_ref(), &p).unwrap();
+    c.bench_function("gplvm_flat_value_and_gradient_n51_q5_seq", |b| {
+        b.iter(|| {
+            black_box(
+                flat.neg_log_likelihood_and_gradient(&theta, Par::Seq)
+                    .unwrap()
+                    .0,
+            )
+        })
+    });
 }
 
 fn weights(c: &mut Criterion) {

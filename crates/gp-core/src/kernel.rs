@@ -357,12 +357,21 @@ impl KernelParams {
                     .collect()
             })
             .collect();
+        // Squared distances of the strict lower triangle, column by column, then one batch of
+        // exponentials (vectorised, crate::fastmath).
+        let mut vals = Vec::with_capacity(n * (n - 1) / 2);
+        for j in 0..n {
+            for i in (j + 1)..n {
+                vals.push(z[i].iter().zip(&z[j]).map(|(a, b)| (a - b) * (a - b)).sum());
+            }
+        }
+        crate::fastmath::rbf_from_sq_dist_in_place(&mut vals, self.signal_variance);
         let mut k = Mat::<f64>::zeros(n, n);
+        let mut it = vals.into_iter();
         for j in 0..n {
             k[(j, j)] = self.signal_variance;
             for i in (j + 1)..n {
-                let r2: f64 = z[i].iter().zip(&z[j]).map(|(a, b)| (a - b) * (a - b)).sum();
-                let v = self.signal_variance * (-0.5 * r2).exp();
+                let v = it.next().unwrap_or(0.0);
                 k[(i, j)] = v;
                 k[(j, i)] = v;
             }
@@ -406,7 +415,7 @@ impl KernelParams {
         let fill = |c: usize, col: &mut [f64]| {
             let xs: Vec<f64> = (0..q).map(|j| x_star[(c, j)]).collect();
             self.fill_sq_dist(&z, &xs, col);
-            col.iter_mut().for_each(|v| *v = s2 * (-0.5 * *v).exp());
+            crate::fastmath::rbf_from_sq_dist_in_place(col, s2);
         };
         if n > 0 && m > 0 {
             let run = |(c, col): (usize, faer::ColMut<'_, f64>)| {

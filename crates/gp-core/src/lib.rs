@@ -41,6 +41,7 @@
 pub mod cholesky;
 pub mod diagnostics;
 pub mod error;
+pub mod fastmath;
 pub mod gram;
 pub mod kernel;
 pub mod objective;

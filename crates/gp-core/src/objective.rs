@@ -36,11 +36,17 @@ pub struct FactorInfo {
 }
 
 impl FactorInfo {
-    pub(crate) fn of(f: &CholeskyFactor) -> Self {
+    /// With `condition`, the Hager/Higham estimate (a few triangular solves); without it (the
+    /// optimisers' inner loop, where nobody reads it) `condition_estimate` is NaN.
+    pub(crate) fn of(f: &CholeskyFactor, condition: bool) -> Self {
         FactorInfo {
             jitter: f.jitter(),
             attempts: f.attempts(),
-            condition_estimate: f.condition_estimate(),
+            condition_estimate: if condition {
+                f.condition_estimate()
+            } else {
+                f64::NAN
+            },
         }
     }
 }
@@ -214,6 +220,16 @@ impl GplvmObjective {
         params: &KernelParams,
         par: Par,
     ) -> Result<(f64, FactorInfo)> {
+        self.log_likelihood_impl(x, params, par, true)
+    }
+
+    fn log_likelihood_impl(
+        &self,
+        x: MatRef<'_, f64>,
+        params: &KernelParams,
+        par: Par,
+        condition: bool,
+    ) -> Result<(f64, FactorInfo)> {
         let f = self.factor(x, params, par)?;
         let kinv = f.inverse();
         let n = self.n();
@@ -224,7 +240,7 @@ impl GplvmObjective {
             }
         }
         let v = self.assemble(f.log_det(), trace, x)?;
-        Ok((v, FactorInfo::of(&f)))
+        Ok((v, FactorInfo::of(&f, condition)))
     }
 
     /// Value and analytic gradient with respect to `X` and the hyperparameters.
@@ -233,6 +249,16 @@ impl GplvmObjective {
         x: MatRef<'_, f64>,
         params: &KernelParams,
         par: Par,
+    ) -> Result<GplvmEval> {
+        self.evaluate_impl(x, params, par, true)
+    }
+
+    fn evaluate_impl(
+        &self,
+        x: MatRef<'_, f64>,
+        params: &KernelParams,
+        par: Par,
+        condition: bool,
     ) -> Result<GplvmEval> {
         self.check_x(x)?;
         let k = params.kernel_matrix(x)?;
@@ -281,7 +307,7 @@ impl GplvmObjective {
             grad_x,
             grad_hyper: g.hyper,
             grad_hyper_log: g.hyper_log,
-            factor: FactorInfo::of(&f),
+            factor: FactorInfo::of(&f, condition),
         })
     }
 
@@ -495,7 +521,10 @@ impl<'a> FlatGplvm<'a> {
     /// `-L(theta)` only.
     pub fn neg_log_likelihood(&self, theta: &[f64], par: Par) -> Result<f64> {
         let (x, params) = self.unpack(theta)?;
-        Ok(-self.obj.log_likelihood(x.as_ref(), &params, par)?.0)
+        Ok(-self
+            .obj
+            .log_likelihood_impl(x.as_ref(), &params, par, false)?
+            .0)
     }
 
     /// `(-L(theta), -dL/dtheta)` in the layout of [`pack`](Self::pack).
@@ -504,7 +533,9 @@ impl<'a> FlatGplvm<'a> {
         theta: &[f64],
         par: Par,
     ) -> Result<(f64, Vec<f64>)> {
-        let e = self.evaluate(theta, par)?;
+        let (x, params) = self.unpack(theta)?;
+        // No condition estimate in the optimisers' inner loop (FlatGplvm::evaluate has it).
+        let e = self.obj.evaluate_impl(x.as_ref(), &params, par, false)?;
         let (n, q) = (self.obj.n(), self.q);
         let mut g = Vec::with_capacity(self.len());
         for i in 0..n {
