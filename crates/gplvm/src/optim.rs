@@ -270,7 +270,7 @@ fn cubic_step(a: f64, fa: f64, da: f64, b: f64, fb: f64, db: f64) -> f64 {
     let disc = d1 * d1 - da * db;
     let (lo, hi) = if a < b { (a, b) } else { (b, a) };
     let mid = 0.5 * (a + b);
-    if !(disc >= 0.0) {
+    if disc.is_nan() || disc < 0.0 {
         return mid;
     }
     let d2 = (b - a).signum() * disc.sqrt();
@@ -422,7 +422,7 @@ pub fn lbfgs(
         }
         two_loop(&pairs, &grad, gnorm, &mut alpha, &mut dir);
         let mut slope = dot(&grad, &dir);
-        if !(slope < 0.0) {
+        if slope.is_nan() || slope >= 0.0 {
             // Not a descent direction (numerical trouble): restart from steepest descent.
             pairs.clear();
             dir.iter_mut().zip(&grad).for_each(|(d, g)| *d = -g / gnorm);
