@@ -31,8 +31,9 @@ pub fn exp_lanes(x: f64) -> f64 {
     }
 }
 
-/// 1/k for k = 0..=13 (0 unused).
-const INV: [f64; 14] = [
+/// 1/k for k = 0..=15 (0 unused): Taylor coefficients of the polynomials here and in
+/// gplvm's transforms.
+pub const INV: [f64; 16] = [
     0.0,
     1.0,
     1.0 / 2.0,
@@ -47,7 +48,30 @@ const INV: [f64; 14] = [
     1.0 / 11.0,
     1.0 / 12.0,
     1.0 / 13.0,
+    1.0 / 14.0,
+    1.0 / 15.0,
 ];
+
+/// `sum_i a_i b_i` with four independent partial sums, so the loop vectorises instead of
+/// waiting on the latency of every addition (`b` may be f32 or f64; the result does not depend
+/// on the CPU: the same operations in the same order everywhere).
+#[inline(always)]
+pub fn dot<T: Copy + Into<f64>>(a: &[f64], b: &[T]) -> f64 {
+    let mut part = [0f64; 4];
+    let (ac, bc) = (a.chunks_exact(4), b.chunks_exact(4));
+    let rest: f64 = ac
+        .remainder()
+        .iter()
+        .zip(bc.remainder())
+        .map(|(x, y)| x * (*y).into())
+        .sum();
+    for (x, y) in ac.zip(bc) {
+        for k in 0..4 {
+            part[k] += x[k] * y[k].into();
+        }
+    }
+    (part[0] + part[1]) + (part[2] + part[3]) + rest
+}
 
 /// `v = s e^(-v / 2)` in place (RBF values from squared scaled distances), 4 lanes wide with
 /// AVX2 + FMA when the CPU has them (selected at run time), the same arithmetic otherwise.

@@ -173,23 +173,7 @@ pub fn hooke_jeeves(
     })
 }
 
-#[inline(always)]
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    let mut part = [0f64; 4];
-    let (ac, bc) = (a.chunks_exact(4), b.chunks_exact(4));
-    let rest: f64 = ac
-        .remainder()
-        .iter()
-        .zip(bc.remainder())
-        .map(|(x, y)| x * y)
-        .sum();
-    for (x, y) in ac.zip(bc) {
-        for k in 0..4 {
-            part[k] += x[k] * y[k];
-        }
-    }
-    (part[0] + part[1]) + (part[2] + part[3]) + rest
-}
+use gp_core::fastmath::dot;
 
 /// `y += a x`.
 #[inline(always)]

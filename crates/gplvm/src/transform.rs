@@ -105,41 +105,19 @@ pub fn fast_ln_1p(x: f64) -> f64 {
 
 /// `e^y - 1` with relative error below 1e-14 (tested against [`f64::exp_m1`]), several times
 /// faster than the C library's `expm1` here and free of calls: a Taylor series for
-/// |y| <= 0.35, otherwise `2^k e^r - 1` with `y = k ln 2 + r` (Cody-Waite) and a series for
-/// `e^r`. Overflows to infinity above ln(f64::MAX).
+/// |y| <= 0.35, otherwise [`gp_core::fastmath::exp_lanes`]`(y) - 1` (Cody-Waite reduction and a
+/// series for `e^r`). Overflows to infinity above ln(f64::MAX).
 #[inline(always)]
 pub fn fast_exp_m1(y: f64) -> f64 {
-    const LN2_HI: f64 = 6.931_471_803_691_238e-1;
-    const LN2_LO: f64 = 1.908_214_929_270_587_7e-10;
     // Small |y|: y (1 + y/2 (1 + y/3 (... (1 + y/15)))).
     let mut t = 1.0;
     for k in (2..=15).rev() {
         t = 1.0 + y * INV[k] * t;
     }
     let small = y * t;
-    // Large |y|.
-    const MAX: f64 = 709.782_712_893_384;
-    let yc = y.clamp(-700.0, MAX);
-    let k = (yc * std::f64::consts::LOG2_E).round_ties_even();
-    let r = (yc - k * LN2_HI) - k * LN2_LO;
-    let mut e = 1.0;
-    for j in (1..=13).rev() {
-        e = 1.0 + r * INV[j] * e;
-    }
-    // 2^(k - 1) (k <= 1024 near the overflow threshold), times 2 exactly. The biased exponent
-    // k + 1022 (in 12..=2046) is read off the mantissa of 2^52 + k + 1022, which keeps the
-    // conversion in SIMD lanes (AVX2 has no f64 -> i64 conversion).
-    const TWO_52: f64 = 4_503_599_627_370_496.0;
-    let biased = (k + (1022.0 + TWO_52)).to_bits() & 0x000f_ffff_ffff_ffff;
-    let scale = f64::from_bits(biased << 52);
-    let large = (e * scale) * 2.0 - 1.0;
-    if y.abs() <= 0.35 {
-        small
-    } else if y > MAX {
-        f64::INFINITY
-    } else {
-        large
-    }
+    // Large |y|: e^y - 1 (no cancellation worth the name above 0.35).
+    let large = gp_core::fastmath::exp_lanes(y) - 1.0;
+    if y.abs() <= 0.35 { small } else { large }
 }
 
 /// `v = scale (e^v - 1)` in place: [`fast_exp_m1`] over a slice, compiled for AVX2 + FMA when
@@ -293,25 +271,7 @@ fn ln_1p_f32(x: f32) -> f32 {
     ln_u + correction
 }
 
-/// 1/k for k = 0..=15 (0 unused).
-const INV: [f64; 16] = [
-    0.0,
-    1.0,
-    1.0 / 2.0,
-    1.0 / 3.0,
-    1.0 / 4.0,
-    1.0 / 5.0,
-    1.0 / 6.0,
-    1.0 / 7.0,
-    1.0 / 8.0,
-    1.0 / 9.0,
-    1.0 / 10.0,
-    1.0 / 11.0,
-    1.0 / 12.0,
-    1.0 / 13.0,
-    1.0 / 14.0,
-    1.0 / 15.0,
-];
+use gp_core::fastmath::INV;
 
 impl GramTransform for Transform {
     /// Batch version of [`Transform::forward`] (vectorised; within 1e-14 of it).

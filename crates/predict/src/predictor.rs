@@ -784,44 +784,17 @@ thread_local! {
     static WIDE: RefCell<Vec<f64>> = const { RefCell::new(Vec::new()) };
 }
 
-/// `sum_i c_i y_i` with four independent partial sums (vectorises; one running sum would wait
-/// on the latency of every addition). Every lookup and materialisation path uses it, so they
-/// agree bit for bit.
+/// `sum_i c_i y_i` for stored f32 values ([`gp_core::fastmath::dot`]). Every lookup and
+/// materialisation path uses it, so they agree bit for bit.
 #[inline]
 pub(crate) fn dot_f32(c: &[f64], y: &[f32]) -> f64 {
-    let mut part = [0f64; 4];
-    let (cc, yc) = (c.chunks_exact(4), y.chunks_exact(4));
-    let rest: f64 = cc
-        .remainder()
-        .iter()
-        .zip(yc.remainder())
-        .map(|(a, b)| a * f64::from(*b))
-        .sum();
-    for (a, b) in cc.zip(yc) {
-        for k in 0..4 {
-            part[k] += a[k] * f64::from(b[k]);
-        }
-    }
-    (part[0] + part[1]) + (part[2] + part[3]) + rest
+    gp_core::fastmath::dot(c, y)
 }
 
 /// [`dot_f32`] for f64 values.
 #[inline]
 pub(crate) fn dot_f64(c: &[f64], y: &[f64]) -> f64 {
-    let mut part = [0f64; 4];
-    let (cc, yc) = (c.chunks_exact(4), y.chunks_exact(4));
-    let rest: f64 = cc
-        .remainder()
-        .iter()
-        .zip(yc.remainder())
-        .map(|(a, b)| a * b)
-        .sum();
-    for (a, b) in cc.zip(yc) {
-        for k in 0..4 {
-            part[k] += a[k] * b[k];
-        }
-    }
-    (part[0] + part[1]) + (part[2] + part[3]) + rest
+    gp_core::fastmath::dot(c, y)
 }
 
 impl BrdfSource for PredictedMaterial {
