@@ -345,38 +345,29 @@ impl KernelParams {
 
     /// `K_rbf(X)`, `N x N`, without the noise term. `X` is `N x q` (rows are points).
     pub fn rbf_matrix(&self, x: MatRef<'_, f64>) -> Result<Mat<f64>> {
-        let rows = self.rows_of(x, "latent points X")?;
-        let n = rows.len();
-        // Scaled rows z = x / l once, so each pair costs q multiply-adds and one exp.
-        let z: Vec<Vec<f64>> = rows
-            .iter()
-            .map(|r| {
-                r.iter()
-                    .enumerate()
-                    .map(|(j, v)| v / self.length_scale.axis(j))
-                    .collect()
-            })
-            .collect();
-        // Squared distances of the strict lower triangle, column by column, then one batch of
-        // exponentials (vectorised, crate::fastmath).
-        let mut vals = Vec::with_capacity(n * (n - 1) / 2);
-        for j in 0..n {
-            for i in (j + 1)..n {
-                vals.push(z[i].iter().zip(&z[j]).map(|(a, b)| (a - b) * (a - b)).sum());
+        // Scaled axes z_j = x_j / l_j once; then, column by column of the strict lower
+        // triangle, squared distances accumulated axis by axis (contiguous, vectorises) and one
+        // batch of exponentials (crate::fastmath).
+        let z = self.scaled_axes(x, "latent points X")?;
+        let n = x.nrows();
+        let s2 = self.signal_variance;
+        let mut lower = vec![0.0f64; n * n];
+        for m in 0..n {
+            let col = &mut lower[m * n + m + 1..(m + 1) * n];
+            for axis in &z {
+                let zm = axis[m];
+                for (o, zi) in col.iter_mut().zip(&axis[m + 1..]) {
+                    let d = zi - zm;
+                    *o += d * d;
+                }
             }
+            crate::fastmath::rbf_from_sq_dist_in_place(col, s2);
         }
-        crate::fastmath::rbf_from_sq_dist_in_place(&mut vals, self.signal_variance);
-        let mut k = Mat::<f64>::zeros(n, n);
-        let mut it = vals.into_iter();
-        for j in 0..n {
-            k[(j, j)] = self.signal_variance;
-            for i in (j + 1)..n {
-                let v = it.next().unwrap_or(0.0);
-                k[(i, j)] = v;
-                k[(j, i)] = v;
-            }
-        }
-        Ok(k)
+        Ok(Mat::from_fn(n, n, |i, j| match i.cmp(&j) {
+            std::cmp::Ordering::Equal => s2,
+            std::cmp::Ordering::Greater => lower[j * n + i],
+            std::cmp::Ordering::Less => lower[i * n + j],
+        }))
     }
 
     /// Training covariance `K = K_rbf(X) + mu I`, `N x N`, symmetric positive definite
@@ -444,7 +435,12 @@ impl KernelParams {
     ///
     /// Cost `O(N^2 q)`. The raw gradients divide by the parameter (`dF/dθ = dF/dlog θ / θ`).
     pub fn backprop(&self, x: MatRef<'_, f64>, dk: MatRef<'_, f64>) -> Result<KernelGradient> {
+        // rbf_matrix validates X (non-empty, finite, dimensions).
         let k_rbf = self.rbf_matrix(x)?;
+        if dk.nrows() == x.nrows() && dk.ncols() == x.nrows() {
+            check_finite(dk, "dF/dK")?;
+            check_symmetric(dk, "dF/dK")?;
+        }
         self.backprop_with_rbf(x, dk, k_rbf.as_ref())
     }
 
@@ -456,12 +452,11 @@ impl KernelParams {
         dk: MatRef<'_, f64>,
         k_rbf: MatRef<'_, f64>,
     ) -> Result<KernelGradient> {
-        let rows = self.rows_of(x, "latent points X")?;
-        let n = rows.len();
+        let n = x.nrows();
         let q = x.ncols();
-        if dk.nrows() != n || dk.ncols() != n {
+        if dk.nrows() != n || dk.ncols() != n || k_rbf.nrows() != n || k_rbf.ncols() != n {
             return Err(GpError::DimensionMismatch {
-                what: "dF/dK vs number of latent points",
+                what: "dF/dK and K_rbf vs number of latent points",
                 expected: n,
                 got: if dk.nrows() != n {
                     dk.nrows()
@@ -470,8 +465,6 @@ impl KernelParams {
                 },
             });
         }
-        check_finite(dk, "dF/dK")?;
-        check_symmetric(dk, "dF/dK")?;
         let inv_l2: Vec<f64> = (0..q)
             .map(|j| {
                 let l = self.length_scale.axis(j);
@@ -483,31 +476,42 @@ impl KernelParams {
         // differences below exact), every sum over pairs becomes a product with W X:
         //   dF/dx_n       = -2/l^2 (r_n x_n - (W X)_n)
         //   dF/dlog l_j   = 1/l_j^2 sum_nm W_nm (x_nj - x_mj)^2 = 2/l_j^2 sum_n x_nj (r_n x_nj - (W X)_nj)
-        let mut w = Mat::<f64>::zeros(n, n);
+        // W is symmetric and kept column-major in a Vec (plain slices in the hot loops).
+        let mut w = vec![0.0f64; n * n];
+        let mut r = vec![0.0f64; n];
         let mut d_log_s2 = 0.0;
         for m in 0..n {
+            let (dk_m, k_m) = (column(dk, m), column(k_rbf, m));
             // Diagonal: K_rbf[n,n] = s^2 contributes only to the amplitude.
-            d_log_s2 += dk[(m, m)] * self.signal_variance;
+            d_log_s2 += dk_m[m] * self.signal_variance;
             for i in (m + 1)..n {
-                let v = 0.5 * (dk[(i, m)] + dk[(m, i)]) * k_rbf[(i, m)];
-                w[(i, m)] = v;
-                w[(m, i)] = v;
+                let v = 0.5 * (dk_m[i] + dk[(m, i)]) * k_m[i];
+                w[m * n + i] = v;
+                w[i * n + m] = v;
+                r[i] += v;
+                r[m] += v;
                 d_log_s2 += 2.0 * v;
             }
         }
-        let mean: Vec<f64> = (0..q)
-            .map(|j| rows.iter().map(|r| r[j]).sum::<f64>() / n as f64)
-            .collect();
-        let xc = Mat::from_fn(n, q, |i, j| rows[i][j] - mean[j]);
-        let r: Vec<f64> = (0..n).map(|i| (0..n).map(|m| w[(i, m)]).sum()).collect();
-        let wx = &w * &xc;
         let mut gx = Mat::<f64>::zeros(n, q);
         let mut d_log_l_axis = vec![0.0f64; q];
+        let mut xc = vec![0.0f64; n];
+        let mut wx = vec![0.0f64; n];
         for j in 0..q {
+            let xj = column(x, j);
+            let mean = xj.iter().sum::<f64>() / n as f64;
+            xc.iter_mut()
+                .zip(xj.iter())
+                .for_each(|(c, v)| *c = v - mean);
+            wx.iter_mut().for_each(|v| *v = 0.0);
+            for (m, wm) in w.chunks_exact(n).enumerate() {
+                let a = xc[m];
+                wx.iter_mut().zip(wm).for_each(|(o, v)| *o += a * v);
+            }
             for i in 0..n {
-                let t = r[i] * xc[(i, j)] - wx[(i, j)];
+                let t = r[i] * xc[i] - wx[i];
                 gx[(i, j)] = -2.0 * inv_l2[j] * t;
-                d_log_l_axis[j] += 2.0 * inv_l2[j] * xc[(i, j)] * t;
+                d_log_l_axis[j] += 2.0 * inv_l2[j] * xc[i] * t;
             }
         }
         let mut trace = 0.0;
@@ -557,6 +561,15 @@ impl KernelParams {
             let l = self.length_scale.axis(j);
             self.rbf(&rows[i], x_star) * (rows[i][j] - x_star[j]) / (l * l)
         }))
+    }
+}
+
+/// Column `j` of `m` as a slice: borrowed when the column is contiguous (every matrix faer
+/// allocates), copied otherwise.
+fn column(m: MatRef<'_, f64>, j: usize) -> std::borrow::Cow<'_, [f64]> {
+    match m.col(j).try_as_col_major() {
+        Some(c) => std::borrow::Cow::Borrowed(c.as_slice()),
+        None => std::borrow::Cow::Owned((0..m.nrows()).map(|i| m[(i, j)]).collect()),
     }
 }
 
