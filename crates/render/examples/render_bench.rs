@@ -1,7 +1,10 @@
 //! Benchmark: a 256 x 256 sphere of a predicted material, rendered lazily (per-cell cache over
 //! `PredictedMaterial::eval_cell`, only the observer's wavelengths) against
 //! materialise-then-render (`PredictedMaterial::materialize` to a `.sbrdf`, then render the
-//! stored material), and the uncached lazy source.
+//! stored material), and the uncached lazy source. Both paths use the same renderer (default
+//! [`SphereOptions`]: the environment pre-integrated over the view angle, `EnvMode::Table`); the
+//! per-pixel environment quadrature (`EnvMode::PerPixel`) is measured on the warm cache for
+//! comparison.
 //!
 //! ```sh
 //! specgp synth --out /tmp/b/synth.sbrdf && specgp fit /tmp/b/synth.sbrdf --out /tmp/b/model.toml
@@ -12,11 +15,26 @@
 use std::time::Instant;
 
 use render::cache::predicted;
-use render::{SphereOptions, render_sphere};
+use render::{EnvMode, EnvTableSpec, SphereOptions, render_sphere};
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
+}
+
+/// Largest and mean absolute difference of linear sRGB over pixels (all channels).
+fn deviation(a: &render::Image, b: &render::Image) -> (f64, f64) {
+    let (mut max, mut sum, mut n) = (0.0f64, 0.0, 0);
+    for ((p, q), al) in a.rgb.iter().zip(&b.rgb).zip(&a.alpha) {
+        if *al > 0.0 {
+            for c in 0..3 {
+                max = max.max((p[c] - q[c]).abs());
+                sum += (p[c] - q[c]).abs();
+                n += 1;
+            }
+        }
+    }
+    (max, sum / n.max(1) as f64)
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -83,20 +101,118 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         reference = Some(img);
         if lazy.len() == 5 {
             // The same render again on the warm cache: the cost of the lookups alone.
-            let t = Instant::now();
-            render_sphere(&src, &opts)?;
+            let mut warm = Vec::new();
+            for _ in 0..3 {
+                let t = Instant::now();
+                render_sphere(&src, &opts)?;
+                warm.push(t.elapsed().as_secs_f64());
+            }
             println!(
-                "render on a warm cache (no prediction): {:.3} s",
-                t.elapsed().as_secs_f64()
+                "render on a warm cache (no prediction): {:.4} s median of 3",
+                median(warm)
+            );
+            // The per-pixel environment quadrature on the same (now warmer) cache.
+            let per_pixel = SphereOptions {
+                env_mode: EnvMode::PerPixel,
+                ..opts.clone()
+            };
+            let t = Instant::now();
+            let pp = render_sphere(&src, &per_pixel)?;
+            let t_pp = t.elapsed().as_secs_f64();
+            let img = reference.as_ref().ok_or("no lazy image")?;
+            let (mut max, mut sum, mut n) = (0.0f64, 0.0, 0);
+            for ((a, b), al) in img.rgb.iter().zip(&pp.rgb).zip(&img.alpha) {
+                if *al > 0.0 {
+                    max = (0..3).map(|c| (a[c] - b[c]).abs()).fold(max, f64::max);
+                    sum += (a[1] - b[1]).abs();
+                    n += 1;
+                }
+            }
+            println!(
+                "per-pixel environment (20 directions per pixel) on the warm cache: {t_pp:.3} s \
+                 ({} cells computed now); |table - per-pixel| linear sRGB: max {max:.2e}, mean \
+                 (G) {:.2e}, mean G value {:.3}",
+                src.computed_cells(),
+                sum / n.max(1) as f64,
+                render::sphere::mean_colour(img).0[1]
             );
         }
     }
     let lazy = median(lazy);
+    // What the picture needs: cells touched by the light term alone (no environment).
+    let light_only = predicted(lazy_material()?);
+    render_sphere(
+        &light_only,
+        &SphereOptions {
+            env_radiance: 0.0,
+            ..opts.clone()
+        },
+    )?;
+    println!(
+        "cells touched by the light term alone: {}",
+        light_only.computed_cells()
+    );
     println!(
         "lazy (cell cache, {} wavelengths): {lazy:.3} s median of 5, {cells} of {} cells computed",
         needed.as_ref().map_or(pred.channels().len(), |w| w.len()),
         pred.grid().len()
     );
+    // Environment-table resolution against cost: cold-cache lazy renders (cells predicted)
+    // and the largest deviation from a dense table (256 nodes, 1024 + 3 x 128 directions).
+    let dense_src = predicted(lazy_material()?);
+    let mut fast = f64::NAN;
+    let dense = render_sphere(
+        &dense_src,
+        &SphereOptions {
+            env_mode: EnvMode::Table(EnvTableSpec {
+                nodes: 256,
+                cosine: 1024,
+                cap: 128,
+            }),
+            ..opts.clone()
+        },
+    )?;
+    println!(
+        "table (nodes, cosine, cap) | lazy s (median of 5) | cells | max |img - dense| (linear)"
+    );
+    for (nodes, cosine, cap) in [
+        (16, 8, 4),
+        (16, 32, 4),
+        (16, 96, 8),
+        (24, 96, 32),
+        (32, 96, 32),
+        (64, 96, 32),
+    ] {
+        let mode = EnvMode::Table(EnvTableSpec { nodes, cosine, cap });
+        let o = SphereOptions {
+            env_mode: mode,
+            ..opts.clone()
+        };
+        let (mut times, mut cells, mut img) = (Vec::new(), 0, None);
+        for _ in 0..5 {
+            let t = Instant::now();
+            let src = predicted(lazy_material()?);
+            img = Some(render_sphere(&src, &o)?);
+            times.push(t.elapsed().as_secs_f64());
+            cells = src.computed_cells();
+        }
+        let img = img.ok_or("no image")?;
+        let (max, mean) = deviation(&img, &dense);
+        let t = median(times);
+        if mode == EnvMode::Table(EnvTableSpec::FAST) {
+            fast = t;
+        }
+        println!("({nodes}, {cosine}, {cap}) | {t:.3} | {cells} | {max:.2e} | {mean:.2e}");
+    }
+    let pp = render_sphere(
+        &dense_src,
+        &SphereOptions {
+            env_mode: EnvMode::PerPixel,
+            ..opts.clone()
+        },
+    )?;
+    let (max, mean) = deviation(&pp, &dense);
+    println!("per-pixel quadrature: |img - dense| max {max:.2e}, mean {mean:.2e}");
     // Materialise then render.
     let mut mat = Vec::new();
     for run in 0..3 {
@@ -126,6 +242,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!(
         "materialise-then-render: {mat:.3} s median of 3; lazy is {:.1}x faster",
         mat / lazy
+    );
+    println!(
+        "with EnvTableSpec::FAST (`specgp render --env fast`): lazy {fast:.3} s, {:.1}x faster",
+        mat / fast
     );
     // Lazy without the cache (every lookup predicts its 8 stencil cells), at a quarter of the
     // size (1/16 of the pixels) to keep the benchmark short.

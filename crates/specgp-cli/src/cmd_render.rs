@@ -1,4 +1,5 @@
-//! `specgp render SOURCE --out IMAGE.png`: a sphere preview of any BRDF source, and
+//! `specgp render SOURCE --out IMAGE.png`: a sphere (or grazing-view plane) preview of any BRDF
+//! source, and
 //! `specgp map MODEL.toml --out MAP.png`: the latent space as a picture.
 
 use std::path::PathBuf;
@@ -9,7 +10,7 @@ use render::{Illuminant, SphereOptions};
 use crate::cmd_sample::open_source;
 
 /// Arguments of `specgp render`.
-#[derive(Debug, clap::Args)]
+#[derive(Debug, Clone, clap::Args)]
 pub struct RenderArgs {
     /// The BRDF: an RGL `.bsdf` file, a MERL `.binary` file or `DATA.sbrdf:MATERIAL` (as for
     /// `sample`).
@@ -33,6 +34,19 @@ pub struct RenderArgs {
     /// Background colour behind the sphere: `none` (transparent) or a grey level 0..1.
     #[arg(long, default_value = "none")]
     pub background: String,
+    /// What to render: `sphere`, or `plane` (a flat square sample seen at a grazing angle,
+    /// see --view).
+    #[arg(long, default_value = "sphere")]
+    pub shape: String,
+    /// With `--shape plane`: angle in degrees between the sample's normal and the view
+    /// direction at its centre (0..89).
+    #[arg(long, default_value_t = 78.0)]
+    pub view: f64,
+    /// How the uniform environment is integrated: `table` (pre-integrated over the view angle
+    /// once per render; isotropic BRDFs, i.e. every specgp source), `fast` (a coarser table:
+    /// fewer lookups, less accurate on glossy lobes) or `per-pixel` (20 directions per pixel).
+    #[arg(long, default_value = "table")]
+    pub env: String,
 }
 
 /// Parses `THETA,PHI` (degrees).
@@ -55,17 +69,35 @@ pub fn parse_light(s: &str) -> anyhow::Result<(f64, f64)> {
 
 /// Runs `specgp render`.
 pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
+    let env_mode = match args.env.as_str() {
+        "table" => render::EnvMode::default(),
+        "fast" => render::EnvMode::Table(render::EnvTableSpec::FAST),
+        "per-pixel" => render::EnvMode::PerPixel,
+        e => bail!("--env {e:?}: expected `table`, `fast` or `per-pixel`"),
+    };
+    let plane = match args.shape.as_str() {
+        "sphere" => None,
+        "plane" => Some(render::PlaneOptions {
+            view: args.view,
+            ..render::PlaneOptions::default()
+        }),
+        s => bail!("--shape {s:?}: expected `sphere` or `plane`"),
+    };
     let opts = SphereOptions {
         size: args.size,
         light: parse_light(&args.light)?,
         illuminant: args.illuminant.parse::<Illuminant>()?,
         exposure: args.exposure,
+        env_mode,
         ..SphereOptions::default()
     };
     let start = std::time::Instant::now();
     let source = open_render_source(&args.source, opts.illuminant)?;
-    let img = render::render_sphere(source.as_ref(), &opts)
-        .with_context(|| format!("rendering {}", args.source))?;
+    let img = match &plane {
+        None => render::render_sphere(source.as_ref(), &opts),
+        Some(p) => render::render_plane(source.as_ref(), &opts, p),
+    }
+    .with_context(|| format!("rendering {}", args.source))?;
     finish(args, img, start)
 }
 
@@ -263,6 +295,9 @@ mod tests {
             illuminant: "D65".into(),
             exposure: 0.0,
             background: "0.5".into(),
+            shape: "sphere".into(),
+            view: 78.0,
+            env: "table".into(),
         };
         render(&args).unwrap();
         let (w, h, px) = render::image::read_png_rgba8(&out).unwrap();
@@ -275,10 +310,51 @@ mod tests {
             "{:?}",
             &px[i..i + 4]
         );
-        let bad = RenderArgs {
-            illuminant: "F2".into(),
+        // The grazing-view plane: a yellow band across the middle, background above and below.
+        let plane = RenderArgs {
+            shape: "plane".into(),
             ..args
         };
-        assert!(render(&bad).is_err());
+        render(&plane).unwrap();
+        let (_, _, px) = render::image::read_png_rgba8(&out).unwrap();
+        assert_eq!(&px[..4], &[128, 128, 128, 255]);
+        let i = (16 * 32 + 16) * 4;
+        assert!(
+            px[i] > px[i + 1] && px[i + 1] > px[i + 2],
+            "{:?}",
+            &px[i..i + 4]
+        );
+        for (field, bad) in [
+            (
+                "illuminant",
+                RenderArgs {
+                    illuminant: "F2".into(),
+                    ..plane.clone()
+                },
+            ),
+            (
+                "shape",
+                RenderArgs {
+                    shape: "cube".into(),
+                    ..plane.clone()
+                },
+            ),
+            (
+                "view",
+                RenderArgs {
+                    view: 90.0,
+                    ..plane.clone()
+                },
+            ),
+            (
+                "env",
+                RenderArgs {
+                    env: "mc".into(),
+                    ..plane.clone()
+                },
+            ),
+        ] {
+            assert!(render(&bad).is_err(), "bad {field} accepted");
+        }
     }
 }
