@@ -88,8 +88,8 @@ impl PredictedMaterial {
                 .into_par_iter()
                 .map(|c| {
                     let mut buf = Vec::new();
-                    let range = store.read_chunk(c, &mut buf)?;
-                    Ok(self.combine_chunk(range, &buf, transformed, mask, nc))
+                    let (range, block) = store.chunk(c, &mut buf)?;
+                    Ok(self.combine_chunk(range, block, transformed, mask, nc))
                 })
                 .collect();
             for part in parts {

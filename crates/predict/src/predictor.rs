@@ -724,35 +724,20 @@ impl PredictedMaterial {
         nc: usize,
     ) -> Vec<f64> {
         let t = self.pred.inner.transform;
-        let n = self.coef.len();
         let valid = |d: usize| mask[d / nc];
-        let mut out: Vec<f64> = if transformed || t == Transform::Raw {
-            range
-                .clone()
-                .zip(block.chunks_exact(n))
-                .map(|(d, row)| {
-                    if valid(d) {
-                        dot_f32(&self.coef, row)
-                    } else {
-                        0.0
-                    }
-                })
-                .collect()
+        let mut out = vec![0.0; range.len()];
+        if transformed || t == Transform::Raw {
+            row_dots(&self.coef, block, &mut out);
         } else {
             let mut wide = vec![0.0; block.len()];
             t.forward_batch(block, &mut wide);
-            range
-                .clone()
-                .zip(wide.chunks_exact(n))
-                .map(|(d, row)| {
-                    if valid(d) {
-                        dot_f64(&self.coef, row)
-                    } else {
-                        0.0
-                    }
-                })
-                .collect()
-        };
+            row_dots(&self.coef, &wide, &mut out);
+        }
+        for (o, d) in out.iter_mut().zip(range) {
+            if !valid(d) {
+                *o = 0.0;
+            }
+        }
         // inverse(0) = 0 under every transform, so masked cells stay 0.
         t.inverse_in_place(&mut out);
         out
@@ -789,6 +774,40 @@ thread_local! {
 #[inline]
 pub(crate) fn dot_f32(c: &[f64], y: &[f32]) -> f64 {
     gp_core::fastmath::dot(c, y)
+}
+
+/// `out[j] = dot(c, rows[j])` for the consecutive rows of `c.len()` values in `rows`: the same
+/// arithmetic as [`dot_f32`] / [`dot_f64`] (so bit-identical to the lazy path), compiled for
+/// AVX2 + FMA when the CPU has them (selected at run time).
+fn row_dots<T: Copy + Into<f64>>(c: &[f64], rows: &[T], out: &mut [f64]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the CPU supports AVX2 and FMA (checked just above), the only requirement
+            // of a `#[target_feature]` function.
+            unsafe { row_dots_avx2(c, rows, out) };
+            return;
+        }
+    }
+    row_dots_body(c, rows, out);
+}
+
+/// [`row_dots`] compiled for AVX2 + FMA.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn row_dots_avx2<T: Copy + Into<f64>>(c: &[f64], rows: &[T], out: &mut [f64]) {
+    row_dots_body(c, rows, out);
+}
+
+#[inline(always)]
+fn row_dots_body<T: Copy + Into<f64>>(c: &[f64], rows: &[T], out: &mut [f64]) {
+    for (o, row) in out.iter_mut().zip(rows.chunks_exact(c.len())) {
+        *o = gp_core::fastmath::dot(c, row);
+    }
 }
 
 /// [`dot_f32`] for f64 values.

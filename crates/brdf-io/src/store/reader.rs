@@ -364,6 +364,24 @@ impl Store {
         Ok(range)
     }
 
+    /// Chunk `c` (index-major, as [`Store::read_chunk`]) and its d range, borrowed from the
+    /// memory map when possible (uncompressed f32, mmap, little-endian host: no copy), else
+    /// decoded into `buf`.
+    pub fn chunk<'a>(
+        &'a self,
+        c: usize,
+        buf: &'a mut Vec<f32>,
+    ) -> Result<(Range<usize>, &'a [f32])> {
+        if c >= self.n_chunks() {
+            return Err(Error::StoreUsage {
+                path: self.path.clone(),
+                reason: format!("chunk {c} out of range (the store has {})", self.n_chunks()),
+            });
+        }
+        let values = self.chunk_values(c, buf)?;
+        Ok((self.chunk_range(c), values))
+    }
+
     /// Chunk `c` as f32 values, borrowed from the map when possible (uncompressed f32, mmap,
     /// little-endian host), else decoded into `buf`.
     fn chunk_values<'a>(&'a self, c: usize, buf: &'a mut Vec<f32>) -> Result<&'a [f32]> {
