@@ -91,9 +91,8 @@ pub(crate) struct GramAccumulator<'t, T: ?Sized> {
     stage: Vec<f32>,
     /// `Mixed`: the staged block padded to np rows (padding rows stay 0).
     packed: Vec<f32>,
-    /// `F64`: the transformed block, contiguous, then padded to np rows.
+    /// `F64`: the transformed block, columns of n values, plus slack.
     wide: Vec<f64>,
-    wide_packed: Vec<f64>,
     /// `Mixed`: `sum_d y_i[d] m[d]` per material, m[d] the (f32-rounded) mean over materials at d.
     cross: Vec<f64>,
     /// `Mixed`: `sum_d m[d]^2`.
@@ -112,7 +111,6 @@ impl<'t, T: GramTransform + ?Sized> GramAccumulator<'t, T> {
             stage: Vec::new(),
             packed: Vec::new(),
             wide: Vec::new(),
-            wide_packed: Vec::new(),
             cross: vec![0.0; n],
             mean_sq: 0.0,
         }
@@ -154,19 +152,14 @@ impl<'t, T: GramTransform + ?Sized> GramAccumulator<'t, T> {
         let k = self.stage.len() / n;
         match self.precision {
             GramPrecision::F64 => {
+                // Transformed straight into the kernel's input: columns of n values (no padding
+                // per column), plus 8 zeros of slack at the end for the tiles' over-reads, which
+                // only feed the unused rows and columns n..np of g.
                 let np = self.size;
-                self.wide.resize(n * k, 0.0);
-                self.transform.to_f64(&self.stage, &mut self.wide);
-                self.wide_packed.clear();
-                self.wide_packed.resize(np * k, 0.0);
-                for (dst, src) in self
-                    .wide_packed
-                    .chunks_exact_mut(np)
-                    .zip(self.wide.chunks_exact(n))
-                {
-                    dst[..n].copy_from_slice(src);
-                }
-                lower_gram_f64(&self.wide_packed, k, n.div_ceil(4) * 4, np, &mut self.g);
+                self.wide.resize(n * k + 8, 0.0);
+                self.transform.to_f64(&self.stage, &mut self.wide[..n * k]);
+                self.wide[n * k..].fill(0.0);
+                lower_gram_f64(&self.wide, k, n, n.div_ceil(4) * 4, np, &mut self.g);
             }
             GramPrecision::Mixed => {
                 self.transform.in_place_f32(&mut self.stage);
@@ -246,31 +239,35 @@ fn sum_f64(values: &[f32]) -> f64 {
 /// Indices per block of the f64 kernel: 48 x 56 f64 values (21 KiB) stay in the L1 cache.
 const F64_BLOCK: usize = 48;
 
-/// Adds the lower triangle of `A A^T` to `g` in f64, where `A` is `np x k` column-major
-/// (`np` a multiple of 8, rows beyond `rows` zero or ignored, `rows` a multiple of 4 and <= np)
-/// and `g` is `np x np` column-major. Computed by 4 x 8 tiles (rows x columns) covering the
-/// lower triangle; entries above the diagonal inside a tile are written too and are ignored.
-fn lower_gram_f64(a: &[f64], k: usize, rows: usize, np: usize, g: &mut [f64]) {
-    assert!(np % 8 == 0 && rows % 4 == 0 && rows <= np && a.len() >= np * k && g.len() >= np * np);
+/// Adds the lower triangle of `A A^T` to `g` in f64, where `A` has k columns starting every `ld`
+/// values of `a` and `g` is `np x np` column-major (`np` a multiple of 8). Computed by 4 x 8
+/// tiles (rows x columns) over rows `0..rows` (`rows` a multiple of 4, <= np); a tile reads up
+/// to row `max(rows, np) - 1` of a column, i.e. into the next column or the slack after the last
+/// one when `ld` is smaller: those values only reach rows/columns of g beyond the caller's
+/// matrix, and entries above the diagonal inside a tile are written too and are ignored.
+fn lower_gram_f64(a: &[f64], k: usize, ld: usize, rows: usize, np: usize, g: &mut [f64]) {
+    assert!(np % 8 == 0 && rows % 4 == 0 && rows <= np && g.len() >= np * np);
+    assert!(k == 0 || (ld > 0 && a.len() >= (k - 1) * ld + np));
     #[cfg(target_arch = "x86_64")]
     {
         if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
         {
             // SAFETY: the CPU supports AVX2 and FMA (checked above); the slice lengths and
             // shape conditions the kernel relies on are asserted above.
-            unsafe { x86::lower_gram_f64_avx2(a, k, rows, np, g) };
+            unsafe { x86::lower_gram_f64_avx2(a, k, ld, rows, np, g) };
             return;
         }
     }
-    lower_gram_f64_portable(a, k, rows, np, g);
+    lower_gram_f64_portable(a, k, ld, rows, np, g);
 }
 
 /// Portable version of [`lower_gram_f64`] (same tiles, scalar arithmetic).
-fn lower_gram_f64_portable(a: &[f64], k: usize, rows: usize, np: usize, g: &mut [f64]) {
+fn lower_gram_f64_portable(a: &[f64], k: usize, ld: usize, rows: usize, np: usize, g: &mut [f64]) {
     for rb in 0..rows / 4 {
         for jb in 0..(4 * rb + 4).div_ceil(8) {
             let mut acc = [[0f64; 4]; 8];
-            for col in a.chunks_exact(np).take(k) {
+            for c in 0..k {
+                let col = &a[c * ld..c * ld + np];
                 let r = &col[rb * 4..rb * 4 + 4];
                 for (jj, acc_j) in acc.iter_mut().enumerate() {
                     let b = col[jb * 8 + jj];
@@ -339,11 +336,12 @@ mod x86 {
     ///
     /// # Safety
     /// The CPU must support AVX2 and FMA; `np % 8 == 0`, `rows % 4 == 0`, `rows <= np`,
-    /// `a.len() >= np * k` and `g.len() >= np * np`.
+    /// `a.len() >= (k - 1) * ld + np` (when k > 0) and `g.len() >= np * np`.
     #[target_feature(enable = "avx2,fma")]
     pub(super) unsafe fn lower_gram_f64_avx2(
         a: &[f64],
         k: usize,
+        ld: usize,
         rows: usize,
         np: usize,
         g: &mut [f64],
@@ -355,9 +353,10 @@ mod x86 {
                 let mut acc = [_mm256_setzero_pd(); 8];
                 for c in 0..k {
                     // SAFETY: c < k, rb * 4 + 4 <= rows <= np and jb * 8 + 8 <= np (np is a
-                    // multiple of 8 and jb * 8 < rb * 4 + 4 <= np): inside a[..np * k].
+                    // multiple of 8 and jb * 8 < rb * 4 + 4 <= np): reads stay below
+                    // (k - 1) * ld + np <= a.len().
                     unsafe {
-                        let col = base.add(c * np);
+                        let col = base.add(c * ld);
                         let r = _mm256_loadu_pd(col.add(rb * 4));
                         let b = col.add(jb * 8);
                         acc[0] = _mm256_fmadd_pd(r, _mm256_broadcast_sd(&*b), acc[0]);
@@ -533,8 +532,8 @@ mod tests {
             .collect();
         let mut g1 = vec![0.0; np * np];
         let mut g2 = vec![0.0; np * np];
-        lower_gram_f64(&a, k, rows, np, &mut g1);
-        lower_gram_f64_portable(&a, k, rows, np, &mut g2);
+        lower_gram_f64(&a, k, np, rows, np, &mut g1);
+        lower_gram_f64_portable(&a, k, np, rows, np, &mut g2);
         for j in 0..np {
             for i in 0..rows {
                 let want: f64 = (0..k).map(|c| a[c * np + i] * a[c * np + j]).sum();
@@ -548,6 +547,29 @@ mod tests {
                         (y - want).abs() <= 1e-13 * want,
                         "({i}, {j}): {y} vs {want}"
                     );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn unpadded_columns_give_the_same_matrix() {
+        // ld = n = 51 with 8 values of slack, as the accumulator calls it.
+        let (n, np, k) = (51, 56, 48);
+        let mut a: Vec<f64> = pseudo_random(n * k, 7)
+            .iter()
+            .map(|v| f64::from(*v))
+            .collect();
+        a.extend([0.0; 8]);
+        let mut g1 = vec![0.0; np * np];
+        let mut g2 = vec![0.0; np * np];
+        lower_gram_f64(&a, k, n, 52, np, &mut g1);
+        lower_gram_f64_portable(&a, k, n, 52, np, &mut g2);
+        for j in 0..n {
+            for i in j..n {
+                let want: f64 = (0..k).map(|c| a[c * n + i] * a[c * n + j]).sum();
+                for got in [g1[j * np + i], g2[j * np + i]] {
+                    assert!((got - want).abs() <= 1e-13 * want, "({i}, {j})");
                 }
             }
         }
