@@ -9,7 +9,7 @@
 
 use std::path::PathBuf;
 
-use brdf_io::store::{GramPrecision, Store};
+use brdf_io::store::Store;
 use gplvm::{FitParams, OptimizerKind, fit_gram, gram_pass};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -30,14 +30,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     let mut reads = Vec::new();
     let mut grams = Vec::new();
-    let precisions = [GramPrecision::F64, GramPrecision::Mixed];
     for _ in 0..3 {
         reads.push(brdf_io::store::sequential_read_seconds(&path, 1)?.1);
         for t in ["raw", "log"] {
-            for precision in precisions {
-                let pass = gram_pass(&store, t.parse()?, precision)?;
-                grams.push((t, precision, pass.seconds));
-            }
+            let pass = gram_pass(&store, t.parse()?)?;
+            grams.push((t, pass.seconds));
         }
     }
     let best_read = reads.iter().cloned().fold(f64::INFINITY, f64::min);
@@ -46,63 +43,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         store.file_bytes() as f64 / best_read / 1e9
     );
     for t in ["raw", "log"] {
-        for precision in precisions {
-            let best = grams
-                .iter()
-                .filter(|g| g.0 == t && g.1 == precision)
-                .map(|g| g.2)
-                .fold(f64::INFINITY, f64::min);
-            println!(
-                "Gram pass ({t}, {precision}): {best:.3} s = {:.2}x the sequential read, best of 3",
-                best / best_read
-            );
-        }
-    }
-    println!();
-    println!("Accuracy of the mixed-precision Gram pass against f64 (default fit, q as below):");
-    println!(
-        "| transform | max rel. error of G | rel. error of centred S (Frobenius) | LL f64 | LL mixed | rel. LL diff | max latent diff |"
-    );
-    println!("|---|---|---|---|---|---|---|");
-    for t in ["raw", "log"] {
-        let exact = gram_pass(&store, t.parse()?, GramPrecision::F64)?;
-        let mixed = gram_pass(&store, t.parse()?, GramPrecision::Mixed)?;
-        let n = exact.gram.nrows();
-        let mut max_rel = 0.0f64;
-        for i in 0..n {
-            for j in 0..n {
-                let (a, b) = (mixed.gram[(i, j)], exact.gram[(i, j)]);
-                max_rel = max_rel.max((a - b).abs() / b.abs().max(f64::MIN_POSITIVE));
-            }
-        }
-        let se = gp_core::centre_gram(exact.gram.as_ref())?;
-        let sm = gp_core::centre_gram(mixed.gram.as_ref())?;
-        let centred_rel = (&sm - &se).norm_l2() / se.norm_l2();
-        let defaults = FitParams::default();
-        let latent_dim = match std::env::args().nth(3) {
-            Some(q) => q.parse()?,
-            None => defaults.latent_dim,
-        };
-        let config = FitParams {
-            latent_dim,
-            transform: t.into(),
-            ..defaults
-        }
-        .check()?;
-        let fe = fit_gram(exact.gram.as_ref(), exact.d_effective, &config)?;
-        let fm = fit_gram(mixed.gram.as_ref(), mixed.d_effective, &config)?;
-        let (le, lm) = (fe.report.log_likelihood, fm.report.log_likelihood);
-        let dx = (&fe.x - &fm.x).norm_max();
+        let best = grams
+            .iter()
+            .filter(|g| g.0 == t)
+            .map(|g| g.1)
+            .fold(f64::INFINITY, f64::min);
         println!(
-            "| {t} | {max_rel:.2e} | {centred_rel:.2e} | {le:.9e} | {lm:.9e} | {:.2e} | {dx:.2e} |",
-            (le - lm).abs() / le.abs()
+            "Gram pass ({t}): {best:.3} s = {:.2}x the sequential read, best of 3",
+            best / best_read
         );
     }
     println!();
     println!("| transform | q | optimizer | log-likelihood | PCA start | evaluations | time (s) |");
     println!("|---|---|---|---|---|---|---|");
     for t in ["raw", "log"] {
-        let pass = gram_pass(&store, t.parse()?, GramPrecision::F64)?;
+        let pass = gram_pass(&store, t.parse()?)?;
         let lbfgs_only = std::env::args().nth(2).as_deref() == Some("lbfgs");
         for optimizer in [OptimizerKind::HookeJeeves, OptimizerKind::Lbfgs] {
             if lbfgs_only && optimizer == OptimizerKind::HookeJeeves {

@@ -5,7 +5,6 @@
 
 use std::path::Path;
 
-use brdf_io::store::GramPrecision;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
@@ -111,8 +110,6 @@ pub struct FitParams {
     pub initial_step: f64,
     /// Final step of Hooke-Jeeves.
     pub min_step: f64,
-    /// Arithmetic of the Gram pass: `f64` (the default) or `mixed` (f32 products, ~2x faster).
-    pub gram_precision: GramPrecision,
 }
 
 impl Default for FitParams {
@@ -136,7 +133,6 @@ impl Default for FitParams {
             cost_tolerance: 1e-11,
             initial_step: 0.1,
             min_step: 1e-6,
-            gram_precision: GramPrecision::F64,
         }
     }
 }

@@ -3,7 +3,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use brdf_io::store::{GramPrecision, Store};
+use brdf_io::store::Store;
 use faer::{Mat, MatRef, Par};
 use gp_core::{GplvmObjective, KernelParams, Learn, centre_gram};
 use rand::SeedableRng;
@@ -29,16 +29,11 @@ pub struct GramPass {
     pub seconds: f64,
 }
 
-/// Computes the uncentred Gram matrix of the transformed data in one parallel streaming pass,
-/// in the given arithmetic.
-pub fn gram_pass(
-    store: &Store,
-    transform: Transform,
-    precision: GramPrecision,
-) -> Result<GramPass> {
+/// Computes the uncentred Gram matrix of the transformed data in one parallel streaming pass.
+pub fn gram_pass(store: &Store, transform: Transform) -> Result<GramPass> {
     let start = Instant::now();
     let n = store.n_materials();
-    let g = store.gram_with(&transform, precision)?;
+    let g = store.gram_with(&transform)?;
     let gram = Mat::from_fn(n, n, |i, j| g[i * n + j]);
     let valid = store.validity_mask().iter().filter(|v| **v).count();
     Ok(GramPass {
@@ -290,7 +285,7 @@ pub fn fit_gram(g: MatRef<'_, f64>, d: usize, config: &FitConfig) -> Result<Fit>
 /// Fits a GPLVM to the store at `path` and returns the model (not yet saved).
 pub fn fit_store(path: &Path, config: &FitConfig) -> Result<Model> {
     let store = Store::open(path)?;
-    let pass = gram_pass(&store, config.transform, config.params.gram_precision)?;
+    let pass = gram_pass(&store, config.transform)?;
     let fit = fit_gram(pass.gram.as_ref(), pass.d_effective, config)?;
     let header = store.header();
     let n = store.n_materials();

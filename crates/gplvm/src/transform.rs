@@ -211,66 +211,6 @@ fn ln_1p_lanes(x: f64) -> f64 {
     ln_u + (x - (u - 1.0)) * (2.0 - u).max(0.0)
 }
 
-/// `ln(1 + x)` in f32 for `x >= 0`, in place over a slice, within 3 f32 ulps (tested against
-/// [`f64::ln_1p`]); no calls and no branches, so the loop vectorises (8 lanes with AVX2 + FMA,
-/// selected at run time). `u = 1 + x = m 2^e` with `m` in [sqrt(1/2), sqrt(2)), `ln m` by the
-/// Cephes `logf` polynomial in `m - 1`, plus `(x - (u - 1)) / u` for the rounding of `u`.
-pub fn ln_1p_f32_in_place(values: &mut [f32]) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
-            // SAFETY: the CPU supports AVX2 and FMA (checked just above), the only requirement
-            // of a `#[target_feature]` function.
-            unsafe { ln_1p_f32_avx2(values) };
-            return;
-        }
-    }
-    values.iter_mut().for_each(|v| *v = ln_1p_f32(*v));
-}
-
-/// [`ln_1p_f32_in_place`] compiled for AVX2 + FMA.
-///
-/// # Safety
-/// The CPU must support AVX2 and FMA.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn ln_1p_f32_avx2(values: &mut [f32]) {
-    values.iter_mut().for_each(|v| *v = ln_1p_f32(*v));
-}
-
-/// One value of [`ln_1p_f32_in_place`] (negative inputs give 0).
-#[inline(always)]
-fn ln_1p_f32(x: f32) -> f32 {
-    const SQRT_HALF: f32 = std::f32::consts::FRAC_1_SQRT_2;
-    let x = x.max(0.0);
-    let u = 1.0 + x;
-    let bits = u.to_bits();
-    // u >= 1, so the exponent field is >= 127.
-    let e0 = ((bits >> 23) & 0xff) as i32 - 126;
-    // mantissa scaled into [0.5, 1), then into [sqrt(1/2), sqrt(2)).
-    let m0 = f32::from_bits((bits & 0x007f_ffff) | 0x3f00_0000);
-    let low = m0 < SQRT_HALF;
-    let e = (e0 - i32::from(low)) as f32;
-    let t = if low { m0 + m0 - 1.0 } else { m0 - 1.0 };
-    let z = t * t;
-    let mut p = 7.037_683_6e-2_f32;
-    p = p * t - 1.151_461e-1;
-    p = p * t + 1.167_699_9e-1;
-    p = p * t - 1.242_014_1e-1;
-    p = p * t + 1.424_932_3e-1;
-    p = p * t - 1.666_805_8e-1;
-    p = p * t + 2.000_071_4e-1;
-    p = p * t - 2.499_999_4e-1;
-    p = p * t + 3.333_333e-1;
-    let ln_m = t + (p * t * z - 0.5 * z);
-    // ln 2 = 0.693359375 - 2.12194440e-4 (Cephes' split: the first part is exact in f32).
-    let ln_u = ln_m + e * -2.121_944_4e-4 + e * 0.693_359_4;
-    // ln(1 + x) = ln(u) + ln(1 + (x - (u - 1)) / u), the correction exact to first order.
-    let correction = (x - (u - 1.0)) / u;
-    ln_u + correction
-}
-
 use gp_core::fastmath::INV;
 
 impl GramTransform for Transform {
@@ -283,18 +223,6 @@ impl GramTransform for Transform {
                 }
             }
             Self::Log { offset } => ln_1p_scaled_f64(input, 1.0 / offset, out),
-        }
-    }
-
-    /// f32 version of [`Transform::forward`] (relative error within a few f32 ulps).
-    fn in_place_f32(&self, values: &mut [f32]) {
-        match *self {
-            Self::Raw => {}
-            Self::Log { offset } => {
-                let scale = (1.0 / offset) as f32;
-                values.iter_mut().for_each(|v| *v *= scale);
-                ln_1p_f32_in_place(values);
-            }
         }
     }
 }
@@ -452,39 +380,6 @@ mod tests {
         let mut raw = ys.clone();
         Transform::Raw.inverse_in_place(&mut raw);
         assert_eq!(raw, ys);
-    }
-
-    #[test]
-    fn f32_ln_1p_is_within_a_few_ulps() {
-        let mut xs = vec![0.0f32, 1e-30, 1e-8, 5.9e-8, 1e-4, 0.4142, 0.4143, 1.0, 3.0];
-        let mut x = 1e-12f64;
-        while x < 1e9 {
-            for k in [1.0, 1.37, 2.9, 7.3] {
-                xs.push((x * k) as f32);
-            }
-            x *= 1.31;
-        }
-        let mut ys = xs.clone();
-        ln_1p_f32_in_place(&mut ys);
-        let mut scalar = xs.clone();
-        scalar.iter_mut().for_each(|v| *v = ln_1p_f32(*v));
-        for ((x, y), s) in xs.iter().zip(&ys).zip(&scalar) {
-            let want = f64::from(*x).ln_1p();
-            let err = (f64::from(*y) - want).abs() / want.max(f64::from(f32::MIN_POSITIVE));
-            assert!(
-                err < 3.0 * f64::from(f32::EPSILON),
-                "x = {x}: {y} vs {want} ({err:e})"
-            );
-            // the vectorised and the scalar path agree up to FMA contraction.
-            assert!((y - s).abs() <= 2.0 * f32::EPSILON * y.abs(), "x = {x}");
-        }
-        let mut neg = [-1.0f32, -1e-3];
-        ln_1p_f32_in_place(&mut neg);
-        assert_eq!(neg, [0.0, 0.0]);
-        // The Gram transform applies 1 / offset first.
-        let mut v = [0.5f32, 2.0];
-        Transform::Log { offset: 0.5 }.in_place_f32(&mut v);
-        assert!((v[0] - 2f32.ln()).abs() < 1e-7 && (v[1] - 5f32.ln()).abs() < 1e-6);
     }
 
     proptest! {

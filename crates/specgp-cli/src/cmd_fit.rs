@@ -43,10 +43,6 @@ pub struct FitArgs {
     /// Seed of the restart perturbations.
     #[arg(long)]
     seed: Option<u64>,
-    /// Arithmetic of the Gram pass: f64 (exact, default) or mixed (f32 products summed in f64,
-    /// faster; see BENCHMARKS.md "gplvm" for its error).
-    #[arg(long)]
-    gram_precision: Option<brdf_io::store::GramPrecision>,
 }
 
 /// Runs `specgp fit`.
@@ -78,9 +74,6 @@ pub fn fit(args: &FitArgs) -> anyhow::Result<()> {
     }
     if let Some(s) = args.seed {
         params.seed = s;
-    }
-    if let Some(p) = args.gram_precision {
-        params.gram_precision = p;
     }
     let config = params.check()?;
     let spinner = ProgressBar::new_spinner();

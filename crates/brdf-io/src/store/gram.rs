@@ -1,67 +1,23 @@
-//! Gram-matrix kernels of the streaming pass: `G = Y Y^T` over the valid cells of a store.
+//! The Gram-matrix kernel of the streaming pass: `G = Y Y^T` over the valid cells of a store,
+//! transform and products in f64.
 //!
-//! Two arithmetics, selected by [`GramPrecision`]:
-//! - [`GramPrecision::F64`] (the default): the transform and the products in f64;
-//! - [`GramPrecision::Mixed`]: the transform in f32 and f32 products summed over blocks of
-//!   [`MIXED_BLOCK`] indices, each block sum added to f64 accumulators. Twice the SIMD width of
-//!   f64, so about twice as fast where the pass is arithmetic-bound (N = 51 needs 1326
-//!   multiply-adds per index); the relative error of the Gram matrix it adds is measured in
-//!   BENCHMARKS.md ("dataset store") and bounded in the tests.
+//! Below-horizon cells are skipped before the arithmetic (they hold 0 and contribute nothing), so
+//! the work scales with the valid fraction of the grid. The valid indices of a chunk are gathered
+//! into blocks of [`F64_BLOCK`] indices that stay in the L1 cache, transformed in one batch, and
+//! multiplied by 4 x 8 register tiles over the lower triangle (AVX2 + FMA when the CPU has them,
+//! selected at run time; a portable version with the same tiles otherwise).
 //!
-//! Both skip below-horizon cells (they hold 0 and contribute nothing), so the work scales with the
-//! valid fraction of the grid.
+//! (A mixed-precision variant, f32 products summed in f64, was measured and removed: on the
+//! default synthetic store it was 1.0x (raw) to 1.2x (log) as fast, and its 1e-8..1e-7 error in
+//! the centred Gram matrix moved the fitted log-likelihood by 5e-6..5e-2; BENCHMARKS.md "gplvm".)
 
 use std::ops::Range;
 
-use serde::{Deserialize, Serialize};
-
-/// Indices summed in f32 before the block sums are added to the f64 accumulators
-/// ([`GramPrecision::Mixed`]). 64 x 56 f32 values (14 KiB) stay in the L1 cache.
-pub const MIXED_BLOCK: usize = 64;
-
-/// Arithmetic of a Gram pass.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum GramPrecision {
-    /// Transform, products and sums in f64 (the default).
-    #[default]
-    F64,
-    /// Transform and products in f32, summed in f32 over blocks of [`MIXED_BLOCK`] indices and
-    /// accumulated in f64: about twice as fast, relative error of the centred matrix ~1e-7.
-    Mixed,
-}
-
-impl std::str::FromStr for GramPrecision {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "f64" => Ok(Self::F64),
-            "mixed" => Ok(Self::Mixed),
-            other => Err(format!(
-                "unknown Gram precision {other:?}: expected f64 or mixed"
-            )),
-        }
-    }
-}
-
-impl std::fmt::Display for GramPrecision {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            Self::F64 => "f64",
-            Self::Mixed => "mixed",
-        })
-    }
-}
-
 /// A pointwise transform applied to every stored value before it enters the Gram matrix.
 pub trait GramTransform: Sync {
-    /// Transformed values in f64 ([`GramPrecision::F64`]): `out[i] = t(input[i])` (same
-    /// lengths); called on batches, so an implementation can vectorise.
+    /// Transformed values in f64: `out[i] = t(input[i])` (same lengths); called on batches, so
+    /// an implementation can vectorise.
     fn to_f64(&self, input: &[f32], out: &mut [f64]);
-    /// Transforms values in place in f32 ([`GramPrecision::Mixed`]); called on batches, so an
-    /// implementation can vectorise.
-    fn in_place_f32(&self, values: &mut [f32]);
 }
 
 /// The identity transform: the Gram matrix of the stored values.
@@ -74,14 +30,11 @@ impl GramTransform for Identity {
             *o = f64::from(*v);
         }
     }
-
-    fn in_place_f32(&self, _values: &mut [f32]) {}
 }
 
 /// Per-worker state of a Gram pass: f64 accumulators and the block being filled.
 pub(crate) struct GramAccumulator<'t, T: ?Sized> {
     n: usize,
-    precision: GramPrecision,
     transform: &'t T,
     /// `np x np` column-major, np = n rounded up to a multiple of 8; the lower triangle is used.
     g: Vec<f64>,
@@ -89,37 +42,20 @@ pub(crate) struct GramAccumulator<'t, T: ?Sized> {
     size: usize,
     /// Valid values gathered from chunks, index-major (n per index).
     stage: Vec<f32>,
-    /// `Mixed`: the staged block padded to np rows (padding rows stay 0).
-    packed: Vec<f32>,
-    /// `F64`: the transformed block, columns of n values, plus slack.
+    /// The transformed block, columns of n values, plus slack.
     wide: Vec<f64>,
-    /// `Mixed`: `sum_d y_i[d] m[d]` per material, m[d] the (f32-rounded) mean over materials at d.
-    cross: Vec<f64>,
-    /// `Mixed`: `sum_d m[d]^2`.
-    mean_sq: f64,
 }
 
 impl<'t, T: GramTransform + ?Sized> GramAccumulator<'t, T> {
-    pub(crate) fn new(n: usize, precision: GramPrecision, transform: &'t T) -> Self {
+    pub(crate) fn new(n: usize, transform: &'t T) -> Self {
         let size = n.div_ceil(8) * 8;
         Self {
             n,
-            precision,
             transform,
             g: vec![0.0; size * size],
             size,
             stage: Vec::new(),
-            packed: Vec::new(),
             wide: Vec::new(),
-            cross: vec![0.0; n],
-            mean_sq: 0.0,
-        }
-    }
-
-    fn block_indices(&self) -> usize {
-        match self.precision {
-            GramPrecision::F64 => F64_BLOCK,
-            GramPrecision::Mixed => MIXED_BLOCK,
         }
     }
 
@@ -132,11 +68,10 @@ impl<'t, T: GramTransform + ?Sized> GramAccumulator<'t, T> {
         valid: impl Fn(usize) -> bool,
     ) {
         let n = self.n;
-        let per_block = self.block_indices();
         for (i, row) in block.chunks_exact(n).enumerate() {
             if valid(range.start + i) {
                 self.stage.extend_from_slice(row);
-                if self.stage.len() == per_block * n {
+                if self.stage.len() == F64_BLOCK * n {
                     self.flush();
                 }
             }
@@ -150,42 +85,14 @@ impl<'t, T: GramTransform + ?Sized> GramAccumulator<'t, T> {
         }
         let n = self.n;
         let k = self.stage.len() / n;
-        match self.precision {
-            GramPrecision::F64 => {
-                // Transformed straight into the kernel's input: columns of n values (no padding
-                // per column), plus 8 zeros of slack at the end for the tiles' over-reads, which
-                // only feed the unused rows and columns n..np of g.
-                let np = self.size;
-                self.wide.resize(n * k + 8, 0.0);
-                self.transform.to_f64(&self.stage, &mut self.wide[..n * k]);
-                self.wide[n * k..].fill(0.0);
-                lower_gram_f64(&self.wide, k, n, n.div_ceil(4) * 4, np, &mut self.g);
-            }
-            GramPrecision::Mixed => {
-                self.transform.in_place_f32(&mut self.stage);
-                let np = self.size;
-                self.packed.clear();
-                self.packed.resize(np * k, 0.0);
-                // Centre every index over the materials before the f32 products: the f32 sums
-                // then carry the variation between materials, not the common part (which can be
-                // far larger); the common part goes into f64 accumulators and `finish` puts the
-                // uncentred matrix back together.
-                for (dst, src) in self
-                    .packed
-                    .chunks_exact_mut(np)
-                    .zip(self.stage.chunks_exact(n))
-                {
-                    let mean = (sum_f64(src) / n as f64) as f32;
-                    let m = f64::from(mean);
-                    self.mean_sq += m * m;
-                    for ((d, v), c) in dst.iter_mut().zip(src).zip(&mut self.cross) {
-                        *d = v - mean;
-                        *c += f64::from(*v) * m;
-                    }
-                }
-                lower_gram_f32(&self.packed, k, np, &mut self.g);
-            }
-        }
+        // Transformed straight into the kernel's input: columns of n values (no padding per
+        // column), plus 8 zeros of slack at the end for the tiles' over-reads, which only feed
+        // the unused rows and columns n..np of g.
+        let np = self.size;
+        self.wide.resize(n * k + 8, 0.0);
+        self.transform.to_f64(&self.stage, &mut self.wide[..n * k]);
+        self.wide[n * k..].fill(0.0);
+        lower_gram_f64(&self.wide, k, n, n.div_ceil(4) * 4, np, &mut self.g);
         self.stage.clear();
     }
 
@@ -196,10 +103,6 @@ impl<'t, T: GramTransform + ?Sized> GramAccumulator<'t, T> {
         for (a, b) in self.g.iter_mut().zip(&other.g) {
             *a += b;
         }
-        for (a, b) in self.cross.iter_mut().zip(&other.cross) {
-            *a += b;
-        }
-        self.mean_sq += other.mean_sq;
         self
     }
 
@@ -208,12 +111,9 @@ impl<'t, T: GramTransform + ?Sized> GramAccumulator<'t, T> {
         self.flush();
         let n = self.n;
         let mut out = vec![0.0; n * n];
-        // Mixed: G = S + c_i + c_j - |m|^2 with S the centred sums (y = (y - m) + m); zero
-        // corrections for F64.
-        let (cross, mean_sq) = (&self.cross, self.mean_sq);
         for i in 0..n {
             for j in 0..=i {
-                let v = self.g[j * self.size + i] + cross[i] + cross[j] - mean_sq;
+                let v = self.g[j * self.size + i];
                 out[i * n + j] = v;
                 out[j * n + i] = v;
             }
@@ -222,22 +122,8 @@ impl<'t, T: GramTransform + ?Sized> GramAccumulator<'t, T> {
     }
 }
 
-/// Sum in f64 with four independent partial sums (vectorises; a single running sum would be
-/// bound by the latency of the additions).
-fn sum_f64(values: &[f32]) -> f64 {
-    let mut part = [0f64; 4];
-    let chunks = values.chunks_exact(4);
-    let rest: f64 = chunks.remainder().iter().map(|v| f64::from(*v)).sum();
-    for c in chunks {
-        for (p, v) in part.iter_mut().zip(c) {
-            *p += f64::from(*v);
-        }
-    }
-    (part[0] + part[1]) + (part[2] + part[3]) + rest
-}
-
 /// Indices per block of the f64 kernel: 48 x 56 f64 values (21 KiB) stay in the L1 cache.
-const F64_BLOCK: usize = 48;
+pub const F64_BLOCK: usize = 48;
 
 /// Adds the lower triangle of `A A^T` to `g` in f64, where `A` has k columns starting every `ld`
 /// values of `a` and `g` is `np x np` column-major (`np` a multiple of 8). Computed by 4 x 8
@@ -280,48 +166,6 @@ fn lower_gram_f64_portable(a: &[f64], k: usize, ld: usize, rows: usize, np: usiz
                 let dst = &mut g[(jb * 8 + jj) * np + rb * 4..][..4];
                 for (x, v) in dst.iter_mut().zip(acc_j) {
                     *x += v;
-                }
-            }
-        }
-    }
-}
-
-/// Adds the lower 8 x 8 tiles of `A A^T` to `g`, where `A` is `np x k` column-major f32
-/// (`np` a multiple of 8) and `g` is `np x np` column-major.
-/// Products are summed in f32 over the k columns, then added to g in f64.
-fn lower_gram_f32(a: &[f32], k: usize, np: usize, g: &mut [f64]) {
-    assert!(np % 8 == 0 && a.len() >= np * k && g.len() >= np * np);
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
-            // SAFETY: the CPU supports AVX2 and FMA (checked above); the slice lengths the
-            // kernel relies on are asserted above.
-            unsafe { x86::lower_gram_f32_avx2(a, k, np, g) };
-            return;
-        }
-    }
-    lower_gram_f32_portable(a, k, np, g);
-}
-
-/// Portable version of [`lower_gram_f32`] (same tiles, same block sums, scalar arithmetic).
-fn lower_gram_f32_portable(a: &[f32], k: usize, np: usize, g: &mut [f64]) {
-    for ib in 0..np / 8 {
-        for jb in 0..=ib {
-            let mut acc = [[0f32; 8]; 8];
-            for col in a.chunks_exact(np).take(k) {
-                let rows = &col[ib * 8..ib * 8 + 8];
-                for (jj, acc_j) in acc.iter_mut().enumerate() {
-                    let b = col[jb * 8 + jj];
-                    for (x, r) in acc_j.iter_mut().zip(rows) {
-                        *x += r * b;
-                    }
-                }
-            }
-            for (jj, acc_j) in acc.iter().enumerate() {
-                let dst = &mut g[(jb * 8 + jj) * np + ib * 8..][..8];
-                for (x, v) in dst.iter_mut().zip(acc_j) {
-                    *x += f64::from(*v);
                 }
             }
         }
@@ -380,52 +224,6 @@ mod x86 {
             }
         }
     }
-
-    /// AVX2 + FMA kernel of `lower_gram_f32`: one 8 x 8 tile at a time, 8 ymm accumulators.
-    ///
-    /// # Safety
-    /// The CPU must support AVX2 and FMA; `np % 8 == 0`, `a.len() >= np * k` and
-    /// `g.len() >= np * np`.
-    #[target_feature(enable = "avx2,fma")]
-    pub(super) unsafe fn lower_gram_f32_avx2(a: &[f32], k: usize, np: usize, g: &mut [f64]) {
-        let base = a.as_ptr();
-        let g = g.as_mut_ptr();
-        for ib in 0..np / 8 {
-            for jb in 0..=ib {
-                let mut acc = [_mm256_setzero_ps(); 8];
-                for c in 0..k {
-                    // SAFETY: c < k and ib * 8 + 8 <= np, jb * 8 + 8 <= np: inside a[..np * k].
-                    unsafe {
-                        let col = base.add(c * np);
-                        let rows = _mm256_loadu_ps(col.add(ib * 8));
-                        let b = col.add(jb * 8);
-                        acc[0] = _mm256_fmadd_ps(rows, _mm256_broadcast_ss(&*b), acc[0]);
-                        acc[1] = _mm256_fmadd_ps(rows, _mm256_broadcast_ss(&*b.add(1)), acc[1]);
-                        acc[2] = _mm256_fmadd_ps(rows, _mm256_broadcast_ss(&*b.add(2)), acc[2]);
-                        acc[3] = _mm256_fmadd_ps(rows, _mm256_broadcast_ss(&*b.add(3)), acc[3]);
-                        acc[4] = _mm256_fmadd_ps(rows, _mm256_broadcast_ss(&*b.add(4)), acc[4]);
-                        acc[5] = _mm256_fmadd_ps(rows, _mm256_broadcast_ss(&*b.add(5)), acc[5]);
-                        acc[6] = _mm256_fmadd_ps(rows, _mm256_broadcast_ss(&*b.add(6)), acc[6]);
-                        acc[7] = _mm256_fmadd_ps(rows, _mm256_broadcast_ss(&*b.add(7)), acc[7]);
-                    }
-                }
-                for (jj, v) in acc.iter().enumerate() {
-                    // SAFETY: column jb * 8 + jj < np, rows ib * 8 .. ib * 8 + 8 <= np: inside
-                    // g[..np * np].
-                    unsafe {
-                        let dst = g.add((jb * 8 + jj) * np + ib * 8);
-                        let lo = _mm256_cvtps_pd(_mm256_castps256_ps128(*v));
-                        let hi = _mm256_cvtps_pd(_mm256_extractf128_ps(*v, 1));
-                        _mm256_storeu_pd(dst, _mm256_add_pd(_mm256_loadu_pd(dst), lo));
-                        _mm256_storeu_pd(
-                            dst.add(4),
-                            _mm256_add_pd(_mm256_loadu_pd(dst.add(4)), hi),
-                        );
-                    }
-                }
-            }
-        }
-    }
 }
 
 #[cfg(test)]
@@ -460,11 +258,11 @@ mod tests {
         g
     }
 
-    fn run(n: usize, values: &[f32], precision: GramPrecision, chunk: usize) -> Vec<f64> {
+    fn run(n: usize, values: &[f32], chunk: usize) -> Vec<f64> {
         let valid = |d: usize| d % 7 != 3;
-        let mut acc = GramAccumulator::new(n, precision, &Identity);
+        let mut acc = GramAccumulator::new(n, &Identity);
         let d = values.len() / n;
-        let mut other = GramAccumulator::new(n, precision, &Identity);
+        let mut other = GramAccumulator::new(n, &Identity);
         for start in (0..d).step_by(chunk) {
             let end = (start + chunk).min(d);
             let target = if start < d / 2 { &mut acc } else { &mut other };
@@ -481,43 +279,17 @@ mod tests {
     }
 
     #[test]
-    fn both_precisions_match_a_direct_f64_sum() {
+    fn matches_a_direct_f64_sum() {
         for n in [1, 5, 8, 13, 51] {
             let d = 1000;
             let values = pseudo_random(n * d, n as u64);
             let want = reference(n, &values, |d| d % 7 != 3);
-            let exact = run(n, &values, GramPrecision::F64, 97);
-            assert!(max_rel(&exact, &want) < 1e-13, "n = {n}");
-            let mixed = run(n, &values, GramPrecision::Mixed, 97);
-            let err = max_rel(&mixed, &want);
-            // f32 products and block sums of 64 positive terms: a few f32 epsilons at most.
-            assert!(err < 2e-6, "n = {n}: mixed relative error {err:e}");
-            assert!(err > 0.0 || n == 1, "n = {n}: mixed suspiciously exact");
-            // symmetric.
+            // chunks of 97 indices split between two workers, blocks of F64_BLOCK valid ones.
+            let got = run(n, &values, 97);
+            assert!(max_rel(&got, &want) < 1e-13, "n = {n}");
             for i in 0..n {
                 for j in 0..n {
-                    assert_eq!(mixed[i * n + j], mixed[j * n + i]);
-                }
-            }
-        }
-    }
-
-    #[test]
-    fn simd_and_portable_kernels_agree() {
-        let (np, k) = (56, 64);
-        let a = pseudo_random(np * k, 3);
-        let mut g1 = vec![0.0; np * np];
-        let mut g2 = vec![0.0; np * np];
-        lower_gram_f32(&a, k, np, &mut g1);
-        lower_gram_f32_portable(&a, k, np, &mut g2);
-        // Lower tiles only are written, identically up to FMA rounding.
-        for j in 0..np {
-            for i in 0..np {
-                let (x, y) = (g1[j * np + i], g2[j * np + i]);
-                if i / 8 < j / 8 {
-                    assert_eq!((x, y), (0.0, 0.0));
-                } else {
-                    assert!((x - y).abs() <= 1e-6 * y.abs(), "({i}, {j}): {x} vs {y}");
+                    assert_eq!(got[i * n + j], got[j * n + i]);
                 }
             }
         }
@@ -576,7 +348,7 @@ mod tests {
     }
 
     #[test]
-    fn transform_is_applied_in_both_precisions() {
+    fn transform_is_applied() {
         struct Square;
         impl GramTransform for Square {
             fn to_f64(&self, input: &[f32], out: &mut [f64]) {
@@ -584,27 +356,23 @@ mod tests {
                     *o = f64::from(*v) * f64::from(*v);
                 }
             }
-            fn in_place_f32(&self, values: &mut [f32]) {
-                values.iter_mut().for_each(|v| *v *= *v);
-            }
         }
         let n = 9;
         let values = pseudo_random(n * 300, 9);
-        let squared: Vec<f32> = values.iter().map(|v| v * v).collect();
-        let want = reference(n, &squared, |_| true);
-        for precision in [GramPrecision::F64, GramPrecision::Mixed] {
-            let mut acc = GramAccumulator::new(n, precision, &Square);
-            acc.push_chunk(0..300, &values, |_| true);
-            let got = acc.finish();
-            assert!(max_rel(&got, &want) < 2e-6, "{precision}");
+        let squared: Vec<f64> = values
+            .iter()
+            .map(|v| f64::from(*v) * f64::from(*v))
+            .collect();
+        let mut want = vec![0.0; n * n];
+        for row in squared.chunks_exact(n) {
+            for i in 0..n {
+                for j in 0..n {
+                    want[i * n + j] += row[i] * row[j];
+                }
+            }
         }
-    }
-
-    #[test]
-    fn precision_parses_and_displays() {
-        for p in [GramPrecision::F64, GramPrecision::Mixed] {
-            assert_eq!(p.to_string().parse::<GramPrecision>().unwrap(), p);
-        }
-        assert!("f16".parse::<GramPrecision>().is_err());
+        let mut acc = GramAccumulator::new(n, &Square);
+        acc.push_chunk(0..300, &values, |_| true);
+        assert!(max_rel(&acc.finish(), &want) < 1e-13);
     }
 }

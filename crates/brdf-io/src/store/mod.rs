@@ -28,7 +28,7 @@ mod reader;
 mod sample;
 mod writer;
 
-pub use gram::{GramPrecision, GramTransform, Identity, MIXED_BLOCK};
+pub use gram::{F64_BLOCK, GramTransform, Identity};
 pub use reader::{OpenOptions, ReadMode, Store};
 pub use sample::{StoreMaterial, parse_store_spec};
 pub use writer::{MaterialWriter, StoreWriter};

@@ -10,7 +10,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 use rayon::prelude::*;
 use xxhash_rust::xxh3::Xxh3;
 
-use super::gram::{GramAccumulator, GramPrecision, GramTransform, Identity};
+use super::gram::{GramAccumulator, GramTransform, Identity};
 use super::writer::read_exact_at;
 use super::{
     Compression, Dtype, FORMAT_VERSION, MAGIC, PAYLOAD_OFFSET, PREFIX_LEN, StoreHeader,
@@ -442,25 +442,21 @@ impl Store {
         Ok(partials.into_iter().fold(init(), reduce))
     }
 
-    /// The uncentred N x N Gram matrix `G[n][m] = sum_d y_n[d] y_m[d]` (row-major), exact f64
+    /// The uncentred N x N Gram matrix `G[n][m] = sum_d y_n[d] y_m[d]` (row-major), f64
     /// arithmetic, in one parallel streaming pass.
     pub fn gram(&self) -> Result<Vec<f64>> {
-        self.gram_with(&Identity, GramPrecision::F64)
+        self.gram_with(&Identity)
     }
 
     /// The Gram matrix of transformed values `t(y)` over the valid cells (below-horizon cells
-    /// are skipped whatever `t` gives, so `t = ln` is safe there), in the chosen arithmetic.
+    /// are skipped whatever `t` gives, so `t = ln` is safe there), f64 arithmetic.
     /// Deterministic: bit-identical from run to run and on any number of threads.
-    pub fn gram_with<T: GramTransform + ?Sized>(
-        &self,
-        t: &T,
-        precision: GramPrecision,
-    ) -> Result<Vec<f64>> {
+    pub fn gram_with<T: GramTransform + ?Sized>(&self, t: &T) -> Result<Vec<f64>> {
         let n = self.n_materials();
         let nc = self.channels().len();
         let mask = self.validity_mask();
         let acc = self.par_fold_chunks(
-            || GramAccumulator::new(n, precision, t),
+            || GramAccumulator::new(n, t),
             |acc, range, block| acc.push_chunk(range, block, |d| mask[d / nc]),
             GramAccumulator::merge,
         )?;
