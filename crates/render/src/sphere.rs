@@ -493,56 +493,79 @@ pub fn render_sphere(source: &dyn BrdfSource, opts: &SphereOptions) -> Result<Im
     let shader = Shader::new(source, opts)?;
     let size = opts.size;
     let r = size as f64 / 2.0;
-    let nc = shader.n_channels;
+    rasterize(size, shader.n_channels, |px, py, f, acc| {
+        // Disc coordinates of the pixel centre, y up.
+        let cx = (px as f64 + 0.5 - r) / r;
+        let cy = (r - py as f64 - 0.5) / r;
+        let half = 0.5 / r;
+        let dmin = (cx.abs() - half).max(0.0).hypot((cy.abs() - half).max(0.0));
+        if dmin >= 1.0 {
+            return Ok(None);
+        }
+        let dmax = (cx.abs() + half).hypot(cy.abs() + half);
+        let ((sx, sy), cov) = if dmax <= 1.0 {
+            ((cx, cy), 1.0)
+        } else {
+            let inside = |u: f64, v: f64| {
+                let (x, y) = (cx + (u - 0.5) / r, cy + (v - 0.5) / r);
+                (x * x + y * y < 1.0).then_some((x, y))
+            };
+            match edge_coverage(inside) {
+                Some(c) => c,
+                None => return Ok(None),
+            }
+        };
+        let nz = (1.0 - sx * sx - sy * sy).max(0.0).sqrt();
+        Ok(Some((
+            shader.shade([sx, sy, nz], [0.0, 0.0, 1.0], f, acc)?,
+            cov,
+        )))
+    })
+}
+
+/// Coverage of an edge pixel and the centroid of its covered part: `inside(u, v)` maps the
+/// sub-pixel position (u, v) in (0, 1)^2 to a point, or `None` outside the shape; the pixel is
+/// sampled at `COVERAGE_SUB x COVERAGE_SUB` positions. `None` when no position is covered.
+fn edge_coverage(inside: impl Fn(f64, f64) -> Option<(f64, f64)>) -> Option<((f64, f64), f64)> {
+    let (mut n, mut ax, mut ay) = (0usize, 0.0, 0.0);
+    for j in 0..COVERAGE_SUB {
+        for i in 0..COVERAGE_SUB {
+            let u = (i as f64 + 0.5) / COVERAGE_SUB as f64;
+            let v = (j as f64 + 0.5) / COVERAGE_SUB as f64;
+            if let Some((x, y)) = inside(u, v) {
+                n += 1;
+                ax += x;
+                ay += y;
+            }
+        }
+    }
+    (n > 0).then(|| {
+        let k = n as f64;
+        ((ax / k, ay / k), k / (COVERAGE_SUB * COVERAGE_SUB) as f64)
+    })
+}
+
+/// One shaded pixel: linear sRGB and coverage.
+type Px = ([f64; 3], f64);
+
+/// A `size x size` image shaded in parallel (rayon, by rows): `pixel(px, py, f, acc)` gives a
+/// pixel's linear sRGB and coverage (`None`: empty), with per-row scratch buffers of `nc`
+/// channels for the shader.
+fn rasterize(
+    size: usize,
+    nc: usize,
+    pixel: impl Fn(usize, usize, &mut [f64], &mut [f64]) -> Result<Option<Px>> + Sync,
+) -> Result<Image> {
     let mut img = Image::new(size, size, [0.0; 3]);
     img.alpha.fill(0.0);
-    /// One shaded pixel: linear sRGB and coverage.
-    type Px = ([f64; 3], f64);
     let rows: Vec<Result<Vec<Px>>> = (0..size)
         .into_par_iter()
         .map(|py| {
             let mut f = vec![0.0; nc];
             let mut acc = vec![0.0; nc];
-            let mut row = Vec::with_capacity(size);
-            for px in 0..size {
-                // Disc coordinates of the pixel centre, y up.
-                let cx = (px as f64 + 0.5 - r) / r;
-                let cy = (r - py as f64 - 0.5) / r;
-                let half = 0.5 / r;
-                let dmin = (cx.abs() - half).max(0.0).hypot((cy.abs() - half).max(0.0));
-                if dmin >= 1.0 {
-                    row.push(([0.0; 3], 0.0));
-                    continue;
-                }
-                let dmax = (cx.abs() + half).hypot(cy.abs() + half);
-                let (sx, sy, cov) = if dmax <= 1.0 {
-                    (cx, cy, 1.0)
-                } else {
-                    // Edge pixel: coverage and centroid of the covered sub-positions.
-                    let (mut n, mut ax, mut ay) = (0usize, 0.0, 0.0);
-                    for j in 0..COVERAGE_SUB {
-                        for i in 0..COVERAGE_SUB {
-                            let x = cx + ((i as f64 + 0.5) / COVERAGE_SUB as f64 - 0.5) / r;
-                            let y = cy + ((j as f64 + 0.5) / COVERAGE_SUB as f64 - 0.5) / r;
-                            if x * x + y * y < 1.0 {
-                                n += 1;
-                                ax += x;
-                                ay += y;
-                            }
-                        }
-                    }
-                    if n == 0 {
-                        row.push(([0.0; 3], 0.0));
-                        continue;
-                    }
-                    let k = n as f64;
-                    (ax / k, ay / k, k / (COVERAGE_SUB * COVERAGE_SUB) as f64)
-                };
-                let nz = (1.0 - sx * sx - sy * sy).max(0.0).sqrt();
-                let rgb = shader.shade([sx, sy, nz], [0.0, 0.0, 1.0], &mut f, &mut acc)?;
-                row.push((rgb, cov));
-            }
-            Ok(row)
+            (0..size)
+                .map(|px| Ok(pixel(px, py, &mut f, &mut acc)?.unwrap_or(([0.0; 3], 0.0))))
+                .collect()
         })
         .collect();
     for (py, row) in rows.into_iter().enumerate() {
@@ -661,67 +684,32 @@ pub fn render_plane(
     let shader = Shader::new(source, opts)?;
     let size = opts.size;
     let scene = PlaneScene::new(plane, size)?;
-    let nc = shader.n_channels;
-    let mut img = Image::new(size, size, [0.0; 3]);
-    img.alpha.fill(0.0);
-    type Px = ([f64; 3], f64);
-    let rows: Vec<Result<Vec<Px>>> = (0..size)
-        .into_par_iter()
-        .map(|py| {
-            let mut f = vec![0.0; nc];
-            let mut acc = vec![0.0; nc];
-            let mut row = Vec::with_capacity(size);
-            for px in 0..size {
-                let (x0, y0) = (px as f64, py as f64);
-                // The projected sample is convex: a pixel whose corners all hit it is covered.
-                let corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
-                    .map(|(i, j)| scene.hit(scene.image_point(x0 + i, y0 + j)).is_some());
-                let (q, cov) = if corners.iter().all(|c| *c) {
-                    (scene.image_point(x0 + 0.5, y0 + 0.5), 1.0)
-                } else {
-                    let (mut n, mut ax, mut ay) = (0usize, 0.0, 0.0);
-                    for j in 0..COVERAGE_SUB {
-                        for i in 0..COVERAGE_SUB {
-                            let q = scene.image_point(
-                                x0 + (i as f64 + 0.5) / COVERAGE_SUB as f64,
-                                y0 + (j as f64 + 0.5) / COVERAGE_SUB as f64,
-                            );
-                            if scene.hit(q).is_some() {
-                                n += 1;
-                                ax += q.0;
-                                ay += q.1;
-                            }
-                        }
-                    }
-                    if n == 0 {
-                        row.push(([0.0; 3], 0.0));
-                        continue;
-                    }
-                    let k = n as f64;
-                    ((ax / k, ay / k), k / (COVERAGE_SUB * COVERAGE_SUB) as f64)
-                };
-                // The centroid of covered sub-positions lies in the convex projection.
-                let Some(p) = scene.hit(q) else {
-                    row.push(([0.0; 3], 0.0));
-                    continue;
-                };
-                let to_eye = [-p[0], -p[1], scene.d - p[2]];
-                let len = dot(to_eye, to_eye).sqrt();
-                let view = to_eye.map(|x| x / len);
-                let rgb = shader.shade(scene.n, view, &mut f, &mut acc)?;
-                row.push((rgb, cov));
+    rasterize(size, shader.n_channels, |px, py, f, acc| {
+        let (x0, y0) = (px as f64, py as f64);
+        // The projected sample is convex: a pixel whose corners all hit it is covered.
+        let corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
+            .map(|(i, j)| scene.hit(scene.image_point(x0 + i, y0 + j)).is_some());
+        let (q, cov) = if corners.iter().all(|c| *c) {
+            (scene.image_point(x0 + 0.5, y0 + 0.5), 1.0)
+        } else {
+            let inside = |u: f64, v: f64| {
+                let q = scene.image_point(x0 + u, y0 + v);
+                scene.hit(q).map(|_| q)
+            };
+            match edge_coverage(inside) {
+                Some(c) => c,
+                None => return Ok(None),
             }
-            Ok(row)
-        })
-        .collect();
-    for (py, row) in rows.into_iter().enumerate() {
-        for (px, (rgb, a)) in row?.into_iter().enumerate() {
-            let i = py * size + px;
-            img.rgb[i] = rgb;
-            img.alpha[i] = a;
-        }
-    }
-    Ok(img)
+        };
+        // The centroid of covered sub-positions lies in the convex projection.
+        let Some(p) = scene.hit(q) else {
+            return Ok(None);
+        };
+        let to_eye = [-p[0], -p[1], scene.d - p[2]];
+        let len = dot(to_eye, to_eye).sqrt();
+        let view = to_eye.map(|x| x / len);
+        Ok(Some((shader.shade(scene.n, view, f, acc)?, cov)))
+    })
 }
 
 /// Pixel statistics of a rendered sphere: mean linear sRGB over fully covered pixels, and their
