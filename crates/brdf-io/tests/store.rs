@@ -119,6 +119,16 @@ fn round_trip_material_mode_all_read_paths() {
                     assert_eq!(out[m].to_bits(), rows[m][d].to_bits(), "d = {d} m = {m}");
                 }
             }
+            // values_in: ranges inside one chunk, across chunk boundaries (chunks of 7), empty.
+            for r in [0..3, 5..16, 6..8, 13..29, 40..40, info.d() - 9..info.d()] {
+                let mut block = vec![0f32; r.len() * 5];
+                store.values_in(r.clone(), &mut block).unwrap();
+                for (k, d) in r.clone().enumerate() {
+                    for m in 0..5 {
+                        assert_eq!(block[k * 5 + m].to_bits(), rows[m][d].to_bits(), "{r:?}");
+                    }
+                }
+            }
             // streaming pass sees every index once, index-major.
             let mut seen = 0;
             store
@@ -544,6 +554,13 @@ fn lookups_out_of_range_are_errors() {
     let mut out = vec![0f32; 3];
     assert!(store.values_at(store.d(), &mut out).is_err());
     assert!(store.values_at(0, &mut out[..2]).is_err());
+    assert!(store.values_in(0..1, &mut out[..2]).is_err());
+    let mut two = vec![0f32; 6];
+    assert!(
+        store
+            .values_in(store.d() - 1..store.d() + 1, &mut two)
+            .is_err()
+    );
     let mut row = vec![0f32; 4];
     assert!(store.material_row(3, 0..4, &mut row).is_err());
     assert!(store.material_row(0, 0..5, &mut row).is_err());

@@ -644,19 +644,50 @@ impl PredictedMaterial {
     }
 
     /// Values of the output channels at angular cell `a` (flat angular index) into `out`.
+    ///
+    /// One read of the cell's block of stored values (the span of stored channels the selection
+    /// uses, all N materials: contiguous in the store) and one vectorised batch of transforms
+    /// and dot products; the same arithmetic as [`PredictedMaterial::value_at`], so the values
+    /// are bit-identical.
     pub fn eval_cell(&self, a: usize, out: &mut [f64]) -> Result<()> {
         self.check_out(out)?;
-        let nc = self.pred.inner.channels.len();
+        let inner = &*self.pred.inner;
+        let (nc, n) = (inner.channels.len(), inner.n);
         let sel = &*self.selection;
-        for (o, &(lo, hi, t)) in out.iter_mut().zip(&sel.taps) {
-            let v_lo = self.value_at(a * nc + lo)?;
-            *o = if t == 0.0 {
-                v_lo
+        let first = sel.taps.iter().map(|tap| tap.0).min().unwrap_or(0);
+        let last = sel
+            .taps
+            .iter()
+            .map(|&(lo, hi, t)| if t == 0.0 { lo } else { hi })
+            .max()
+            .unwrap_or(0);
+        CELL.with(|cell| {
+            let mut cell = cell.borrow_mut();
+            let (raw, wide, vals) = &mut *cell;
+            let span = last + 1 - first;
+            raw.resize(span * n, 0.0);
+            vals.resize(span, 0.0);
+            let (store, transformed) = self.pred.lookup_store();
+            store.values_in(a * nc + first..a * nc + last + 1, raw)?;
+            let t = inner.transform;
+            if transformed || t == Transform::Raw {
+                row_dots(&self.coef, raw, vals);
             } else {
-                (1.0 - t) * v_lo + t * self.value_at(a * nc + hi)?
-            };
-        }
-        Ok(())
+                wide.resize(raw.len(), 0.0);
+                t.forward_batch(raw, wide);
+                row_dots(&self.coef, wide, vals);
+            }
+            t.inverse_in_place(vals);
+            for (o, &(lo, hi, w)) in out.iter_mut().zip(&sel.taps) {
+                let v_lo = vals[lo - first];
+                *o = if w == 0.0 {
+                    v_lo
+                } else {
+                    (1.0 - w) * v_lo + w * vals[hi - first]
+                };
+            }
+            Ok(())
+        })
     }
 
     fn check_out(&self, out: &[f64]) -> Result<()> {
@@ -767,6 +798,9 @@ pub(crate) fn combine(t: Transform, c: &[f64], v: &[f32]) -> f64 {
 
 thread_local! {
     static WIDE: RefCell<Vec<f64>> = const { RefCell::new(Vec::new()) };
+    /// Scratch of [`PredictedMaterial::eval_cell`]: stored values, transformed values, results.
+    static CELL: RefCell<(Vec<f32>, Vec<f64>, Vec<f64>)> =
+        const { RefCell::new((Vec::new(), Vec::new(), Vec::new())) };
 }
 
 /// `sum_i c_i y_i` for stored f32 values ([`gp_core::fastmath::dot`]). Every lookup and

@@ -189,6 +189,18 @@ fn lazy_lookups_equal_the_materialised_values() {
         nonzero += usize::from(*v != 0.0);
     }
     assert!(nonzero > values.len() / 3);
+    // A whole cell at once (one block read, batched transforms) equals the single lookups.
+    let nc = pred.channels().len();
+    let mut cell_all = vec![0.0; nc];
+    for a in (0..pred.grid().len()).step_by(7) {
+        material.eval_cell(a, &mut cell_all).unwrap();
+        for (c, v) in cell_all.iter().enumerate() {
+            assert_eq!(
+                v.to_bits(),
+                material.value_at(a * nc + c).unwrap().to_bits()
+            );
+        }
+    }
 
     // A wavelength subset (interpolated) to .sbrdf equals eval_cell.
     let sub = material

@@ -531,6 +531,47 @@ impl Store {
         Ok(())
     }
 
+    /// All N values at every index of `d_range` into `out`, index-major
+    /// (`out[(d - d_range.start) * N + m]`, `out.len() == d_range.len() * N`): one contiguous
+    /// read per chunk the range touches (the N x channels block of one angular cell is one read).
+    pub fn values_in(&self, d_range: Range<usize>, out: &mut [f32]) -> Result<()> {
+        let n = self.n_materials();
+        if d_range.end > self.d() || d_range.start > d_range.end || out.len() != d_range.len() * n {
+            return Err(Error::StoreUsage {
+                path: self.path.clone(),
+                reason: format!(
+                    "values_in({d_range:?}): D = {}, output has {} slots for {} values",
+                    self.d(),
+                    out.len(),
+                    d_range.len() * n
+                ),
+            });
+        }
+        let chunk_len = self.header.layout.chunk_len;
+        let dtype = self.header.layout.dtype;
+        let mut d = d_range.start;
+        while d < d_range.end {
+            let c = d / chunk_len;
+            let j = d - c * chunk_len;
+            let end = d_range.end.min((c + 1) * chunk_len);
+            let dst = &mut out[(d - d_range.start) * n..(end - d_range.start) * n];
+            match self.header.layout.compression {
+                Compression::None => {
+                    let size = dtype.size();
+                    let off = PAYLOAD_OFFSET + self.offsets[c] + (j * n * size) as u64;
+                    let raw = self.bytes(off, dst.len() * size)?;
+                    decode_values(&raw, dtype, dst);
+                }
+                _ => {
+                    let chunk = self.cached_chunk(c)?;
+                    dst.copy_from_slice(&chunk[j * n..(j + end - d) * n]);
+                }
+            }
+            d = end;
+        }
+        Ok(())
+    }
+
     /// Values of material `m` over `d_range` into `out` (`out.len() == d_range.len()`).
     pub fn material_row(&self, m: usize, d_range: Range<usize>, out: &mut [f32]) -> Result<()> {
         let n = self.n_materials();
