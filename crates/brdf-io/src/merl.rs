@@ -171,11 +171,7 @@ impl BrdfSource for MerlBrdf {
     /// MERL's lookup: the value of the cell containing the pair's half/difference angles
     /// (no interpolation); negative markers read as 0.
     fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
-        if out.len() != 3 {
-            return Err(Error::InvalidArgument {
-                reason: format!("output buffer has {} slots for 3 channels", out.len()),
-            });
-        }
+        crate::source::check_output_len(out, 3)?;
         out.iter_mut().for_each(|v| *v = 0.0);
         let len = |v: Vec3| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
         if !(wi[2] > 0.0 && wo[2] > 0.0) || len(wi) == 0.0 || len(wo) == 0.0 {

@@ -238,11 +238,7 @@ impl BrdfSource for Nbrdf {
     }
 
     fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
-        if out.len() != 3 {
-            return Err(Error::InvalidArgument {
-                reason: format!("output buffer has {} slots for 3 channels", out.len()),
-            });
-        }
+        crate::source::check_output_len(out, 3)?;
         out.copy_from_slice(&Nbrdf::eval(self, wi, wo));
         Ok(())
     }

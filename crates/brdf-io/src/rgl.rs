@@ -487,15 +487,7 @@ impl RglBsdf {
     }
 
     fn eval_selection(&self, sel: &Selection, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
-        if out.len() != sel.taps.len() {
-            return Err(Error::InvalidArgument {
-                reason: format!(
-                    "output buffer has {} slots for {} channels",
-                    out.len(),
-                    sel.taps.len()
-                ),
-            });
-        }
+        crate::source::check_output_len(out, sel.taps.len())?;
         let (Some(wi), Some(wo)) = (unit(wi), unit(wo)) else {
             return Err(Error::InvalidArgument {
                 reason: format!("directions must be finite and non-zero, got {wi:?}, {wo:?}"),

@@ -1,7 +1,7 @@
 //! What every BRDF source offers (`specgp sample`, `render`): its channels and f(wi, wo), and the
 //! import report that resampling returns.
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::grid::{Channels, Vec3};
 
 /// A BRDF that can be evaluated at arbitrary direction pairs.
@@ -18,6 +18,21 @@ pub trait BrdfSource: Sync {
 
     /// Writes f(wi, wo) for every channel into `out` (length [`Channels::len`]).
     fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()>;
+}
+
+/// The argument check every [`BrdfSource::eval`] starts with: `out` must have one slot per
+/// channel (`channels`), else an [`Error::InvalidArgument`] saying so.
+pub fn check_output_len(out: &[f64], channels: usize) -> Result<()> {
+    if out.len() == channels {
+        Ok(())
+    } else {
+        Err(Error::InvalidArgument {
+            reason: format!(
+                "output buffer has {} slots for {channels} channels",
+                out.len()
+            ),
+        })
+    }
 }
 
 /// Default outlier threshold in 1/sr: 1e4, above the specular peak of the shiniest measured

@@ -553,6 +553,20 @@ impl PSpec {
     }
 }
 
+/// A prepared material is a spectral [`BrdfSource`] at its prepared wavelengths (renderable and
+/// sampleable like a measured file).
+impl brdf_io::BrdfSource for PreparedMaterial {
+    fn channels(&self) -> brdf_io::Channels {
+        brdf_io::Channels::Spectral(self.wavelengths.clone())
+    }
+
+    fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
+        brdf_io::source::check_output_len(out, self.wavelengths.len())?;
+        PreparedMaterial::eval(self, wi, wo, out);
+        Ok(())
+    }
+}
+
 impl PreparedMaterial {
     /// The wavelengths (nm) this material was prepared for.
     pub fn wavelengths(&self) -> &[f64] {

@@ -74,15 +74,7 @@ impl BrdfSource for CellCache<'_> {
     }
 
     fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
-        if out.len() != self.channels.len() {
-            return Err(brdf_io::Error::InvalidArgument {
-                reason: format!(
-                    "output has {} slots for {} channels",
-                    out.len(),
-                    self.channels.len()
-                ),
-            });
-        }
+        brdf_io::source::check_output_len(out, self.channels.len())?;
         out.fill(0.0);
         let hd = match HalfDiff::from_dirs(wi, wo) {
             Some(hd) if wi[2] > 0.0 && wo[2] > 0.0 => hd,

@@ -5,17 +5,7 @@ use brdf_io::{BrdfSource, Channels, Vec3};
 use render::sphere::SphereOptions;
 use render::{MapOptions, comparison_sheet, latent_map, path_comparison};
 
-struct Synth(brdf_synth::PreparedMaterial);
-
-impl BrdfSource for Synth {
-    fn channels(&self) -> Channels {
-        Channels::Spectral(self.0.wavelengths().to_vec())
-    }
-    fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
-        self.0.eval(wi, wo, out);
-        Ok(())
-    }
-}
+type Synth = brdf_synth::PreparedMaterial;
 
 /// `a` x first + (1 - a) x second, channel by channel.
 struct Mix<'a>(&'a dyn BrdfSource, &'a dyn BrdfSource, f64);
@@ -37,7 +27,7 @@ impl BrdfSource for Mix<'_> {
 
 fn synth(name: &str) -> Synth {
     let wl: Vec<f64> = (360..=1000).step_by(20).map(f64::from).collect();
-    Synth(brdf_synth::preset_material(name, 0).unwrap().prepare(&wl))
+    brdf_synth::preset_material(name, 0).unwrap().prepare(&wl)
 }
 
 fn keep(img: &render::Image, name: &str) {

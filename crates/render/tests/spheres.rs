@@ -3,26 +3,14 @@
 
 use std::path::PathBuf;
 
-use brdf_io::{BrdfSource, Channels, Vec3};
 use render::sphere::{SphereOptions, mean_colour, render_sphere};
 
-/// A synthetic material prepared at the given wavelengths, as a `BrdfSource`.
-struct Synth(brdf_synth::PreparedMaterial);
-
-impl BrdfSource for Synth {
-    fn channels(&self) -> Channels {
-        Channels::Spectral(self.0.wavelengths().to_vec())
-    }
-    fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
-        self.0.eval(wi, wo, out);
-        Ok(())
-    }
-}
+type Synth = brdf_synth::PreparedMaterial;
 
 fn synth(name: &str) -> Synth {
     let wl: Vec<f64> = (360..=1000).step_by(20).map(f64::from).collect();
     let m = brdf_synth::preset_material(name, 0).unwrap_or_else(|| panic!("no preset {name}"));
-    Synth(m.prepare(&wl))
+    m.prepare(&wl)
 }
 
 fn small() -> SphereOptions {
