@@ -77,6 +77,15 @@ pub struct ComparisonSheet {
 /// One row of a sheet: a label and its sources, one per column.
 pub type SheetRow<'a> = (String, Vec<&'a dyn BrdfSource>);
 
+/// Width of the label column of a sheet: the widest row label, at least 40 pixels.
+fn label_width(rows: &[SheetRow<'_>]) -> usize {
+    rows.iter()
+        .map(|(l, _)| font::text_width(l, 1))
+        .max()
+        .unwrap_or(0)
+        .max(40)
+}
+
 /// Measured vs reconstructions: for every row, the spheres of all columns, then a CIEDE2000
 /// heat map of every column after the first against the first (scale 0..`de_max`), with its
 /// mean printed below; a colour bar at the bottom. `columns` labels the sphere columns (e.g.
@@ -102,12 +111,7 @@ pub fn comparison_sheet(
     }
     let s = opts.size;
     let n_cells = 2 * columns.len() - 1;
-    let label_w = rows
-        .iter()
-        .map(|(l, _)| font::text_width(l, 1))
-        .max()
-        .unwrap_or(0)
-        .max(40);
+    let label_w = label_width(rows);
     let width = label_w + PAD + n_cells * (s + PAD) + PAD;
     let header = PAD + LINE;
     let row_h = s + LINE + PAD;
@@ -192,12 +196,7 @@ pub fn sphere_rows(
             reason: "no spheres to draw".into(),
         });
     }
-    let label_w = rows
-        .iter()
-        .map(|(l, _)| font::text_width(l, 1))
-        .max()
-        .unwrap_or(0)
-        .max(40);
+    let label_w = label_width(rows);
     let row_h = s + PAD;
     let cap_h = if captions.is_empty() { 0 } else { LINE };
     let width = label_w + PAD + n * (s + PAD) + PAD;
