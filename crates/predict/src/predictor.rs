@@ -559,10 +559,6 @@ impl ChannelSelection {
     }
 }
 
-thread_local! {
-    static SCRATCH: RefCell<Vec<f32>> = const { RefCell::new(Vec::new()) };
-}
-
 /// A predicted BRDF: coefficients over the stored materials, evaluated lazily.
 ///
 /// Each value costs one read of the N stored values at its index and N multiply-adds (plus N
@@ -629,17 +625,16 @@ impl PredictedMaterial {
     /// The predicted value at flat index `d` of the stored dimension order
     /// (`angular_index * n_channels + channel`), in 1/sr.
     pub fn value_at(&self, d: usize) -> Result<f64> {
-        let inner = &*self.pred.inner;
-        SCRATCH.with(|s| {
-            let mut s = s.borrow_mut();
-            s.resize(inner.n, 0.0);
+        let n = self.pred.inner.n;
+        SCRATCH.with(|scratch| {
+            let mut scratch = scratch.borrow_mut();
+            let (raw, wide, _) = &mut *scratch;
+            raw.resize(n, 0.0);
             let (store, transformed) = self.pred.lookup_store();
-            store.values_at(d, &mut s)?;
-            Ok(if transformed {
-                combine_transformed(inner.transform, &self.coef, &s)
-            } else {
-                combine(inner.transform, &self.coef, &s)
-            })
+            store.values_at(d, raw)?;
+            let mut v = [0.0];
+            self.combine_block(raw, transformed, wide, &mut v);
+            Ok(v[0])
         })
     }
 
@@ -661,23 +656,15 @@ impl PredictedMaterial {
             .map(|&(lo, hi, t)| if t == 0.0 { lo } else { hi })
             .max()
             .unwrap_or(0);
-        CELL.with(|cell| {
-            let mut cell = cell.borrow_mut();
-            let (raw, wide, vals) = &mut *cell;
+        SCRATCH.with(|scratch| {
+            let mut scratch = scratch.borrow_mut();
+            let (raw, wide, vals) = &mut *scratch;
             let span = last + 1 - first;
             raw.resize(span * n, 0.0);
             vals.resize(span, 0.0);
             let (store, transformed) = self.pred.lookup_store();
             store.values_in(a * nc + first..a * nc + last + 1, raw)?;
-            let t = inner.transform;
-            if transformed || t == Transform::Raw {
-                row_dots(&self.coef, raw, vals);
-            } else {
-                wide.resize(raw.len(), 0.0);
-                t.forward_batch(raw, wide);
-                row_dots(&self.coef, wide, vals);
-            }
-            t.inverse_in_place(vals);
+            self.combine_block(raw, transformed, wide, vals);
             for (o, &(lo, hi, w)) in out.iter_mut().zip(&sel.taps) {
                 let v_lo = vals[lo - first];
                 *o = if w == 0.0 {
@@ -742,10 +729,32 @@ impl PredictedMaterial {
         }
     }
 
+    /// `out[j] = inverse(sum_i c_i forward(block[j * N + i]))` for consecutive rows of N stored
+    /// values (`transformed`: the block already holds forward-transformed values, from the
+    /// sidecar store). The one arithmetic of every lookup and materialisation path (vectorised
+    /// batches: [`Transform::forward_batch`], [`gp_core::fastmath::dot`] per row,
+    /// [`Transform::inverse_in_place`]), so all of them agree bit for bit. `wide` is scratch.
+    fn combine_block(
+        &self,
+        block: &[f32],
+        transformed: bool,
+        wide: &mut Vec<f64>,
+        out: &mut [f64],
+    ) {
+        let t = self.pred.inner.transform;
+        if transformed || t == Transform::Raw {
+            row_dots(&self.coef, block, out);
+        } else {
+            wide.resize(block.len(), 0.0);
+            t.forward_batch(block, wide);
+            row_dots(&self.coef, wide, out);
+        }
+        t.inverse_in_place(out);
+    }
+
     /// The values of one chunk (`block[(d - range.start) * N + i]`) under this material, 0 at
     /// below-horizon indices (`mask` per angular cell, `nc` channels); `transformed`: the block
-    /// holds forward-transformed values (sidecar store). Vectorised in batches over the chunk;
-    /// bit-identical to [`PredictedMaterial::value_at`] at every index.
+    /// holds forward-transformed values (sidecar store).
     pub(crate) fn combine_chunk(
         &self,
         range: std::ops::Range<usize>,
@@ -754,65 +763,26 @@ impl PredictedMaterial {
         mask: &[bool],
         nc: usize,
     ) -> Vec<f64> {
-        let t = self.pred.inner.transform;
-        let valid = |d: usize| mask[d / nc];
         let mut out = vec![0.0; range.len()];
-        if transformed || t == Transform::Raw {
-            row_dots(&self.coef, block, &mut out);
-        } else {
-            let mut wide = vec![0.0; block.len()];
-            t.forward_batch(block, &mut wide);
-            row_dots(&self.coef, &wide, &mut out);
-        }
+        self.combine_block(block, transformed, &mut Vec::new(), &mut out);
         for (o, d) in out.iter_mut().zip(range) {
-            if !valid(d) {
+            if !mask[d / nc] {
                 *o = 0.0;
             }
         }
-        // inverse(0) = 0 under every transform, so masked cells stay 0.
-        t.inverse_in_place(&mut out);
         out
     }
 }
 
-/// `inverse(sum_i c_i y_i)` for already transformed values `y`.
-#[inline]
-pub(crate) fn combine_transformed(t: Transform, c: &[f64], y: &[f32]) -> f64 {
-    t.inverse(dot_f32(c, y))
-}
-
-/// `inverse(sum_i c_i forward(v_i))`: the forward transform of the row runs as one vectorised
-/// batch ([`Transform::forward_batch`], the same arithmetic as materialisation).
-#[inline]
-pub(crate) fn combine(t: Transform, c: &[f64], v: &[f32]) -> f64 {
-    match t {
-        Transform::Raw => dot_f32(c, v),
-        Transform::Log { .. } => WIDE.with(|w| {
-            let mut w = w.borrow_mut();
-            w.resize(v.len(), 0.0);
-            t.forward_batch(v, &mut w);
-            t.inverse(dot_f64(c, &w))
-        }),
-    }
-}
-
 thread_local! {
-    static WIDE: RefCell<Vec<f64>> = const { RefCell::new(Vec::new()) };
-    /// Scratch of [`PredictedMaterial::eval_cell`]: stored values, transformed values, results.
-    static CELL: RefCell<(Vec<f32>, Vec<f64>, Vec<f64>)> =
+    /// Scratch of the lazy lookups: stored values, transformed values, results.
+    static SCRATCH: RefCell<(Vec<f32>, Vec<f64>, Vec<f64>)> =
         const { RefCell::new((Vec::new(), Vec::new(), Vec::new())) };
 }
 
-/// `sum_i c_i y_i` for stored f32 values ([`gp_core::fastmath::dot`]). Every lookup and
-/// materialisation path uses it, so they agree bit for bit.
-#[inline]
-pub(crate) fn dot_f32(c: &[f64], y: &[f32]) -> f64 {
-    gp_core::fastmath::dot(c, y)
-}
-
-/// `out[j] = dot(c, rows[j])` for the consecutive rows of `c.len()` values in `rows`: the same
-/// arithmetic as [`dot_f32`] / [`dot_f64`] (so bit-identical to the lazy path), compiled for
-/// AVX2 + FMA when the CPU has them (selected at run time).
+/// `out[j] = dot(c, rows[j])` for the consecutive rows of `c.len()` values in `rows`
+/// ([`gp_core::fastmath::dot`]: the same arithmetic on every CPU), compiled for AVX2 + FMA when
+/// the CPU has them (selected at run time).
 fn row_dots<T: Copy + Into<f64>>(c: &[f64], rows: &[T], out: &mut [f64]) {
     #[cfg(target_arch = "x86_64")]
     {
@@ -842,12 +812,6 @@ fn row_dots_body<T: Copy + Into<f64>>(c: &[f64], rows: &[T], out: &mut [f64]) {
     for (o, row) in out.iter_mut().zip(rows.chunks_exact(c.len())) {
         *o = gp_core::fastmath::dot(c, row);
     }
-}
-
-/// [`dot_f32`] for f64 values.
-#[inline]
-pub(crate) fn dot_f64(c: &[f64], y: &[f64]) -> f64 {
-    gp_core::fastmath::dot(c, y)
 }
 
 impl BrdfSource for PredictedMaterial {
