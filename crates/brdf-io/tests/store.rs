@@ -123,6 +123,10 @@ fn round_trip_material_mode_all_read_paths() {
             for r in [0..3, 5..16, 6..8, 13..29, 40..40, info.d() - 9..info.d()] {
                 let mut block = vec![0f32; r.len() * 5];
                 store.values_in(r.clone(), &mut block).unwrap();
+                // values_in_ref: borrowed inside a chunk (mmap), read into the buffer otherwise.
+                let mut buf = Vec::new();
+                let borrowed = store.values_in_ref(r.clone(), &mut buf).unwrap();
+                assert_eq!(borrowed, &block[..], "{r:?}");
                 for (k, d) in r.clone().enumerate() {
                     for m in 0..5 {
                         assert_eq!(block[k * 5 + m].to_bits(), rows[m][d].to_bits(), "{r:?}");

@@ -660,11 +660,11 @@ impl PredictedMaterial {
             let mut scratch = scratch.borrow_mut();
             let (raw, wide, vals) = &mut *scratch;
             let span = last + 1 - first;
-            raw.resize(span * n, 0.0);
             vals.resize(span, 0.0);
             let (store, transformed) = self.pred.lookup_store();
-            store.values_in(a * nc + first..a * nc + last + 1, raw)?;
-            self.combine_block(raw, transformed, wide, vals);
+            let block = store.values_in_ref(a * nc + first..a * nc + last + 1, raw)?;
+            debug_assert_eq!(block.len(), span * n);
+            self.combine_block(block, transformed, wide, vals);
             for (o, &(lo, hi, w)) in out.iter_mut().zip(&sel.taps) {
                 let v_lo = vals[lo - first];
                 *o = if w == 0.0 {

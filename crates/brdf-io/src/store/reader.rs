@@ -572,6 +572,38 @@ impl Store {
         Ok(())
     }
 
+    /// [`Store::values_in`] without a copy when possible: borrowed from the map when the range
+    /// lies in one chunk of an uncompressed f32 store opened with a memory map (little-endian
+    /// host), else read into `buf`.
+    pub fn values_in_ref<'a>(
+        &'a self,
+        d_range: Range<usize>,
+        buf: &'a mut Vec<f32>,
+    ) -> Result<&'a [f32]> {
+        let n = self.n_materials();
+        let chunk_len = self.header.layout.chunk_len;
+        if cfg!(target_endian = "little")
+            && self.header.layout.compression == Compression::None
+            && self.header.layout.dtype == Dtype::F32
+            && d_range.start < d_range.end
+            && d_range.end <= self.d()
+            && d_range.start / chunk_len == (d_range.end - 1) / chunk_len
+            && let Backing::Mmap(m) = &self.backing
+        {
+            let c = d_range.start / chunk_len;
+            let j = d_range.start - c * chunk_len;
+            let s = (PAYLOAD_OFFSET + self.offsets[c]) as usize + j * n * 4;
+            if let Some(bytes) = m.get(s..s + d_range.len() * n * 4)
+                && let Ok(v) = bytemuck::try_cast_slice::<u8, f32>(bytes)
+            {
+                return Ok(v);
+            }
+        }
+        buf.resize(d_range.len() * n, 0.0);
+        self.values_in(d_range, buf)?;
+        Ok(buf)
+    }
+
     /// Values of material `m` over `d_range` into `out` (`out.len() == d_range.len()`).
     pub fn material_row(&self, m: usize, d_range: Range<usize>, out: &mut [f32]) -> Result<()> {
         let n = self.n_materials();
