@@ -313,6 +313,65 @@ impl CholeskyFactor {
     }
 }
 
+/// Reusable buffers for the optimisers' inner loop: the plain (unjittered, unchecked)
+/// factorisation and the inverse into caller-owned matrices, with faer's scratch kept between
+/// calls. The same faer kernels as [`CholeskyFactor`], so the same values.
+pub(crate) struct FactorWork {
+    mem: MemBuffer,
+    n: usize,
+}
+
+impl FactorWork {
+    pub(crate) fn new() -> Self {
+        Self {
+            mem: MemBuffer::new(faer::dyn_stack::StackReq::EMPTY),
+            n: 0,
+        }
+    }
+
+    fn reserve(&mut self, n: usize) {
+        if self.n != n {
+            let req =
+                llt::factor::cholesky_in_place_scratch::<f64>(n, Par::Seq, Default::default())
+                    .or(llt::inverse::inverse_scratch::<f64>(n, Par::Seq));
+            self.mem = MemBuffer::new(req);
+            self.n = n;
+        }
+    }
+
+    /// Factors `l` in place (lower triangle; the strict upper triangle is left as it was and
+    /// must be ignored). False on a pivot that is not positive and finite (the caller then
+    /// takes the jittered path of [`CholeskyFactor::with_policy`]).
+    pub(crate) fn factor_in_place(&mut self, mut l: MatMut<'_, f64>) -> bool {
+        let n = l.nrows();
+        self.reserve(n);
+        let stack = MemStack::new(&mut self.mem);
+        let ok = llt::factor::cholesky_in_place(
+            l.as_mut(),
+            Default::default(),
+            Par::Seq,
+            stack,
+            Default::default(),
+        )
+        .is_ok();
+        ok && (0..n).all(|i| l[(i, i)].is_finite() && l[(i, i)] > 0.0)
+    }
+
+    /// `out = A^-1` (full, symmetric) from the lower factor `l` of `A`.
+    pub(crate) fn inverse_into(&mut self, l: MatRef<'_, f64>, out: &mut Mat<f64>) {
+        let n = l.nrows();
+        self.reserve(n);
+        out.resize_with(n, n, |_, _| 0.0);
+        let stack = MemStack::new(&mut self.mem);
+        llt::inverse::inverse(out.as_mut(), l, Par::Seq, stack);
+        for j in 0..n {
+            for i in 0..j {
+                out[(i, j)] = out[(j, i)];
+            }
+        }
+    }
+}
+
 /// `||A + j I||_1` (max column sum of absolute values) of a symmetric matrix.
 fn one_norm_sym(a: MatRef<'_, f64>, jitter: f64) -> f64 {
     let n = a.nrows();

@@ -370,6 +370,43 @@ impl KernelParams {
         }))
     }
 
+    /// [`KernelParams::kernel_matrix`] into `out` (resized to `N x N`; its old values are
+    /// overwritten): the same values, without allocating. The strict lower triangle is computed
+    /// column by column straight into `out`'s columns and mirrored.
+    pub fn kernel_matrix_into(&self, x: MatRef<'_, f64>, out: &mut Mat<f64>) -> Result<()> {
+        let z = self.scaled_axes(x, "latent points X")?;
+        let n = x.nrows();
+        let s2 = self.signal_variance;
+        out.resize_with(n, n, |_, _| 0.0);
+        // The strict lower triangle packed by columns, so one batch of exponentials covers it.
+        let mut packed = vec![0.0f64; n * n.saturating_sub(1) / 2];
+        let mut at = 0;
+        for m in 0..n {
+            let col = &mut packed[at..at + n - m - 1];
+            for axis in &z {
+                let zm = axis[m];
+                for (o, zi) in col.iter_mut().zip(&axis[m + 1..]) {
+                    let d = zi - zm;
+                    *o += d * d;
+                }
+            }
+            at += n - m - 1;
+        }
+        crate::fastmath::rbf_from_sq_dist_in_place(&mut packed, s2);
+        let mut at = 0;
+        for m in 0..n {
+            out.col_as_slice_mut(m)[m + 1..].copy_from_slice(&packed[at..at + n - m - 1]);
+            at += n - m - 1;
+        }
+        for j in 0..n {
+            out[(j, j)] = s2 + self.noise;
+            for i in 0..j {
+                out[(i, j)] = out[(j, i)];
+            }
+        }
+        Ok(())
+    }
+
     /// Training covariance `K = K_rbf(X) + mu I`, `N x N`, symmetric positive definite
     /// (its smallest eigenvalue is at least `mu`).
     pub fn kernel_matrix(&self, x: MatRef<'_, f64>) -> Result<Mat<f64>> {
@@ -484,14 +521,17 @@ impl KernelParams {
             let (dk_m, k_m) = (column(dk, m), column(k_rbf, m));
             // Diagonal: K_rbf[n,n] = s^2 contributes only to the amplitude.
             d_log_s2 += dk_m[m] * self.signal_variance;
+            // The column's sum in a register (one chain per column, not through memory).
+            let mut col_sum = 0.0;
             for i in (m + 1)..n {
                 let v = 0.5 * (dk_m[i] + dk[(m, i)]) * k_m[i];
                 w[m * n + i] = v;
                 w[i * n + m] = v;
                 r[i] += v;
-                r[m] += v;
-                d_log_s2 += 2.0 * v;
+                col_sum += v;
             }
+            r[m] += col_sum;
+            d_log_s2 += 2.0 * col_sum;
         }
         let mut gx = Mat::<f64>::zeros(n, q);
         let mut d_log_l_axis = vec![0.0f64; q];
@@ -593,6 +633,13 @@ mod tests {
                 let c = p.cross_matrix(x.as_ref(), x.as_ref(), par).unwrap();
                 assert_eq!(c, k);
             }
+            // kernel_matrix_into: the same matrix, also into a reused buffer of another size.
+            let mut buf = Mat::from_fn(40, 40, |i, j| (i + j) as f64);
+            p.kernel_matrix_into(x.as_ref(), &mut buf).unwrap();
+            assert_eq!(buf, kn);
+            let x1 = x.subrows(0, 1);
+            p.kernel_matrix_into(x1, &mut buf).unwrap();
+            assert_eq!(buf, p.kernel_matrix(x1).unwrap());
             for i in 0..37 {
                 assert_eq!(kn[(i, i)], p.signal_variance() + p.noise());
                 // Direct formula for one entry.

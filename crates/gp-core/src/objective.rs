@@ -24,6 +24,27 @@ use faer::{Accum, Mat, MatRef, Par};
 
 const LN_2PI: f64 = 1.837_877_066_409_345_3;
 
+/// Matrices of [`GplvmObjective::evaluate_reusing`], kept per thread between calls.
+struct Work {
+    k: Mat<f64>,
+    l: Mat<f64>,
+    kinv: Mat<f64>,
+    b: Mat<f64>,
+    dk: Mat<f64>,
+    factor: crate::cholesky::FactorWork,
+}
+
+thread_local! {
+    static WORK: std::cell::RefCell<Work> = std::cell::RefCell::new(Work {
+        k: Mat::new(),
+        l: Mat::new(),
+        kinv: Mat::new(),
+        b: Mat::new(),
+        dk: Mat::new(),
+        factor: crate::cholesky::FactorWork::new(),
+    });
+}
+
 /// What the Cholesky factorisation of `K` needed.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FactorInfo {
@@ -261,6 +282,9 @@ impl GplvmObjective {
         condition: bool,
     ) -> Result<GplvmEval> {
         self.check_x(x)?;
+        if !condition && let Some(e) = self.evaluate_reusing(x, params, par)? {
+            return Ok(e);
+        }
         let k = params.kernel_matrix(x)?;
         let f = self.factor_matrix(k.as_ref(), par)?;
         let n = self.n();
@@ -308,6 +332,76 @@ impl GplvmObjective {
             grad_hyper: g.hyper,
             grad_hyper_log: g.hyper_log,
             factor: FactorInfo::of(&f, condition),
+        })
+    }
+
+    /// The optimisers' path of [`Self::evaluate_impl`] (no condition estimate): the same
+    /// arithmetic in thread-local matrices reused from call to call, the factorisation without
+    /// the input checks (K is built here, symmetric and finite) and without jitter. `None` when
+    /// K needs jitter: the caller then takes the general path.
+    fn evaluate_reusing(
+        &self,
+        x: MatRef<'_, f64>,
+        params: &KernelParams,
+        par: Par,
+    ) -> Result<Option<GplvmEval>> {
+        let n = self.n();
+        WORK.with(|cell| {
+            let mut guard = cell.borrow_mut();
+            let w = &mut *guard;
+            params.kernel_matrix_into(x, &mut w.k)?;
+            w.l.resize_with(n, n, |_, _| 0.0);
+            w.l.copy_from(&w.k);
+            if !w.factor.factor_in_place(w.l.as_mut()) {
+                return Ok(None);
+            }
+            let log_det = 2.0 * (0..n).map(|i| w.l[(i, i)].ln()).sum::<f64>();
+            w.factor.inverse_into(w.l.as_ref(), &mut w.kinv);
+            w.b.resize_with(n, n, |_, _| 0.0);
+            faer::linalg::matmul::matmul(w.b.as_mut(), Accum::Replace, &w.kinv, &self.s, 1.0, par);
+            let trace: f64 = (0..n).map(|i| w.b[(i, i)]).sum();
+            w.dk.resize_with(n, n, |_, _| 0.0);
+            faer::linalg::matmul::triangular::matmul(
+                w.dk.as_mut(),
+                BlockStructure::TriangularLower,
+                Accum::Replace,
+                &w.b,
+                BlockStructure::Rectangular,
+                &w.kinv,
+                BlockStructure::Rectangular,
+                0.5,
+                par,
+            );
+            let half_d = 0.5 * self.d as f64;
+            for j in 0..n {
+                for i in j..n {
+                    let v = w.dk[(i, j)] - half_d * w.kinv[(i, j)];
+                    w.dk[(i, j)] = v;
+                    w.dk[(j, i)] = v;
+                }
+            }
+            let value = self.assemble(log_det, trace, x)?;
+            let g = params.backprop_with_rbf(x, w.dk.as_ref(), w.k.as_ref())?;
+            let mut grad_x = g.x;
+            if self.prior {
+                for j in 0..x.ncols() {
+                    for i in 0..n {
+                        grad_x[(i, j)] -= x[(i, j)];
+                    }
+                }
+            }
+            check_finite(grad_x.as_ref(), "GPLVM gradient dL/dX")?;
+            Ok(Some(GplvmEval {
+                value,
+                grad_x,
+                grad_hyper: g.hyper,
+                grad_hyper_log: g.hyper_log,
+                factor: FactorInfo {
+                    jitter: 0.0,
+                    attempts: 1,
+                    condition_estimate: f64::NAN,
+                },
+            }))
         })
     }
 

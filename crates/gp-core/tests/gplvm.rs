@@ -560,3 +560,31 @@ fn weights_jacobian_matches_finite_differences() {
         Err(GpError::NonFiniteResult { .. })
     ));
 }
+
+/// The optimisers' path (reused buffers, plain factorisation) hands a K that needs jitter to
+/// the general path: with the default policy the flat evaluation succeeds and equals the full
+/// evaluation; with no jitter allowed it is a clear error, not a wrong value.
+#[test]
+fn optimiser_path_falls_back_to_jitter() {
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let y = rand_mat(&mut rng, 6, 40, -1.0, 1.0);
+    let obj = objective_from_data(y.as_ref());
+    // Duplicate latent points and a noise far below rounding: K is singular in f64.
+    let x = Mat::from_fn(6, 2, |i, j| ((i / 2) as f64) * 0.7 + j as f64 * 0.1);
+    let p = KernelParams::isotropic(1.0, 1.0, 1e-300).unwrap();
+    let flat = obj.flat(2, p.clone(), Learn::NONE).unwrap();
+    let theta = flat.pack(x.as_ref(), &p).unwrap();
+    let (v, g) = flat
+        .neg_log_likelihood_and_gradient(&theta, Par::Seq)
+        .unwrap();
+    let full = obj.evaluate(x.as_ref(), &p, Par::Seq).unwrap();
+    assert!(full.factor.jitter > 0.0, "{:?}", full.factor);
+    assert_eq!(v, -full.value);
+    assert_eq!(g[0], -full.grad_x[(0, 0)]);
+    let strict = objective_from_data(y.as_ref()).with_jitter_policy(gp_core::JitterPolicy::none());
+    let flat = strict.flat(2, p.clone(), Learn::NONE).unwrap();
+    assert!(matches!(
+        flat.neg_log_likelihood_and_gradient(&theta, Par::Seq),
+        Err(GpError::NotPositiveDefinite { .. })
+    ));
+}
