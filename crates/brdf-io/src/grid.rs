@@ -41,12 +41,6 @@ fn normalize(v: Vec3) -> Option<Vec3> {
     (n > 0.0 && n.is_finite()).then(|| [v[0] / n, v[1] / n, v[2] / n])
 }
 
-/// Rotates `v` about the z axis by `angle` (right-handed).
-fn rotate_z(v: Vec3, angle: f64) -> Vec3 {
-    let (s, c) = angle.sin_cos();
-    [v[0] * c - v[1] * s, v[0] * s + v[1] * c, v[2]]
-}
-
 /// Rotates `v` about the y axis by `angle` (right-handed).
 fn rotate_y(v: Vec3, angle: f64) -> Vec3 {
     let (s, c) = angle.sin_cos();
@@ -64,8 +58,19 @@ impl HalfDiff {
         let wo = normalize(wo)?;
         let h = normalize([wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]])?;
         let theta_h = h[2].clamp(-1.0, 1.0).acos();
-        let phi_h = h[1].atan2(h[0]);
-        let d = rotate_y(rotate_z(wi, -phi_h), -theta_h);
+        // d = R_y(-theta_h) R_z(-phi_h) wi, with the cosines and sines of phi_h and theta_h
+        // read off the unit half vector (no trigonometric calls): sin theta_h = |h_xy|,
+        // cos theta_h = h_z; phi_h = 0 when h is the normal.
+        let rho = (h[0] * h[0] + h[1] * h[1]).sqrt();
+        let (cp, sp) = if rho > 0.0 {
+            (h[0] / rho, h[1] / rho)
+        } else {
+            (1.0, 0.0)
+        };
+        let v0 = wi[0] * cp + wi[1] * sp;
+        let v1 = wi[1] * cp - wi[0] * sp;
+        let ct = h[2].clamp(-1.0, 1.0);
+        let d = [v0 * ct - wi[2] * rho, v1, wi[2] * ct + v0 * rho];
         let theta_d = d[2].clamp(-1.0, 1.0).acos();
         let mut phi_d = d[1].atan2(d[0]);
         if phi_d < 0.0 {
@@ -356,6 +361,12 @@ impl Channels {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Rotates `v` about the z axis by `angle` (right-handed).
+    fn rotate_z(v: Vec3, angle: f64) -> Vec3 {
+        let (s, c) = angle.sin_cos();
+        [v[0] * c - v[1] * s, v[0] * s + v[1] * c, v[2]]
+    }
     use proptest::prelude::*;
 
     fn close(a: f64, b: f64, tol: f64) -> bool {

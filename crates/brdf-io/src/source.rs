@@ -2,7 +2,7 @@
 //! import report that resampling returns.
 
 use crate::error::{Error, Result};
-use crate::grid::{Channels, Vec3};
+use crate::grid::{AngularGrid, Channels, Vec3};
 
 /// A BRDF that can be evaluated at arbitrary direction pairs.
 ///
@@ -18,6 +18,24 @@ pub trait BrdfSource: Sync {
 
     /// Writes f(wi, wo) for every channel into `out` (length [`Channels::len`]).
     fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()>;
+
+    /// For grid sources (values at the bin centres of an angular grid, interpolated with
+    /// [`AngularGrid::interpolation_stencil`], zero when a direction is at or below the horizon:
+    /// stored and predicted materials), the grid; a consumer may then evaluate each cell it
+    /// needs once with [`BrdfSource::eval_cell`] and interpolate itself, which equals
+    /// [`BrdfSource::eval`] up to rounding. `None` (the default) for other sources.
+    fn grid(&self) -> Option<AngularGrid> {
+        None
+    }
+
+    /// Values of every channel at flat cell index `a` of [`BrdfSource::grid`] into `out`
+    /// (grid sources only; the default is an error).
+    fn eval_cell(&self, a: usize, out: &mut [f64]) -> Result<()> {
+        let _ = (a, out);
+        Err(Error::InvalidArgument {
+            reason: "eval_cell: not a grid source".into(),
+        })
+    }
 }
 
 /// The argument check every [`BrdfSource::eval`] starts with: `out` must have one slot per

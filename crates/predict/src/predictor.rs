@@ -820,11 +820,24 @@ impl BrdfSource for PredictedMaterial {
     }
 
     fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
-        self.eval_dirs(wi, wo, out).map_err(|e| match e {
-            Error::Store(e) => e,
-            other => brdf_io::Error::InvalidArgument {
-                reason: other.to_string(),
-            },
-        })
+        self.eval_dirs(wi, wo, out).map_err(to_source_error)
+    }
+
+    fn grid(&self) -> Option<brdf_io::AngularGrid> {
+        Some(self.pred.inner.grid)
+    }
+
+    fn eval_cell(&self, a: usize, out: &mut [f64]) -> brdf_io::Result<()> {
+        PredictedMaterial::eval_cell(self, a, out).map_err(to_source_error)
+    }
+}
+
+/// This crate's error as a [`BrdfSource`] error (store errors pass through).
+fn to_source_error(e: Error) -> brdf_io::Error {
+    match e {
+        Error::Store(e) => e,
+        other => brdf_io::Error::InvalidArgument {
+            reason: other.to_string(),
+        },
     }
 }

@@ -90,6 +90,21 @@ impl BrdfSource for CellCache<'_> {
         }
         Ok(())
     }
+
+    fn grid(&self) -> Option<AngularGrid> {
+        Some(self.grid)
+    }
+
+    fn eval_cell(&self, a: usize, out: &mut [f64]) -> brdf_io::Result<()> {
+        brdf_io::source::check_output_len(out, self.channels.len())?;
+        if a >= self.grid.len() {
+            return Err(brdf_io::Error::InvalidArgument {
+                reason: format!("cell {a} out of range ({} cells)", self.grid.len()),
+            });
+        }
+        out.copy_from_slice(self.cell(a)?);
+        Ok(())
+    }
 }
 
 #[cfg(test)]

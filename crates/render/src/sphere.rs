@@ -1,6 +1,10 @@
 //! Sphere and plane previews: an orthographic unit sphere (or a flat square sample seen at a
 //! grazing angle, [`render_plane`]) under a directional light plus a dim uniform environment,
-//! every BRDF value obtained through [`BrdfSource::eval`].
+//! every BRDF value obtained through [`BrdfSource::eval`], or, for grid sources (stored and
+//! predicted materials, [`BrdfSource::grid`]), from the source's cells: each touched cell is
+//! evaluated once per render ([`BrdfSource::eval_cell`]) and projected to linear sRGB, and a
+//! lookup interpolates the projected cells (the colour projection is linear, so this equals
+//! projecting the interpolated values, up to rounding).
 //!
 //! Scene (camera frame: x right, y up, z towards the viewer; the view direction is +z):
 //! - a directional light from `light` (polar angle from the view axis, azimuth from +x towards
@@ -42,7 +46,9 @@
 //! positions inside the disc, and edge pixels are shaded once at the centroid of their covered
 //! sub-positions (likewise the plane's edges). Pixels are shaded in parallel (rayon, by rows).
 
-use brdf_io::{BrdfSource, Channels, Vec3};
+use std::sync::OnceLock;
+
+use brdf_io::{AngularGrid, BrdfSource, Channels, HalfDiff, Vec3};
 use rayon::prelude::*;
 
 use crate::colour::{ColourPipeline, Illuminant};
@@ -358,6 +364,11 @@ pub struct Shader<'a> {
     /// The pre-integrated environment (table mode, non-zero environment).
     table: Option<EnvTable>,
     scale: f64,
+    /// For grid sources ([`BrdfSource::grid`]): each touched cell's linear sRGB (the colour
+    /// projection is linear, so interpolating projected cells equals projecting interpolated
+    /// spectra), computed once per render; a lookup then interpolates 3 values, not every
+    /// channel.
+    cells: Option<(AngularGrid, Vec<OnceLock<[f64; 3]>>)>,
 }
 
 impl<'a> Shader<'a> {
@@ -387,6 +398,9 @@ impl<'a> Shader<'a> {
             env,
             table: None,
             scale: 2f64.powf(opts.exposure),
+            cells: source
+                .grid()
+                .map(|g| (g, (0..g.len()).map(|_| OnceLock::new()).collect())),
         };
         if let EnvMode::Table(spec) = opts.env_mode
             && opts.env_radiance > 0.0
@@ -407,18 +421,18 @@ impl<'a> Shader<'a> {
                 let th = EnvTable::theta(k, n, theta_max);
                 let wo = [th.sin(), 0.0, th.cos()];
                 let mut f = vec![0.0; self.n_channels];
-                let mut acc = vec![0.0; self.n_channels];
+                let mut acc = [0.0; 3];
                 let mut err = Ok(());
                 q.for_each(wo, |wi, w| {
                     if err.is_ok() {
-                        err = self.source.eval(wi, wo, &mut f);
-                        for &c in &self.needed {
-                            acc[c] += w * f[c];
+                        match self.rgb_of(wi, wo, &mut f) {
+                            Ok(rgb) => (0..3).for_each(|c| acc[c] += w * rgb[c]),
+                            Err(e) => err = Err(e),
                         }
                     }
                 });
                 err?;
-                Ok(self.to_rgb(&acc, self.env.0))
+                Ok(acc.map(|v| self.env.0 * v))
             })
             .collect::<Result<Vec<_>>>()?;
         Ok(EnvTable { theta_max, rgb })
@@ -441,49 +455,73 @@ impl<'a> Shader<'a> {
     }
 
     /// Linear sRGB leaving a surface point with unit normal `n` towards the viewer along the
-    /// unit direction `view` (camera frame). `f` and `acc` are scratch buffers of the source's
-    /// channel count.
-    fn shade(&self, n: Vec3, view: Vec3, f: &mut [f64], acc: &mut [f64]) -> Result<[f64; 3]> {
+    /// unit direction `view` (camera frame). `f` is a scratch buffer of the source's channel
+    /// count.
+    fn shade(&self, n: Vec3, view: Vec3, f: &mut [f64]) -> Result<[f64; 3]> {
         let (t, b) = basis(n);
         let local = |v: Vec3| [dot(v, t), dot(v, b), dot(v, n)];
         let wo = local(view);
-        acc.fill(0.0);
+        let mut acc = [0.0; 3];
         if wo[2] <= 0.0 {
-            return Ok([0.0; 3]);
+            return Ok(acc);
         }
         for &(l, e) in &self.lights {
             let wi = local(l);
             if wi[2] <= 0.0 || e == 0.0 {
                 continue;
             }
-            self.source.eval(wi, wo, f)?;
+            let rgb = self.rgb_of(wi, wo, f)?;
             let k = wi[2] * e;
-            for &c in &self.needed {
-                acc[c] += k * f[c];
-            }
+            (0..3).for_each(|c| acc[c] += k * rgb[c]);
         }
         if let Some(table) = &self.table {
-            let mut rgb = self.to_rgb(acc, 1.0);
             let env = table.at(wo[2]);
-            for c in 0..3 {
-                rgb[c] = self.scale * (rgb[c] + env[c]);
-            }
-            return Ok(rgb);
+            return Ok([0, 1, 2].map(|c| self.scale * (acc[c] + env[c])));
         }
         if self.env.0 > 0.0 {
             let mut err = Ok(());
             self.env.1.for_each(wo, |wi, w| {
                 if err.is_ok() {
-                    err = self.source.eval(wi, wo, f);
-                    let k = w * self.env.0;
-                    for &c in &self.needed {
-                        acc[c] += k * f[c];
+                    match self.rgb_of(wi, wo, f) {
+                        Ok(rgb) => (0..3).for_each(|c| acc[c] += w * self.env.0 * rgb[c]),
+                        Err(e) => err = Err(e),
                     }
                 }
             });
             err?;
         }
-        Ok(self.to_rgb(acc, self.scale))
+        Ok(acc.map(|v| self.scale * v))
+    }
+
+    /// Linear sRGB (before exposure) of f(wi, wo): for a grid source, the interpolated
+    /// colours of the stencil's cells (each projected once per render); otherwise the source's
+    /// channels at (wi, wo), projected. `f` is scratch of the source's channel count.
+    fn rgb_of(&self, wi: Vec3, wo: Vec3, f: &mut [f64]) -> Result<[f64; 3]> {
+        let Some((grid, cells)) = &self.cells else {
+            self.source.eval(wi, wo, f)?;
+            return Ok(self.to_rgb(f, 1.0));
+        };
+        let mut rgb = [0.0; 3];
+        let hd = match HalfDiff::from_dirs(wi, wo) {
+            Some(hd) if wi[2] > 0.0 && wo[2] > 0.0 => hd,
+            _ => return Ok(rgb),
+        };
+        for (a, w) in grid.interpolation_stencil(&hd) {
+            if w == 0.0 {
+                continue;
+            }
+            let cell = match cells[a].get() {
+                Some(c) => c,
+                None => {
+                    self.source.eval_cell(a, f)?;
+                    let c = self.to_rgb(f, 1.0);
+                    // Another thread may have filled it meanwhile: both computed the same.
+                    cells[a].get_or_init(|| c)
+                }
+            };
+            (0..3).for_each(|c| rgb[c] += w * cell[c]);
+        }
+        Ok(rgb)
     }
 }
 
@@ -493,7 +531,7 @@ pub fn render_sphere(source: &dyn BrdfSource, opts: &SphereOptions) -> Result<Im
     let shader = Shader::new(source, opts)?;
     let size = opts.size;
     let r = size as f64 / 2.0;
-    rasterize(size, shader.n_channels, |px, py, f, acc| {
+    rasterize(size, shader.n_channels, |px, py, f| {
         // Disc coordinates of the pixel centre, y up.
         let cx = (px as f64 + 0.5 - r) / r;
         let cy = (r - py as f64 - 0.5) / r;
@@ -516,10 +554,7 @@ pub fn render_sphere(source: &dyn BrdfSource, opts: &SphereOptions) -> Result<Im
             }
         };
         let nz = (1.0 - sx * sx - sy * sy).max(0.0).sqrt();
-        Ok(Some((
-            shader.shade([sx, sy, nz], [0.0, 0.0, 1.0], f, acc)?,
-            cov,
-        )))
+        Ok(Some((shader.shade([sx, sy, nz], [0.0, 0.0, 1.0], f)?, cov)))
     })
 }
 
@@ -548,13 +583,13 @@ fn edge_coverage(inside: impl Fn(f64, f64) -> Option<(f64, f64)>) -> Option<((f6
 /// One shaded pixel: linear sRGB and coverage.
 type Px = ([f64; 3], f64);
 
-/// A `size x size` image shaded in parallel (rayon, by rows): `pixel(px, py, f, acc)` gives a
-/// pixel's linear sRGB and coverage (`None`: empty), with per-row scratch buffers of `nc`
+/// A `size x size` image shaded in parallel (rayon, by rows): `pixel(px, py, f)` gives a
+/// pixel's linear sRGB and coverage (`None`: empty), with a per-row scratch buffer of `nc`
 /// channels for the shader.
 fn rasterize(
     size: usize,
     nc: usize,
-    pixel: impl Fn(usize, usize, &mut [f64], &mut [f64]) -> Result<Option<Px>> + Sync,
+    pixel: impl Fn(usize, usize, &mut [f64]) -> Result<Option<Px>> + Sync,
 ) -> Result<Image> {
     let mut img = Image::new(size, size, [0.0; 3]);
     img.alpha.fill(0.0);
@@ -562,9 +597,8 @@ fn rasterize(
         .into_par_iter()
         .map(|py| {
             let mut f = vec![0.0; nc];
-            let mut acc = vec![0.0; nc];
             (0..size)
-                .map(|px| Ok(pixel(px, py, &mut f, &mut acc)?.unwrap_or(([0.0; 3], 0.0))))
+                .map(|px| Ok(pixel(px, py, &mut f)?.unwrap_or(([0.0; 3], 0.0))))
                 .collect()
         })
         .collect();
@@ -684,7 +718,7 @@ pub fn render_plane(
     let shader = Shader::new(source, opts)?;
     let size = opts.size;
     let scene = PlaneScene::new(plane, size)?;
-    rasterize(size, shader.n_channels, |px, py, f, acc| {
+    rasterize(size, shader.n_channels, |px, py, f| {
         let (x0, y0) = (px as f64, py as f64);
         // The projected sample is convex: a pixel whose corners all hit it is covered.
         let corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
@@ -708,7 +742,7 @@ pub fn render_plane(
         let to_eye = [-p[0], -p[1], scene.d - p[2]];
         let len = dot(to_eye, to_eye).sqrt();
         let view = to_eye.map(|x| x / len);
-        Ok(Some((shader.shade(scene.n, view, f, acc)?, cov)))
+        Ok(Some((shader.shade(scene.n, view, f)?, cov)))
     })
 }
 
@@ -851,6 +885,60 @@ mod tests {
             };
             out.fill(v);
             Ok(())
+        }
+    }
+
+    /// Hides a source's grid, so the shader takes the generic path (one `eval` per lookup).
+    struct Opaque<'a>(&'a dyn BrdfSource);
+
+    impl BrdfSource for Opaque<'_> {
+        fn channels(&self) -> Channels {
+            self.0.channels()
+        }
+        fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
+            self.0.eval(wi, wo, out)
+        }
+    }
+
+    #[test]
+    fn grid_sources_render_through_projected_cells_like_any_source() {
+        // A spectral grid source (a glossy lobe tabulated on a coarse grid, channel-dependent).
+        let grid = AngularGrid::new(16, 16, 32).unwrap();
+        let channels = Channels::parse_wavelengths("400:700:20").unwrap();
+        let nc = channels.len();
+        let lobe = Glossy(0.3, 2.0, 60.0);
+        let cache = crate::cache::CellCache::new(
+            grid,
+            channels,
+            Box::new(move |a, out: &mut [f64]| {
+                let (wi, wo) = grid.bin_centre_flat(a).to_dirs();
+                let mut v = [0.0; 3];
+                lobe.eval(wi, wo, &mut v)?;
+                for (k, o) in out.iter_mut().enumerate() {
+                    *o = v[0] * (0.5 + k as f64 / nc as f64);
+                }
+                Ok(())
+            }),
+        );
+        assert!(cache.grid().is_some());
+        for env_mode in [EnvMode::default(), EnvMode::PerPixel] {
+            let opts = SphereOptions {
+                size: 48,
+                env_mode,
+                ..SphereOptions::default()
+            };
+            let fast = render_sphere(&cache, &opts).unwrap();
+            let generic = render_sphere(&Opaque(&cache), &opts).unwrap();
+            assert_eq!(fast.alpha, generic.alpha);
+            let worst = fast
+                .rgb
+                .iter()
+                .zip(&generic.rgb)
+                .flat_map(|(a, b)| (0..3).map(move |c| (a[c] - b[c]).abs()))
+                .fold(0.0, f64::max);
+            let (m, _) = mean_colour(&generic);
+            assert!(m[1] > 0.01, "{m:?}");
+            assert!(worst <= 1e-12, "{env_mode:?}: {worst:e}");
         }
     }
 

@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use crate::error::{Error, Result};
-use crate::grid::{Channels, HalfDiff, Vec3};
+use crate::grid::{AngularGrid, Channels, HalfDiff, Vec3};
 use crate::source::BrdfSource;
 
 use super::Store;
@@ -127,5 +127,21 @@ impl BrdfSource for StoreMaterial {
 
     fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
         StoreMaterial::eval(self, wi, wo, out)
+    }
+
+    fn grid(&self) -> Option<AngularGrid> {
+        Some(*self.store.grid())
+    }
+
+    fn eval_cell(&self, a: usize, out: &mut [f64]) -> Result<()> {
+        let nc = self.n_channels();
+        self.check_out(out)?;
+        let mut vals = vec![0f32; nc];
+        self.store
+            .material_row(self.index, a * nc..(a + 1) * nc, &mut vals)?;
+        for (o, v) in out.iter_mut().zip(&vals) {
+            *o = f64::from(*v);
+        }
+        Ok(())
     }
 }
