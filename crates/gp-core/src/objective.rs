@@ -24,7 +24,7 @@ use faer::{Accum, Mat, MatRef, Par};
 
 const LN_2PI: f64 = 1.837_877_066_409_345_3;
 
-/// Matrices of [`GplvmObjective::evaluate_reusing`], kept per thread between calls.
+/// Matrices of [`GplvmObjective`]'s evaluations, kept per thread between calls.
 struct Work {
     k: Mat<f64>,
     l: Mat<f64>,
@@ -282,84 +282,40 @@ impl GplvmObjective {
         condition: bool,
     ) -> Result<GplvmEval> {
         self.check_x(x)?;
-        if !condition && let Some(e) = self.evaluate_reusing(x, params, par)? {
-            return Ok(e);
-        }
-        let k = params.kernel_matrix(x)?;
-        let f = self.factor_matrix(k.as_ref(), par)?;
         let n = self.n();
-        let kinv = f.inverse();
-        // B = K^-1 S, A = K^-1 S K^-1 = B K^-1.
-        let mut b = Mat::<f64>::zeros(n, n);
-        faer::linalg::matmul::matmul(b.as_mut(), Accum::Replace, &kinv, &self.s, 1.0, par);
-        let trace: f64 = (0..n).map(|i| b[(i, i)]).sum();
-        // A is symmetric: compute its lower triangle only (half the flops), then mirror.
-        let mut dk = Mat::<f64>::zeros(n, n);
-        faer::linalg::matmul::triangular::matmul(
-            dk.as_mut(),
-            BlockStructure::TriangularLower,
-            Accum::Replace,
-            &b,
-            BlockStructure::Rectangular,
-            &kinv,
-            BlockStructure::Rectangular,
-            0.5,
-            par,
-        );
-        let half_d = 0.5 * self.d as f64;
-        for j in 0..n {
-            for i in j..n {
-                let v = dk[(i, j)] - half_d * kinv[(i, j)];
-                dk[(i, j)] = v;
-                dk[(j, i)] = v;
-            }
-        }
-        let value = self.assemble(f.log_det(), trace, x)?;
-        // K's off-diagonal is K_rbf's (the noise sits on the diagonal only).
-        let g = params.backprop_with_rbf(x, dk.as_ref(), k.as_ref())?;
-        let mut grad_x = g.x;
-        if self.prior {
-            for j in 0..x.ncols() {
-                for i in 0..n {
-                    grad_x[(i, j)] -= x[(i, j)];
-                }
-            }
-        }
-        check_finite(grad_x.as_ref(), "GPLVM gradient dL/dX")?;
-        Ok(GplvmEval {
-            value,
-            grad_x,
-            grad_hyper: g.hyper,
-            grad_hyper_log: g.hyper_log,
-            factor: FactorInfo::of(&f, condition),
-        })
-    }
-
-    /// The optimisers' path of [`Self::evaluate_impl`] (no condition estimate): the same
-    /// arithmetic in thread-local matrices reused from call to call, the factorisation without
-    /// the input checks (K is built here, symmetric and finite) and without jitter. `None` when
-    /// K needs jitter: the caller then takes the general path.
-    fn evaluate_reusing(
-        &self,
-        x: MatRef<'_, f64>,
-        params: &KernelParams,
-        par: Par,
-    ) -> Result<Option<GplvmEval>> {
-        let n = self.n();
+        // Thread-local matrices reused from call to call (at N ~ 50 allocating and zeroing them
+        // cost as much as the arithmetic).
         WORK.with(|cell| {
             let mut guard = cell.borrow_mut();
             let w = &mut *guard;
             params.kernel_matrix_into(x, &mut w.k)?;
-            w.l.resize_with(n, n, |_, _| 0.0);
-            w.l.copy_from(&w.k);
-            if !w.factor.factor_in_place(w.l.as_mut()) {
-                return Ok(None);
-            }
-            let log_det = 2.0 * (0..n).map(|i| w.l[(i, i)].ln()).sum::<f64>();
-            w.factor.inverse_into(w.l.as_ref(), &mut w.kinv);
+            // The optimisers' path (no condition estimate) factors the K it has just built
+            // without re-checking it and without jitter; a K that needs jitter, and every full
+            // evaluation, go through the checked, jittered factorisation. Same values either way.
+            let plain = !condition && {
+                w.l.resize_with(n, n, |_, _| 0.0);
+                w.l.copy_from(&w.k);
+                w.factor.factor_in_place(w.l.as_mut())
+            };
+            let (log_det, factor) = if plain {
+                w.factor.inverse_into(w.l.as_ref(), &mut w.kinv);
+                let log_det = 2.0 * (0..n).map(|i| w.l[(i, i)].ln()).sum::<f64>();
+                let info = FactorInfo {
+                    jitter: 0.0,
+                    attempts: 1,
+                    condition_estimate: f64::NAN,
+                };
+                (log_det, info)
+            } else {
+                let f = self.factor_matrix(w.k.as_ref(), par)?;
+                w.kinv = f.inverse();
+                (f.log_det(), FactorInfo::of(&f, condition))
+            };
+            // B = K^-1 S, A = K^-1 S K^-1 = B K^-1.
             w.b.resize_with(n, n, |_, _| 0.0);
             faer::linalg::matmul::matmul(w.b.as_mut(), Accum::Replace, &w.kinv, &self.s, 1.0, par);
             let trace: f64 = (0..n).map(|i| w.b[(i, i)]).sum();
+            // A is symmetric: compute its lower triangle only (half the flops), then mirror.
             w.dk.resize_with(n, n, |_, _| 0.0);
             faer::linalg::matmul::triangular::matmul(
                 w.dk.as_mut(),
@@ -381,6 +337,7 @@ impl GplvmObjective {
                 }
             }
             let value = self.assemble(log_det, trace, x)?;
+            // K's off-diagonal is K_rbf's (the noise sits on the diagonal only).
             let g = params.backprop_with_rbf(x, w.dk.as_ref(), w.k.as_ref())?;
             let mut grad_x = g.x;
             if self.prior {
@@ -391,17 +348,13 @@ impl GplvmObjective {
                 }
             }
             check_finite(grad_x.as_ref(), "GPLVM gradient dL/dX")?;
-            Ok(Some(GplvmEval {
+            Ok(GplvmEval {
                 value,
                 grad_x,
                 grad_hyper: g.hyper,
                 grad_hyper_log: g.hyper_log,
-                factor: FactorInfo {
-                    jitter: 0.0,
-                    attempts: 1,
-                    condition_estimate: f64::NAN,
-                },
-            }))
+                factor,
+            })
         })
     }
 
