@@ -179,17 +179,6 @@ impl GplvmObjective {
         Ok(())
     }
 
-    fn factor(
-        &self,
-        x: MatRef<'_, f64>,
-        params: &KernelParams,
-        par: Par,
-    ) -> Result<CholeskyFactor> {
-        self.check_x(x)?;
-        let k = params.kernel_matrix(x)?;
-        self.factor_matrix(k.as_ref(), par)
-    }
-
     fn factor_matrix(&self, k: MatRef<'_, f64>, par: Par) -> Result<CholeskyFactor> {
         CholeskyFactor::with_policy(k, self.policy, par).map_err(|e| match e {
             GpError::NotPositiveDefinite {
@@ -251,17 +240,56 @@ impl GplvmObjective {
         par: Par,
         condition: bool,
     ) -> Result<(f64, FactorInfo)> {
-        let f = self.factor(x, params, par)?;
-        let kinv = f.inverse();
+        self.check_x(x)?;
         let n = self.n();
-        let mut trace = 0.0;
-        for j in 0..n {
-            for i in 0..n {
-                trace += kinv[(i, j)] * self.s[(i, j)];
+        WORK.with(|cell| {
+            let mut guard = cell.borrow_mut();
+            let w = &mut *guard;
+            let (log_det, factor) = self.factor_into(w, x, params, par, condition)?;
+            let mut trace = 0.0;
+            for j in 0..n {
+                for i in 0..n {
+                    trace += w.kinv[(i, j)] * self.s[(i, j)];
+                }
             }
+            let v = self.assemble(log_det, trace, x)?;
+            Ok((v, factor))
+        })
+    }
+
+    /// K into `w.k`, its inverse into `w.kinv`, and `log|K|`. The optimisers' path (no
+    /// condition estimate) factors the K it has just built without re-checking it and without
+    /// jitter; a K that needs jitter, and every full evaluation, go through the checked,
+    /// jittered factorisation. Same values either way.
+    fn factor_into(
+        &self,
+        w: &mut Work,
+        x: MatRef<'_, f64>,
+        params: &KernelParams,
+        par: Par,
+        condition: bool,
+    ) -> Result<(f64, FactorInfo)> {
+        let n = self.n();
+        params.kernel_matrix_into(x, &mut w.k)?;
+        let plain = !condition && {
+            w.l.resize_with(n, n, |_, _| 0.0);
+            w.l.copy_from(&w.k);
+            w.factor.factor_in_place(w.l.as_mut())
+        };
+        if plain {
+            w.factor.inverse_into(w.l.as_ref(), &mut w.kinv);
+            let log_det = 2.0 * (0..n).map(|i| w.l[(i, i)].ln()).sum::<f64>();
+            let info = FactorInfo {
+                jitter: 0.0,
+                attempts: 1,
+                condition_estimate: f64::NAN,
+            };
+            Ok((log_det, info))
+        } else {
+            let f = self.factor_matrix(w.k.as_ref(), par)?;
+            w.kinv = f.inverse();
+            Ok((f.log_det(), FactorInfo::of(&f, condition)))
         }
-        let v = self.assemble(f.log_det(), trace, x)?;
-        Ok((v, FactorInfo::of(&f, condition)))
     }
 
     /// Value and analytic gradient with respect to `X` and the hyperparameters.
@@ -288,29 +316,7 @@ impl GplvmObjective {
         WORK.with(|cell| {
             let mut guard = cell.borrow_mut();
             let w = &mut *guard;
-            params.kernel_matrix_into(x, &mut w.k)?;
-            // The optimisers' path (no condition estimate) factors the K it has just built
-            // without re-checking it and without jitter; a K that needs jitter, and every full
-            // evaluation, go through the checked, jittered factorisation. Same values either way.
-            let plain = !condition && {
-                w.l.resize_with(n, n, |_, _| 0.0);
-                w.l.copy_from(&w.k);
-                w.factor.factor_in_place(w.l.as_mut())
-            };
-            let (log_det, factor) = if plain {
-                w.factor.inverse_into(w.l.as_ref(), &mut w.kinv);
-                let log_det = 2.0 * (0..n).map(|i| w.l[(i, i)].ln()).sum::<f64>();
-                let info = FactorInfo {
-                    jitter: 0.0,
-                    attempts: 1,
-                    condition_estimate: f64::NAN,
-                };
-                (log_det, info)
-            } else {
-                let f = self.factor_matrix(w.k.as_ref(), par)?;
-                w.kinv = f.inverse();
-                (f.log_det(), FactorInfo::of(&f, condition))
-            };
+            let (log_det, factor) = self.factor_into(w, x, params, par, condition)?;
             // B = K^-1 S, A = K^-1 S K^-1 = B K^-1.
             w.b.resize_with(n, n, |_, _| 0.0);
             faer::linalg::matmul::matmul(w.b.as_mut(), Accum::Replace, &w.kinv, &self.s, 1.0, par);
