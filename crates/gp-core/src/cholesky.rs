@@ -318,38 +318,38 @@ impl CholeskyFactor {
 /// calls. The same faer kernels as [`CholeskyFactor`], so the same values.
 pub(crate) struct FactorWork {
     mem: MemBuffer,
-    n: usize,
+    /// Order and parallelism the scratch was sized for.
+    sized_for: Option<(usize, Par)>,
 }
 
 impl FactorWork {
     pub(crate) fn new() -> Self {
         Self {
             mem: MemBuffer::new(faer::dyn_stack::StackReq::EMPTY),
-            n: 0,
+            sized_for: None,
         }
     }
 
-    fn reserve(&mut self, n: usize) {
-        if self.n != n {
-            let req =
-                llt::factor::cholesky_in_place_scratch::<f64>(n, Par::Seq, Default::default())
-                    .or(llt::inverse::inverse_scratch::<f64>(n, Par::Seq));
+    fn reserve(&mut self, n: usize, par: Par) {
+        if self.sized_for != Some((n, par)) {
+            let req = llt::factor::cholesky_in_place_scratch::<f64>(n, par, Default::default())
+                .or(llt::inverse::inverse_scratch::<f64>(n, par));
             self.mem = MemBuffer::new(req);
-            self.n = n;
+            self.sized_for = Some((n, par));
         }
     }
 
     /// Factors `l` in place (lower triangle; the strict upper triangle is left as it was and
     /// must be ignored). False on a pivot that is not positive and finite (the caller then
     /// takes the jittered path of [`CholeskyFactor::with_policy`]).
-    pub(crate) fn factor_in_place(&mut self, mut l: MatMut<'_, f64>) -> bool {
+    pub(crate) fn factor_in_place(&mut self, mut l: MatMut<'_, f64>, par: Par) -> bool {
         let n = l.nrows();
-        self.reserve(n);
+        self.reserve(n, par);
         let stack = MemStack::new(&mut self.mem);
         let ok = llt::factor::cholesky_in_place(
             l.as_mut(),
             Default::default(),
-            Par::Seq,
+            par,
             stack,
             Default::default(),
         )
@@ -358,12 +358,12 @@ impl FactorWork {
     }
 
     /// `out = A^-1` (full, symmetric) from the lower factor `l` of `A`.
-    pub(crate) fn inverse_into(&mut self, l: MatRef<'_, f64>, out: &mut Mat<f64>) {
+    pub(crate) fn inverse_into(&mut self, l: MatRef<'_, f64>, out: &mut Mat<f64>, par: Par) {
         let n = l.nrows();
-        self.reserve(n);
+        self.reserve(n, par);
         out.resize_with(n, n, |_, _| 0.0);
         let stack = MemStack::new(&mut self.mem);
-        llt::inverse::inverse(out.as_mut(), l, Par::Seq, stack);
+        llt::inverse::inverse(out.as_mut(), l, par, stack);
         for j in 0..n {
             for i in 0..j {
                 out[(i, j)] = out[(j, i)];

@@ -274,10 +274,10 @@ impl GplvmObjective {
         let plain = !condition && {
             w.l.resize_with(n, n, |_, _| 0.0);
             w.l.copy_from(&w.k);
-            w.factor.factor_in_place(w.l.as_mut())
+            w.factor.factor_in_place(w.l.as_mut(), par)
         };
         if plain {
-            w.factor.inverse_into(w.l.as_ref(), &mut w.kinv);
+            w.factor.inverse_into(w.l.as_ref(), &mut w.kinv, par);
             let log_det = 2.0 * (0..n).map(|i| w.l[(i, i)].ln()).sum::<f64>();
             let info = FactorInfo {
                 jitter: 0.0,
