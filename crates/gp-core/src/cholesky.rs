@@ -109,17 +109,7 @@ impl CholeskyFactor {
             for i in 0..n {
                 l[(i, i)] += jitter;
             }
-            let stack = MemStack::new(&mut mem);
-            let ok = llt::factor::cholesky_in_place(
-                l.as_mut(),
-                Default::default(),
-                par,
-                stack,
-                Default::default(),
-            )
-            .is_ok();
-            // faer only reports non-positive pivots; NaN pivots (from overflow) are also failures.
-            if ok && (0..n).all(|i| l[(i, i)].is_finite() && l[(i, i)] > 0.0) {
+            if factor_lower_in_place(l.as_mut(), par, &mut mem) {
                 for j in 0..n {
                     for i in 0..j {
                         l[(i, j)] = 0.0;
@@ -313,6 +303,22 @@ impl CholeskyFactor {
     }
 }
 
+/// faer's Cholesky factorisation of the lower triangle of `l`, in place, with scratch from
+/// `mem` (sized for it). True when every pivot is positive and finite (faer only reports
+/// non-positive pivots; NaN pivots, from overflow, are failures too).
+fn factor_lower_in_place(mut l: MatMut<'_, f64>, par: Par, mem: &mut MemBuffer) -> bool {
+    let n = l.nrows();
+    let ok = llt::factor::cholesky_in_place(
+        l.as_mut(),
+        Default::default(),
+        par,
+        MemStack::new(mem),
+        Default::default(),
+    )
+    .is_ok();
+    ok && (0..n).all(|i| l[(i, i)].is_finite() && l[(i, i)] > 0.0)
+}
+
 /// Reusable buffers for the optimisers' inner loop: the plain (unjittered, unchecked)
 /// factorisation and the inverse into caller-owned matrices, with faer's scratch kept between
 /// calls. The same faer kernels as [`CholeskyFactor`], so the same values.
@@ -342,19 +348,9 @@ impl FactorWork {
     /// Factors `l` in place (lower triangle; the strict upper triangle is left as it was and
     /// must be ignored). False on a pivot that is not positive and finite (the caller then
     /// takes the jittered path of [`CholeskyFactor::with_policy`]).
-    pub(crate) fn factor_in_place(&mut self, mut l: MatMut<'_, f64>, par: Par) -> bool {
-        let n = l.nrows();
-        self.reserve(n, par);
-        let stack = MemStack::new(&mut self.mem);
-        let ok = llt::factor::cholesky_in_place(
-            l.as_mut(),
-            Default::default(),
-            par,
-            stack,
-            Default::default(),
-        )
-        .is_ok();
-        ok && (0..n).all(|i| l[(i, i)].is_finite() && l[(i, i)] > 0.0)
+    pub(crate) fn factor_in_place(&mut self, l: MatMut<'_, f64>, par: Par) -> bool {
+        self.reserve(l.nrows(), par);
+        factor_lower_in_place(l, par, &mut self.mem)
     }
 
     /// `out = A^-1` (full, symmetric) from the lower factor `l` of `A`.

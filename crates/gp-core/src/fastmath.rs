@@ -43,8 +43,9 @@ pub fn exp_lanes(x: f64) -> f64 {
     }
 }
 
-/// 1/k! for k = 0..=13 (the Taylor coefficients of `e^r` in [`exp_lanes`]).
-const FACT_INV: [f64; 14] = [
+/// 1/k! for k = 0..=13: the Taylor coefficients of `e^r` in [`exp_lanes`] (and, from k = 1,
+/// of `(e^y - 1) / y` in gplvm's transforms).
+pub const FACT_INV: [f64; 14] = [
     1.0,
     1.0,
     1.0 / 2.0,

@@ -111,7 +111,8 @@ pub fn fast_ln_1p(x: f64) -> f64 {
 pub fn fast_exp_m1(y: f64) -> f64 {
     // Small |y|: y sum_{k=0}^{12} y^k / (k + 1)! (truncation below 2e-17 relative for
     // |y| <= 0.35), by Estrin's scheme so consecutive values overlap.
-    let (y2, c) = (y * y, &EXP_M1_COEF);
+    // c[k] = 1 / (k + 1)!.
+    let (y2, c) = (y * y, &gp_core::fastmath::FACT_INV[1..]);
     let y4 = y2 * y2;
     let y8 = y4 * y4;
     let p0 = (c[0] + y * c[1]) + y2 * (c[2] + y * c[3]);
@@ -215,23 +216,6 @@ fn ln_1p_lanes(x: f64) -> f64 {
     let ln_u = k.mul_add(LN_2, s * p);
     (x - (u - 1.0)).mul_add((2.0 - u).max(0.0), ln_u)
 }
-
-/// 1 / (k + 1)! for k = 0..=12: the series of `(e^y - 1) / y` in [`fast_exp_m1`].
-const EXP_M1_COEF: [f64; 13] = [
-    1.0,
-    1.0 / 2.0,
-    1.0 / 6.0,
-    1.0 / 24.0,
-    1.0 / 120.0,
-    1.0 / 720.0,
-    1.0 / 5040.0,
-    1.0 / 40320.0,
-    1.0 / 362_880.0,
-    1.0 / 3_628_800.0,
-    1.0 / 39_916_800.0,
-    1.0 / 479_001_600.0,
-    1.0 / 6_227_020_800.0,
-];
 
 impl GramTransform for Transform {
     /// Batch version of [`Transform::forward`] (vectorised; within 1e-14 of it).
