@@ -332,6 +332,27 @@ fn material_sampling_interpolates_on_the_grid() {
     src.eval(wi, wo, &mut out).unwrap();
     assert!((out[2] - 26.0).abs() < 1e-9, "{out:?}");
     assert!(brdf_io::store::parse_store_spec("x.bsdf").is_none());
+    // A grid source: its cells are the stored values, and interpolating them with the stencil
+    // is `eval` (what renderers use to evaluate each touched cell once).
+    assert_eq!(src.grid(), Some(g));
+    src.eval_cell(g.index(0, 1, 2), &mut out).unwrap();
+    assert_eq!(out, [22.0, 24.0, 26.0]);
+    assert!(src.eval_cell(g.len(), &mut out).is_err());
+    assert!(src.eval_cell(0, &mut [0.0; 2]).is_err());
+    let (wi, wo) = hd.to_dirs();
+    src.eval(wi, wo, &mut out).unwrap();
+    let mut via_cells = [0.0; 3];
+    let mut cell = [0.0; 3];
+    for (a, w) in g.interpolation_stencil(&brdf_io::HalfDiff::from_dirs(wi, wo).unwrap()) {
+        src.eval_cell(a, &mut cell).unwrap();
+        (0..3).for_each(|c| via_cells[c] += w * cell[c]);
+    }
+    for c in 0..3 {
+        assert!(
+            (out[c] - via_cells[c]).abs() < 1e-12,
+            "{out:?} vs {via_cells:?}"
+        );
+    }
     // Below the horizon: 0.
     m.eval([0.0, 0.0, 1.0], [1.0, 0.0, -0.1], &mut out).unwrap();
     assert_eq!(out, [0.0; 3]);

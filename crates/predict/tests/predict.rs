@@ -240,6 +240,12 @@ fn lazy_lookups_equal_the_materialised_values() {
     }
     BrdfSource::eval(&material, [0.0, 0.0, 1.0], [0.0, 0.6, -0.8], &mut by_dirs).unwrap();
     assert!(by_dirs.iter().all(|v| *v == 0.0));
+    // As a grid source (renderers evaluate each touched cell once through the trait).
+    assert_eq!(BrdfSource::grid(&material), Some(*g));
+    let mut by_trait = vec![0.0; 7];
+    BrdfSource::eval_cell(&material, a, &mut by_trait).unwrap();
+    assert_eq!(by_trait, by_cell);
+    assert!(BrdfSource::eval_cell(&material, g.len(), &mut by_trait).is_err());
 }
 
 #[test]
