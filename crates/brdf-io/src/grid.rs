@@ -37,7 +37,13 @@ fn dot(a: Vec3, b: Vec3) -> f64 {
 }
 
 fn normalize(v: Vec3) -> Option<Vec3> {
-    let n = dot(v, v).sqrt();
+    let n2 = dot(v, v);
+    // A vector that is already unit to rounding is returned as it is (dividing by a norm within
+    // 1e-15 of 1 would change it by less than an ulp).
+    if (n2 - 1.0).abs() <= 1e-15 {
+        return Some(v);
+    }
+    let n = n2.sqrt();
     (n > 0.0 && n.is_finite()).then(|| [v[0] / n, v[1] / n, v[2] / n])
 }
 
@@ -191,7 +197,13 @@ impl AngularGrid {
     pub fn continuous_coords(&self, hd: &HalfDiff) -> [f64; 3] {
         let th = (hd.theta_h.max(0.0) / FRAC_PI_2).sqrt() * self.n_theta_h as f64 - 0.5;
         let td = hd.theta_d.max(0.0) / FRAC_PI_2 * self.n_theta_d as f64 - 0.5;
-        let pd = hd.phi_d.rem_euclid(PI) / PI * self.n_phi_d as f64 - 0.5;
+        // phi_d folded into [0, pi) (`from_dirs` already gives that; skip the division then).
+        let phi = if (0.0..PI).contains(&hd.phi_d) {
+            hd.phi_d
+        } else {
+            hd.phi_d.rem_euclid(PI)
+        };
+        let pd = phi / PI * self.n_phi_d as f64 - 0.5;
         [th, td, pd]
     }
 
@@ -212,14 +224,20 @@ impl AngularGrid {
     /// At a bin centre the stencil reduces to that bin with weight 1 (other weights are 0).
     pub fn interpolation_stencil(&self, hd: &HalfDiff) -> [(usize, f64); 8] {
         let c = self.continuous_coords(hd);
+        // (`as` truncates, which is the floor for the non-negative values here: cheaper than
+        // `f64::floor`, a library call without SSE4.1.)
         let clamp_axis = |x: f64, n: usize| -> (usize, usize, f64) {
             let x = x.clamp(0.0, (n - 1) as f64);
-            let i0 = x.floor() as usize;
+            let i0 = x as usize;
             let i1 = (i0 + 1).min(n - 1);
             (i0, i1, x - i0 as f64)
         };
         let wrap_axis = |x: f64, n: usize| -> (usize, usize, f64) {
-            let f = x.floor();
+            let f = if x >= 0.0 {
+                (x as i64) as f64
+            } else {
+                x.floor()
+            };
             let i0 = (f as i64).rem_euclid(n as i64) as usize;
             (i0, (i0 + 1) % n, x - f)
         };

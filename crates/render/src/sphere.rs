@@ -536,12 +536,13 @@ pub fn render_sphere(source: &dyn BrdfSource, opts: &SphereOptions) -> Result<Im
         let cx = (px as f64 + 0.5 - r) / r;
         let cy = (r - py as f64 - 0.5) / r;
         let half = 0.5 / r;
-        let dmin = (cx.abs() - half).max(0.0).hypot((cy.abs() - half).max(0.0));
-        if dmin >= 1.0 {
+        // Squared distances of the pixel's nearest and farthest corners from the centre.
+        let (nx, ny) = ((cx.abs() - half).max(0.0), (cy.abs() - half).max(0.0));
+        if nx * nx + ny * ny >= 1.0 {
             return Ok(None);
         }
-        let dmax = (cx.abs() + half).hypot(cy.abs() + half);
-        let ((sx, sy), cov) = if dmax <= 1.0 {
+        let (fx, fy) = (cx.abs() + half, cy.abs() + half);
+        let ((sx, sy), cov) = if fx * fx + fy * fy <= 1.0 {
             ((cx, cy), 1.0)
         } else {
             let inside = |u: f64, v: f64| {
