@@ -35,15 +35,31 @@ struct Work {
     factor: crate::cholesky::FactorWork,
 }
 
+impl Work {
+    fn new() -> Self {
+        Work {
+            k: Mat::new(),
+            l: Mat::new(),
+            kinv: Mat::new(),
+            b: Mat::new(),
+            dk: Mat::new(),
+            factor: crate::cholesky::FactorWork::new(),
+        }
+    }
+}
+
 thread_local! {
-    static WORK: std::cell::RefCell<Work> = std::cell::RefCell::new(Work {
-        k: Mat::new(),
-        l: Mat::new(),
-        kinv: Mat::new(),
-        b: Mat::new(),
-        dk: Mat::new(),
-        factor: crate::cholesky::FactorWork::new(),
-    });
+    static WORK: std::cell::RefCell<Work> = std::cell::RefCell::new(Work::new());
+}
+
+/// Runs `f` with this thread's [`Work`], or with fresh buffers when they are in use: an
+/// evaluation with `Par::Rayon` waits inside faer's parallel products, and rayon may run
+/// another evaluation on the waiting thread meanwhile.
+fn with_work<R>(f: impl FnOnce(&mut Work) -> R) -> R {
+    WORK.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut w) => f(&mut w),
+        Err(_) => f(&mut Work::new()),
+    })
 }
 
 /// What the Cholesky factorisation of `K` needed.
@@ -243,9 +259,7 @@ impl GplvmObjective {
     ) -> Result<(f64, FactorInfo)> {
         self.check_x(x)?;
         let n = self.n();
-        WORK.with(|cell| {
-            let mut guard = cell.borrow_mut();
-            let w = &mut *guard;
+        with_work(|w| {
             let (log_det, factor) = self.factor_into(w, x, params, par, condition)?;
             let mut trace = 0.0;
             for j in 0..n {
@@ -314,9 +328,7 @@ impl GplvmObjective {
         let n = self.n();
         // Thread-local matrices reused from call to call (at N ~ 50 allocating and zeroing them
         // cost as much as the arithmetic).
-        WORK.with(|cell| {
-            let mut guard = cell.borrow_mut();
-            let w = &mut *guard;
+        with_work(|w| {
             let (log_det, factor) = self.factor_into(w, x, params, par, condition)?;
             // B = K^-1 S, A = K^-1 S K^-1 = B K^-1.
             w.b.resize_with(n, n, |_, _| 0.0);
@@ -607,5 +619,43 @@ impl<'a> FlatGplvm<'a> {
             g.push(-e.grad_hyper_log.noise);
         }
         Ok((-e.value, g))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rayon::prelude::*;
+
+    #[test]
+    fn nested_evaluations_get_their_own_buffers() {
+        // The thread's buffers are in use: a nested call gets fresh ones instead of panicking.
+        let sizes = with_work(|outer| {
+            outer.k.resize_with(3, 3, |_, _| 1.0);
+            let inner = with_work(|inner| inner.k.nrows());
+            (outer.k.nrows(), inner)
+        });
+        assert_eq!(sizes, (3, 0));
+        // Parallel evaluations, each with parallel products inside (rayon may run one on a
+        // thread that waits in another's product): the same values as sequential ones.
+        let n = 40;
+        let y = Mat::from_fn(n, 30, |i, j| ((i * 7 + j * 3) % 11) as f64 / 11.0);
+        let g = crate::gram_from_data(y.as_ref(), Par::Seq).unwrap();
+        let obj = GplvmObjective::from_uncentred_gram(g.as_ref(), 30).unwrap();
+        let p = KernelParams::paper();
+        let points: Vec<Mat<f64>> = (0..8)
+            .map(|s| Mat::from_fn(n, 2, |i, j| ((i * 5 + j + s) % 13) as f64 / 6.0 - 1.0))
+            .collect();
+        let seq: Vec<f64> = points
+            .iter()
+            .map(|x| obj.evaluate(x.as_ref(), &p, Par::Seq).unwrap().value)
+            .collect();
+        let par: Vec<f64> = points
+            .par_iter()
+            .map(|x| obj.evaluate(x.as_ref(), &p, Par::rayon(2)).unwrap().value)
+            .collect();
+        for (a, b) in seq.iter().zip(&par) {
+            assert!((a - b).abs() <= 1e-9 * a.abs(), "{a} vs {b}");
+        }
     }
 }
