@@ -345,40 +345,34 @@ impl KernelParams {
 
     /// `K_rbf(X)`, `N x N`, without the noise term. `X` is `N x q` (rows are points).
     pub fn rbf_matrix(&self, x: MatRef<'_, f64>) -> Result<Mat<f64>> {
-        // Scaled axes z_j = x_j / l_j once; then, column by column of the strict lower
-        // triangle, squared distances accumulated axis by axis (contiguous, vectorises) and one
-        // batch of exponentials (crate::fastmath).
-        let z = self.scaled_axes(x, "latent points X")?;
-        let n = x.nrows();
-        let s2 = self.signal_variance;
-        let mut lower = vec![0.0f64; n * n];
-        for m in 0..n {
-            let col = &mut lower[m * n + m + 1..(m + 1) * n];
-            for axis in &z {
-                let zm = axis[m];
-                for (o, zi) in col.iter_mut().zip(&axis[m + 1..]) {
-                    let d = zi - zm;
-                    *o += d * d;
-                }
-            }
-            crate::fastmath::rbf_from_sq_dist_in_place(col, s2);
-        }
-        Ok(Mat::from_fn(n, n, |i, j| match i.cmp(&j) {
-            std::cmp::Ordering::Equal => s2,
-            std::cmp::Ordering::Greater => lower[j * n + i],
-            std::cmp::Ordering::Less => lower[i * n + j],
-        }))
+        let mut k = Mat::new();
+        self.rbf_into(x, 0.0, &mut k)?;
+        Ok(k)
     }
 
     /// [`KernelParams::kernel_matrix`] into `out` (resized to `N x N`; its old values are
-    /// overwritten): the same values, without allocating. The strict lower triangle is computed
-    /// column by column straight into `out`'s columns and mirrored.
+    /// overwritten): the same values, without allocating.
     pub fn kernel_matrix_into(&self, x: MatRef<'_, f64>, out: &mut Mat<f64>) -> Result<()> {
+        self.rbf_into(x, self.noise, out)
+    }
+
+    /// Training covariance `K = K_rbf(X) + mu I`, `N x N`, symmetric positive definite
+    /// (its smallest eigenvalue is at least `mu`).
+    pub fn kernel_matrix(&self, x: MatRef<'_, f64>) -> Result<Mat<f64>> {
+        let mut k = Mat::new();
+        self.kernel_matrix_into(x, &mut k)?;
+        Ok(k)
+    }
+
+    /// `K_rbf(X) + diagonal I` into `out` (resized to `N x N`). Scaled axes z_j = x_j / l_j
+    /// once; the strict lower triangle's squared distances, packed by columns, accumulated axis
+    /// by axis (contiguous, vectorises), one batch of exponentials over all of them
+    /// (`crate::fastmath`), then mirrored.
+    fn rbf_into(&self, x: MatRef<'_, f64>, diagonal: f64, out: &mut Mat<f64>) -> Result<()> {
         let z = self.scaled_axes(x, "latent points X")?;
         let n = x.nrows();
         let s2 = self.signal_variance;
         out.resize_with(n, n, |_, _| 0.0);
-        // The strict lower triangle packed by columns, so one batch of exponentials covers it.
         let mut packed = vec![0.0f64; n * n.saturating_sub(1) / 2];
         let mut at = 0;
         for m in 0..n {
@@ -399,22 +393,12 @@ impl KernelParams {
             at += n - m - 1;
         }
         for j in 0..n {
-            out[(j, j)] = s2 + self.noise;
+            out[(j, j)] = s2 + diagonal;
             for i in 0..j {
                 out[(i, j)] = out[(j, i)];
             }
         }
         Ok(())
-    }
-
-    /// Training covariance `K = K_rbf(X) + mu I`, `N x N`, symmetric positive definite
-    /// (its smallest eigenvalue is at least `mu`).
-    pub fn kernel_matrix(&self, x: MatRef<'_, f64>) -> Result<Mat<f64>> {
-        let mut k = self.rbf_matrix(x)?;
-        for i in 0..k.nrows() {
-            k[(i, i)] += self.noise;
-        }
-        Ok(k)
     }
 
     /// Cross-covariance `K_*[i, m] = k_rbf(x_i, x*_m)`, `N x M`, for training points `X` (`N x q`)
