@@ -428,7 +428,6 @@ fn delta_e_of(pred: &Predictor, k: usize, size: usize) -> Result<f64> {
         let rec = pred
             .predict(&model.materials[i].coords, PredictorKind::Smooth)
             .map_err(|e| Error::stage("render", &path, e))?;
-        let rec = render::cache::predicted(rec);
         let b = render::render_sphere(&rec, &opts).map_err(|e| Error::stage("render", &path, e))?;
         sum += crate::figures::mean_delta_e(&a, &b);
     }

@@ -95,7 +95,6 @@ pub fn render_figures(
         let rec = pred
             .predict(&model.materials[i].coords, PredictorKind::Smooth)
             .map_err(|e| err(&sheet_path, e))?;
-        let rec = render::cache::predicted(rec);
         let b = render_sphere(&rec, &opts).map_err(|e| err(&sheet_path, e))?;
         spheres += 2;
         let de = mean_delta_e(&a, &b);
@@ -131,7 +130,6 @@ pub fn render_figures(
                 PredictorKind::Exact
             };
             let m = pred.predict(&p.point, kind).map_err(|e| err(&path, e))?;
-            let m = render::cache::predicted(m);
             let s = render_sphere(&m, &opts).map_err(|e| err(&path, e))?;
             spheres += 1;
             let x = 4 + col * cell;

@@ -102,8 +102,8 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
 }
 
 /// Opens SOURCE for rendering: only the wavelengths the observer needs are looked up where the
-/// source can select them; model points (`MODEL.toml@X,Y`) are predicted lazily through a cell
-/// cache.
+/// source can select them; model points (`MODEL.toml@X,Y`) are predicted lazily, cell by cell
+/// (the renderer evaluates each cell a picture touches once).
 pub fn open_render_source(
     spec: &str,
     illuminant: Illuminant,
@@ -115,7 +115,7 @@ pub fn open_render_source(
         if let Some(w) = render::colour::needed_wavelengths(m.channels(), illuminant)? {
             m = m.with_wavelengths(&w)?;
         }
-        return Ok(Box::new(render::cache::predicted(m)));
+        return Ok(Box::new(m));
     }
     let mut source = open_source(spec, None)?;
     let needed = render::colour::needed_wavelengths(&source.channels(), illuminant)?;
@@ -239,7 +239,7 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
             if let Some(w) = &needed {
                 m = m.with_wavelengths(w).map_err(err)?;
             }
-            Ok(Box::new(render::cache::predicted(m)))
+            Ok(Box::new(m))
         };
         render::latent_map(&points, &variance, Some(&source_at), &opts)?
     } else {
