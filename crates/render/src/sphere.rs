@@ -594,22 +594,20 @@ fn rasterize(
 ) -> Result<Image> {
     let mut img = Image::new(size, size, [0.0; 3]);
     img.alpha.fill(0.0);
-    let rows: Vec<Result<Vec<Px>>> = (0..size)
-        .into_par_iter()
-        .map(|py| {
+    img.rgb
+        .par_chunks_mut(size)
+        .zip(img.alpha.par_chunks_mut(size))
+        .enumerate()
+        .try_for_each(|(py, (rgb, alpha))| {
             let mut f = vec![0.0; nc];
-            (0..size)
-                .map(|px| Ok(pixel(px, py, &mut f)?.unwrap_or(([0.0; 3], 0.0))))
-                .collect()
-        })
-        .collect();
-    for (py, row) in rows.into_iter().enumerate() {
-        for (px, (rgb, a)) in row?.into_iter().enumerate() {
-            let i = py * size + px;
-            img.rgb[i] = rgb;
-            img.alpha[i] = a;
-        }
-    }
+            for (px, (c, a)) in rgb.iter_mut().zip(alpha).enumerate() {
+                if let Some((value, coverage)) = pixel(px, py, &mut f)? {
+                    *c = value;
+                    *a = coverage;
+                }
+            }
+            Ok::<_, Error>(())
+        })?;
     Ok(img)
 }
 
