@@ -1,8 +1,7 @@
 //! Benchmark: a 256 x 256 sphere of a predicted material, rendered lazily (the renderer
 //! evaluates each cell the picture touches once with `PredictedMaterial::eval_cell`, only the
-//! observer's wavelengths) against
-//! materialise-then-render (`PredictedMaterial::materialize` to a `.sbrdf`, then render the
-//! stored material), and the uncached lazy source. Both paths use the same renderer (default
+//! observer's wavelengths) against materialise-then-render (`PredictedMaterial::materialize` to
+//! a `.sbrdf`, then render the stored material). Both paths use the same renderer (default
 //! [`SphereOptions`]: the environment pre-integrated over the view angle, `EnvMode::Table`); the
 //! per-pixel environment quadrature (`EnvMode::PerPixel`) is measured on the warm cache for
 //! comparison.
@@ -194,7 +193,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         light_only.computed_cells()
     );
     println!(
-        "lazy (cell cache, {} wavelengths): {lazy:.3} s median of 5, {cells} of {} cells computed",
+        "lazy (each touched cell once, {} wavelengths): {lazy:.3} s median of 5, {cells} of {} cells computed",
         needed.as_ref().map_or(pred.channels().len(), |w| w.len()),
         pred.grid().len()
     );
