@@ -21,4 +21,6 @@ pub use error::{Error, Result};
 pub use image::Image;
 pub use map::{MapOptions, latent_map};
 pub use sheet::{ComparisonSheet, comparison_sheet, path_comparison, sphere_rows};
-pub use sphere::{EnvMode, EnvTableSpec, PlaneOptions, SphereOptions, render_plane, render_sphere};
+pub use sphere::{
+    EnvMode, EnvTableSpec, PlaneOptions, SphereOptions, clear_plans, render_plane, render_sphere,
+};

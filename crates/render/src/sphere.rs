@@ -42,6 +42,12 @@
 //! [`EnvMode::PerPixel`], which evaluates the [`ENV_SAMPLES`]-direction quadrature at every
 //! pixel in the pixel's own frame.
 //!
+//! **Render plans.** For a grid source under the pre-integrated environment, the lookups a
+//! picture makes (each pixel's interpolation stencil, light cosine and view angle; the table's
+//! quadrature stencils) depend only on the scene, not on the material: a render plan records
+//! them once and is cached for the process ([`clear_plans`]), so rendering another material of
+//! the same scene evaluates its touched cells once each and combines them (see `plan.rs`).
+//!
 //! The sphere's silhouette is anti-aliased: coverage is the fraction of 8 x 8 sub-pixel
 //! positions inside the disc, and edge pixels are shaded once at the centroid of their covered
 //! sub-positions (likewise the plane's edges). Pixels are shaded in parallel (rayon, by rows).
@@ -54,6 +60,10 @@ use rayon::prelude::*;
 use crate::colour::{ColourPipeline, Illuminant};
 use crate::error::{Error, Result};
 use crate::image::Image;
+
+mod plan;
+
+pub use plan::{CACHED_PLANS, MAX_CACHED_PIXELS, clear_plans};
 
 /// Cosine-weighted environment directions per pixel.
 pub const ENV_COSINE: usize = 8;
@@ -308,6 +318,35 @@ impl EnvQuadrature {
     }
 }
 
+/// Linear-sRGB weight rows of `channels` under `illuminant`, restricted to the channels that
+/// contribute (returned beside them).
+fn colour_weights(
+    channels: &Channels,
+    illuminant: Illuminant,
+) -> Result<([Vec<f64>; 3], Vec<usize>)> {
+    let full = ColourPipeline::new(illuminant).channel_weights(channels)?;
+    let needed: Vec<usize> = (0..channels.len())
+        .filter(|&k| full.iter().any(|row| row[k] != 0.0))
+        .collect();
+    let weights = [0, 1, 2].map(|r| needed.iter().map(|&k| full[r][k]).collect());
+    if matches!(channels, Channels::Rgb) && illuminant != Illuminant::D65 {
+        tracing::warn!("RGB source: the illuminant {illuminant} is ignored");
+    }
+    Ok((weights, needed))
+}
+
+/// `k` x linear sRGB of the per-channel values `acc`: `weights` are the rows restricted to the
+/// `needed` channels.
+fn project(weights: &[Vec<f64>; 3], needed: &[usize], acc: &[f64], k: f64) -> [f64; 3] {
+    [0, 1, 2].map(|r| {
+        k * weights[r]
+            .iter()
+            .zip(needed)
+            .map(|(w, &c)| w * acc[c])
+            .sum::<f64>()
+    })
+}
+
 fn dot(a: Vec3, b: Vec3) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
@@ -338,12 +377,21 @@ impl EnvTable {
 
     /// Linear interpolation at the view angle of cos theta_o = `cos_o` (clamped to the table).
     fn at(&self, cos_o: f64) -> [f64; 3] {
-        let n = self.rgb.len();
-        let th = cos_o.clamp(-1.0, 1.0).acos().min(self.theta_max);
-        let u = 1.0 - (1.0 - th / self.theta_max).max(0.0).sqrt();
+        self.lerp(Self::position(cos_o, self.rgb.len(), self.theta_max))
+    }
+
+    /// Where the view angle of cos theta_o = `cos_o` falls in a table of `n` nodes up to
+    /// `theta_max`: the node below and the fraction towards the next.
+    fn position(cos_o: f64, n: usize, theta_max: f64) -> (usize, f64) {
+        let th = cos_o.clamp(-1.0, 1.0).acos().min(theta_max);
+        let u = 1.0 - (1.0 - th / theta_max).max(0.0).sqrt();
         let x = u * (n - 1) as f64;
         let i = (x.floor() as usize).min(n - 2);
-        let t = x - i as f64;
+        (i, x - i as f64)
+    }
+
+    /// The table between node `i` and the next, at fraction `t`.
+    fn lerp(&self, (i, t): (usize, f64)) -> [f64; 3] {
         let (a, b) = (self.rgb[i], self.rgb[i + 1]);
         [0, 1, 2].map(|c| a[c] + t * (b[c] - a[c]))
     }
@@ -377,16 +425,8 @@ impl<'a> Shader<'a> {
     pub fn new(source: &'a dyn BrdfSource, opts: &SphereOptions) -> Result<Self> {
         opts.check()?;
         let channels = source.channels();
-        let pipeline = ColourPipeline::new(opts.illuminant);
-        let full = pipeline.channel_weights(&channels)?;
         let n_channels = channels.len();
-        let needed: Vec<usize> = (0..n_channels)
-            .filter(|&k| full.iter().any(|row| row[k] != 0.0))
-            .collect();
-        let weights = [0, 1, 2].map(|r| needed.iter().map(|&k| full[r][k]).collect());
-        if matches!(channels, Channels::Rgb) && opts.illuminant != Illuminant::D65 {
-            tracing::warn!("RGB source: the illuminant {} is ignored", opts.illuminant);
-        }
+        let (weights, needed) = colour_weights(&channels, opts.illuminant)?;
         let lights = vec![(opts.light_dir(), opts.light_irradiance)];
         let env = (opts.env_radiance, EnvQuadrature::default());
         let mut shader = Self {
@@ -445,13 +485,7 @@ impl<'a> Shader<'a> {
 
     /// `k` x linear sRGB of the per-channel values `acc` (only `needed` channels are read).
     fn to_rgb(&self, acc: &[f64], k: f64) -> [f64; 3] {
-        [0, 1, 2].map(|r| {
-            k * self.weights[r]
-                .iter()
-                .zip(&self.needed)
-                .map(|(w, &c)| w * acc[c])
-                .sum::<f64>()
-        })
+        project(&self.weights, &self.needed, acc, k)
     }
 
     /// Linear sRGB leaving a surface point with unit normal `n` towards the viewer along the
@@ -528,10 +562,15 @@ impl<'a> Shader<'a> {
 /// Renders `source` as a sphere filling a `size x size` image (transparent outside the
 /// silhouette, linear sRGB inside); see the module docs.
 pub fn render_sphere(source: &dyn BrdfSource, opts: &SphereOptions) -> Result<Image> {
-    let shader = Shader::new(source, opts)?;
-    let size = opts.size;
+    opts.check()?;
+    render_scene(source, opts, plan::Scene::Sphere, sphere_sight(opts.size))
+}
+
+/// What the pixels of a `size x size` image of the unit sphere see (orthographic, view along
+/// +z), with the anti-aliased silhouette of the module docs.
+fn sphere_sight(size: usize) -> impl Fn(usize, usize) -> Option<Sight> + Sync {
     let r = size as f64 / 2.0;
-    rasterize(size, shader.n_channels, |px, py, f| {
+    move |px, py| {
         // Disc coordinates of the pixel centre, y up.
         let cx = (px as f64 + 0.5 - r) / r;
         let cy = (r - py as f64 - 0.5) / r;
@@ -539,7 +578,7 @@ pub fn render_sphere(source: &dyn BrdfSource, opts: &SphereOptions) -> Result<Im
         // Squared distances of the pixel's nearest and farthest corners from the centre.
         let (nx, ny) = ((cx.abs() - half).max(0.0), (cy.abs() - half).max(0.0));
         if nx * nx + ny * ny >= 1.0 {
-            return Ok(None);
+            return None;
         }
         let (fx, fy) = (cx.abs() + half, cy.abs() + half);
         let ((sx, sy), cov) = if fx * fx + fy * fy <= 1.0 {
@@ -551,11 +590,36 @@ pub fn render_sphere(source: &dyn BrdfSource, opts: &SphereOptions) -> Result<Im
             };
             match edge_coverage(inside) {
                 Some(c) => c,
-                None => return Ok(None),
+                None => return None,
             }
         };
         let nz = (1.0 - sx * sx - sy * sy).max(0.0).sqrt();
-        Ok(Some((shader.shade([sx, sy, nz], [0.0, 0.0, 1.0], f)?, cov)))
+        Some(([sx, sy, nz], [0.0, 0.0, 1.0], cov))
+    }
+}
+
+/// What a pixel sees: the unit surface normal and the unit direction towards the viewer
+/// (camera frame) at the point it shades, and its coverage in (0, 1].
+type Sight = (Vec3, Vec3, f64);
+
+/// Renders the scene whose pixels see `sight(px, py)` (`None`: empty): grid sources under the
+/// pre-integrated environment through a (cached) render plan ([`plan`]), other sources and the
+/// per-pixel environment through a [`Shader`] per pixel. `opts` must be checked.
+fn render_scene(
+    source: &dyn BrdfSource,
+    opts: &SphereOptions,
+    scene: plan::Scene,
+    sight: impl Fn(usize, usize) -> Option<Sight> + Sync,
+) -> Result<Image> {
+    if let (Some(grid), EnvMode::Table(spec)) = (source.grid(), opts.env_mode) {
+        return plan::render(source, opts, grid, spec, scene, &sight);
+    }
+    let shader = Shader::new(source, opts)?;
+    rasterize(opts.size, shader.n_channels, |px, py, f| {
+        Ok(match sight(px, py) {
+            Some((n, view, cov)) => Some((shader.shade(n, view, f)?, cov)),
+            None => None,
+        })
     })
 }
 
@@ -714,10 +778,13 @@ pub fn render_plane(
     opts: &SphereOptions,
     plane: &PlaneOptions,
 ) -> Result<Image> {
-    let shader = Shader::new(source, opts)?;
-    let size = opts.size;
-    let scene = PlaneScene::new(plane, size)?;
-    rasterize(size, shader.n_channels, |px, py, f| {
+    opts.check()?;
+    let scene = PlaneScene::new(plane, opts.size)?;
+    let key = plan::Scene::Plane {
+        view: plane.view.to_bits(),
+        distance: plane.distance.to_bits(),
+    };
+    render_scene(source, opts, key, |px, py| {
         let (x0, y0) = (px as f64, py as f64);
         // The projected sample is convex: a pixel whose corners all hit it is covered.
         let corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
@@ -731,17 +798,15 @@ pub fn render_plane(
             };
             match edge_coverage(inside) {
                 Some(c) => c,
-                None => return Ok(None),
+                None => return None,
             }
         };
         // The centroid of covered sub-positions lies in the convex projection.
-        let Some(p) = scene.hit(q) else {
-            return Ok(None);
-        };
+        let p = scene.hit(q)?;
         let to_eye = [-p[0], -p[1], scene.d - p[2]];
         let len = dot(to_eye, to_eye).sqrt();
         let view = to_eye.map(|x| x / len);
-        Ok(Some((shader.shade(scene.n, view, f)?, cov)))
+        Some((scene.n, view, cov))
     })
 }
 
@@ -897,6 +962,124 @@ mod tests {
         fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
             self.0.eval(wi, wo, out)
         }
+    }
+
+    /// A glossy lobe tabulated on `grid` (channel-dependent, times `gain`), evaluated per cell
+    /// and counting the cells it evaluates.
+    struct Tabulated {
+        grid: AngularGrid,
+        channels: Channels,
+        gain: f64,
+        calls: std::sync::atomic::AtomicUsize,
+    }
+
+    impl Tabulated {
+        fn new(gain: f64) -> Self {
+            Self {
+                grid: AngularGrid::new(16, 16, 32).unwrap(),
+                channels: Channels::parse_wavelengths("400:700:20").unwrap(),
+                gain,
+                calls: Default::default(),
+            }
+        }
+        fn calls(&self) -> usize {
+            self.calls.load(std::sync::atomic::Ordering::Relaxed)
+        }
+    }
+
+    impl BrdfSource for Tabulated {
+        fn channels(&self) -> Channels {
+            self.channels.clone()
+        }
+        fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
+            out.fill(0.0);
+            let Some(hd) = HalfDiff::from_dirs(wi, wo) else {
+                return Ok(());
+            };
+            let mut cell = vec![0.0; out.len()];
+            for (a, w) in self.grid.interpolation_stencil(&hd) {
+                self.eval_cell(a, &mut cell)?;
+                out.iter_mut().zip(&cell).for_each(|(o, v)| *o += w * v);
+            }
+            Ok(())
+        }
+        fn grid(&self) -> Option<AngularGrid> {
+            Some(self.grid)
+        }
+        fn eval_cell(&self, a: usize, out: &mut [f64]) -> brdf_io::Result<()> {
+            self.calls
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            let (wi, wo) = self.grid.bin_centre_flat(a).to_dirs();
+            let mut v = [0.0; 3];
+            Glossy(0.3, 2.0, 60.0).eval(wi, wo, &mut v)?;
+            let nc = out.len();
+            for (k, o) in out.iter_mut().enumerate() {
+                *o = self.gain * v[0] * (0.5 + k as f64 / nc as f64);
+            }
+            Ok(())
+        }
+    }
+
+    /// The sphere through the per-pixel [`Shader`] (its own per-render cell colours), without
+    /// a plan.
+    fn render_sphere_unplanned(source: &dyn BrdfSource, opts: &SphereOptions) -> Image {
+        let shader = Shader::new(source, opts).unwrap();
+        let sight = sphere_sight(opts.size);
+        rasterize(opts.size, shader.n_channels, |px, py, f| {
+            Ok(match sight(px, py) {
+                Some((n, view, cov)) => Some((shader.shade(n, view, f)?, cov)),
+                None => None,
+            })
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn planned_renders_equal_the_shader_and_evaluate_each_cell_once_per_render() {
+        for (env_radiance, exposure) in [(0.1, 0.0), (0.0, 1.0)] {
+            let opts = SphereOptions {
+                size: 40,
+                light: (30.0, 200.0),
+                env_radiance,
+                exposure,
+                env_mode: EnvMode::Table(EnvTableSpec::FAST),
+                ..SphereOptions::default()
+            };
+            // Two materials of one scene, each twice: the second render of each, and the
+            // second material, use the cached plan (unless another test evicted it).
+            for gain in [1.0, 0.25] {
+                // One thread: the shader evaluates each needed cell exactly once (with more,
+                // two threads may race to the same cell).
+                let reference_src = Tabulated::new(gain);
+                let reference = rayon::ThreadPoolBuilder::new()
+                    .num_threads(1)
+                    .build()
+                    .unwrap()
+                    .install(|| render_sphere_unplanned(&reference_src, &opts));
+                for _ in 0..2 {
+                    let src = Tabulated::new(gain);
+                    let img = render_sphere(&src, &opts).unwrap();
+                    assert_eq!(img.alpha, reference.alpha);
+                    assert_eq!(img.rgb, reference.rgb, "env {env_radiance}, gain {gain}");
+                    // Exactly the cells the shader needed, each once.
+                    assert_eq!(src.calls(), reference_src.calls());
+                }
+                let (m, _) = mean_colour(&reference);
+                assert!(m[1] > 0.01, "{m:?}");
+            }
+        }
+        assert!(plan::cached_plans() >= 1);
+        // A plane through its plan equals the generic path to rounding.
+        let src = Tabulated::new(1.0);
+        let opts = SphereOptions {
+            size: 32,
+            ..SphereOptions::default()
+        };
+        let plane = PlaneOptions::default();
+        let a = render_plane(&src, &opts, &plane).unwrap();
+        let b = render_plane(&Opaque(&src), &opts, &plane).unwrap();
+        assert_eq!(a.alpha, b.alpha);
+        assert!(max_rel_diff(&a, &b) < 1e-9, "{}", max_rel_diff(&a, &b));
     }
 
     #[test]

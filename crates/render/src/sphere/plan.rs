@@ -1,0 +1,340 @@
+//! Render plans: what a picture looks up, independent of the material.
+//!
+//! For a grid source ([`BrdfSource::grid`]) under the pre-integrated environment, everything a
+//! render does per pixel before reading BRDF values (the pixel's geometry, its local frame,
+//! the half/difference angles of the light's lookup and their interpolation stencil, the view
+//! angle of the environment term) and every lookup of the environment table's quadrature depend
+//! only on the scene (shape, image size, light direction, grid, table resolution), not on the
+//! material. A plan records them once, with the cells they touch renumbered compactly; a render
+//! then evaluates exactly those cells once ([`BrdfSource::eval_cell`], in index order, in
+//! parallel), projects them to linear sRGB and combines them: a few multiply-adds per pixel.
+//!
+//! Plans of recent scenes (up to [`CACHED_PLANS`], images up to [`MAX_CACHED_PIXELS`] pixels)
+//! are kept for the process, so rendering another material of the same scene (latent-map
+//! thumbnails, comparison sheets, moving through the latent space) skips the geometry. A plan
+//! holds no BRDF value: every render evaluates its material's cells afresh. The arithmetic is
+//! the per-pixel shader's, in the same order: planned and unplanned renders are identical.
+
+use std::sync::{Arc, Mutex, PoisonError};
+
+use brdf_io::{AngularGrid, BrdfSource, HalfDiff, Vec3};
+use rayon::prelude::*;
+
+use super::{
+    ENV_TABLE_MAX_DEGREES, EnvQuadrature, EnvTable, EnvTableSpec, Sight, SphereOptions, basis,
+    colour_weights, dot, project,
+};
+use crate::error::Result;
+use crate::image::Image;
+
+/// Scenes kept by the plan cache (least recently built first out).
+pub const CACHED_PLANS: usize = 4;
+/// Largest image (pixels) whose plan is cached (a 256 x 256 sphere's plan takes ~7 MB).
+pub const MAX_CACHED_PIXELS: usize = 512 * 512;
+
+/// The shape a scene renders (with the parameters that change its geometry, as bits).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Scene {
+    /// [`super::render_sphere`].
+    Sphere,
+    /// [`super::render_plane`] with these `PlaneOptions` (view angle, distance).
+    Plane {
+        /// `PlaneOptions::view`, bits.
+        view: u64,
+        /// `PlaneOptions::distance`, bits.
+        distance: u64,
+    },
+}
+
+/// Everything a plan depends on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Key {
+    scene: Scene,
+    size: usize,
+    /// `SphereOptions::light` (theta, phi), bits.
+    light: [u64; 2],
+    grid: AngularGrid,
+    spec: EnvTableSpec,
+    /// Whether the environment term is on (its lookups touch cells).
+    env: bool,
+}
+
+/// Eight (compact cell index, weight) pairs: an interpolation stencil.
+type Stencil = [(u32, f64); 8];
+
+/// One covered pixel's lookups.
+struct PixelLookup {
+    /// Flat pixel index (row-major).
+    pixel: u32,
+    coverage: f64,
+    /// cos theta_o in the local frame; <= 0: the point faces away and renders black.
+    wo_z: f64,
+    /// The view angle's place in the environment table (node below, fraction to the next).
+    env_at: (u32, f64),
+    /// cos theta_i of the light and the stencil of its lookup; `None` when the light is below
+    /// the horizon or the pair has no half/difference angles (it adds nothing).
+    light: Option<(f64, Stencil)>,
+}
+
+/// A scene's lookups; see the module docs.
+struct Plan {
+    key: Key,
+    /// Flat grid index of each compact cell, ascending.
+    cells: Vec<u32>,
+    /// Covered pixels in row-major order.
+    pixels: Vec<PixelLookup>,
+    /// Per image row, the range of its pixels in `pixels`.
+    rows: Vec<std::ops::Range<usize>>,
+    /// Per environment-table node: each quadrature direction's weight and stencil.
+    env: Vec<Vec<(f64, Option<Stencil>)>>,
+}
+
+static CACHE: Mutex<Vec<Arc<Plan>>> = Mutex::new(Vec::new());
+
+/// The cached plan of `key`, or a new one from `build` (cached when small enough).
+fn plan_for(key: Key, build: impl FnOnce() -> Plan) -> Arc<Plan> {
+    let cached = |cache: &Vec<Arc<Plan>>| cache.iter().find(|p| p.key == key).cloned();
+    if let Some(p) = cached(&CACHE.lock().unwrap_or_else(PoisonError::into_inner)) {
+        return p;
+    }
+    let plan = Arc::new(build());
+    if key.size * key.size <= MAX_CACHED_PIXELS {
+        let mut cache = CACHE.lock().unwrap_or_else(PoisonError::into_inner);
+        if cached(&cache).is_none() {
+            if cache.len() == CACHED_PLANS {
+                cache.remove(0);
+            }
+            cache.push(plan.clone());
+        }
+    }
+    plan
+}
+
+/// The stencil (flat grid indices) of the lookup f(wi, wo), if both are above the horizon.
+fn stencil(grid: &AngularGrid, wi: Vec3, wo: Vec3) -> Option<Stencil> {
+    match HalfDiff::from_dirs(wi, wo) {
+        Some(hd) if wi[2] > 0.0 && wo[2] > 0.0 => {
+            Some(grid.interpolation_stencil(&hd).map(|(a, w)| (a as u32, w)))
+        }
+        _ => None,
+    }
+}
+
+impl Plan {
+    fn build(
+        key: Key,
+        light: Vec3,
+        sight: &(dyn Fn(usize, usize) -> Option<Sight> + Sync),
+    ) -> Self {
+        let (grid, size) = (key.grid, key.size);
+        let theta_max = ENV_TABLE_MAX_DEGREES.to_radians();
+        let mut pixels: Vec<PixelLookup> = (0..size)
+            .into_par_iter()
+            .flat_map_iter(|py| {
+                (0..size).filter_map(move |px| {
+                    let (n, view, coverage) = sight(px, py)?;
+                    let (t, b) = basis(n);
+                    let local = |v: Vec3| [dot(v, t), dot(v, b), dot(v, n)];
+                    let wo = local(view);
+                    let wi = local(light);
+                    let light = (wo[2] > 0.0 && wi[2] > 0.0)
+                        .then(|| stencil(&grid, wi, wo).map(|s| (wi[2], s)))
+                        .flatten();
+                    let env_at = if key.env && wo[2] > 0.0 {
+                        let (i, t) = EnvTable::position(wo[2], key.spec.nodes, theta_max);
+                        (i as u32, t)
+                    } else {
+                        (0, 0.0)
+                    };
+                    Some(PixelLookup {
+                        pixel: (py * size + px) as u32,
+                        coverage,
+                        wo_z: wo[2],
+                        env_at,
+                        light,
+                    })
+                })
+            })
+            .collect();
+        let mut env: Vec<Vec<(f64, Option<Stencil>)>> = Vec::new();
+        if key.env {
+            let q = EnvQuadrature::with_counts(key.spec.cosine, key.spec.cap);
+            env = (0..key.spec.nodes)
+                .into_par_iter()
+                .map(|k| {
+                    let th = EnvTable::theta(k, key.spec.nodes, theta_max);
+                    let wo = [th.sin(), 0.0, th.cos()];
+                    let mut dirs = Vec::new();
+                    q.for_each(wo, |wi, w| dirs.push((w, stencil(&grid, wi, wo))));
+                    dirs
+                })
+                .collect();
+        }
+        // Renumber the cells with a non-zero weight compactly, in index order (zero-weight
+        // entries are skipped when shading, like the shader's, and point at cell 0).
+        let stencils = || {
+            let px = pixels.iter().filter_map(|p| p.light.as_ref().map(|l| &l.1));
+            px.chain(env.iter().flatten().filter_map(|(_, s)| s.as_ref()))
+        };
+        let mut compact = vec![u32::MAX; grid.len()];
+        for s in stencils() {
+            for &(a, w) in s {
+                if w != 0.0 {
+                    compact[a as usize] = 0;
+                }
+            }
+        }
+        let mut cells = Vec::new();
+        for (a, c) in compact.iter_mut().enumerate() {
+            if *c == 0 {
+                *c = cells.len() as u32;
+                cells.push(a as u32);
+            }
+        }
+        let renumber = |s: &mut Stencil| {
+            for (a, w) in s.iter_mut() {
+                *a = if *w != 0.0 { compact[*a as usize] } else { 0 };
+            }
+        };
+        pixels
+            .iter_mut()
+            .filter_map(|p| p.light.as_mut())
+            .for_each(|l| renumber(&mut l.1));
+        env.iter_mut()
+            .flatten()
+            .filter_map(|(_, s)| s.as_mut())
+            .for_each(renumber);
+        let mut rows = vec![0..0; size];
+        let mut start = 0;
+        for (py, row) in rows.iter_mut().enumerate() {
+            let end = start
+                + pixels[start..]
+                    .iter()
+                    .take_while(|p| (p.pixel as usize) / size == py)
+                    .count();
+            *row = start..end;
+            start = end;
+        }
+        Self {
+            key,
+            cells,
+            pixels,
+            rows,
+            env,
+        }
+    }
+}
+
+/// Linear sRGB interpolated from the projected cells.
+fn interpolate(colours: &[[f64; 3]], s: &Stencil) -> [f64; 3] {
+    let mut rgb = [0.0; 3];
+    for &(a, w) in s {
+        if w == 0.0 {
+            continue;
+        }
+        let cell = colours[a as usize];
+        (0..3).for_each(|c| rgb[c] += w * cell[c]);
+    }
+    rgb
+}
+
+/// Renders the scene `sight` of a grid source with the pre-integrated environment of `spec`
+/// through its plan (see the module docs). `opts` must be checked.
+pub(super) fn render(
+    source: &dyn BrdfSource,
+    opts: &SphereOptions,
+    grid: AngularGrid,
+    spec: EnvTableSpec,
+    scene: Scene,
+    sight: &(dyn Fn(usize, usize) -> Option<Sight> + Sync),
+) -> Result<Image> {
+    let channels = source.channels();
+    let (weights, needed) = colour_weights(&channels, opts.illuminant)?;
+    let key = Key {
+        scene,
+        size: opts.size,
+        light: [opts.light.0.to_bits(), opts.light.1.to_bits()],
+        grid,
+        spec,
+        env: opts.env_radiance > 0.0,
+    };
+    let plan = plan_for(key, || Plan::build(key, opts.light_dir(), sight));
+    let nc = channels.len();
+    let colours: Vec<[f64; 3]> = plan
+        .cells
+        .par_chunks(256)
+        .map(|chunk| {
+            let mut f = vec![0.0; nc];
+            chunk
+                .iter()
+                .map(|&a| {
+                    source.eval_cell(a as usize, &mut f)?;
+                    Ok(project(&weights, &needed, &f, 1.0))
+                })
+                .collect::<Result<Vec<_>>>()
+        })
+        .collect::<Result<Vec<_>>>()?
+        .concat();
+    let table = key.env.then(|| EnvTable {
+        theta_max: ENV_TABLE_MAX_DEGREES.to_radians(),
+        rgb: plan
+            .env
+            .iter()
+            .map(|dirs| {
+                let mut acc = [0.0; 3];
+                for (w, s) in dirs {
+                    let rgb = s.as_ref().map_or([0.0; 3], |s| interpolate(&colours, s));
+                    (0..3).for_each(|c| acc[c] += w * rgb[c]);
+                }
+                acc.map(|v| opts.env_radiance * v)
+            })
+            .collect(),
+    });
+    let (scale, e) = (2f64.powf(opts.exposure), opts.light_irradiance);
+    let shade = |p: &PixelLookup| {
+        let mut acc = [0.0; 3];
+        if p.wo_z <= 0.0 {
+            return acc;
+        }
+        if let Some((cos_i, s)) = &p.light
+            && e != 0.0
+        {
+            let rgb = interpolate(&colours, s);
+            let k = cos_i * e;
+            (0..3).for_each(|c| acc[c] += k * rgb[c]);
+        }
+        match &table {
+            Some(t) => {
+                let env = t.lerp((p.env_at.0 as usize, p.env_at.1));
+                [0, 1, 2].map(|c| scale * (acc[c] + env[c]))
+            }
+            None => acc.map(|v| scale * v),
+        }
+    };
+    let size = opts.size;
+    let mut img = Image::new(size, size, [0.0; 3]);
+    img.alpha.fill(0.0);
+    img.rgb
+        .par_chunks_mut(size)
+        .zip(img.alpha.par_chunks_mut(size))
+        .zip(&plan.rows)
+        .for_each(|((rgb, alpha), range)| {
+            for p in &plan.pixels[range.clone()] {
+                let x = p.pixel as usize % size;
+                rgb[x] = shade(p);
+                alpha[x] = p.coverage;
+            }
+        });
+    Ok(img)
+}
+
+/// Drops the cached render plans (the next render of every scene rebuilds its plan): frees
+/// their memory; benchmarks use it to time renders of a new scene.
+pub fn clear_plans() {
+    CACHE.lock().unwrap_or_else(PoisonError::into_inner).clear();
+}
+
+#[cfg(test)]
+pub(super) fn cached_plans() -> usize {
+    CACHE.lock().unwrap_or_else(PoisonError::into_inner).len()
+}
