@@ -64,8 +64,8 @@ type Stencil = [(u32, f64); 8];
 
 /// One covered pixel's lookups.
 struct PixelLookup {
-    /// Flat pixel index (row-major).
-    pixel: u32,
+    /// Column of the pixel in its row.
+    x: u32,
     coverage: f64,
     /// cos theta_o in the local frame; <= 0: the point faces away and renders black.
     wo_z: f64,
@@ -81,10 +81,9 @@ struct Plan {
     key: Key,
     /// Flat grid index of each compact cell, ascending.
     cells: Vec<u32>,
-    /// Covered pixels in row-major order.
-    pixels: Vec<PixelLookup>,
-    /// Per image row, the range of its pixels in `pixels`.
-    rows: Vec<std::ops::Range<usize>>,
+    /// Per image row, its covered pixels left to right (built and used row by row, in
+    /// parallel, never concatenated).
+    rows: Vec<Vec<PixelLookup>>,
     /// Per environment-table node: each quadrature direction's weight and stencil.
     env: Vec<Vec<(f64, Option<Stencil>)>>,
 }
@@ -128,32 +127,34 @@ impl Plan {
     ) -> Self {
         let (grid, size) = (key.grid, key.size);
         let theta_max = ENV_TABLE_MAX_DEGREES.to_radians();
-        let mut pixels: Vec<PixelLookup> = (0..size)
+        let mut rows: Vec<Vec<PixelLookup>> = (0..size)
             .into_par_iter()
-            .flat_map_iter(|py| {
-                (0..size).filter_map(move |px| {
-                    let (n, view, coverage) = sight(px, py)?;
-                    let (t, b) = basis(n);
-                    let local = |v: Vec3| [dot(v, t), dot(v, b), dot(v, n)];
-                    let wo = local(view);
-                    let wi = local(light);
-                    let light = (wo[2] > 0.0 && wi[2] > 0.0)
-                        .then(|| stencil(&grid, wi, wo).map(|s| (wi[2], s)))
-                        .flatten();
-                    let env_at = if key.env && wo[2] > 0.0 {
-                        let (i, t) = EnvTable::position(wo[2], key.spec.nodes, theta_max);
-                        (i as u32, t)
-                    } else {
-                        (0, 0.0)
-                    };
-                    Some(PixelLookup {
-                        pixel: (py * size + px) as u32,
-                        coverage,
-                        wo_z: wo[2],
-                        env_at,
-                        light,
+            .map(|py| {
+                (0..size)
+                    .filter_map(|px| {
+                        let (n, view, coverage) = sight(px, py)?;
+                        let (t, b) = basis(n);
+                        let local = |v: Vec3| [dot(v, t), dot(v, b), dot(v, n)];
+                        let wo = local(view);
+                        let wi = local(light);
+                        let light = (wo[2] > 0.0 && wi[2] > 0.0)
+                            .then(|| stencil(&grid, wi, wo).map(|s| (wi[2], s)))
+                            .flatten();
+                        let env_at = if key.env && wo[2] > 0.0 {
+                            let (i, t) = EnvTable::position(wo[2], key.spec.nodes, theta_max);
+                            (i as u32, t)
+                        } else {
+                            (0, 0.0)
+                        };
+                        Some(PixelLookup {
+                            x: px as u32,
+                            coverage,
+                            wo_z: wo[2],
+                            env_at,
+                            light,
+                        })
                     })
-                })
+                    .collect()
             })
             .collect();
         let mut env: Vec<Vec<(f64, Option<Stencil>)>> = Vec::new();
@@ -173,7 +174,10 @@ impl Plan {
         // Renumber the cells with a non-zero weight compactly, in index order (zero-weight
         // entries are skipped when shading, like the shader's, and point at cell 0).
         let stencils = || {
-            let px = pixels.iter().filter_map(|p| p.light.as_ref().map(|l| &l.1));
+            let px = rows
+                .iter()
+                .flatten()
+                .filter_map(|p| p.light.as_ref().map(|l| &l.1));
             px.chain(env.iter().flatten().filter_map(|(_, s)| s.as_ref()))
         };
         let mut compact = vec![u32::MAX; grid.len()];
@@ -196,29 +200,17 @@ impl Plan {
                 *a = if *w != 0.0 { compact[*a as usize] } else { 0 };
             }
         };
-        pixels
-            .iter_mut()
+        rows.iter_mut()
+            .flatten()
             .filter_map(|p| p.light.as_mut())
             .for_each(|l| renumber(&mut l.1));
         env.iter_mut()
             .flatten()
             .filter_map(|(_, s)| s.as_mut())
             .for_each(renumber);
-        let mut rows = vec![0..0; size];
-        let mut start = 0;
-        for (py, row) in rows.iter_mut().enumerate() {
-            let end = start
-                + pixels[start..]
-                    .iter()
-                    .take_while(|p| (p.pixel as usize) / size == py)
-                    .count();
-            *row = start..end;
-            start = end;
-        }
         Self {
             key,
             cells,
-            pixels,
             rows,
             env,
         }
@@ -318,11 +310,10 @@ pub(super) fn render(
         .par_chunks_mut(size)
         .zip(img.alpha.par_chunks_mut(size))
         .zip(&plan.rows)
-        .for_each(|((rgb, alpha), range)| {
-            for p in &plan.pixels[range.clone()] {
-                let x = p.pixel as usize % size;
-                rgb[x] = shade(p);
-                alpha[x] = p.coverage;
+        .for_each(|((rgb, alpha), row)| {
+            for p in row {
+                rgb[p.x as usize] = shade(p);
+                alpha[p.x as usize] = p.coverage;
             }
         });
     Ok(img)
