@@ -126,15 +126,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Ok(m)
     };
     // Lazy, the scene's render plan built by this render (no earlier render of this view and
-    // size in the process).
-    let mut cold = Vec::new();
-    for _ in 0..5 {
-        render::clear_plans();
-        let t = Instant::now();
-        render_sphere(&lazy_material()?, &opts)?;
-        cold.push(t.elapsed().as_secs_f64());
-    }
-    let cold = median(cold);
+    // size in the process): median of 5.
+    let cold_median = |o: &SphereOptions| -> Result<f64, Box<dyn std::error::Error>> {
+        let mut times = Vec::new();
+        for _ in 0..5 {
+            render::clear_plans();
+            let t = Instant::now();
+            render_sphere(&lazy_material()?, o)?;
+            times.push(t.elapsed().as_secs_f64());
+        }
+        Ok(median(times))
+    };
+    let cold = cold_median(&opts)?;
     // Lazy, plan cached (the renderer evaluates each touched cell once per render).
     let mut lazy = Vec::new();
     let mut reference = None;
@@ -304,14 +307,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         env_mode: EnvMode::Table(EnvTableSpec::FAST),
         ..opts.clone()
     };
-    let mut fast_cold = Vec::new();
-    for _ in 0..5 {
-        render::clear_plans();
-        let t = Instant::now();
-        render_sphere(&lazy_material()?, &fast_opts)?;
-        fast_cold.push(t.elapsed().as_secs_f64());
-    }
-    let fast_cold = median(fast_cold);
+    let fast_cold = cold_median(&fast_opts)?;
     println!(
         "with EnvTableSpec::FAST (`specgp render --env fast`): lazy {fast:.3} s, {:.1}x faster \
          ({fast_cold:.3} s, {:.1}x, with the plan built by the render)",

@@ -1036,10 +1036,13 @@ mod tests {
 
     #[test]
     fn planned_renders_equal_the_shader_and_evaluate_each_cell_once_per_render() {
-        for (env_radiance, exposure) in [(0.1, 0.0), (0.0, 1.0)] {
+        for (light_irradiance, env_radiance, exposure) in
+            [(2.5, 0.1, 0.0), (2.5, 0.0, 1.0), (0.0, 0.1, 0.0)]
+        {
             let opts = SphereOptions {
                 size: 40,
                 light: (30.0, 200.0),
+                light_irradiance,
                 env_radiance,
                 exposure,
                 env_mode: EnvMode::Table(EnvTableSpec::FAST),

@@ -55,6 +55,8 @@ struct Key {
     light: [u64; 2],
     grid: AngularGrid,
     spec: EnvTableSpec,
+    /// Whether the light is on (non-zero irradiance: its lookups touch cells).
+    light_on: bool,
     /// Whether the environment term is on (its lookups touch cells).
     env: bool,
 }
@@ -137,7 +139,7 @@ impl Plan {
                         let local = |v: Vec3| [dot(v, t), dot(v, b), dot(v, n)];
                         let wo = local(view);
                         let wi = local(light);
-                        let light = (wo[2] > 0.0 && wi[2] > 0.0)
+                        let light = (key.light_on && wo[2] > 0.0 && wi[2] > 0.0)
                             .then(|| stencil(&grid, wi, wo).map(|s| (wi[2], s)))
                             .flatten();
                         let env_at = if key.env && wo[2] > 0.0 {
@@ -248,6 +250,7 @@ pub(super) fn render(
         light: [opts.light.0.to_bits(), opts.light.1.to_bits()],
         grid,
         spec,
+        light_on: opts.light_irradiance != 0.0,
         env: opts.env_radiance > 0.0,
     };
     let plan = plan_for(key, || Plan::build(key, opts.light_dir(), sight));
