@@ -29,7 +29,8 @@ use crate::image::Image;
 
 /// Scenes kept by the plan cache (least recently built first out).
 pub const CACHED_PLANS: usize = 4;
-/// Largest image (pixels) whose plan is cached (a 256 x 256 sphere's plan takes ~7 MB).
+/// Largest image (pixels) whose plan is cached (a 256 x 256 sphere's plan takes ~10 MB: 184 B per
+/// covered pixel).
 pub const MAX_CACHED_PIXELS: usize = 512 * 512;
 
 /// The shape a scene renders (with the parameters that change its geometry, as bits).
