@@ -30,8 +30,8 @@ use crate::image::Image;
 /// Scenes kept by the plan cache (least recently built first out).
 pub const CACHED_PLANS: usize = 4;
 /// Largest image (pixels) whose plan is cached (a 256 x 256 sphere's plan takes ~10 MB: 184 B per
-/// covered pixel).
-pub const MAX_CACHED_PIXELS: usize = 512 * 512;
+/// covered pixel; so the cache holds at most ~40 MB).
+pub const MAX_CACHED_PIXELS: usize = 256 * 256;
 
 /// The shape a scene renders (with the parameters that change its geometry, as bits).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
