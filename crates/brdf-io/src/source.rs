@@ -36,6 +36,12 @@ pub trait BrdfSource: Sync {
             reason: "eval_cell: not a grid source".into(),
         })
     }
+
+    /// A hint that [`BrdfSource::eval_cell`] of cell `a` follows soon: a source that reads
+    /// stored values may start fetching them into the cache. No effect by default.
+    fn prefetch_cell(&self, a: usize) {
+        let _ = a;
+    }
 }
 
 /// The argument check every [`BrdfSource::eval`] starts with: `out` must have one slot per

@@ -123,6 +123,9 @@ fn round_trip_material_mode_all_read_paths() {
             for r in [0..3, 5..16, 6..8, 13..29, 40..40, info.d() - 9..info.d()] {
                 let mut block = vec![0f32; r.len() * 5];
                 store.values_in(r.clone(), &mut block).unwrap();
+                // prefetch is a hint: any range, even outside the store, changes nothing.
+                store.prefetch(r.clone());
+                store.prefetch(info.d() - 2..info.d() + 5);
                 // values_in_ref: borrowed inside a chunk (mmap), read into the buffer otherwise.
                 let mut buf = Vec::new();
                 let borrowed = store.values_in_ref(r.clone(), &mut buf).unwrap();

@@ -649,13 +649,7 @@ impl PredictedMaterial {
         let inner = &*self.pred.inner;
         let (nc, n) = (inner.channels.len(), inner.n);
         let sel = &*self.selection;
-        let first = sel.taps.iter().map(|tap| tap.0).min().unwrap_or(0);
-        let last = sel
-            .taps
-            .iter()
-            .map(|&(lo, hi, t)| if t == 0.0 { lo } else { hi })
-            .max()
-            .unwrap_or(0);
+        let (first, last) = self.channel_span();
         SCRATCH.with(|scratch| {
             let mut scratch = scratch.borrow_mut();
             let (raw, wide, vals) = &mut *scratch;
@@ -675,6 +669,27 @@ impl PredictedMaterial {
             }
             Ok(())
         })
+    }
+
+    /// The first and last stored channel the selected wavelengths read.
+    fn channel_span(&self) -> (usize, usize) {
+        let taps = &self.selection.taps;
+        let first = taps.iter().map(|tap| tap.0).min().unwrap_or(0);
+        let last = taps
+            .iter()
+            .map(|&(lo, hi, t)| if t == 0.0 { lo } else { hi })
+            .max()
+            .unwrap_or(0);
+        (first, last)
+    }
+
+    /// A hint that [`PredictedMaterial::eval_cell`] of cell `a` follows soon: starts fetching
+    /// its stored values into the cache (see [`brdf_io::store::Store::prefetch`]).
+    pub fn prefetch_cell(&self, a: usize) {
+        let nc = self.pred.inner.channels.len();
+        let (first, last) = self.channel_span();
+        let (store, _) = self.pred.lookup_store();
+        store.prefetch(a * nc + first..a * nc + last + 1);
     }
 
     fn check_out(&self, out: &[f64]) -> Result<()> {
@@ -891,6 +906,10 @@ impl BrdfSource for PredictedMaterial {
 
     fn eval_cell(&self, a: usize, out: &mut [f64]) -> brdf_io::Result<()> {
         PredictedMaterial::eval_cell(self, a, out).map_err(to_source_error)
+    }
+
+    fn prefetch_cell(&self, a: usize) {
+        PredictedMaterial::prefetch_cell(self, a);
     }
 }
 

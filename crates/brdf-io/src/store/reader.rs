@@ -604,6 +604,41 @@ impl Store {
         Ok(buf)
     }
 
+    /// A hint that the values of `d_range` (all materials) are read soon: on an uncompressed
+    /// store opened with a memory map, asks the CPU to fetch their cache lines (x86-64); no
+    /// effect otherwise, or for a range outside the store.
+    pub fn prefetch(&self, d_range: Range<usize>) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let n = self.n_materials();
+            let chunk_len = self.header.layout.chunk_len;
+            if self.header.layout.compression == Compression::None
+                && d_range.start < d_range.end
+                && d_range.end <= self.d()
+                && d_range.start / chunk_len == (d_range.end - 1) / chunk_len
+                && let Backing::Mmap(m) = &self.backing
+            {
+                let c = d_range.start / chunk_len;
+                let j = d_range.start - c * chunk_len;
+                let width = self.header.layout.dtype.size();
+                let s = (PAYLOAD_OFFSET + self.offsets[c]) as usize + j * n * width;
+                if let Some(bytes) = m.get(s..s + d_range.len() * n * width) {
+                    for line in bytes.chunks(64) {
+                        // SAFETY: prefetching is a hint that never faults; the pointer is
+                        // into the map (in bounds) anyway, and SSE is part of x86-64.
+                        unsafe {
+                            std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                                line.as_ptr().cast(),
+                            )
+                        };
+                    }
+                }
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = d_range;
+    }
+
     /// Values of material `m` over `d_range` into `out` (`out.len() == d_range.len()`).
     pub fn material_row(&self, m: usize, d_range: Range<usize>, out: &mut [f32]) -> Result<()> {
         let n = self.n_materials();

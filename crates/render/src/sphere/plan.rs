@@ -27,6 +27,9 @@ use super::{
 use crate::error::Result;
 use crate::image::Image;
 
+/// How many cells ahead a render asks the source to prefetch ([`BrdfSource::prefetch_cell`]).
+const PREFETCH_AHEAD: usize = 1;
+
 /// Scenes kept by the plan cache (least recently built first out).
 pub const CACHED_PLANS: usize = 4;
 /// Largest image (pixels) whose plan is cached (a 256 x 256 sphere's plan takes ~10 MB: 184 B per
@@ -263,7 +266,11 @@ pub(super) fn render(
             let mut f = vec![0.0; nc];
             chunk
                 .iter()
-                .map(|&a| {
+                .enumerate()
+                .map(|(i, &a)| {
+                    if let Some(&next) = chunk.get(i + PREFETCH_AHEAD) {
+                        source.prefetch_cell(next as usize);
+                    }
                     source.eval_cell(a as usize, &mut f)?;
                     Ok(project(&weights, &needed, &f, 1.0))
                 })
