@@ -603,15 +603,18 @@ fn sphere_sight(size: usize) -> impl Fn(usize, usize) -> Option<Sight> + Sync {
 type Sight = (Vec3, Vec3, f64);
 
 /// Renders the scene whose pixels see `sight(px, py)` (`None`: empty): grid sources under the
-/// pre-integrated environment through a (cached) render plan ([`plan`]), other sources and the
-/// per-pixel environment through a [`Shader`] per pixel. `opts` must be checked.
+/// pre-integrated environment through a (cached) render plan ([`plan`]; cells numbered in u32),
+/// other sources and the per-pixel environment through a [`Shader`] per pixel. `opts` must be
+/// checked.
 fn render_scene(
     source: &dyn BrdfSource,
     opts: &SphereOptions,
     scene: plan::Scene,
     sight: impl Fn(usize, usize) -> Option<Sight> + Sync,
 ) -> Result<Image> {
-    if let (Some(grid), EnvMode::Table(spec)) = (source.grid(), opts.env_mode) {
+    if let (Some(grid), EnvMode::Table(spec)) = (source.grid(), opts.env_mode)
+        && u32::try_from(grid.len()).is_ok()
+    {
         return plan::render(source, opts, grid, spec, scene, &sight);
     }
     let shader = Shader::new(source, opts)?;
