@@ -117,18 +117,25 @@ pub fn open_model_source(
     }
     Some((|| {
         let x = parse_point(point)?;
-        let mut pred =
-            Predictor::open(Path::new(model)).with_context(|| format!("opening {model}"))?;
-        let side = pred.transformed_store_path();
-        if pred.transform() != gplvm::Transform::Raw && side.is_file() {
-            pred = pred.with_transformed_store(&side)?;
-        }
-        let mut m = pred.predict(&x, PredictorKind::Exact)?;
+        let pred = Predictor::open(Path::new(model)).with_context(|| format!("opening {model}"))?;
+        let mut m = with_existing_sidecar(pred)?.predict(&x, PredictorKind::Exact)?;
         if let Some(w) = wavelengths {
             m = m.with_wavelengths(w)?;
         }
         Ok(m)
     })())
+}
+
+/// `pred` reading the forward-transformed sidecar store next to its dataset when one exists
+/// (non-raw transforms; built by `specgp predict --sidecar`): no logarithms per lookup.
+pub fn with_existing_sidecar(pred: Predictor) -> anyhow::Result<Predictor> {
+    let side = pred.transformed_store_path();
+    if pred.transform() != gplvm::Transform::Raw && side.is_file() {
+        return pred
+            .with_transformed_store(&side)
+            .with_context(|| format!("opening the sidecar {}", side.display()));
+    }
+    Ok(pred)
 }
 
 /// Runs `specgp predict`.

@@ -222,6 +222,8 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
     let img = if args.thumbnails {
         let pred = predict::Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
             .with_context(|| format!("opening model {}", args.model.display()))?;
+        // Thumbnails are lazy predictions: read an existing sidecar like `render` does.
+        let pred = crate::cmd_predict::with_existing_sidecar(pred)?;
         let needed = render::colour::needed_wavelengths(pred.channels(), opts.sphere.illuminant)?;
         let variance = |p: [f64; 2]| -> render::Result<f64> {
             pred.variance(&full(p))
