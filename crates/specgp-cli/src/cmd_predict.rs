@@ -49,8 +49,8 @@ pub struct PredictArgs {
     #[arg(long)]
     pub dataset: Option<PathBuf>,
     /// Build (once, next to the dataset: `DATA.sbrdf.<transform>.sbrdf`) and use the sidecar
-    /// store of forward-transformed values: no logarithms per lookup under `log`. `sample`
-    /// uses an existing sidecar automatically.
+    /// store of forward-transformed values: no logarithms per lookup under `log`. `sample`,
+    /// `render MODEL@X,Y` and `map --thumbnails` use an existing sidecar automatically.
     #[arg(long)]
     pub sidecar: bool,
 }

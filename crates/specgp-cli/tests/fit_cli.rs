@@ -1,6 +1,7 @@
 //! `specgp synth` -> `fit` -> `export`: the model's log-likelihood equals an independent
 //! recomputation from the exported data (issue 5's acceptance test), and `latent --json` reports
-//! the model's coordinates.
+//! the model's coordinates; lazy renders of model points (`render MODEL@X,Y`, `map
+//! --thumbnails`) read an existing forward-transformed sidecar.
 
 use std::path::Path;
 use std::process::Command;
@@ -143,4 +144,121 @@ fn fit_errors_name_the_file() {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("bad.toml") && err.contains("what"), "{err}");
+}
+
+/// Fails like `specgp(..)` succeeds: the command's stderr.
+fn specgp_fails(args: &[&str], dir: &Path) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_specgp"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("run specgp");
+    assert!(!out.status.success(), "specgp {args:?} succeeded");
+    String::from_utf8(out.stderr).unwrap()
+}
+
+/// RGBA pixels of an 8-bit PNG.
+fn png_rgba(path: &Path) -> (u32, u32, Vec<u8>) {
+    let decoder = png::Decoder::new(std::fs::File::open(path).unwrap());
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!(info.color_type, png::ColorType::Rgba);
+    buf.truncate(info.buffer_size());
+    (info.width, info.height, buf)
+}
+
+#[test]
+fn lazy_renders_of_model_points_read_an_existing_sidecar() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    specgp(
+        &[
+            "synth",
+            "--out",
+            "data.sbrdf",
+            "--grid",
+            "8,8,16",
+            "--wavelengths",
+            "400:700:20",
+        ],
+        d,
+    );
+    specgp(
+        &["fit", "data.sbrdf", "--out", "m.toml", "--latent-dim", "2"],
+        d,
+    );
+    let model = Model::load(&d.join("m.toml")).unwrap();
+    assert_ne!(
+        model.transform,
+        gplvm::Transform::Raw,
+        "the default fit is log"
+    );
+    let point = "m.toml@0.1,-0.2";
+    let renders = |tag: &str| {
+        let (sphere, map) = (format!("sphere-{tag}.png"), format!("map-{tag}.png"));
+        specgp(&["render", point, "--size", "40", "--out", &sphere], d);
+        specgp(
+            &[
+                "map",
+                "m.toml",
+                "--thumbnails",
+                "--grid",
+                "2",
+                "--thumbnail-size",
+                "32",
+                "--size",
+                "160",
+                "--out",
+                &map,
+            ],
+            d,
+        );
+        (png_rgba(&d.join(sphere)), png_rgba(&d.join(map)))
+    };
+    let before = renders("plain");
+    // Build the sidecar (stored f32 log values instead of logarithms per lookup).
+    specgp(
+        &[
+            "predict",
+            "m.toml",
+            "--at",
+            "0,0",
+            "--sidecar",
+            "--out",
+            "p.npy",
+        ],
+        d,
+    );
+    let sidecar: Vec<_> = std::fs::read_dir(d)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .filter(|n| n.starts_with("data.sbrdf.") && n.ends_with(".sbrdf"))
+        .collect();
+    assert_eq!(sidecar.len(), 1, "{sidecar:?}");
+    let after = renders("sidecar");
+    // The same pictures (to one 8-bit step: the sidecar rounds log values to f32), and real
+    // ones: the sphere is covered and coloured, the map has its thumbnails.
+    for ((w0, h0, a), (w1, h1, b)) in [(&before.0, &after.0), (&before.1, &after.1)] {
+        assert_eq!((w0, h0), (w1, h1));
+        let worst = a.iter().zip(b).map(|(x, y)| x.abs_diff(*y)).max().unwrap();
+        assert!(worst <= 1, "max 8-bit difference {worst}");
+    }
+    let sphere = &after.0.2;
+    let covered = sphere.chunks(4).filter(|p| p[3] == 255).count();
+    assert!(
+        covered > 900 && covered < 1257,
+        "{covered} opaque pixels of 40 x 40"
+    );
+    assert!(
+        sphere
+            .chunks(4)
+            .any(|p| p[3] == 255 && p[0].max(p[1]).max(p[2]) > 20)
+    );
+    // Proof the sidecar is read: a damaged one is an error naming it, for both commands.
+    std::fs::write(d.join(&sidecar[0]), b"not a store").unwrap();
+    let e = specgp_fails(&["render", point, "--out", "x.png"], d);
+    assert!(e.contains(&sidecar[0]), "{e}");
+    let e = specgp_fails(&["map", "m.toml", "--thumbnails", "--out", "y.png"], d);
+    assert!(e.contains(&sidecar[0]), "{e}");
 }
