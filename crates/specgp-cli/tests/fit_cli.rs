@@ -12,18 +12,31 @@ use faer::{Mat, Par};
 use gp_core::KernelParams;
 use gplvm::Model;
 
-fn specgp(args: &[&str], dir: &Path) -> String {
-    let out = Command::new(env!("CARGO_BIN_EXE_specgp"))
+/// Runs `specgp args` in `dir`.
+fn run(args: &[&str], dir: &Path) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_specgp"))
         .args(args)
         .current_dir(dir)
         .output()
-        .expect("run specgp");
+        .expect("run specgp")
+}
+
+/// Runs `specgp args` in `dir`, which must succeed: its stdout.
+fn specgp(args: &[&str], dir: &Path) -> String {
+    let out = run(args, dir);
     assert!(
         out.status.success(),
         "specgp {args:?} failed: {}",
         String::from_utf8_lossy(&out.stderr)
     );
     String::from_utf8(out.stdout).unwrap()
+}
+
+/// Runs `specgp args` in `dir`, which must fail: its stderr.
+fn specgp_fails(args: &[&str], dir: &Path) -> String {
+    let out = run(args, dir);
+    assert!(!out.status.success(), "specgp {args:?} succeeded");
+    String::from_utf8(out.stderr).unwrap()
 }
 
 #[test]
@@ -144,17 +157,6 @@ fn fit_errors_name_the_file() {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("bad.toml") && err.contains("what"), "{err}");
-}
-
-/// Fails like `specgp(..)` succeeds: the command's stderr.
-fn specgp_fails(args: &[&str], dir: &Path) -> String {
-    let out = Command::new(env!("CARGO_BIN_EXE_specgp"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("run specgp");
-    assert!(!out.status.success(), "specgp {args:?} succeeded");
-    String::from_utf8(out.stderr).unwrap()
 }
 
 /// RGBA pixels of an 8-bit PNG.

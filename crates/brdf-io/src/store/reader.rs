@@ -580,26 +580,14 @@ impl Store {
         d_range: Range<usize>,
         buf: &'a mut Vec<f32>,
     ) -> Result<&'a [f32]> {
-        let n = self.n_materials();
-        let chunk_len = self.header.layout.chunk_len;
         if cfg!(target_endian = "little")
-            && self.header.layout.compression == Compression::None
             && self.header.layout.dtype == Dtype::F32
-            && d_range.start < d_range.end
-            && d_range.end <= self.d()
-            && d_range.start / chunk_len == (d_range.end - 1) / chunk_len
-            && let Backing::Mmap(m) = &self.backing
+            && let Some(bytes) = self.mapped_bytes(d_range.clone())
+            && let Ok(v) = bytemuck::try_cast_slice::<u8, f32>(bytes)
         {
-            let c = d_range.start / chunk_len;
-            let j = d_range.start - c * chunk_len;
-            let s = (PAYLOAD_OFFSET + self.offsets[c]) as usize + j * n * 4;
-            if let Some(bytes) = m.get(s..s + d_range.len() * n * 4)
-                && let Ok(v) = bytemuck::try_cast_slice::<u8, f32>(bytes)
-            {
-                return Ok(v);
-            }
+            return Ok(v);
         }
-        buf.resize(d_range.len() * n, 0.0);
+        buf.resize(d_range.len() * self.n_materials(), 0.0);
         self.values_in(d_range, buf)?;
         Ok(buf)
     }
@@ -608,35 +596,43 @@ impl Store {
     /// store opened with a memory map, asks the CPU to fetch their cache lines (x86-64); no
     /// effect otherwise, or for a range outside the store.
     pub fn prefetch(&self, d_range: Range<usize>) {
+        let Some(bytes) = self.mapped_bytes(d_range) else {
+            return;
+        };
         #[cfg(target_arch = "x86_64")]
-        {
-            let n = self.n_materials();
-            let chunk_len = self.header.layout.chunk_len;
-            if self.header.layout.compression == Compression::None
-                && d_range.start < d_range.end
-                && d_range.end <= self.d()
-                && d_range.start / chunk_len == (d_range.end - 1) / chunk_len
-                && let Backing::Mmap(m) = &self.backing
-            {
-                let c = d_range.start / chunk_len;
-                let j = d_range.start - c * chunk_len;
-                let width = self.header.layout.dtype.size();
-                let s = (PAYLOAD_OFFSET + self.offsets[c]) as usize + j * n * width;
-                if let Some(bytes) = m.get(s..s + d_range.len() * n * width) {
-                    for line in bytes.chunks(64) {
-                        // SAFETY: prefetching is a hint that never faults; the pointer is
-                        // into the map (in bounds) anyway, and SSE is part of x86-64.
-                        unsafe {
-                            std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
-                                line.as_ptr().cast(),
-                            )
-                        };
-                    }
-                }
-            }
+        for line in bytes.chunks(64) {
+            // SAFETY: prefetching is a hint that never faults; the pointer is into the map (in
+            // bounds) anyway, and SSE is part of x86-64.
+            unsafe {
+                std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                    line.as_ptr().cast(),
+                )
+            };
         }
         #[cfg(not(target_arch = "x86_64"))]
-        let _ = d_range;
+        let _ = bytes;
+    }
+
+    /// The stored bytes of `d_range` (all materials) in the memory map, when the range is
+    /// non-empty, lies in one chunk, and the store is uncompressed and opened with a map.
+    fn mapped_bytes(&self, d_range: Range<usize>) -> Option<&[u8]> {
+        let layout = &self.header.layout;
+        let chunk_len = layout.chunk_len;
+        if layout.compression != Compression::None
+            || d_range.start >= d_range.end
+            || d_range.end > self.d()
+            || d_range.start / chunk_len != (d_range.end - 1) / chunk_len
+        {
+            return None;
+        }
+        let Backing::Mmap(m) = &self.backing else {
+            return None;
+        };
+        let c = d_range.start / chunk_len;
+        let j = d_range.start - c * chunk_len;
+        let row = self.n_materials() * layout.dtype.size();
+        let s = (PAYLOAD_OFFSET + self.offsets[c]) as usize + j * row;
+        m.get(s..s + d_range.len() * row)
     }
 
     /// Values of material `m` over `d_range` into `out` (`out.len() == d_range.len()`).
