@@ -39,10 +39,8 @@ fn specgp_fails(args: &[&str], dir: &Path) -> String {
     String::from_utf8(out.stderr).unwrap()
 }
 
-#[test]
-fn model_log_likelihood_matches_recomputation_from_export() {
-    let dir = tempfile::tempdir().unwrap();
-    let d = dir.path();
+/// A small synthetic dataset `data.sbrdf` in `dir` (grid 8,8,16, these wavelengths).
+fn synth_small(dir: &Path, wavelengths: &str) {
     specgp(
         &[
             "synth",
@@ -51,10 +49,17 @@ fn model_log_likelihood_matches_recomputation_from_export() {
             "--grid",
             "8,8,16",
             "--wavelengths",
-            "400:700:100",
+            wavelengths,
         ],
-        d,
+        dir,
     );
+}
+
+#[test]
+fn model_log_likelihood_matches_recomputation_from_export() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    synth_small(d, "400:700:100");
     for (transform, model_name) in [("raw", "raw.toml"), ("log", "log.toml")] {
         specgp(
             &[
@@ -174,18 +179,7 @@ fn png_rgba(path: &Path) -> (u32, u32, Vec<u8>) {
 fn lazy_renders_of_model_points_read_an_existing_sidecar() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    specgp(
-        &[
-            "synth",
-            "--out",
-            "data.sbrdf",
-            "--grid",
-            "8,8,16",
-            "--wavelengths",
-            "400:700:20",
-        ],
-        d,
-    );
+    synth_small(d, "400:700:20");
     specgp(
         &["fit", "data.sbrdf", "--out", "m.toml", "--latent-dim", "2"],
         d,
