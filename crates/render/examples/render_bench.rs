@@ -20,7 +20,8 @@ use brdf_io::{AngularGrid, BrdfSource, Channels, Vec3};
 use render::cache::predicted;
 use render::{EnvMode, EnvTableSpec, SphereOptions, render_sphere};
 
-/// A predicted material that counts the cells evaluated (one relaxed atomic add per cell).
+/// A predicted material that counts the cells evaluated (one relaxed atomic add per cell);
+/// everything else, the prefetch hint included, is the material's own.
 struct Counted(predict::PredictedMaterial, AtomicUsize);
 
 impl Counted {
@@ -45,6 +46,9 @@ impl BrdfSource for Counted {
     fn eval_cell(&self, a: usize, out: &mut [f64]) -> brdf_io::Result<()> {
         self.1.fetch_add(1, Ordering::Relaxed);
         BrdfSource::eval_cell(&self.0, a, out)
+    }
+    fn prefetch_cell(&self, a: usize) {
+        BrdfSource::prefetch_cell(&self.0, a);
     }
 }
 
