@@ -375,6 +375,12 @@ impl EnvTable {
         theta_max * (1.0 - (1.0 - u) * (1.0 - u))
     }
 
+    /// The local view direction (in the x-z plane) of node `k` of `n`.
+    fn node_view(k: usize, n: usize, theta_max: f64) -> Vec3 {
+        let th = Self::theta(k, n, theta_max);
+        [th.sin(), 0.0, th.cos()]
+    }
+
     /// Linear interpolation at the view angle of cos theta_o = `cos_o` (clamped to the table).
     fn at(&self, cos_o: f64) -> [f64; 3] {
         self.lerp(Self::position(cos_o, self.rgb.len(), self.theta_max))
@@ -458,8 +464,7 @@ impl<'a> Shader<'a> {
         let rgb = (0..n)
             .into_par_iter()
             .map(|k| {
-                let th = EnvTable::theta(k, n, theta_max);
-                let wo = [th.sin(), 0.0, th.cos()];
+                let wo = EnvTable::node_view(k, n, theta_max);
                 let mut f = vec![0.0; self.n_channels];
                 let mut acc = [0.0; 3];
                 let mut err = Ok(());

@@ -169,8 +169,7 @@ impl Plan {
             env = (0..key.spec.nodes)
                 .into_par_iter()
                 .map(|k| {
-                    let th = EnvTable::theta(k, key.spec.nodes, theta_max);
-                    let wo = [th.sin(), 0.0, th.cos()];
+                    let wo = EnvTable::node_view(k, key.spec.nodes, theta_max);
                     let mut dirs = Vec::new();
                     q.for_each(wo, |wi, w| dirs.push((w, stencil(&grid, wi, wo))));
                     dirs
