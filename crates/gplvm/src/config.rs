@@ -70,6 +70,9 @@ pub enum InitScaling {
     Likelihood,
 }
 
+/// Upper bound of [`FitParams::restarts`]: each restart is a whole optimisation.
+pub const MAX_RESTARTS: usize = 1000;
+
 /// Fit parameters as written in a TOML file or on the command line, before validation.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -94,7 +97,8 @@ pub struct FitParams {
     pub prior: bool,
     /// Scaling of the PCA start.
     pub init_scaling: InitScaling,
-    /// Extra optimisations from perturbed PCA starts; the best likelihood wins.
+    /// Extra optimisations from perturbed PCA starts; the best likelihood wins (at most
+    /// [`MAX_RESTARTS`]).
     pub restarts: usize,
     /// Seed of the restart perturbations.
     pub seed: u64,
@@ -166,6 +170,12 @@ impl FitParams {
             return bad(format!(
                 "latent_dim must be in 1..=64, got {}",
                 self.latent_dim
+            ));
+        }
+        if self.restarts > MAX_RESTARTS {
+            return bad(format!(
+                "restarts must be at most {MAX_RESTARTS}, got {}",
+                self.restarts
             ));
         }
         for (name, v) in [
@@ -245,5 +255,16 @@ mod tests {
             ..Default::default()
         };
         assert!(p.check().is_err());
+        let p = FitParams {
+            restarts: MAX_RESTARTS + 1,
+            ..Default::default()
+        };
+        let err = p.check().unwrap_err().to_string();
+        assert!(err.contains("restarts must be at most 1000"), "{err}");
+        let p = FitParams {
+            restarts: MAX_RESTARTS,
+            ..Default::default()
+        };
+        assert!(p.check().is_ok());
     }
 }

@@ -15,6 +15,7 @@ pub const MODEL_VERSION: u32 = 1;
 
 /// The dataset a model was fitted on.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct DatasetRef {
     /// Path of the store, as given when fitting (absolute when it could be resolved).
     pub path: PathBuf,
@@ -35,6 +36,7 @@ pub struct DatasetRef {
 
 /// Kernel hyperparameters of the fitted model.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Hyperparameters {
     /// RBF variance s^2.
     pub signal_variance: f64,
@@ -46,6 +48,7 @@ pub struct Hyperparameters {
 
 /// How the fit went.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct FitReport {
     /// Optimiser used.
     pub optimizer: String,
@@ -76,6 +79,7 @@ pub struct FitReport {
 
 /// One material's place in the latent space.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct LatentMaterial {
     /// Material name (as in the store).
     pub name: String,
@@ -85,6 +89,7 @@ pub struct LatentMaterial {
 
 /// A fitted GPLVM.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Model {
     /// Always [`MODEL_FORMAT`].
     pub format: String,
@@ -164,6 +169,29 @@ impl Model {
             .chain(model.gram.iter().flatten());
         if finite.into_iter().any(|v| !v.is_finite()) {
             return Err(err("non-finite coordinates or Gram entries".into()));
+        }
+        model
+            .transform
+            .check()
+            .map_err(|e| err(format!("transform: {e}")))?;
+        if !(model.data_scale.is_finite() && model.data_scale > 0.0) {
+            return Err(err(format!(
+                "data_scale must be finite and > 0, got {}",
+                model.data_scale
+            )));
+        }
+        let h = &model.hyperparameters;
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if !(positive(h.signal_variance)
+            && positive(h.noise)
+            && !h.length_scale.is_empty()
+            && h.length_scale.iter().all(|l| positive(*l)))
+        {
+            return Err(err(format!(
+                "hyperparameters must be finite and > 0, got signal_variance {}, length_scale \
+                 {:?}, noise {}",
+                h.signal_variance, h.length_scale, h.noise
+            )));
         }
         Ok(model)
     }

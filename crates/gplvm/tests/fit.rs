@@ -264,4 +264,57 @@ fn bad_model_files_are_clear_errors() {
         err.contains("junk.toml") && err.contains("not a model file"),
         "{err}"
     );
+    // A valid model, then values no fit writes: each is refused on load, naming the file.
+    let data = synth_store(dir.path(), "few.sbrdf", &[1, 6, 11, 16, 21]);
+    let p = FitParams {
+        latent_dim: 2,
+        transform: "log".into(),
+        ..FitParams::default()
+    };
+    let good = dir.path().join("good.toml");
+    fit_store(&data, &p.check().unwrap())
+        .unwrap()
+        .save(&good)
+        .unwrap();
+    let text = std::fs::read_to_string(&good).unwrap();
+    Model::load(&good).unwrap();
+    for (what, from, to, expect) in [
+        ("zero offset", "offset = 0.01", "offset = 0.0", "offset"),
+        (
+            "negative offset",
+            "offset = 0.01",
+            "offset = -0.01",
+            "offset",
+        ),
+        (
+            "negative noise",
+            "length_scale = [1.0]\nnoise = ",
+            "length_scale = [1.0]\nnoise = -1.0 #",
+            "hyperparameters",
+        ),
+        (
+            "zero data scale",
+            "data_scale = ",
+            "data_scale = 0.0 #",
+            "data_scale",
+        ),
+        (
+            "unknown key",
+            "latent_dim = 2",
+            "latent_dim = 2\nlatent_dims = 3",
+            "unknown field",
+        ),
+    ] {
+        assert!(
+            text.contains(from),
+            "{what}: the model file has no {from:?}"
+        );
+        let bad = dir.path().join("bad.toml");
+        std::fs::write(&bad, text.replacen(from, to, 1)).unwrap();
+        let err = Model::load(&bad).unwrap_err().to_string();
+        assert!(
+            err.contains("bad.toml") && err.contains(expect),
+            "{what}: {err}"
+        );
+    }
 }

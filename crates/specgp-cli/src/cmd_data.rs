@@ -270,15 +270,20 @@ fn import_rgl(args: &RglArgs) -> anyhow::Result<()> {
 /// Arguments of `specgp info`.
 #[derive(Debug, clap::Args)]
 pub struct InfoArgs {
-    /// A dataset store (`.sbrdf`).
+    /// A dataset store (`.sbrdf`) or a model file (`.toml`, written by `specgp fit`).
     path: PathBuf,
-    /// Print the header as JSON (with the file size and the checksum verdict).
+    /// Print the header (store) or the model without its Gram matrix as JSON, with the file
+    /// size and the checksum verdict (store) or whether the model's dataset is present and
+    /// matches (model).
     #[arg(long)]
     json: bool,
 }
 
-/// Runs `specgp info`.
+/// Runs `specgp info`: a model file (`.toml`) or a dataset store (anything else).
 pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
+    if args.path.extension().is_some_and(|e| e == "toml") {
+        return model_info(args);
+    }
     let store = Store::open(&args.path)?;
     let verified = store.verify_checksum();
     let h = store.header();
@@ -344,6 +349,91 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
         )?;
     }
     verified?;
+    Ok(())
+}
+
+/// `specgp info MODEL.toml`: the fit's summary and whether its dataset is where the model says,
+/// with the checksum it was fitted on (the store header's; a full verification is `specgp info
+/// DATA.sbrdf`).
+fn model_info(args: &InfoArgs) -> anyhow::Result<()> {
+    let model = gplvm::Model::load(&args.path)?;
+    let ds = &model.dataset;
+    let dataset = match Store::open(&ds.path) {
+        Ok(store) => {
+            let h = store.header();
+            if format!("{}:{}", h.checksum.algorithm, h.checksum.value) == ds.checksum {
+                "present, checksum matches".to_owned()
+            } else {
+                "present, DIFFERENT checksum (refitted or replaced?)".to_owned()
+            }
+        }
+        Err(e) => format!("not usable: {e}"),
+    };
+    let f = &model.fit;
+    let h = &model.hyperparameters;
+    if args.json {
+        let mut v = serde_json::to_value(&model)?;
+        if let Some(o) = v.as_object_mut() {
+            o.remove("gram");
+            o.insert("path".into(), args.path.display().to_string().into());
+            o.insert("dataset_status".into(), dataset.into());
+        }
+        out!("{}", serde_json::to_string_pretty(&v)?)?;
+        return Ok(());
+    }
+    out!("file           {} (model)", args.path.display())?;
+    out!("dataset        {} ({dataset})", ds.path.display())?;
+    out!("checksum       {}", ds.checksum)?;
+    out!(
+        "data           {} materials, grid {}, {} channels, D {} ({} with data)",
+        ds.n_materials,
+        ds.grid,
+        ds.channels.len(),
+        ds.d,
+        ds.d_effective
+    )?;
+    out!(
+        "model          q = {}, transform {}, data scale {:.6e}, prior {}",
+        model.latent_dim,
+        model.transform,
+        model.data_scale,
+        if model.prior { "on" } else { "off" }
+    )?;
+    out!(
+        "kernel         signal variance {:.6e}, length-scale {:?}, noise {:.3e}",
+        h.signal_variance,
+        h.length_scale,
+        h.noise
+    )?;
+    out!(
+        "fit            {}: log-likelihood {:.10e} (PCA start {:.6e}), |grad| {:.3e}",
+        f.optimizer,
+        f.log_likelihood,
+        f.initial_log_likelihood,
+        f.gradient_norm
+    )?;
+    out!(
+        "               {} iterations, {} evaluations, stopped: {}",
+        f.iterations,
+        f.evaluations,
+        f.stop_reason
+    )?;
+    out!(
+        "               jitter {:.3e}, condition number {:.3e}, PCA explained {:.4}",
+        f.jitter,
+        f.condition_number,
+        f.pca_explained
+    )?;
+    out!(
+        "               Gram pass {:.3} s, optimiser {:.3} s",
+        f.gram_seconds,
+        f.optimize_seconds
+    )?;
+    out!("materials      (see `specgp latent`)")?;
+    for m in &model.materials {
+        let coords: Vec<String> = m.coords.iter().map(|c| format!("{c:+.4}")).collect();
+        out!("  {:<32} {}", m.name, coords.join(" "))?;
+    }
     Ok(())
 }
 

@@ -75,7 +75,13 @@ pub fn fit(args: &FitArgs) -> anyhow::Result<()> {
     if let Some(s) = args.seed {
         params.seed = s;
     }
-    let config = params.check()?;
+    let config = params.check().with_context(|| match &args.config {
+        Some(path) => format!(
+            "fit configuration {} (with the command line's flags)",
+            path.display()
+        ),
+        None => "fit configuration (the command line's flags)".to_owned(),
+    })?;
     let spinner = ProgressBar::new_spinner();
     spinner.set_style(
         ProgressStyle::with_template("fit [{elapsed_precise}] {spinner} {msg}")

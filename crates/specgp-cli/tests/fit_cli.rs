@@ -132,6 +132,22 @@ fn model_log_likelihood_matches_recomputation_from_export() {
             first["coords"][2].as_f64().unwrap(),
             model.materials[0].coords[2]
         );
+
+        // `info MODEL` (CLI.md: `info DATA.sbrdf|MODEL`): the fit's record, no Gram matrix.
+        let info: serde_json::Value =
+            serde_json::from_str(&specgp(&["info", model_name, "--json"], d)).unwrap();
+        assert_eq!(info["latent_dim"], 3);
+        assert_eq!(
+            info["fit"]["log_likelihood"].as_f64().unwrap(),
+            model.fit.log_likelihood
+        );
+        assert_eq!(info["dataset_status"], "present, checksum matches");
+        assert!(info.get("gram").is_none());
+        let text = specgp(&["info", model_name], d);
+        assert!(
+            text.contains("q = 3") && text.contains(&model.materials[0].name),
+            "{text}"
+        );
     }
 }
 
@@ -162,6 +178,23 @@ fn fit_errors_name_the_file() {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("bad.toml") && err.contains("what"), "{err}");
+    // A bad value (not a parse error) names the configuration file too.
+    std::fs::write(dir.path().join("zero.toml"), "latent_dim = 0\n").unwrap();
+    let err = specgp_fails(
+        &[
+            "fit",
+            "missing.sbrdf",
+            "--out",
+            "m.toml",
+            "--config",
+            "zero.toml",
+        ],
+        dir.path(),
+    );
+    assert!(
+        err.contains("zero.toml") && err.contains("latent_dim must be in 1..=64"),
+        "{err}"
+    );
 }
 
 /// RGBA pixels of an 8-bit PNG.
