@@ -148,6 +148,12 @@ fn stem(path: &Path) -> String {
 
 /// Runs `specgp import`.
 pub fn import(args: &ImportArgs) -> anyhow::Result<()> {
+    let (out, inputs): (&Path, Vec<&Path>) = match &args.format {
+        ImportFormat::Rgl(a) => (&a.store.out, a.files.iter().map(PathBuf::as_path).collect()),
+        ImportFormat::Merl(a) => (&a.store.out, a.files.iter().map(PathBuf::as_path).collect()),
+        ImportFormat::Nbrdf(a) => (&a.store.out, vec![&a.weights, &a.names]),
+    };
+    crate::paths::ensure_output_is_not_an_input(out, &inputs)?;
     match &args.format {
         ImportFormat::Rgl(a) => import_rgl(a),
         ImportFormat::Merl(a) => import_merl(a),
@@ -471,6 +477,7 @@ fn npy_header(descr: &str, rows: usize, cols: usize) -> Vec<u8> {
 
 /// Runs `specgp export`: streams the chosen rows out chunk by chunk (bounded memory).
 pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
+    crate::paths::ensure_output_is_not_an_input(&args.out, &[&args.path])?;
     let store = Store::open(&args.path)?;
     let rows: Vec<usize> = match &args.materials {
         Some(names) => names

@@ -47,6 +47,14 @@ pub struct FitArgs {
 
 /// Runs `specgp fit`.
 pub fn fit(args: &FitArgs) -> anyhow::Result<()> {
+    let config_file = args.config.as_deref();
+    crate::paths::ensure_output_is_not_an_input(
+        &args.out,
+        &[args.data.as_path()]
+            .into_iter()
+            .chain(config_file)
+            .collect::<Vec<_>>(),
+    )?;
     let mut params = match &args.config {
         Some(path) => FitParams::from_toml_file(path)?,
         None => FitParams::default(),

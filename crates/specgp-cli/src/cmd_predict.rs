@@ -140,6 +140,7 @@ pub fn with_existing_sidecar(pred: Predictor) -> anyhow::Result<Predictor> {
 
 /// Runs `specgp predict`.
 pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
+    crate::paths::ensure_output_is_not_an_input(&args.out, &[&args.model])?;
     let mut pred = Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
         .with_context(|| format!("opening model {}", args.model.display()))?;
     if args.sidecar {

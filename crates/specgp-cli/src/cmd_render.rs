@@ -69,6 +69,8 @@ pub fn parse_light(s: &str) -> anyhow::Result<(f64, f64)> {
 
 /// Runs `specgp render`.
 pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
+    let source = crate::paths::source_file(&args.source);
+    crate::paths::ensure_output_is_not_an_input(&args.out, &[&source])?;
     let env_mode = match args.env.as_str() {
         "table" => render::EnvMode::default(),
         "fast" => render::EnvMode::Table(render::EnvTableSpec::FAST),
@@ -186,6 +188,7 @@ pub struct MapArgs {
 /// thumbnails), predictive variance of the GP (`predict::Predictor::variance`), thumbnails of
 /// the exact predictor's materials (lazy, only the observer's wavelengths looked up).
 pub fn map(args: &MapArgs) -> anyhow::Result<()> {
+    crate::paths::ensure_output_is_not_an_input(&args.out, &[&args.model])?;
     let start = std::time::Instant::now();
     let model = gplvm::Model::load(&args.model)?;
     if model.latent_dim < 1 {

@@ -75,31 +75,34 @@ pub fn open_source(
     }
 }
 
-/// Parses DIRS.csv text: rows of six numbers; blank lines and `#` comments are skipped, a first
-/// non-numeric line is a header. Errors name the file and the line.
+/// Parses DIRS.csv text: rows of six numbers; blank lines and `#` comments are skipped, and a
+/// first line in which no field is a number is a header (a first line with some numbers is a
+/// row, so a typo in it is an error, not a silently skipped header). Errors name the file and
+/// the line.
 pub fn parse_dirs(text: &str, path: &Path) -> anyhow::Result<Vec<(Vec3, Vec3)>> {
     let mut pairs = Vec::new();
-    let mut seen_row = false;
+    let mut header: Option<(usize, &str)> = None;
+    let mut first = true;
     for (k, line) in text.lines().enumerate() {
         let line = line.trim();
         if line.is_empty() || line.starts_with('#') {
             continue;
         }
         let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-        let nums: Result<Vec<f64>, _> = fields.iter().map(|f| f.parse::<f64>()).collect();
+        let parsed: Vec<Option<f64>> = fields.iter().map(|f| f.parse::<f64>().ok()).collect();
         let where_ = || format!("{} line {}", path.display(), k + 1);
-        let nums = match nums {
-            Ok(n) => n,
-            Err(_) if !seen_row && fields.iter().any(|f| f.parse::<f64>().is_err()) => {
-                seen_row = true; // the header
-                continue;
-            }
-            Err(_) => bail!(
-                "{}: expected six numbers wi_x,wi_y,wi_z,wo_x,wo_y,wo_z, got {line:?}",
-                where_()
-            ),
-        };
-        seen_row = true;
+        if std::mem::take(&mut first) && parsed.iter().all(Option::is_none) {
+            header = Some((k + 1, line));
+            continue;
+        }
+        if let Some(bad) = fields.iter().zip(&parsed).find(|(_, v)| v.is_none()) {
+            bail!(
+                "{}: expected six numbers wi_x,wi_y,wi_z,wo_x,wo_y,wo_z, got {:?} in {line:?}",
+                where_(),
+                bad.0
+            );
+        }
+        let nums: Vec<f64> = parsed.into_iter().flatten().collect();
         if nums.len() != 6 {
             bail!(
                 "{}: expected six numbers wi_x,wi_y,wi_z,wo_x,wo_y,wo_z, got {} fields",
@@ -119,7 +122,14 @@ pub fn parse_dirs(text: &str, path: &Path) -> anyhow::Result<Vec<(Vec3, Vec3)>> 
         pairs.push((wi, wo));
     }
     if pairs.is_empty() {
-        bail!("{}: no direction pairs", path.display());
+        match header {
+            Some((k, line)) => bail!(
+                "{}: no direction pairs: line {k} ({line:?}) has no number, so it was read as a \
+                 header, and no row of six numbers follows",
+                path.display()
+            ),
+            None => bail!("{}: no direction pairs (empty file)", path.display()),
+        }
     }
     Ok(pairs)
 }
@@ -143,6 +153,8 @@ pub fn sample_csv(source: &dyn BrdfSource, pairs: &[(Vec3, Vec3)]) -> anyhow::Re
 
 /// Runs `specgp sample`.
 pub fn sample(args: &SampleArgs) -> anyhow::Result<()> {
+    let source = crate::paths::source_file(&args.source);
+    crate::paths::ensure_output_is_not_an_input(&args.out, &[&args.dirs, &source])?;
     let wavelengths = args
         .wavelengths
         .as_deref()
@@ -189,6 +201,20 @@ mod tests {
         let e = parse_dirs("0,0,0,0,0,1\n", p).unwrap_err().to_string();
         assert!(e.contains("zero-length"), "{e}");
         assert!(parse_dirs("a,b\n", p).is_err());
+        // A typo in the first row is an error, not a header (rows would no longer line up).
+        let e = parse_dirs("0,0,1,0,0,abc\n0,0,1,0,0,1\n", p)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("d.csv line 1") && e.contains("\"abc\""), "{e}");
+        let e = parse_dirs("0;0;1;0;0;1\n", p).unwrap_err().to_string();
+        assert!(
+            e.contains("line 1") && e.contains("read as a header"),
+            "{e}"
+        );
+        let e = parse_dirs("\n# only a comment\n", p)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("empty file"), "{e}");
     }
 
     #[test]

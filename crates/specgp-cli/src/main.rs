@@ -12,6 +12,7 @@ mod cmd_predict;
 mod cmd_render;
 mod cmd_sample;
 mod cmd_synth;
+mod paths;
 
 /// Learn a navigable, predictive space of real-world materials from measured spectral BRDFs.
 #[derive(Debug, Parser)]

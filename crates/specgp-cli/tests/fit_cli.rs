@@ -291,3 +291,20 @@ fn lazy_renders_of_model_points_read_an_existing_sidecar() {
     let e = specgp_fails(&["map", "m.toml", "--thumbnails", "--out", "y.png"], d);
     assert!(e.contains(&sidecar[0]), "{e}");
 }
+
+#[test]
+fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    synth_small(d, "400:700:100");
+    let before = std::fs::read(d.join("data.sbrdf")).unwrap();
+    for args in [
+        &["fit", "data.sbrdf", "--out", "data.sbrdf"][..],
+        &["export", "data.sbrdf", "--out", "./data.sbrdf"],
+        &["render", "data.sbrdf:paper_white", "--out", "data.sbrdf"],
+    ] {
+        let err = specgp_fails(args, d);
+        assert!(err.contains("replace the input"), "{args:?}: {err}");
+    }
+    assert_eq!(std::fs::read(d.join("data.sbrdf")).unwrap(), before);
+}
