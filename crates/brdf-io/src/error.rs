@@ -122,6 +122,17 @@ pub enum Error {
         /// Largest stored wavelength, in nm.
         max_nm: f64,
     },
+    /// An output that must be seekable (a dataset store) aimed at a pipe, terminal or socket.
+    #[error(
+        "{path}: cannot write {what} to a pipe, terminal or socket (it needs a seekable file); \
+         write it to a regular file"
+    )]
+    NotSeekable {
+        /// The output path.
+        path: PathBuf,
+        /// What was being written.
+        what: String,
+    },
     /// An argument that does not fit the data (buffer length, channel kind, material index).
     #[error("invalid argument: {reason}")]
     InvalidArgument {

@@ -6,6 +6,7 @@
 //! - [`tensor`]: the RGL `tensor_file` container (reader and writer); [`rgl`]: isotropic RGL
 //!   `.bsdf` evaluation matching Mitsuba 3's `measured` plugin (f in 1/sr) and grid resampling;
 //!   [`merl`]: MERL `.binary` files; [`nbrdf`]: Neural-BRDF networks; [`npy`]: `.npy` I/O.
+//! - [`output`]: atomic output files ([`output::write_file_atomic`], [`output::AtomicOutput`]).
 //! - [`source`]: the [`BrdfSource`] trait (f(wi, wo) for any source) and the [`ImportReport`].
 
 pub mod error;
@@ -13,6 +14,7 @@ pub mod grid;
 pub mod merl;
 pub mod nbrdf;
 pub mod npy;
+pub mod output;
 pub mod rgl;
 pub mod source;
 pub mod store;

@@ -12,13 +12,12 @@
 //! scale); the conversions to dataset order treat negatives as 0 and count them in the
 //! [`ImportReport`].
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 use crate::grid::{AngularGrid, Channels, HalfDiff, Vec3};
+use crate::output::write_atomic_with;
 use crate::source::{BrdfSource, ImportReport};
-use crate::tensor::write_atomic;
 
 /// Per-channel factors from stored numbers to BRDF values in 1/sr (R, G, B).
 pub const MERL_SCALE: [f64; 3] = [1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0];
@@ -294,7 +293,7 @@ pub fn write_merl(path: impl AsRef<Path>, brdf: &MerlBrdf) -> Result<()> {
         });
     };
     let n = g.len();
-    write_atomic(path, |w| {
+    write_atomic_with(path, |w| {
         for d in [a, b, c] {
             w.write_all(&d.to_le_bytes())?;
         }

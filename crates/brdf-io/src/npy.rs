@@ -10,6 +10,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
+use crate::output::AtomicOutput;
 
 const MAGIC: &[u8; 6] = b"\x93NUMPY";
 
@@ -248,14 +249,15 @@ fn header_bytes(dtype: NpyDtype, shape: &[usize]) -> Vec<u8> {
 
 /// A streaming `.npy` writer: the header first, then values in C order (e.g. one matrix row at a
 /// time), then [`NpyWriter::finish`] checks the count and renames the file into place.
-/// Dropping the writer without finishing deletes the temporary file.
+/// Dropping the writer without finishing deletes the temporary file. Output goes through
+/// [`AtomicOutput`], so special files (`/dev/stdout`, a FIFO) are written in place.
 #[derive(Debug)]
 pub struct NpyWriter {
     path: PathBuf,
     dtype: NpyDtype,
     expected: usize,
     written: usize,
-    out: std::io::BufWriter<tempfile::NamedTempFile>,
+    out: std::io::BufWriter<AtomicOutput>,
 }
 
 impl NpyWriter {
@@ -269,11 +271,7 @@ impl NpyWriter {
             .ok_or_else(|| Error::InvalidArgument {
                 reason: format!("npy shape {shape:?} overflows"),
             })?;
-        let dir = match path.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        let tmp = tempfile::NamedTempFile::new_in(&dir).map_err(|e| Error::io(&path, e))?;
+        let tmp = AtomicOutput::create(&path)?;
         let mut out = std::io::BufWriter::with_capacity(1 << 20, tmp);
         out.write_all(&header_bytes(dtype, shape))
             .map_err(|e| Error::io(&path, e))?;
@@ -342,13 +340,10 @@ impl NpyWriter {
                 ),
             });
         }
-        let tmp = self
-            .out
+        self.out
             .into_inner()
-            .map_err(|e| Error::io(&path, e.into_error()))?;
-        tmp.as_file().sync_all().map_err(|e| Error::io(&path, e))?;
-        tmp.persist(&path).map_err(|e| Error::io(&path, e.error))?;
-        Ok(())
+            .map_err(|e| Error::io(&path, e.into_error()))?
+            .commit()
     }
 }
 
@@ -369,6 +364,30 @@ pub fn write_f64(path: impl AsRef<Path>, shape: &[usize], values: &[f64]) -> Res
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An `.npy` export to a FIFO (as `/dev/stdout` in a pipeline) streams the same bytes as a
+    /// file, and the FIFO stays a FIFO; a file export gets mode 0666 & !umask, not 0600.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn writes_into_a_fifo_and_files_get_the_umask_mode() {
+        use crate::output::test_util::{fifo, is_fifo, mode, umask};
+        use std::io::Read;
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("a.npy");
+        write_f32(&file, &[2, 3], &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]).unwrap();
+        assert_eq!(mode(&file), 0o666 & !umask());
+        let want = std::fs::read(&file).unwrap();
+        let (p, mut reader) = fifo(dir.path(), "pipe");
+        write_f32(&p, &[2, 3], &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]).unwrap();
+        assert!(is_fifo(&p));
+        let mut got = vec![0u8; want.len()];
+        reader.read_exact(&mut got).unwrap();
+        assert_eq!(got, want);
+        assert_eq!(
+            read(&file).unwrap().to_f32(),
+            [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
+        );
+    }
 
     #[test]
     fn round_trip_1d_and_2d_streaming() {

@@ -13,7 +13,6 @@
 //! renamed into place.
 
 use std::collections::HashSet;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
@@ -505,38 +504,39 @@ impl TensorFile {
         Ok(out)
     }
 
-    /// Writes `fields` as a tensor file at `path` (temporary file in the same directory, then
-    /// rename: nothing half-written is left behind).
+    /// Writes `fields` as a tensor file at `path` through [`crate::output::write_file_atomic`]
+    /// (temporary file and rename; special files such as `/dev/stdout` written in place).
     pub fn write(path: impl AsRef<Path>, fields: &[Field]) -> Result<()> {
         let bytes = Self::to_bytes(fields)?;
-        write_atomic(path.as_ref(), |w| w.write_all(&bytes))
+        crate::output::write_file_atomic(path, &bytes)
     }
-}
-
-/// Writes a file through a temporary file in the same directory, then renames it into place.
-pub(crate) fn write_atomic(
-    path: &Path,
-    body: impl FnOnce(&mut std::io::BufWriter<&mut std::fs::File>) -> std::io::Result<()>,
-) -> Result<()> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(|e| Error::io(path, e))?;
-    {
-        let file = tmp.as_file_mut();
-        let mut w = std::io::BufWriter::new(file);
-        body(&mut w).map_err(|e| Error::io(path, e))?;
-        w.flush().map_err(|e| Error::io(path, e))?;
-    }
-    tmp.as_file().sync_all().map_err(|e| Error::io(path, e))?;
-    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
-    Ok(())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A tensor file written to a FIFO arrives whole and the FIFO survives; a file gets mode
+    /// 0666 & !umask (the temporary file's 0600 used to stick).
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn writes_into_a_fifo_and_files_get_the_umask_mode() {
+        use crate::output::test_util::{fifo, is_fifo, mode, umask};
+        use std::io::Read;
+        let dir = tempfile::tempdir().unwrap();
+        let fields = sample_fields();
+        let want = TensorFile::to_bytes(&fields).unwrap();
+        let file = dir.path().join("t.bsdf");
+        TensorFile::write(&file, &fields).unwrap();
+        assert_eq!(mode(&file), 0o666 & !umask());
+        assert_eq!(std::fs::read(&file).unwrap(), want);
+        let (p, mut reader) = fifo(dir.path(), "pipe");
+        TensorFile::write(&p, &fields).unwrap();
+        assert!(is_fifo(&p));
+        let mut got = vec![0u8; want.len()];
+        reader.read_exact(&mut got).unwrap();
+        assert_eq!(got, want);
+    }
 
     fn sample_fields() -> Vec<Field> {
         vec![

@@ -6,7 +6,6 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
-use tempfile::NamedTempFile;
 use xxhash_rust::xxh3::Xxh3;
 
 use super::{
@@ -15,6 +14,7 @@ use super::{
     encode_values, hex64,
 };
 use crate::error::{Error, Result};
+use crate::output::AtomicOutput;
 
 /// Writes a dataset store without holding the dataset in memory.
 ///
@@ -26,8 +26,9 @@ use crate::error::{Error, Result};
 /// - **block mode**: [`StoreWriter::declare_materials`] once, then [`StoreWriter::write_block`]
 ///   with all N values of consecutive index ranges (index-major), written straight into chunks.
 ///
-/// The output is a temporary file in the target directory, renamed into place by `finish`; if the
-/// writer is dropped or fails, nothing is left behind. NaN and infinite values are errors;
+/// The output is an [`AtomicOutput`]: a temporary file in the target directory, renamed into
+/// place by `finish` (if the writer is dropped or fails, nothing is left behind); an existing
+/// seekable special file (`/dev/null`) is written in place, a pipe or terminal is refused. NaN and infinite values are errors;
 /// below-horizon cells are stored as 0.
 pub struct StoreWriter {
     path: PathBuf,
@@ -36,7 +37,9 @@ pub struct StoreWriter {
     n_channels: usize,
     mask: Vec<bool>,
     options: StoreOptions,
-    out: NamedTempFile,
+    out: AtomicOutput,
+    /// Directory of the material-mode scratch file.
+    scratch_dir: PathBuf,
     materials: Vec<MaterialEntry>,
     mode: Mode,
     failed: Option<String>,
@@ -134,8 +137,9 @@ impl ChunkSink {
         self.write_encoded(encoded, path)
     }
 
-    /// Writes the offset table, the header and the prefix; returns the file.
-    fn finish(mut self, mut header: StoreHeader, path: &Path) -> Result<File> {
+    /// Writes the offset table, the header and the prefix; returns the file and the header as
+    /// written.
+    fn finish(mut self, mut header: StoreHeader, path: &Path) -> Result<(File, StoreHeader)> {
         let io = |e| Error::io(path, e);
         let table_offset = PAYLOAD_OFFSET + self.pos;
         let mut table = Vec::with_capacity(self.offsets.len() * 8);
@@ -175,8 +179,7 @@ impl ChunkSink {
         let mut file = self.file.into_inner().map_err(|e| io(e.into_error()))?;
         file.seek(SeekFrom::Start(0)).map_err(io)?;
         file.write_all(&prefix).map_err(io)?;
-        file.sync_all().map_err(io)?;
-        Ok(file)
+        Ok((file, header))
     }
 }
 
@@ -225,23 +228,12 @@ impl StoreWriter {
                 reason: "chunk length must be at least 1".into(),
             });
         }
-        let dir = match path.parent() {
+        let out = AtomicOutput::create_seekable(&path, "a dataset store")?;
+        let scratch_dir = match path.parent() {
+            _ if out.is_direct() => std::env::temp_dir(),
             Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
             _ => PathBuf::from("."),
         };
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let prefix = format!(".{name}.");
-        let mut builder = tempfile::Builder::new();
-        builder.prefix(&prefix).suffix(".tmp");
-        // A finished store is an ordinary file (rw-r--r--), not tempfile's private 0600.
-        #[cfg(unix)]
-        builder.permissions(
-            <std::fs::Permissions as std::os::unix::fs::PermissionsExt>::from_mode(0o644),
-        );
-        let out = builder.tempfile_in(&dir).map_err(|e| Error::io(&path, e))?;
         let mask = info.grid.validity_mask();
         Ok(Self {
             d: info.d(),
@@ -250,6 +242,7 @@ impl StoreWriter {
             mask,
             options,
             out,
+            scratch_dir,
             path,
             materials: Vec::new(),
             mode: Mode::Empty,
@@ -341,13 +334,8 @@ impl StoreWriter {
         self.check_ok()?;
         match &self.mode {
             Mode::Empty => {
-                let dir = self
-                    .out
-                    .path()
-                    .parent()
-                    .unwrap_or(Path::new("."))
-                    .to_owned();
-                let scratch = tempfile::tempfile_in(dir).map_err(|e| Error::io(&self.path, e))?;
+                let scratch = tempfile::tempfile_in(&self.scratch_dir)
+                    .map_err(|e| Error::io(&self.path, e))?;
                 self.mode = Mode::Materials {
                     scratch: BufWriter::with_capacity(4 << 20, scratch),
                     current: self.d,
@@ -407,7 +395,7 @@ impl StoreWriter {
         let chunk_len = self.options.effective_chunk_len(n, self.d);
         let file = self
             .out
-            .as_file()
+            .file()
             .try_clone()
             .map_err(|e| Error::io(&self.path, e))?;
         let sink = ChunkSink::new(
@@ -586,11 +574,15 @@ impl StoreWriter {
             created_by: format!("brdf-io {}", env!("CARGO_PKG_VERSION")),
         };
         let path = this.path.clone();
-        let _ = sink.finish(header, &path)?;
+        let (_, header) = sink.finish(header, &path)?;
+        let direct = this.out.is_direct();
+        this.out.commit()?;
+        tracing::info!(path = %path.display(), n, d = this.d, "dataset store written");
+        if direct {
+            // A special file (e.g. /dev/null) may not read back what was written.
+            return Ok(header);
+        }
         // Re-read the header as written (checksum and sizes filled in).
-        this.out
-            .persist(&path)
-            .map_err(|e| Error::io(&path, e.error))?;
         let store = super::Store::open_with(
             &path,
             super::OpenOptions {
@@ -598,7 +590,6 @@ impl StoreWriter {
                 ..Default::default()
             },
         )?;
-        tracing::info!(path = %path.display(), n, d = this.d, "dataset store written");
         Ok(store.header().clone())
     }
 
@@ -609,7 +600,7 @@ impl StoreWriter {
         let chunk_len = self.options.effective_chunk_len(n, d);
         let file = self
             .out
-            .as_file()
+            .file()
             .try_clone()
             .map_err(|e| Error::io(&self.path, e))?;
         let mut sink = ChunkSink::new(
@@ -752,5 +743,55 @@ impl MaterialWriter<'_> {
         }
         w.materials[self.index].stats = self.stats;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{AngularGrid, Channels};
+
+    fn info() -> StoreInfo {
+        StoreInfo {
+            grid: AngularGrid::new(2, 3, 4).unwrap(),
+            channels: Channels::Rgb,
+        }
+    }
+
+    /// A store aimed at a FIFO is refused up front with an error naming it (it used to be
+    /// written to a temporary file and renamed over the FIFO); the FIFO stays.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn refuses_a_fifo_and_leaves_it_alone() {
+        use crate::output::test_util::{fifo, is_fifo};
+        let dir = tempfile::tempdir().unwrap();
+        let (p, _reader) = fifo(dir.path(), "out.sbrdf");
+        let e = StoreWriter::create(&p, info(), StoreOptions::default())
+            .err()
+            .unwrap();
+        assert!(matches!(e, Error::NotSeekable { .. }), "{e}");
+        assert!(e.to_string().contains("out.sbrdf"), "{e}");
+        assert!(is_fifo(&p));
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    /// A finished store has mode 0666 & !umask and replacing one keeps its mode.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn store_file_modes() {
+        use crate::output::test_util::{mode, umask};
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.sbrdf");
+        let write = || {
+            let mut w = StoreWriter::create(&p, info(), StoreOptions::default()).unwrap();
+            w.add_material("m", "test", &vec![0.5; w.d()]).unwrap();
+            w.finish().unwrap();
+        };
+        write();
+        assert_eq!(mode(&p), 0o666 & !umask());
+        std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o600)).unwrap();
+        write();
+        assert_eq!(mode(&p), 0o600);
     }
 }

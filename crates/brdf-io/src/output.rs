@@ -1,0 +1,342 @@
+//! Output files written atomically, the way `File::create` would leave them.
+//!
+//! [`AtomicOutput`] is the one mechanism every writer of this crate (tensor files, MERL files,
+//! `.npy` arrays, dataset stores) uses, and the one the CLI should use for its own outputs
+//! (CSV, PNG, JSON): [`write_file_atomic`] for "write these bytes", [`write_atomic_with`] for a
+//! streaming body, [`AtomicOutput`] itself when the writer must outlive one call.
+//!
+//! Rules:
+//! - **target missing or a regular file**: the data goes to a temporary file in the target's
+//!   directory (named `.NAME.XXXXXX.tmp`), renamed into place by [`AtomicOutput::commit`];
+//!   dropping the output uncommitted deletes it, so readers never see a half-written file. A
+//!   new file gets mode `0666 & !umask` (as `File::create`), a replaced file keeps its mode. A
+//!   symbolic link to a regular file is followed: the file it points to is replaced, the link
+//!   stays.
+//! - **target exists and is not a regular file** (`/dev/stdout`, `/dev/null`, a FIFO, a
+//!   terminal, a character device; symlinks followed): the data is written straight into it,
+//!   since renaming would replace the special file by a regular one. Such output is not atomic.
+//!   Writers that need to seek ([`AtomicOutput::create_seekable`]) refuse targets that cannot
+//!   seek (pipes, terminals, sockets) with [`Error::NotSeekable`].
+
+use std::fs::File;
+use std::io::{Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+
+use tempfile::NamedTempFile;
+
+use crate::error::{Error, Result};
+
+/// A file being written: a temporary file renamed into place on [`AtomicOutput::commit`], or the
+/// target itself when it is a special file (see the [module docs](self)).
+#[derive(Debug)]
+pub struct AtomicOutput {
+    /// The path as given (used in error messages).
+    path: PathBuf,
+    inner: Inner,
+}
+
+#[derive(Debug)]
+enum Inner {
+    /// Temporary file and the path it is renamed to (symlinks resolved).
+    Temp { tmp: NamedTempFile, target: PathBuf },
+    /// The existing special file, written in place.
+    Direct(File),
+}
+
+impl AtomicOutput {
+    /// Starts writing `path` (see the [module docs](self) for what happens with special files).
+    pub fn create(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref().to_owned();
+        let io = |e| Error::io(&path, e);
+        let (target, existing) = match std::fs::metadata(&path) {
+            Ok(meta) if !meta.is_file() => {
+                let file = std::fs::OpenOptions::new()
+                    .write(true)
+                    .open(&path)
+                    .map_err(io)?;
+                return Ok(Self {
+                    path,
+                    inner: Inner::Direct(file),
+                });
+            }
+            Ok(meta) => {
+                let is_link = std::fs::symlink_metadata(&path)
+                    .map(|m| m.file_type().is_symlink())
+                    .unwrap_or(false);
+                let target = if is_link {
+                    std::fs::canonicalize(&path).map_err(io)?
+                } else {
+                    path.clone()
+                };
+                (target, Some(meta.permissions()))
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => (path.clone(), None),
+            Err(e) => return Err(io(e)),
+        };
+        let dir = match target.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
+            _ => PathBuf::from("."),
+        };
+        let name = target
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let prefix = format!(".{name}.");
+        let mut builder = tempfile::Builder::new();
+        builder.prefix(&prefix).suffix(".tmp");
+        // `open(2)` applies the umask to this mode: 0666 & !umask, as `File::create`.
+        #[cfg(unix)]
+        builder.permissions(
+            <std::fs::Permissions as std::os::unix::fs::PermissionsExt>::from_mode(0o666),
+        );
+        let tmp = builder.tempfile_in(&dir).map_err(io)?;
+        if let Some(perm) = existing {
+            tmp.as_file().set_permissions(perm).map_err(io)?;
+        }
+        Ok(Self {
+            path,
+            inner: Inner::Temp { tmp, target },
+        })
+    }
+
+    /// Like [`AtomicOutput::create`], for a writer that seeks: fails with
+    /// [`Error::NotSeekable`] when `path` is a pipe, terminal or socket. `what` names the
+    /// output in that message (e.g. "a dataset store").
+    pub fn create_seekable(path: impl AsRef<Path>, what: &str) -> Result<Self> {
+        let out = Self::create(path)?;
+        if let Inner::Direct(file) = &out.inner
+            && (&*file).stream_position().is_err()
+        {
+            return Err(Error::NotSeekable {
+                path: out.path,
+                what: what.to_owned(),
+            });
+        }
+        Ok(out)
+    }
+
+    /// The path the output was created for.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// True when the target is a special file written in place (not atomic, nothing to rename).
+    pub fn is_direct(&self) -> bool {
+        matches!(self.inner, Inner::Direct(_))
+    }
+
+    /// The open file being written (the temporary file or the special file).
+    pub fn file(&self) -> &File {
+        match &self.inner {
+            Inner::Temp { tmp, .. } => tmp.as_file(),
+            Inner::Direct(f) => f,
+        }
+    }
+
+    /// Finishes the output: flushes it to disk and renames the temporary file into place (for a
+    /// special file, only flushes). Data in a `BufWriter` around this output must be flushed
+    /// first (`BufWriter::into_inner`).
+    pub fn commit(self) -> Result<()> {
+        let path = self.path;
+        match self.inner {
+            Inner::Temp { tmp, target } => {
+                tmp.as_file().sync_all().map_err(|e| Error::io(&path, e))?;
+                tmp.persist(&target)
+                    .map_err(|e| Error::io(&path, e.error))?;
+            }
+            Inner::Direct(mut f) => f.flush().map_err(|e| Error::io(&path, e))?,
+        }
+        Ok(())
+    }
+}
+
+impl Write for AtomicOutput {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let mut f = self.file();
+        f.write(buf)
+    }
+
+    fn write_all(&mut self, buf: &[u8]) -> std::io::Result<()> {
+        let mut f = self.file();
+        f.write_all(buf)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        let mut f = self.file();
+        f.flush()
+    }
+}
+
+impl Seek for AtomicOutput {
+    fn seek(&mut self, pos: SeekFrom) -> std::io::Result<u64> {
+        let mut f = self.file();
+        f.seek(pos)
+    }
+}
+
+/// Writes `bytes` to `path` atomically (see the [module docs](self)).
+pub fn write_file_atomic(path: impl AsRef<Path>, bytes: &[u8]) -> Result<()> {
+    write_atomic_with(path, |w| w.write_all(bytes))
+}
+
+/// Writes `path` atomically with `body`, which gets a buffered writer (see the
+/// [module docs](self)); an error from `body` leaves the target untouched.
+pub fn write_atomic_with(
+    path: impl AsRef<Path>,
+    body: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
+) -> Result<()> {
+    let path = path.as_ref();
+    let out = AtomicOutput::create(path)?;
+    let mut w = std::io::BufWriter::new(out);
+    body(&mut w).map_err(|e| Error::io(path, e))?;
+    let out = w
+        .into_inner()
+        .map_err(|e| Error::io(path, e.into_error()))?;
+    out.commit()
+}
+
+/// Test helpers shared by the writers' tests.
+#[cfg(all(test, target_os = "linux"))]
+pub(crate) mod test_util {
+    use std::fs::File;
+    use std::path::{Path, PathBuf};
+
+    /// The current umask, read from /proc without changing it.
+    pub(crate) fn umask() -> u32 {
+        let status = std::fs::read_to_string("/proc/self/status").unwrap();
+        let line = status.lines().find(|l| l.starts_with("Umask:")).unwrap();
+        u32::from_str_radix(line["Umask:".len()..].trim(), 8).unwrap()
+    }
+
+    /// Permission bits of `p`.
+    pub(crate) fn mode(p: &Path) -> u32 {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::metadata(p).unwrap().permissions().mode() & 0o777
+    }
+
+    /// A FIFO `dir/name` and a read+write handle on it (so opening it for writing does not block
+    /// and small writes are buffered by the kernel until read).
+    pub(crate) fn fifo(dir: &Path, name: &str) -> (PathBuf, File) {
+        let p = dir.join(name);
+        let status = std::process::Command::new("mkfifo")
+            .arg(&p)
+            .status()
+            .unwrap();
+        assert!(status.success());
+        let f = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(&p)
+            .unwrap();
+        (p, f)
+    }
+
+    /// True when `p` is (still) a FIFO.
+    pub(crate) fn is_fifo(p: &Path) -> bool {
+        use std::os::unix::fs::FileTypeExt;
+        std::fs::symlink_metadata(p).unwrap().file_type().is_fifo()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[cfg(target_os = "linux")]
+    use super::test_util::{fifo, is_fifo, mode, umask};
+
+    #[test]
+    fn writes_bytes_and_leaves_no_temporary_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.csv");
+        write_file_atomic(&p, b"x,y\n1,2\n").unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"x,y\n1,2\n");
+        write_file_atomic(&p, b"z\n").unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"z\n");
+        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+        assert_eq!(names.len(), 1);
+    }
+
+    #[test]
+    fn failed_body_leaves_the_target_untouched() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.bin");
+        std::fs::write(&p, b"old").unwrap();
+        let e = write_atomic_with(&p, |w| {
+            w.write_all(b"new")?;
+            Err(std::io::Error::other("boom"))
+        })
+        .unwrap_err();
+        assert!(e.to_string().contains("a.bin") && e.to_string().contains("boom"));
+        assert_eq!(std::fs::read(&p).unwrap(), b"old");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn new_files_get_the_umask_mode_and_replaced_files_keep_theirs() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("new.npy");
+        write_file_atomic(&p, b"1").unwrap();
+        assert_eq!(mode(&p), 0o666 & !umask());
+        std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o640)).unwrap();
+        write_file_atomic(&p, b"2").unwrap();
+        assert_eq!(mode(&p), 0o640);
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn symlink_to_a_regular_file_is_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        let real = dir.path().join("real.txt");
+        let link = dir.path().join("link.txt");
+        std::fs::write(&real, b"old").unwrap();
+        std::os::unix::fs::symlink(&real, &link).unwrap();
+        write_file_atomic(&link, b"new").unwrap();
+        assert!(
+            std::fs::symlink_metadata(&link)
+                .unwrap()
+                .file_type()
+                .is_symlink()
+        );
+        assert_eq!(std::fs::read(&real).unwrap(), b"new");
+    }
+
+    /// A FIFO target is written in place (not replaced by a regular file), and a seeking
+    /// writer refuses it with an error naming the path.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn fifo_is_written_in_place_and_refused_for_seeking_writers() {
+        use std::io::Read;
+        let dir = tempfile::tempdir().unwrap();
+        let (p, mut reader) = fifo(dir.path(), "pipe");
+        write_file_atomic(&p, b"through the pipe").unwrap();
+        assert!(is_fifo(&p));
+        let mut got = [0u8; 16];
+        reader.read_exact(&mut got).unwrap();
+        assert_eq!(&got, b"through the pipe");
+        let e = AtomicOutput::create_seekable(&p, "a dataset store").unwrap_err();
+        assert!(matches!(e, Error::NotSeekable { .. }), "{e}");
+        let msg = e.to_string();
+        assert!(
+            msg.contains("pipe") && msg.contains("a dataset store"),
+            "{msg}"
+        );
+        assert!(msg.starts_with(&p.display().to_string()), "{msg}");
+        assert!(is_fifo(&p));
+    }
+
+    /// `/dev/null` (a character device) is written in place: it stays a character device.
+    #[cfg(unix)]
+    #[test]
+    fn character_device_is_written_in_place() {
+        use std::os::unix::fs::FileTypeExt;
+        let p = Path::new("/dev/null");
+        let out = AtomicOutput::create_seekable(p, "a dataset store").unwrap();
+        assert!(out.is_direct());
+        // (Not committed when the check above fails: as root a rename would replace /dev/null.)
+        out.commit().unwrap();
+        assert!(std::fs::metadata(p).unwrap().file_type().is_char_device());
+    }
+}
