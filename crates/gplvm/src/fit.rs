@@ -34,6 +34,18 @@ pub fn gram_pass(store: &Store, transform: Transform) -> Result<GramPass> {
     let start = Instant::now();
     let n = store.n_materials();
     let g = store.gram_with(&transform)?;
+    // A non-finite value of material i makes its diagonal entry non-finite.
+    if let Some(i) = (0..n).find(|&i| !g[i * n + i].is_finite()) {
+        return Err(Error::InvalidData {
+            reason: format!(
+                "{} holds non-finite values (NaN or infinity) in material {} ({}): a damaged \
+                 store? (`specgp info` verifies its checksum)",
+                store.path().display(),
+                i,
+                store.names().get(i).copied().unwrap_or("?")
+            ),
+        });
+    }
     let gram = Mat::from_fn(n, n, |i, j| g[i * n + j]);
     let valid = store.validity_mask().iter().filter(|v| **v).count();
     Ok(GramPass {

@@ -30,12 +30,13 @@ impl Transform {
     /// The default offset of the log transform, in 1/sr.
     pub const DEFAULT_LOG_OFFSET: f64 = 0.01;
 
-    /// Applies the transform to one value. Negative inputs are clamped to 0 first under `log`.
+    /// Applies the transform to one value. Negative inputs are clamped to 0 first under `log`;
+    /// NaN stays NaN.
     #[inline]
     pub fn forward(&self, f: f64) -> f64 {
         match *self {
             Self::Raw => f,
-            Self::Log { offset } => fast_ln_1p(f.max(0.0) / offset),
+            Self::Log { offset } => fast_ln_1p(clamp_negative(f) / offset),
         }
     }
 
@@ -187,12 +188,19 @@ unsafe fn ln_1p_scaled_f64_avx2(input: &[f32], scale: f64, out: &mut [f64]) {
     }
 }
 
-/// One value of [`ln_1p_scaled_f64`] (negative inputs give 0).
+/// `max(x, 0)` that keeps a NaN (`f64::max` would turn it into 0, silently hiding damaged
+/// data; the transforms must pass it on so the Gram pass can refuse it).
+#[inline(always)]
+fn clamp_negative(x: f64) -> f64 {
+    if x < 0.0 { 0.0 } else { x }
+}
+
+/// One value of [`ln_1p_scaled_f64`] (negative inputs give 0, NaN and infinity give NaN).
 #[inline(always)]
 fn ln_1p_lanes(x: f64) -> f64 {
     use std::f64::consts::{FRAC_1_SQRT_2, LN_2};
     const TWO_52: f64 = 4_503_599_627_370_496.0;
-    let x = x.max(0.0);
+    let x = clamp_negative(x);
     let u = 1.0 + x;
     let bits = u.to_bits();
     // u = 2^k m with m in [sqrt(1/2), sqrt(2)) by integer arithmetic on the bits: subtracting
@@ -359,6 +367,18 @@ mod tests {
             let want = t.forward(f64::from(*v));
             assert!((y - want).abs() <= 1e-14 * want.abs(), "x = {v}");
         }
+    }
+
+    #[test]
+    fn non_finite_values_are_not_hidden() {
+        let t = Transform::Log { offset: 0.01 };
+        assert!(t.forward(f64::NAN).is_nan());
+        let input = [1.0f32, f32::NAN, f32::INFINITY, -2.0, 0.5];
+        let mut out = [0.0; 5];
+        t.forward_batch(&input, &mut out);
+        assert!(out[1].is_nan() && !out[2].is_finite(), "{out:?}");
+        assert_eq!(out[3], 0.0);
+        assert!((out[0] - 100f64.ln_1p()).abs() < 1e-13 && out[4] > 0.0);
     }
 
     #[test]

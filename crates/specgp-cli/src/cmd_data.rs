@@ -181,21 +181,22 @@ fn import_each(
         let (name, source, values, report) = load(i)?;
         pb.set_message(name.clone());
         writer.add_material(&name, &source, &values)?;
-        pb.suspend(|| out!("{name}: {report}"))?;
+        pb.suspend(|| eprintln!("{name}: {report}"));
         total = total.merge(&report);
         pb.inc(1);
     }
     pb.finish_and_clear();
     let header = writer.finish()?;
-    out!("total: {total}")?;
-    out!(
+    // Status goes to stderr like every command's (stdout is for machine-readable output).
+    eprintln!("total: {total}");
+    eprintln!(
         "wrote {}: {} materials, grid {}, {} channels, D = {}",
         store.out.display(),
         header.n_materials(),
         header.grid,
         header.channels.len(),
         header.d
-    )?;
+    );
     Ok(())
 }
 
@@ -554,13 +555,13 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
     file.sync_all().map_err(io)?;
     tmp.persist(&args.out)
         .map_err(|e| anyhow::anyhow!("{}: {}", args.out.display(), e.error))?;
-    out!(
+    eprintln!(
         "wrote {}: {} x {d} {} ({})",
         args.out.display(),
         rows.len(),
         args.dtype,
         store.header().dimension_order
-    )?;
+    );
     Ok(())
 }
 

@@ -12,8 +12,9 @@ use crate::cmd_sample::open_source;
 /// Arguments of `specgp render`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct RenderArgs {
-    /// The BRDF: an RGL `.bsdf` file, a MERL `.binary` file or `DATA.sbrdf:MATERIAL` (as for
-    /// `sample`).
+    /// The BRDF: an RGL `.bsdf` file, a MERL `.binary` file, `DATA.sbrdf:MATERIAL` or
+    /// `MODEL.toml@X,Y` (a predicted material, rendered lazily: only the cells the picture
+    /// touches are predicted), as for `sample`.
     pub source: String,
     /// Output PNG (8-bit sRGB with alpha).
     #[arg(long)]
