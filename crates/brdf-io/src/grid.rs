@@ -112,7 +112,12 @@ impl HalfDiff {
 }
 
 /// The angular part of a dataset grid: resolution along theta_h, theta_d and phi_d.
+///
+/// Every axis holds 1..=[`AngularGrid::MAX_AXIS`] bins and the grid at most
+/// [`AngularGrid::MAX_CELLS`] cells; deserialising (store headers, model files) checks the
+/// same bounds as [`AngularGrid::new`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(try_from = "GridFields")]
 pub struct AngularGrid {
     /// Number of theta_h bins (MERL: 90).
     pub n_theta_h: usize,
@@ -122,22 +127,57 @@ pub struct AngularGrid {
     pub n_phi_d: usize,
 }
 
+/// The serialised fields of an [`AngularGrid`], checked by [`AngularGrid::new`] on the way in.
+#[derive(Deserialize)]
+struct GridFields {
+    n_theta_h: usize,
+    n_theta_d: usize,
+    n_phi_d: usize,
+}
+
+impl TryFrom<GridFields> for AngularGrid {
+    type Error = Error;
+
+    fn try_from(f: GridFields) -> Result<Self> {
+        Self::new(f.n_theta_h, f.n_theta_d, f.n_phi_d)
+    }
+}
+
 impl AngularGrid {
-    /// A grid of the given resolution; every count must be at least 1.
+    /// Largest number of bins along one axis (MERL uses 90, 90, 180).
+    pub const MAX_AXIS: usize = 4096;
+
+    /// Largest number of cells, 2^27 (about 134 M, 92 x MERL's 1.46 M): a grid is allocated as
+    /// one array of cells x channels values, and beyond this a dataset no longer fits in memory.
+    pub const MAX_CELLS: usize = 1 << 27;
+
+    /// A grid of the given resolution; every count must be in 1..=[`Self::MAX_AXIS`] and the
+    /// product at most [`Self::MAX_CELLS`].
     pub fn new(n_theta_h: usize, n_theta_d: usize, n_phi_d: usize) -> Result<Self> {
+        let res = format!("resolution {n_theta_h},{n_theta_d},{n_phi_d}");
         if n_theta_h == 0 || n_theta_d == 0 || n_phi_d == 0 {
             return Err(Error::InvalidGrid {
+                reason: format!("{res} has an empty axis; every count must be >= 1"),
+            });
+        }
+        if n_theta_h.max(n_theta_d).max(n_phi_d) > Self::MAX_AXIS {
+            return Err(Error::InvalidGrid {
                 reason: format!(
-                    "resolution {n_theta_h},{n_theta_d},{n_phi_d} has an empty axis; every count must be >= 1"
+                    "{res} has an axis longer than {} bins (the largest supported)",
+                    Self::MAX_AXIS
                 ),
             });
         }
-        n_theta_h
-            .checked_mul(n_theta_d)
-            .and_then(|n| n.checked_mul(n_phi_d))
-            .ok_or_else(|| Error::InvalidGrid {
-                reason: format!("resolution {n_theta_h},{n_theta_d},{n_phi_d} overflows"),
-            })?;
+        let cells = n_theta_h as u64 * n_theta_d as u64 * n_phi_d as u64; // <= 2^36
+        if cells > Self::MAX_CELLS as u64 {
+            return Err(Error::InvalidGrid {
+                reason: format!(
+                    "{res} has {cells} cells, more than the supported {} (2^27; MERL's 90,90,180 \
+                     has 1458000)",
+                    Self::MAX_CELLS
+                ),
+            });
+        }
         Ok(Self {
             n_theta_h,
             n_theta_d,
@@ -482,6 +522,35 @@ mod tests {
         // theta_h and theta_d both near pi/2 put wo under the horizon.
         assert!(!mask[g.index(7, 7, 0)]);
         assert!(mask[g.index(0, 0, 0)]);
+    }
+
+    #[test]
+    fn grid_bounds() {
+        let e = "100000,100000,100000".parse::<AngularGrid>().unwrap_err();
+        assert!(e.to_string().contains("longer than 4096 bins"), "{e}");
+        let e = AngularGrid::new(1000, 1000, 2000).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("2000000000 cells, more than the supported 134217728"),
+            "{e}"
+        );
+        let g = AngularGrid::new(4096, 32, 1024).unwrap();
+        assert_eq!(g.len(), AngularGrid::MAX_CELLS);
+        assert!(AngularGrid::new(4096, 32, 1025).is_err());
+        assert!(AngularGrid::new(4097, 1, 1).is_err());
+        // Deserialising checks the same bounds.
+        let ok: AngularGrid =
+            serde_json::from_str(r#"{"n_theta_h":90,"n_theta_d":90,"n_phi_d":180}"#).unwrap();
+        assert_eq!(ok, AngularGrid::MERL);
+        let e = serde_json::from_str::<AngularGrid>(
+            r#"{"n_theta_h":100000,"n_theta_d":100000,"n_phi_d":100000}"#,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("longer than 4096 bins"), "{e}");
+        assert!(
+            serde_json::from_str::<AngularGrid>(r#"{"n_theta_h":0,"n_theta_d":1,"n_phi_d":1}"#)
+                .is_err()
+        );
     }
 
     #[test]

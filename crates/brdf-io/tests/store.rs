@@ -460,6 +460,49 @@ fn unsupported_version_and_dtype() {
     names_file(&e, &path);
 }
 
+/// Replaces the JSON header of the store at `path` by `edit` of it, fixing up the header length
+/// and hash so that only the edited content is wrong.
+fn rewrite_header(path: &Path, edit: impl FnOnce(&mut serde_json::Value)) {
+    let mut bytes = std::fs::read(path).unwrap();
+    let hoff = u64::from_le_bytes(bytes[40..48].try_into().unwrap()) as usize;
+    let mut header: serde_json::Value = serde_json::from_slice(&bytes[hoff..]).unwrap();
+    edit(&mut header);
+    let json = serde_json::to_vec_pretty(&header).unwrap();
+    bytes.truncate(hoff);
+    bytes.extend_from_slice(&json);
+    bytes[48..56].copy_from_slice(&(json.len() as u64).to_le_bytes());
+    let h = xxhash_rust_digest(&bytes[..56], &json);
+    bytes[56..64].copy_from_slice(&h.to_le_bytes());
+    std::fs::write(path, &bytes).unwrap();
+}
+
+/// A header claiming a grid beyond the supported bounds is refused on open (before anything is
+/// allocated for it), naming the file and the bound.
+#[test]
+fn header_with_a_huge_grid_is_refused() {
+    let t = dir();
+    let path = small_store(t.path(), Compression::None);
+    rewrite_header(&path, |h| {
+        h["grid"] =
+            serde_json::json!({"n_theta_h": 100000, "n_theta_d": 100000, "n_phi_d": 100000});
+        h["d"] = serde_json::json!(3_000_000_000_000_000u64);
+    });
+    let e = Store::open(&path).unwrap_err();
+    assert!(matches!(e, Error::StoreCorrupt { .. }), "{e}");
+    assert!(e.to_string().contains("longer than 4096 bins"), "{e}");
+    names_file(&e, &path);
+    rewrite_header(&path, |h| {
+        h["grid"] = serde_json::json!({"n_theta_h": 1000, "n_theta_d": 1000, "n_phi_d": 2000});
+        h["d"] = serde_json::json!(6_000_000_000u64);
+    });
+    let e = Store::open(&path).unwrap_err();
+    assert!(
+        e.to_string().contains("more than the supported 134217728"),
+        "{e}"
+    );
+    names_file(&e, &path);
+}
+
 /// xxh3-64 of the prefix fields followed by the header (as the format defines it).
 fn xxhash_rust_digest(prefix: &[u8], header: &[u8]) -> u64 {
     let mut v = prefix.to_vec();
