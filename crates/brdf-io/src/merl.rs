@@ -9,7 +9,7 @@
 //! below-horizon) samples.
 //!
 //! [`read_merl`] keeps the values exactly as stored (negative markers included, times the
-//! scale); the conversions to dataset order treat negatives as 0 and count them in the
+//! scale) and refuses NaN and infinite numbers; the conversions to dataset order treat negatives as 0 and count them in the
 //! [`ImportReport`].
 
 use std::path::{Path, PathBuf};
@@ -236,15 +236,24 @@ pub fn parse_merl(bytes: &[u8], path: impl AsRef<Path>) -> Result<MerlBrdf> {
         )));
     }
     let n = grid.len();
-    let values = bytes[12..]
-        .chunks_exact(8)
-        .enumerate()
-        .map(|(i, b)| {
-            let mut a = [0u8; 8];
-            a.copy_from_slice(b);
-            f64::from_le_bytes(a) * MERL_SCALE[i / n]
-        })
-        .collect();
+    let mut values = Vec::with_capacity(3 * n);
+    for (i, b) in bytes[12..].chunks_exact(8).enumerate() {
+        let mut a = [0u8; 8];
+        a.copy_from_slice(b);
+        let stored = f64::from_le_bytes(a);
+        if !stored.is_finite() {
+            let (c, flat) = (i / n, i % n);
+            let (ith, itd, ipd) = grid.unindex(flat);
+            return Err(bad(format!(
+                "non-finite value {stored} at value index {i} (byte offset {}; channel {}, \
+                 cell {ith},{itd},{ipd}); MERL marks invalid samples with negative numbers, \
+                 not NaN or infinity",
+                12 + 8 * i,
+                ["R", "G", "B"][c]
+            )));
+        }
+        values.push(stored * MERL_SCALE[i / n]);
+    }
     Ok(MerlBrdf { grid, values })
 }
 
@@ -341,6 +350,37 @@ mod tests {
         // And the file bytes round-trip as well.
         write_merl(&p, &back).unwrap();
         assert_eq!(std::fs::read(&p).unwrap(), bytes);
+    }
+
+    /// NaN and +-infinity are refused with the file and the first bad index; finite negative
+    /// markers (-1) are kept as they are.
+    #[test]
+    fn non_finite_values_are_refused_negative_markers_kept() {
+        let grid = AngularGrid::new(2, 2, 4).unwrap();
+        let n = grid.len();
+        let mut bytes = Vec::new();
+        for d in [2i32, 2, 4] {
+            bytes.extend_from_slice(&d.to_le_bytes());
+        }
+        for i in 0..3 * n {
+            let v = if i == 5 { -1.0 } else { 0.5 * i as f64 };
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+        let ok = parse_merl(&bytes, "ok.binary").unwrap();
+        assert_eq!(ok.value(0, 5), -MERL_SCALE[0]);
+        assert_eq!(ok.value(1, 3), 0.5 * (n + 3) as f64 * MERL_SCALE[1]);
+        for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            let mut b = bytes.clone();
+            let i = n + 3; // channel G, flat 3
+            b[12 + 8 * i..20 + 8 * i].copy_from_slice(&bad.to_le_bytes());
+            // A second bad value later: the first one is reported.
+            b[12 + 8 * (2 * n)..20 + 8 * (2 * n)].copy_from_slice(&bad.to_le_bytes());
+            let e = parse_merl(&b, "bad.binary").unwrap_err();
+            let msg = e.to_string();
+            assert!(msg.starts_with("bad.binary: non-finite value"), "{msg}");
+            assert!(msg.contains(&format!("value index {i} ")), "{msg}");
+            assert!(msg.contains("channel G, cell 0,0,3"), "{msg}");
+        }
     }
 
     #[test]
