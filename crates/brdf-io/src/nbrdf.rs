@@ -217,6 +217,7 @@ impl Nbrdf {
         grid: &AngularGrid,
         options: NbrdfOptions,
     ) -> Result<(Vec<f32>, ImportReport)> {
+        options.validate()?;
         let (values, report) = resample_cells(
             grid,
             3,
@@ -301,6 +302,36 @@ mod tests {
             }
         }
         assert!(network_input([0.0, 0.0, 1.0], [1.0, 0.0, -0.1]).is_none());
+    }
+
+    /// A negative, zero, NaN or infinite outlier threshold is refused before resampling (with
+    /// `-1` and clamping every value used to be stored as -1).
+    #[test]
+    fn bad_outlier_thresholds_are_refused() {
+        let net = Nbrdf::from_weights("t".into(), &vec![0f32; WEIGHTS_PER_NETWORK]).unwrap();
+        let grid = AngularGrid::new(2, 2, 4).unwrap();
+        for t in [-1.0, 0.0, f64::NAN, f64::INFINITY] {
+            let options = NbrdfOptions {
+                outlier_threshold: t,
+                clamp_outliers: true,
+            };
+            let e = net.resample_with(&grid, options).unwrap_err();
+            assert!(matches!(e, Error::InvalidArgument { .. }), "{e}");
+            assert!(
+                e.to_string().contains(&format!(
+                    "outlier threshold {t} must be a finite number > 0"
+                )),
+                "{e}"
+            );
+        }
+        let options = NbrdfOptions {
+            outlier_threshold: 0.5,
+            clamp_outliers: true,
+        };
+        let (values, report) = net.resample_with(&grid, options).unwrap();
+        assert_eq!(values.len(), 3 * grid.len());
+        assert_eq!(report.outliers_clamped, 0);
+        assert!(values.iter().all(|&v| v == 0.0), "{values:?}");
     }
 
     #[test]

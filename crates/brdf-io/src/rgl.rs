@@ -587,6 +587,7 @@ impl RglBsdf {
         channels: &Channels,
         options: ResampleOptions,
     ) -> Result<(Vec<f32>, ImportReport)> {
+        options.validate()?;
         let sel = Self::select(&self.path, &self.native, channels)?;
         let n = sel.taps.len();
         let (values, report) = resample_cells(
@@ -615,6 +616,7 @@ impl RglBsdf {
         first_cell: usize,
         out: &mut [f32],
     ) -> Result<ImportReport> {
+        options.validate()?;
         let sel = Self::select(&self.path, &self.native, channels)?;
         resample_cells_into(
             grid,

@@ -74,6 +74,21 @@ pub struct ResampleOptions {
     pub clamp_outliers: bool,
 }
 
+impl ResampleOptions {
+    /// Checks the options: the outlier threshold must be a finite number > 0 (a negative or zero
+    /// threshold with clamping would store every value as the threshold). Called by every
+    /// resampling method that takes options.
+    pub fn validate(&self) -> Result<()> {
+        let t = self.outlier_threshold;
+        if !(t.is_finite() && t > 0.0) {
+            return Err(Error::InvalidArgument {
+                reason: format!("outlier threshold {t} must be a finite number > 0 (in 1/sr)"),
+            });
+        }
+        Ok(())
+    }
+}
+
 impl Default for ResampleOptions {
     /// Count values above [`DEFAULT_OUTLIER_THRESHOLD`], do not clamp.
     fn default() -> Self {
