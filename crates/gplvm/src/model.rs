@@ -196,29 +196,13 @@ impl Model {
         Ok(model)
     }
 
-    /// Writes the model as TOML (temporary file, then rename).
+    /// Writes the model as TOML, atomically ([`brdf_io::output::write_file_atomic`]).
     pub fn save(&self, path: &Path) -> Result<()> {
         let err = |reason: String| Error::File {
             path: path.to_owned(),
             reason,
         };
         let text = toml::to_string_pretty(self).map_err(|e| err(e.to_string()))?;
-        let dir = path
-            .parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(Path::new("."));
-        let file_name = path
-            .file_name()
-            .ok_or_else(|| err("not a file path".into()))?;
-        let tmp = dir.join(format!(
-            ".{}.tmp{}",
-            file_name.to_string_lossy(),
-            std::process::id()
-        ));
-        std::fs::write(&tmp, text).map_err(|e| err(e.to_string()))?;
-        std::fs::rename(&tmp, path).map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            err(e.to_string())
-        })
+        brdf_io::output::write_file_atomic(path, text.as_bytes()).map_err(|e| err(e.to_string()))
     }
 }

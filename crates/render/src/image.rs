@@ -1,6 +1,5 @@
 //! Linear-sRGB float images, drawing helpers (rectangles, dots, text) and atomic PNG output.
 
-use std::io::Write;
 use std::path::Path;
 
 use crate::colour::to_srgb8;
@@ -136,8 +135,8 @@ impl Image {
         out
     }
 
-    /// Writes an 8-bit sRGB PNG (RGBA) via a temporary file in the same directory, renamed into
-    /// place.
+    /// Writes an 8-bit sRGB PNG (RGBA) atomically ([`brdf_io::output::write_file_atomic`]: a
+    /// temporary file renamed into place, or straight into a special file such as `/dev/stdout`).
     pub fn save_png(&self, path: &Path) -> Result<()> {
         let err = |reason: String| Error::Write {
             path: path.to_owned(),
@@ -157,28 +156,7 @@ impl Image {
                 .map_err(|e| err(e.to_string()))?;
             w.finish().map_err(|e| err(e.to_string()))?;
         }
-        let dir = path
-            .parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(Path::new("."));
-        let name = path
-            .file_name()
-            .ok_or_else(|| err("not a file path".into()))?;
-        let tmp = dir.join(format!(
-            ".{}.tmp{}",
-            name.to_string_lossy(),
-            std::process::id()
-        ));
-        let write = || -> std::io::Result<()> {
-            let mut f = std::fs::File::create(&tmp)?;
-            f.write_all(&bytes)?;
-            f.sync_all()?;
-            std::fs::rename(&tmp, path)
-        };
-        write().map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            err(e.to_string())
-        })
+        brdf_io::output::write_file_atomic(path, &bytes).map_err(|e| err(e.to_string()))
     }
 }
 

@@ -450,7 +450,7 @@ pub struct ExportArgs {
     /// A dataset store (`.sbrdf`).
     path: PathBuf,
     /// Output `.npy`: an N x D matrix, rows in store order (or `--materials` order), columns in
-    /// the store's dimension order.
+    /// the store's dimension order (`-`: standard output when it is a file, not a pipe).
     #[arg(long)]
     out: PathBuf,
     /// Comma-separated material names to export (default: all).
@@ -494,19 +494,13 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
     let f64_out = args.dtype == "f64";
     let size = if f64_out { 8 } else { 4 };
     let header = npy_header(if f64_out { "<f8" } else { "<f4" }, rows.len(), d);
-    let dir = match args.out.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
-        _ => PathBuf::from("."),
-    };
-    let mut builder = tempfile::Builder::new();
-    #[cfg(unix)]
-    builder
-        .permissions(<std::fs::Permissions as std::os::unix::fs::PermissionsExt>::from_mode(0o644));
-    let tmp = builder
-        .tempfile_in(&dir)
-        .with_context(|| format!("{}: cannot create a temporary file", args.out.display()))?;
+    // Rows are written window by window at their offsets, so the output must be seekable.
+    let out = brdf_io::output::AtomicOutput::create_seekable(
+        crate::paths::output(&args.out),
+        "an .npy export",
+    )?;
     let io = |e: std::io::Error| anyhow::anyhow!("{}: {e}", args.out.display());
-    let mut file: File = tmp.as_file().try_clone().map_err(io)?;
+    let mut file: File = out.file().try_clone().map_err(io)?;
     file.write_all(&header).map_err(io)?;
     file.set_len((header.len() + rows.len() * d * size) as u64)
         .map_err(io)?;
@@ -552,9 +546,8 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
     if let Some(e) = err {
         return Err(e);
     }
-    file.sync_all().map_err(io)?;
-    tmp.persist(&args.out)
-        .map_err(|e| anyhow::anyhow!("{}: {}", args.out.display(), e.error))?;
+    drop(file);
+    out.commit()?;
     eprintln!(
         "wrote {}: {} x {d} {} ({})",
         args.out.display(),

@@ -1,7 +1,6 @@
 //! `specgp predict` (materialise a predicted material) and `specgp evaluate` (reconstruction and
 //! leave-one-out errors), plus the `MODEL.toml@X,Y` source of `specgp sample`.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
@@ -318,17 +317,7 @@ pub fn evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
     }
     if let Some(path) = &args.json {
         let text = serde_json::to_string_pretty(&ev)?;
-        let dir = match path.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        let mut tmp = tempfile::NamedTempFile::new_in(&dir)
-            .with_context(|| format!("creating a temporary file next to {}", path.display()))?;
-        tmp.write_all(text.as_bytes())
-            .and_then(|()| tmp.flush())
-            .with_context(|| format!("writing {}", path.display()))?;
-        tmp.persist(path)
-            .with_context(|| format!("writing {}", path.display()))?;
+        brdf_io::output::write_file_atomic(path, text.as_bytes())?;
     }
     Ok(())
 }

@@ -10,7 +10,6 @@
 //!
 //! Further kinds add one arm to [`open_source`].
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
@@ -26,7 +25,8 @@ pub struct SampleArgs {
     /// z = normal; a header line is allowed).
     #[arg(long)]
     pub dirs: PathBuf,
-    /// Output CSV: a header naming the channels, then one row of values (1/sr) per pair.
+    /// Output CSV: a header naming the channels, then one row of values (1/sr) per pair (`-`:
+    /// standard output).
     #[arg(long)]
     pub out: PathBuf,
     /// Wavelengths START:END:STEP or a comma list in nm (spectral `.bsdf` sources only;
@@ -165,17 +165,7 @@ pub fn sample(args: &SampleArgs) -> anyhow::Result<()> {
         .with_context(|| format!("reading {}", args.dirs.display()))?;
     let pairs = parse_dirs(&text, &args.dirs)?;
     let csv = sample_csv(source.as_ref(), &pairs)?;
-    let dir = match args.out.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let mut tmp = tempfile::NamedTempFile::new_in(&dir)
-        .with_context(|| format!("creating a temporary file next to {}", args.out.display()))?;
-    tmp.write_all(csv.as_bytes())
-        .and_then(|()| tmp.flush())
-        .with_context(|| format!("writing {}", args.out.display()))?;
-    tmp.persist(&args.out)
-        .with_context(|| format!("writing {}", args.out.display()))?;
+    brdf_io::output::write_file_atomic(crate::paths::output(&args.out), csv.as_bytes())?;
     tracing::info!(pairs = pairs.len(), out = %args.out.display(), "sampled {}", args.source);
     Ok(())
 }

@@ -14,6 +14,16 @@ pub fn source_file(source: &str) -> PathBuf {
     cut.map_or_else(|| source.into(), |i| source[..i].into())
 }
 
+/// An output argument: `-` means standard output (`/dev/stdout`, written in place, see
+/// [`brdf_io::output`]); anything else is the path itself.
+pub fn output(path: &Path) -> PathBuf {
+    if path == Path::new("-") {
+        PathBuf::from("/dev/stdout")
+    } else {
+        path.to_owned()
+    }
+}
+
 /// `path` made absolute with symbolic links resolved as far as it exists (the output may not
 /// exist yet: its directory is resolved and the file name appended).
 fn resolved(path: &Path) -> Option<PathBuf> {
@@ -79,5 +89,7 @@ mod tests {
         assert_eq!(source_file("d.sbrdf:felt"), PathBuf::from("d.sbrdf"));
         assert_eq!(source_file("m.toml@0.5,-1"), PathBuf::from("m.toml"));
         assert_eq!(source_file("a.bsdf"), PathBuf::from("a.bsdf"));
+        assert_eq!(output(Path::new("-")), PathBuf::from("/dev/stdout"));
+        assert_eq!(output(Path::new("x.csv")), PathBuf::from("x.csv"));
     }
 }

@@ -308,3 +308,42 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
     }
     assert_eq!(std::fs::read(d.join("data.sbrdf")).unwrap(), before);
 }
+
+#[test]
+fn sample_writes_csv_to_stdout_with_a_dash() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    synth_small(d, "400:700:100");
+    std::fs::write(d.join("dirs.csv"), "0,0,1,0,0,1\n0.6,0,0.8,0,0,1\n").unwrap();
+    let stdout = specgp(
+        &[
+            "sample",
+            "data.sbrdf:paper_white",
+            "--dirs",
+            "dirs.csv",
+            "--out",
+            "-",
+        ],
+        d,
+    );
+    let lines: Vec<&str> = stdout.lines().collect();
+    assert_eq!(lines.len(), 3, "{stdout}");
+    assert_eq!(lines[0], "400,500,600,700");
+    let white: Vec<f64> = lines[1].split(',').map(|v| v.parse().unwrap()).collect();
+    // A white paper at normal incidence: a few tenths per steradian in every channel.
+    assert!(white.iter().all(|v| *v > 0.05 && *v < 1.0), "{white:?}");
+    assert!(!d.join("-").exists());
+    // The same values as through a file.
+    specgp(
+        &[
+            "sample",
+            "data.sbrdf:paper_white",
+            "--dirs",
+            "dirs.csv",
+            "--out",
+            "v.csv",
+        ],
+        d,
+    );
+    assert_eq!(std::fs::read_to_string(d.join("v.csv")).unwrap(), stdout);
+}
