@@ -152,7 +152,10 @@ pub fn leave_one_out(
     let n = g.nrows();
     if n < 3 || h >= n {
         return Err(Error::InvalidArgument {
-            reason: format!("leave-one-out needs N >= 3 and h < N (N = {n}, h = {h})"),
+            reason: format!(
+                "leave-one-out needs at least 3 materials (the refit without one keeps >= 2) and a \
+                 held-out index h < N; got N = {n}, h = {h}"
+            ),
         });
     }
     let others = all_but(n, h);

@@ -146,11 +146,19 @@ impl Predictor {
             )));
         }
         if store.channels().labels() != model.dataset.channels {
-            return Err(mismatch(format!(
-                "channels differ (model {} channels, store {})",
-                model.dataset.channels.len(),
-                store.channels().len()
-            )));
+            let (m, st) = (&model.dataset.channels, store.channels().labels());
+            let first = m.iter().zip(&st).position(|(a, b)| a != b);
+            return Err(mismatch(match first {
+                Some(k) => format!(
+                    "channels differ (channel {k}: model {}, store {})",
+                    m[k], st[k]
+                ),
+                None => format!(
+                    "channels differ (model {} channels, store {})",
+                    m.len(),
+                    st.len()
+                ),
+            }));
         }
         let n = store.n_materials();
         if n != model.materials.len() || store.d() != model.dataset.d {
