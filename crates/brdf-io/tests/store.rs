@@ -503,6 +503,107 @@ fn header_with_a_huge_grid_is_refused() {
     names_file(&e, &path);
 }
 
+/// Headers with bad wavelengths or material names are refused on open, naming the store file
+/// (they used to open and fail later with messages naming no file).
+#[test]
+fn header_with_bad_wavelengths_or_names_is_refused() {
+    let t = dir();
+    let info = info(
+        3,
+        3,
+        4,
+        Channels::spectral(vec![400.0, 500.0, 600.0]).unwrap(),
+    );
+    let rows: Vec<_> = (0..2).map(|i| material(&info, 90 + i)).collect();
+    let path = t.path().join("spec.sbrdf");
+    write_materials(&path, &info, &rows, StoreOptions::default(), 1000).unwrap();
+    let good = std::fs::read(&path).unwrap();
+    let cases: [(&str, serde_json::Value, &str); 5] = [
+        (
+            "channels",
+            serde_json::json!({"kind": "spectral", "wavelengths_nm": [500.0, 400.0, 600.0]}),
+            "strictly increasing",
+        ),
+        (
+            "channels",
+            serde_json::json!({"kind": "spectral", "wavelengths_nm": [400.0, 400.0, 600.0]}),
+            "strictly increasing",
+        ),
+        (
+            "channels",
+            serde_json::json!({"kind": "spectral", "wavelengths_nm": [-400.0, 500.0, 600.0]}),
+            "finite and positive",
+        ),
+        (
+            "materials.0.name",
+            serde_json::json!(""),
+            "material 0 has an empty name",
+        ),
+        (
+            "materials.1.name",
+            serde_json::json!("mat0"),
+            "duplicate material name \"mat0\"",
+        ),
+    ];
+    for (key, value, want) in cases {
+        std::fs::write(&path, &good).unwrap();
+        rewrite_header(&path, |h| {
+            let mut slot = &mut *h;
+            for k in key.split('.') {
+                slot = match k.parse::<usize>() {
+                    Ok(i) => &mut slot[i],
+                    Err(_) => &mut slot[k],
+                };
+            }
+            *slot = value.clone();
+        });
+        let e = Store::open(&path).unwrap_err();
+        assert!(matches!(e, Error::StoreCorrupt { .. }), "{key}: {e}");
+        assert!(e.to_string().contains(want), "{key}: {e}");
+        names_file(&e, &path);
+    }
+    // A NaN wavelength cannot even be written in JSON (it becomes null): refused as well.
+    std::fs::write(&path, &good).unwrap();
+    rewrite_header(&path, |h| {
+        h["channels"]["wavelengths_nm"][1] = serde_json::Value::Null
+    });
+    let e = Store::open(&path).unwrap_err();
+    names_file(&e, &path);
+}
+
+/// The writer refuses names with a newline (or other control character) and bad wavelengths,
+/// naming the output file and the name.
+#[test]
+fn writer_refuses_control_characters_in_names_and_bad_wavelengths() {
+    let t = dir();
+    let path = t.path().join("out.sbrdf");
+    let info = info(2, 2, 4, Channels::Rgb);
+    let mut w = StoreWriter::create(&path, info.clone(), StoreOptions::default()).unwrap();
+    let e = w
+        .declare_materials(&[("ok", "s"), ("two\nlines", "s")])
+        .unwrap_err();
+    let msg = e.to_string();
+    assert!(msg.contains("\"two\\nlines\" contains a newline"), "{msg}");
+    names_file(&e, &path);
+    drop(w);
+    let mut w = StoreWriter::create(&path, info.clone(), StoreOptions::default()).unwrap();
+    let e = w
+        .add_material("tab\there", "s", &vec![0.0; info.d()])
+        .unwrap_err();
+    assert!(e.to_string().contains("\"tab\\there\" contains"), "{e}");
+    drop(w);
+    let bad = StoreInfo {
+        grid: info.grid,
+        channels: Channels::Spectral(vec![500.0, 400.0]),
+    };
+    let e = StoreWriter::create(&path, bad, StoreOptions::default())
+        .err()
+        .unwrap();
+    assert!(e.to_string().contains("strictly increasing"), "{e}");
+    names_file(&e, &path);
+    assert!(only_file(t.path()).is_empty());
+}
+
 /// xxh3-64 of the prefix fields followed by the header (as the format defines it).
 fn xxhash_rust_digest(prefix: &[u8], header: &[u8]) -> u64 {
     let mut v = prefix.to_vec();

@@ -749,8 +749,21 @@ fn validate_header(h: &StoreHeader, path: &Path) -> Result<()> {
             h.channels.len()
         ));
     }
+    if let Channels::Spectral(w) = &h.channels {
+        Channels::spectral(w.clone())
+            .map_err(|e| corrupt(path, format!("header channels: {e}")))?;
+    }
     if h.materials.is_empty() {
         return bad("no materials".into());
+    }
+    let mut seen = std::collections::HashSet::new();
+    for (i, m) in h.materials.iter().enumerate() {
+        if m.name.is_empty() {
+            return bad(format!("material {i} has an empty name"));
+        }
+        if !seen.insert(m.name.as_str()) {
+            return bad(format!("duplicate material name {:?}", m.name));
+        }
     }
     let l = &h.layout;
     if l.order != "chunked-index-major" {

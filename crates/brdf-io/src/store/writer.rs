@@ -14,6 +14,7 @@ use super::{
     encode_values, hex64,
 };
 use crate::error::{Error, Result};
+use crate::grid::Channels;
 use crate::output::AtomicOutput;
 
 /// Writes a dataset store without holding the dataset in memory.
@@ -228,6 +229,14 @@ impl StoreWriter {
                 reason: "chunk length must be at least 1".into(),
             });
         }
+        if let Channels::Spectral(w) = &info.channels
+            && let Err(e) = Channels::spectral(w.clone())
+        {
+            return Err(Error::StoreUsage {
+                path,
+                reason: e.to_string(),
+            });
+        }
         let out = AtomicOutput::create_seekable(&path, "a dataset store")?;
         let scratch_dir = match path.parent() {
             _ if out.is_direct() => std::env::temp_dir(),
@@ -317,6 +326,12 @@ impl StoreWriter {
         if name.is_empty() {
             return Err(self.usage("material names must not be empty".into()));
         }
+        if name.chars().any(char::is_control) {
+            return Err(self.usage(format!(
+                "material name {name:?} contains a newline or another control character \
+                 (names are listed one per line)"
+            )));
+        }
         if self.materials.iter().any(|m| m.name == name) {
             return Err(self.usage(format!("duplicate material name {name:?}")));
         }
@@ -329,7 +344,8 @@ impl StoreWriter {
     }
 
     /// Starts the next material (material mode); write its D values, then call
-    /// [`MaterialWriter::finish`].
+    /// [`MaterialWriter::finish`]. Names must be non-empty, unique and free of control
+    /// characters (newlines).
     pub fn begin_material(&mut self, name: &str, source: &str) -> Result<MaterialWriter<'_>> {
         self.check_ok()?;
         match &self.mode {
@@ -376,7 +392,8 @@ impl StoreWriter {
         m.finish()
     }
 
-    /// Switches to block mode with these (name, source) materials, in row order.
+    /// Switches to block mode with these (name, source) materials, in row order (names as for
+    /// [`StoreWriter::begin_material`]).
     pub fn declare_materials<S: AsRef<str>, T: AsRef<str>>(
         &mut self,
         materials: &[(S, T)],
