@@ -104,7 +104,23 @@ fn init_tracing(verbosity: u8) {
 }
 
 fn run(cli: Cli) -> anyhow::Result<()> {
-    match cli.command {
+    // Every command logs its start and end at `-v` (info), its arguments at `-vv` (debug).
+    let name = format!("{:?}", cli.command);
+    let name = name.split('(').next().unwrap_or("command").to_lowercase();
+    tracing::debug!(command = ?cli.command, "arguments");
+    tracing::info!("{name}: start");
+    let start = std::time::Instant::now();
+    let result = run_command(cli.command);
+    let seconds = start.elapsed().as_secs_f64();
+    match &result {
+        Ok(()) => tracing::info!(seconds, "{name}: done"),
+        Err(e) => tracing::info!(seconds, "{name}: failed: {e:#}"),
+    }
+    result
+}
+
+fn run_command(command: Command) -> anyhow::Result<()> {
+    match command {
         Command::Grid(args) => grid_command(&args),
         Command::Fit(args) => cmd_fit::fit(&args),
         Command::Latent(args) => cmd_fit::latent(&args),
