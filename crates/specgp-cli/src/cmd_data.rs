@@ -36,7 +36,7 @@ pub struct StoreOut {
     #[arg(long, default_value = "f32")]
     pub dtype: Dtype,
     /// Compress chunks with zstd at this level (1..=22); uncompressed when absent.
-    #[arg(long, value_name = "LEVEL")]
+    #[arg(long, value_name = "LEVEL", value_parser = clap::value_parser!(i32).range(1..=22))]
     pub zstd: Option<i32>,
     /// With `--zstd`: byte-shuffle each chunk first (smaller files for float data).
     #[arg(long, requires = "zstd")]

@@ -28,7 +28,7 @@ pub struct SynthArgs {
     #[arg(long, default_value = "f32")]
     dtype: Dtype,
     /// Compress chunks with zstd at this level (1..=22); uncompressed when absent.
-    #[arg(long, value_name = "LEVEL")]
+    #[arg(long, value_name = "LEVEL", value_parser = clap::value_parser!(i32).range(1..=22))]
     zstd: Option<i32>,
 }
 
