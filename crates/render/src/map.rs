@@ -10,12 +10,18 @@ use crate::font;
 use crate::image::Image;
 use crate::sphere::{SphereOptions, render_sphere};
 
+/// Largest side of a map's plot area and of its thumbnail panel, in pixels (as a sphere's).
+pub const MAX_MAP_PIXELS: usize = 16384;
+/// Most thumbnails per axis of a map's panel.
+pub const MAX_THUMBNAILS: usize = 64;
+
 /// How to draw a latent map.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MapOptions {
-    /// Side of the square plot area in pixels.
+    /// Side of the square plot area in pixels (64..=[`MAX_MAP_PIXELS`]).
     pub size: usize,
-    /// Thumbnails per axis (0: none).
+    /// Thumbnails per axis (0: none; at most [`MAX_THUMBNAILS`], 8..=1024-pixel spheres, a
+    /// panel of at most [`MAX_MAP_PIXELS`]).
     pub thumbnails: usize,
     /// Sphere options of the thumbnails (their `size` is the thumbnail size).
     pub sphere: SphereOptions,
@@ -74,14 +80,30 @@ pub fn latent_map(
     source_at: Option<&SourceAt<'_>>,
     opts: &MapOptions,
 ) -> Result<Image> {
-    if points.is_empty() || opts.size < 64 || opts.variance_samples < 2 {
+    if points.is_empty() || !(64..=MAX_MAP_PIXELS).contains(&opts.size) || opts.variance_samples < 2
+    {
         return Err(Error::InvalidArgument {
             reason: format!(
-                "a map needs points, size >= 64 and >= 2 variance samples (got {} points, size {})",
+                "a map needs points, a size in 64..={MAX_MAP_PIXELS} and >= 2 variance samples \
+                 (got {} points, size {})",
                 points.len(),
                 opts.size
             ),
         });
+    }
+    if opts.thumbnails > 0 && source_at.is_some() {
+        let (k, px) = (opts.thumbnails, opts.sphere.size);
+        if !(1..=MAX_THUMBNAILS).contains(&k)
+            || !(8..=1024).contains(&px)
+            || k * px > MAX_MAP_PIXELS
+        {
+            return Err(Error::InvalidArgument {
+                reason: format!(
+                    "thumbnails: {k} per axis (at most {MAX_THUMBNAILS}) of {px} px (8..=1024), \
+                     a panel of at most {MAX_MAP_PIXELS} px"
+                ),
+            });
+        }
     }
     if points
         .iter()

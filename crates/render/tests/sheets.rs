@@ -114,6 +114,30 @@ fn path_comparison_and_map_draw() {
         },
         variance_samples: 16,
     };
+    // Sizes that would need a huge allocation are refused before any work.
+    for bad in [
+        MapOptions {
+            size: 100_000,
+            ..mopts.clone()
+        },
+        MapOptions {
+            thumbnails: 100_000,
+            ..mopts.clone()
+        },
+        MapOptions {
+            thumbnails: 64,
+            sphere: SphereOptions {
+                size: 1024,
+                ..SphereOptions::default()
+            },
+            ..mopts.clone()
+        },
+    ] {
+        let err = latent_map(&points, &var, Some(&src), &bad)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("16384"), "{err}");
+    }
     let map = latent_map(&points, &var, Some(&src), &mopts).unwrap();
     keep(&map, "map.png");
     assert_eq!(map.width, 40 + 160 + 40 + 3 * 24 + 40);
