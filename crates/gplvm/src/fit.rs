@@ -307,7 +307,7 @@ pub fn fit_store(path: &Path, config: &FitConfig) -> Result<Model> {
         version: MODEL_VERSION,
         dataset: DatasetRef {
             path: abs_path,
-            checksum: format!("{}:{}", header.checksum.algorithm, header.checksum.value),
+            checksum: header.checksum.to_string(),
             n_materials: n,
             d: store.d(),
             d_effective: pass.d_effective,

@@ -131,7 +131,7 @@ impl Predictor {
             what,
         };
         let h = store.header();
-        let checksum = format!("{}:{}", h.checksum.algorithm, h.checksum.value);
+        let checksum = h.checksum.to_string();
         if checksum != model.dataset.checksum {
             return Err(mismatch(format!(
                 "checksum differs (model {}, store {checksum}): the store was rewritten since the fit",
@@ -227,8 +227,8 @@ impl Predictor {
     fn transformed_source(&self) -> String {
         let h = self.inner.store.header();
         format!(
-            "forward-transformed values ({}) of dataset checksum {}:{}",
-            self.inner.transform, h.checksum.algorithm, h.checksum.value
+            "forward-transformed values ({}) of dataset checksum {}",
+            self.inner.transform, h.checksum
         )
     }
 

@@ -537,7 +537,7 @@ fn bad_inputs_give_clear_errors() {
     let store = Arc::new(Store::open(&other).unwrap());
     let mut model = Model::load(&f.model).unwrap();
     let h = store.header();
-    model.dataset.checksum = format!("{}:{}", h.checksum.algorithm, h.checksum.value);
+    model.dataset.checksum = h.checksum.to_string();
     let e = Predictor::with_store(model.clone(), &f.model, store.clone()).unwrap_err();
     assert!(e.to_string().contains("grid differs"), "{e}");
 

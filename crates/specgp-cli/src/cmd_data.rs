@@ -367,8 +367,7 @@ fn model_info(args: &InfoArgs) -> anyhow::Result<()> {
     let ds = &model.dataset;
     let dataset = match Store::open(&ds.path) {
         Ok(store) => {
-            let h = store.header();
-            if format!("{}:{}", h.checksum.algorithm, h.checksum.value) == ds.checksum {
+            if store.header().checksum.to_string() == ds.checksum {
                 "present, checksum matches".to_owned()
             } else {
                 "present, DIFFERENT checksum (refitted or replaced?)".to_owned()

@@ -305,6 +305,13 @@ pub struct Checksum {
     pub value: String,
 }
 
+impl std::fmt::Display for Checksum {
+    /// `algorithm:value`, e.g. `xxh3-64:a5d06b176ea1a16a` (how model files record a dataset).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}:{}", self.algorithm, self.value)
+    }
+}
+
 /// The JSON header of a store.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StoreHeader {
