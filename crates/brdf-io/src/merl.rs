@@ -9,7 +9,8 @@
 //! below-horizon) samples.
 //!
 //! [`read_merl`] keeps the values exactly as stored (negative markers included, times the
-//! scale) and refuses NaN and infinite numbers; the conversions to dataset order treat negatives as 0 and count them in the
+//! scale) and refuses NaN and infinite numbers, as [`MerlBrdf::new`] does (so [`write_merl`] never
+//! writes them); the conversions to dataset order treat negatives as 0 and count them in the
 //! [`ImportReport`].
 
 use std::path::{Path, PathBuf};
@@ -54,6 +55,7 @@ impl MerlBrdf {
                 ),
             });
         }
+        check_finite(&values, |i| i)?;
         Ok(Self { grid, values })
     }
 
@@ -70,6 +72,7 @@ impl MerlBrdf {
             });
         }
         let n = grid.len();
+        check_finite(values, |i| (i % 3) * n + i / 3)?;
         let mut out = vec![0.0; 3 * n];
         for (flat, cell) in values.chunks_exact(3).enumerate() {
             for c in 0..3 {
@@ -290,6 +293,25 @@ fn step_ulp(x: f64, up: bool) -> f64 {
     f64::from_bits(if away_from_zero { b + 1 } else { b - 1 })
 }
 
+/// Refuses NaN and infinity (a MERL file cannot mark them, and [`read_merl`] refuses them):
+/// the error names the first bad value by its channel-major MERL index (`channel_major(i)` for
+/// the `i`-th value of `values`).
+fn check_finite<T: Copy + Into<f64>>(
+    values: &[T],
+    channel_major: impl Fn(usize) -> usize,
+) -> Result<()> {
+    match values.iter().position(|v| !(*v).into().is_finite()) {
+        None => Ok(()),
+        Some(i) => Err(Error::InvalidArgument {
+            reason: format!(
+                "a MERL BRDF cannot hold the non-finite value {} (at MERL index {})",
+                values[i].into(),
+                channel_major(i)
+            ),
+        }),
+    }
+}
+
 /// Writes a MERL `.binary` file (temporary file + rename). Values are in 1/sr; the per-channel
 /// scale is inverted so that [`read_merl`] gives the same values back.
 pub fn write_merl(path: impl AsRef<Path>, brdf: &MerlBrdf) -> Result<()> {
@@ -316,6 +338,34 @@ pub fn write_merl(path: impl AsRef<Path>, brdf: &MerlBrdf) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn non_finite_values_are_refused_with_their_merl_index() {
+        let grid = AngularGrid::new(2, 2, 4).unwrap();
+        let n = grid.len();
+        let mut values = vec![0.5; 3 * n];
+        values[n + 5] = f64::NAN;
+        let err = MerlBrdf::new(grid, values).unwrap_err().to_string();
+        assert!(
+            err.contains("non-finite value NaN") && err.contains(&format!("MERL index {}", n + 5)),
+            "{err}"
+        );
+        // Dataset order is cell-major (flat * 3 + channel): value 3 * 7 + 2 is channel 2, cell 7.
+        let mut dataset = vec![0.5f32; 3 * n];
+        dataset[3 * 7 + 2] = f32::INFINITY;
+        let err = MerlBrdf::from_dataset_order(grid, &dataset)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("non-finite value inf")
+                && err.contains(&format!("MERL index {}", 2 * n + 7)),
+            "{err}"
+        );
+        assert!(
+            MerlBrdf::new(grid, vec![-1.0; 3 * n]).is_ok(),
+            "negative markers stay allowed"
+        );
+    }
 
     fn synthetic(grid: AngularGrid) -> MerlBrdf {
         // Smooth positive values with a few negative markers, as a MERL file would hold them.
