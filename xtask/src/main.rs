@@ -55,6 +55,9 @@ fn main() -> std::process::ExitCode {
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .init();
+    if let Err(err) = brdf_io::output::remove_unfinished_outputs_on_signal("xtask") {
+        tracing::warn!("{err}");
+    }
     match run(&cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {

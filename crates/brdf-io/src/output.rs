@@ -17,10 +17,15 @@
 //!   since renaming would replace the special file by a regular one. Such output is not atomic.
 //!   Writers that need to seek ([`AtomicOutput::create_seekable`]) refuse targets that cannot
 //!   seek (pipes, terminals, sockets) with [`Error::NotSeekable`].
+//! - **interrupted runs**: an exit that skips destructors (a signal, `std::process::exit`) would
+//!   leave the temporary files behind. Every temporary file is listed while it exists, so a
+//!   signal handler can call [`remove_unfinished_outputs`] before it exits
+//!   ([`remove_unfinished_outputs_on_signal`] installs one; the `specgp` and `xtask` binaries do).
 
 use std::fs::File;
 use std::io::{Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
+use std::sync::{Mutex, MutexGuard, PoisonError};
 
 use tempfile::NamedTempFile;
 
@@ -37,8 +42,13 @@ pub struct AtomicOutput {
 
 #[derive(Debug)]
 enum Inner {
-    /// Temporary file and the path it is renamed to (symlinks resolved).
-    Temp { tmp: NamedTempFile, target: PathBuf },
+    /// Temporary file and the path it is renamed to (symlinks resolved). `listed` is dropped
+    /// after `tmp` (field order), so the file is deleted before it leaves the list.
+    Temp {
+        tmp: NamedTempFile,
+        target: PathBuf,
+        listed: Listed,
+    },
     /// The existing special file, written in place.
     Direct(File),
 }
@@ -90,12 +100,17 @@ impl AtomicOutput {
             <std::fs::Permissions as std::os::unix::fs::PermissionsExt>::from_mode(0o666),
         );
         let tmp = builder.tempfile_in(&dir).map_err(io)?;
+        let listed = Listed::new(tmp.path());
         if let Some(perm) = existing {
             tmp.as_file().set_permissions(perm).map_err(io)?;
         }
         Ok(Self {
             path,
-            inner: Inner::Temp { tmp, target },
+            inner: Inner::Temp {
+                tmp,
+                target,
+                listed,
+            },
         })
     }
 
@@ -139,10 +154,15 @@ impl AtomicOutput {
     pub fn commit(self) -> Result<()> {
         let path = self.path;
         match self.inner {
-            Inner::Temp { tmp, target } => {
+            Inner::Temp {
+                tmp,
+                target,
+                listed,
+            } => {
                 tmp.as_file().sync_all().map_err(|e| Error::io(&path, e))?;
                 tmp.persist(&target)
                     .map_err(|e| Error::io(&path, e.error))?;
+                drop(listed);
             }
             Inner::Direct(mut f) => f.flush().map_err(|e| Error::io(&path, e))?,
         }
@@ -172,6 +192,68 @@ impl Seek for AtomicOutput {
         let mut f = self.file();
         f.seek(pos)
     }
+}
+
+/// Paths of the temporary files that exist now (outputs created and neither committed nor
+/// dropped), for [`remove_unfinished_outputs`].
+static UNFINISHED: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+/// The list, even if a thread panicked while holding it (a `Vec` of paths stays consistent).
+fn unfinished() -> MutexGuard<'static, Vec<PathBuf>> {
+    UNFINISHED.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// A temporary file's entry in [`UNFINISHED`]: added on creation, removed on drop.
+#[derive(Debug)]
+struct Listed(PathBuf);
+
+impl Listed {
+    fn new(tmp: &Path) -> Self {
+        unfinished().push(tmp.to_owned());
+        Self(tmp.to_owned())
+    }
+}
+
+impl Drop for Listed {
+    fn drop(&mut self) {
+        let mut list = unfinished();
+        if let Some(i) = list.iter().position(|p| *p == self.0) {
+            list.swap_remove(i);
+        }
+    }
+}
+
+/// The temporary files of this process's outputs that are still being written.
+pub fn unfinished_outputs() -> Vec<PathBuf> {
+    unfinished().clone()
+}
+
+/// Deletes the temporary files of every output this process is still writing and returns how
+/// many it deleted. Meant for a signal handler that exits right after: such an exit skips the
+/// destructors that would delete them. Targets are never touched; an output of this process
+/// committed afterwards fails, since its temporary file is gone.
+pub fn remove_unfinished_outputs() -> usize {
+    let list = unfinished();
+    list.iter()
+        .filter(|p| std::fs::remove_file(p).is_ok())
+        .count()
+}
+
+/// Installs the process's handler of SIGINT, SIGTERM and SIGHUP (for binaries; a library must
+/// not call it): it calls [`remove_unfinished_outputs`], says so on stderr as `program`, and
+/// exits with status 130, as a shell reports an interrupted command. Fails when the process
+/// already has such a handler; a run interrupted then leaves its temporary files behind.
+pub fn remove_unfinished_outputs_on_signal(program: &'static str) -> Result<()> {
+    ctrlc::set_handler(move || {
+        let removed = remove_unfinished_outputs();
+        eprintln!("{program}: interrupted; removed {removed} unfinished output file(s)");
+        std::process::exit(130);
+    })
+    .map_err(|e| Error::InvalidArgument {
+        reason: format!(
+            "cannot install the signal handler that cleans up interrupted outputs: {e}"
+        ),
+    })
 }
 
 /// Writes `bytes` to `path` atomically (see the [module docs](self)).
@@ -255,6 +337,29 @@ mod tests {
         assert_eq!(std::fs::read(&p).unwrap(), b"z\n");
         let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
         assert_eq!(names.len(), 1);
+    }
+
+    #[test]
+    fn temporary_files_are_listed_until_committed_or_dropped() {
+        let dir = tempfile::tempdir().unwrap();
+        let listed = |out: &AtomicOutput| {
+            let tmp = std::fs::read_dir(dir.path())
+                .unwrap()
+                .map(|e| e.unwrap().path())
+                .find(|p| p.extension().is_some_and(|e| e == "tmp"))
+                .unwrap();
+            assert!(!out.is_direct());
+            unfinished_outputs().contains(&tmp).then_some(tmp)
+        };
+        let mut out = AtomicOutput::create(dir.path().join("a.bin")).unwrap();
+        out.write_all(b"x").unwrap();
+        let tmp = listed(&out).expect("a new output's temporary file is listed");
+        out.commit().unwrap();
+        assert!(!unfinished_outputs().contains(&tmp));
+        let out = AtomicOutput::create(dir.path().join("b.bin")).unwrap();
+        let tmp = listed(&out).expect("listed");
+        drop(out);
+        assert!(!unfinished_outputs().contains(&tmp) && !tmp.exists());
     }
 
     #[test]

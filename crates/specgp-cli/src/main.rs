@@ -147,6 +147,9 @@ fn main() -> std::process::ExitCode {
         }
     };
     init_tracing(cli.verbose);
+    if let Err(err) = brdf_io::output::remove_unfinished_outputs_on_signal("specgp") {
+        tracing::warn!("{err}");
+    }
     match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         // A closed pipe (`specgp latent m.toml | head`) is not an error.

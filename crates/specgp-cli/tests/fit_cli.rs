@@ -347,3 +347,52 @@ fn sample_writes_csv_to_stdout_with_a_dash() {
     );
     assert_eq!(std::fs::read_to_string(d.join("v.csv")).unwrap(), stdout);
 }
+
+/// SIGTERM (or SIGINT, SIGHUP) while an output is being written: exit status 130 and no
+/// `.NAME.XXXXXX.tmp` file left behind (a signal skips the destructors that delete it).
+#[cfg(unix)]
+#[test]
+fn interrupted_run_removes_its_temporary_output() {
+    use std::time::{Duration, Instant};
+    let dir = tempfile::tempdir().unwrap();
+    let temporaries = || -> Vec<String> {
+        std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|n| n.starts_with(".data.sbrdf.") && n.ends_with(".tmp"))
+            .collect()
+    };
+    // The default grid: large enough that the run is still writing when the signal arrives.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_specgp"))
+        .args(["synth", "--out", "data.sbrdf"])
+        .current_dir(dir.path())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    while temporaries().is_empty() {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "synth ended before its output appeared"
+        );
+        assert!(
+            start.elapsed() < Duration::from_secs(120),
+            "no temporary file"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let killed = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{stderr}");
+    assert!(
+        stderr.contains("interrupted; removed 1 unfinished output file(s)"),
+        "{stderr}"
+    );
+    assert_eq!(temporaries(), Vec::<String>::new());
+    assert!(!dir.path().join("data.sbrdf").exists());
+}
