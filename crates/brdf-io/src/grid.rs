@@ -12,6 +12,7 @@
 
 use std::f64::consts::{FRAC_PI_2, PI};
 use std::fmt;
+use std::path::Path;
 use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
@@ -413,6 +414,116 @@ impl Channels {
             Self::Spectral(w) => w.iter().map(|x| format!("{x}")).collect(),
             Self::Rgb => vec!["R".into(), "G".into(), "B".into()],
         }
+    }
+}
+
+/// Output channels of a source and how each comes from its stored channels (an RGL file's, a
+/// dataset's): all of them, or wavelengths interpolated linearly between the two neighbouring
+/// stored wavelengths (as Mitsuba does; the interpolation is in BRDF values).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChannelSelection {
+    /// The output channel axis.
+    pub channels: Channels,
+    /// Per output channel: stored channels `lo`, `hi` and weight `t` of `hi`
+    /// (value = (1 - t) f_lo + t f_hi).
+    pub taps: Vec<(usize, usize, f64)>,
+}
+
+impl ChannelSelection {
+    /// All stored channels, unchanged.
+    pub fn all(stored: &Channels) -> Self {
+        Self {
+            channels: stored.clone(),
+            taps: (0..stored.len()).map(|c| (c, c, 0.0)).collect(),
+        }
+    }
+
+    /// Channels `wanted` from `stored`: R, G, B from RGB channels, or wavelengths inside the
+    /// stored range (within 1e-9 nm) from spectral ones. Errors, naming `path` (the file or
+    /// store the channels belong to), for a wavelength outside the range or a mix of RGB and
+    /// spectral channels.
+    pub fn new(path: &Path, stored: &Channels, wanted: &Channels) -> Result<Self> {
+        let (s, w) = match (stored, wanted) {
+            (Channels::Rgb, Channels::Rgb) => return Ok(Self::all(stored)),
+            (Channels::Spectral(s), Channels::Spectral(w)) => (s, w),
+            (Channels::Rgb, Channels::Spectral(_)) => {
+                return Err(Error::InvalidArgument {
+                    reason: format!(
+                        "{}: RGB data has no wavelengths; ask for RGB channels",
+                        path.display()
+                    ),
+                });
+            }
+            (Channels::Spectral(_), Channels::Rgb) => {
+                return Err(Error::InvalidArgument {
+                    reason: format!(
+                        "{}: spectral data has no RGB channels; give wavelengths",
+                        path.display()
+                    ),
+                });
+            }
+        };
+        let (min, max) = (s[0], s[s.len() - 1]);
+        let taps = w
+            .iter()
+            .map(|&l| {
+                if !(l >= min - 1e-9 && l <= max + 1e-9) {
+                    return Err(Error::WavelengthOutOfRange {
+                        path: path.to_owned(),
+                        wavelength_nm: l,
+                        min_nm: min,
+                        max_nm: max,
+                    });
+                }
+                let hi = s.partition_point(|&x| x < l).min(s.len() - 1);
+                Ok(if (s[hi] - l).abs() <= 1e-9 || hi == 0 {
+                    (hi, hi, 0.0)
+                } else {
+                    let lo = hi - 1;
+                    (lo, hi, (l - s[lo]) / (s[hi] - s[lo]))
+                })
+            })
+            .collect::<Result<_>>()?;
+        Ok(Self {
+            channels: wanted.clone(),
+            taps,
+        })
+    }
+
+    /// Whether the selection is the identity on `stored` channels.
+    pub fn is_identity(&self, stored: usize) -> bool {
+        self.taps.len() == stored
+            && self
+                .taps
+                .iter()
+                .enumerate()
+                .all(|(c, &(lo, hi, t))| lo == c && hi == c && t == 0.0)
+    }
+
+    /// The output channels' values into `out` (one slot per output channel) from stored
+    /// channels `first..`: `values[k - first]` is stored channel `k` ([`Self::span`] gives the
+    /// channels the taps read).
+    pub fn apply(&self, values: &[f64], first: usize, out: &mut [f64]) {
+        for (o, &(lo, hi, t)) in out.iter_mut().zip(&self.taps) {
+            let v_lo = values[lo - first];
+            *o = if t == 0.0 {
+                v_lo
+            } else {
+                (1.0 - t) * v_lo + t * values[hi - first]
+            };
+        }
+    }
+
+    /// The first and last stored channel the taps read.
+    pub fn span(&self) -> (usize, usize) {
+        let first = self.taps.iter().map(|tap| tap.0).min().unwrap_or(0);
+        let last = self
+            .taps
+            .iter()
+            .map(|&(lo, hi, t)| if t == 0.0 { lo } else { hi })
+            .max()
+            .unwrap_or(0);
+        (first, last)
     }
 }
 

@@ -21,6 +21,6 @@ pub mod store;
 pub mod tensor;
 
 pub use error::{Error, Result};
-pub use grid::{AngularGrid, Channels, HalfDiff, Vec3};
+pub use grid::{AngularGrid, ChannelSelection, Channels, HalfDiff, Vec3};
 pub use source::{BrdfSource, ImportReport};
 pub use store::{Store, StoreInfo, StoreOptions, StoreWriter};

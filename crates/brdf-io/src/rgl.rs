@@ -22,7 +22,7 @@ use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
-use crate::grid::{AngularGrid, Channels, Vec3};
+use crate::grid::{AngularGrid, ChannelSelection, Channels, Vec3};
 use crate::source::{
     BrdfSource, ImportReport, ResampleOptions, resample_cells, resample_cells_into,
 };
@@ -217,14 +217,6 @@ impl Warp {
     }
 }
 
-/// Channel selection: for each output channel, the two stored channels and the weight of the
-/// second (linear interpolation in wavelength; exact channels have weight 0).
-#[derive(Debug, Clone, PartialEq)]
-struct Selection {
-    channels: Channels,
-    taps: Vec<(usize, usize, f64)>,
-}
-
 /// An isotropic RGL `.bsdf` file (spectral `*_spec.bsdf` or RGB `*_rgb.bsdf`), ready to evaluate.
 ///
 /// `RglBsdf` is `Sync`: evaluate from many threads at once.
@@ -233,7 +225,7 @@ pub struct RglBsdf {
     path: PathBuf,
     description: String,
     native: Channels,
-    selection: Selection,
+    selection: ChannelSelection,
     jacobian: bool,
     phi_i: Vec<f64>,
     theta_i: Vec<f64>,
@@ -385,7 +377,7 @@ impl RglBsdf {
             path,
         )?;
         let spectra = tf.field_f32(spec_name)?;
-        let selection = Self::select(path, &native, &native)?;
+        let selection = ChannelSelection::all(&native);
         Ok(Self {
             path: path.to_path_buf(),
             description,
@@ -401,54 +393,6 @@ impl RglBsdf {
             n_ch,
             spec_w: spec_s[4],
             spec_h: spec_s[3],
-        })
-    }
-
-    fn select(path: &Path, native: &Channels, want: &Channels) -> Result<Selection> {
-        let taps = match (native, want) {
-            (Channels::Rgb, Channels::Rgb) => vec![(0, 0, 0.0), (1, 1, 0.0), (2, 2, 0.0)],
-            (Channels::Spectral(stored), Channels::Spectral(asked)) => {
-                let (lo, hi) = (stored[0], stored[stored.len() - 1]);
-                asked
-                    .iter()
-                    .map(|&l| {
-                        if !(lo..=hi).contains(&l) {
-                            return Err(Error::WavelengthOutOfRange {
-                                path: path.to_path_buf(),
-                                wavelength_nm: l,
-                                min_nm: lo,
-                                max_nm: hi,
-                            });
-                        }
-                        let (i, t) = axis_weight(stored, l);
-                        Ok(if stored.len() == 1 {
-                            (0, 0, 0.0)
-                        } else {
-                            (i, i + 1, t)
-                        })
-                    })
-                    .collect::<Result<_>>()?
-            }
-            (Channels::Rgb, Channels::Spectral(_)) => {
-                return Err(Error::InvalidArgument {
-                    reason: format!(
-                        "{}: an RGB file has no wavelengths; ask for RGB channels",
-                        path.display()
-                    ),
-                });
-            }
-            (Channels::Spectral(_), Channels::Rgb) => {
-                return Err(Error::InvalidArgument {
-                    reason: format!(
-                        "{}: a spectral file has no RGB channels; give wavelengths",
-                        path.display()
-                    ),
-                });
-            }
-        };
-        Ok(Selection {
-            channels: want.clone(),
-            taps,
         })
     }
 
@@ -477,7 +421,7 @@ impl RglBsdf {
     /// spectral file (linear interpolation between stored wavelengths, as Mitsuba), R,G,B for an
     /// RGB file.
     pub fn with_channels(mut self, channels: &Channels) -> Result<Self> {
-        self.selection = Self::select(&self.path, &self.native, channels)?;
+        self.selection = ChannelSelection::new(&self.path, &self.native, channels)?;
         Ok(self)
     }
 
@@ -486,7 +430,13 @@ impl RglBsdf {
         self.eval_selection(&self.selection, wi, wo, out)
     }
 
-    fn eval_selection(&self, sel: &Selection, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+    fn eval_selection(
+        &self,
+        sel: &ChannelSelection,
+        wi: Vec3,
+        wo: Vec3,
+        out: &mut [f64],
+    ) -> Result<()> {
         crate::source::check_output_len(out, sel.taps.len())?;
         let (Some(wi), Some(wo)) = (unit(wi), unit(wo)) else {
             return Err(Error::InvalidArgument {
@@ -588,7 +538,7 @@ impl RglBsdf {
         options: ResampleOptions,
     ) -> Result<(Vec<f32>, ImportReport)> {
         options.validate()?;
-        let sel = Self::select(&self.path, &self.native, channels)?;
+        let sel = ChannelSelection::new(&self.path, &self.native, channels)?;
         let n = sel.taps.len();
         let (values, report) = resample_cells(
             grid,
@@ -617,7 +567,7 @@ impl RglBsdf {
         out: &mut [f32],
     ) -> Result<ImportReport> {
         options.validate()?;
-        let sel = Self::select(&self.path, &self.native, channels)?;
+        let sel = ChannelSelection::new(&self.path, &self.native, channels)?;
         resample_cells_into(
             grid,
             first_cell,

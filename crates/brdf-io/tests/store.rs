@@ -361,6 +361,70 @@ fn material_sampling_interpolates_on_the_grid() {
     assert_eq!(out, [0.0; 3]);
 }
 
+#[test]
+fn stored_material_at_chosen_wavelengths_interpolates_between_stored_ones() {
+    // Stored channels 400, 500, 600 nm holding 1, 3, 7 (+ cell index): 450 nm is 2, 525 nm is
+    // 3 + 0.25 * 4 = 4 (linear in wavelength, in BRDF values), 600 nm is 7.
+    let info = info(
+        2,
+        2,
+        4,
+        Channels::spectral(vec![400.0, 500.0, 600.0]).unwrap(),
+    );
+    let g = info.grid;
+    let mask = g.validity_mask();
+    let row: Vec<f32> = (0..info.d())
+        .map(|d| {
+            let (a, c) = (d / 3, d % 3);
+            if mask[a] {
+                [1.0, 3.0, 7.0][c] + a as f32
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let t = dir();
+    let path = t.path().join("s.sbrdf");
+    let mut w = StoreWriter::create(&path, info.clone(), StoreOptions::default()).unwrap();
+    w.add_material("m", "test", &row).unwrap();
+    w.finish().unwrap();
+    let m = StoreMaterial::open(&path, "m").unwrap();
+    let at = m
+        .with_wavelengths(&Channels::parse_wavelengths("450,525,600").unwrap())
+        .unwrap();
+    assert_eq!(at.n_channels(), 3);
+    assert_eq!(
+        brdf_io::BrdfSource::channels(&at),
+        Channels::parse_wavelengths("450,525,600").unwrap()
+    );
+    let a = (0..g.len()).find(|&a| mask[a]).unwrap();
+    let mut out = [0.0; 3];
+    brdf_io::BrdfSource::eval_cell(&at, a, &mut out).unwrap();
+    let base = a as f64;
+    assert_eq!(out, [2.0 + base, 4.0 + base, 7.0 + base]);
+    // Between cells too: `eval` at a bin centre is that cell, at the chosen wavelengths.
+    at.eval_half_diff(&g.bin_centre_flat(a), &mut out).unwrap();
+    assert!((out[1] - (4.0 + base)).abs() < 1e-12, "{out:?}");
+    // The material itself still has all stored channels.
+    assert_eq!(m.n_channels(), 3);
+    brdf_io::BrdfSource::eval_cell(&m, a, &mut out).unwrap();
+    assert_eq!(out, [1.0 + base, 3.0 + base, 7.0 + base]);
+    // Outside the stored range, or wavelengths of an RGB store: errors naming the store.
+    let e = m
+        .with_wavelengths(&Channels::parse_wavelengths("380,500").unwrap())
+        .unwrap_err();
+    assert!(matches!(e, Error::WavelengthOutOfRange { .. }), "{e}");
+    assert!(
+        e.to_string().contains("s.sbrdf") && e.to_string().contains("380 nm"),
+        "{e}"
+    );
+    let e = m.with_wavelengths(&Channels::Rgb).unwrap_err().to_string();
+    assert!(
+        e.contains("s.sbrdf") && e.contains("no RGB channels"),
+        "{e}"
+    );
+}
+
 // ---------------------------------------------------------------- bad input
 
 fn small_store(dir: &Path, compression: Compression) -> PathBuf {

@@ -37,20 +37,6 @@ pub enum Error {
         /// What is wrong.
         reason: String,
     },
-    /// A requested wavelength outside the stored range (or wavelengths asked of an RGB dataset).
-    #[error(
-        "{dataset}: wavelength {wavelength_nm} nm is outside the stored range {min_nm}..={max_nm} nm"
-    )]
-    WavelengthOutOfRange {
-        /// The store.
-        dataset: PathBuf,
-        /// The wavelength asked for, in nm.
-        wavelength_nm: f64,
-        /// Smallest stored wavelength, in nm.
-        min_nm: f64,
-        /// Largest stored wavelength, in nm.
-        max_nm: f64,
-    },
     /// An argument that does not fit (buffer length, coefficient count, material name, format).
     #[error("invalid argument: {reason}")]
     InvalidArgument {

@@ -8,6 +8,7 @@ use std::cell::RefCell;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+pub use brdf_io::ChannelSelection;
 use brdf_io::store::Store;
 use brdf_io::{AngularGrid, BrdfSource, Channels, HalfDiff, Vec3};
 use faer::Par;
@@ -501,72 +502,6 @@ pub fn weights_to_coefficients(w: &[f64]) -> Vec<f64> {
     w.iter().map(|v| v + shift).collect()
 }
 
-/// Output channels of a predicted material and how each comes from the stored channels.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ChannelSelection {
-    /// The output channel axis.
-    pub channels: Channels,
-    /// Per output channel: stored channels `lo`, `hi` and weight `t` of `hi`
-    /// (value = (1 - t) f_lo + t f_hi, linear in wavelength, in BRDF space).
-    pub taps: Vec<(usize, usize, f64)>,
-}
-
-impl ChannelSelection {
-    /// All stored channels, unchanged.
-    pub fn all(channels: &Channels) -> Self {
-        Self {
-            channels: channels.clone(),
-            taps: (0..channels.len()).map(|c| (c, c, 0.0)).collect(),
-        }
-    }
-
-    /// Wavelengths `wanted` from the `stored` spectral channels, linearly interpolated between
-    /// neighbouring stored wavelengths. Errors outside the stored range or for RGB data.
-    pub fn wavelengths(stored: &Channels, wanted: &Channels, dataset: &Path) -> Result<Self> {
-        let (Channels::Spectral(s), Channels::Spectral(w)) = (stored, wanted) else {
-            return Err(Error::InvalidArgument {
-                reason: format!(
-                    "{}: wavelength selection needs spectral data and spectral wavelengths",
-                    dataset.display()
-                ),
-            });
-        };
-        let (min, max) = (s[0], s[s.len() - 1]);
-        let mut taps = Vec::with_capacity(w.len());
-        for &l in w {
-            if !(l >= min - 1e-9 && l <= max + 1e-9) {
-                return Err(Error::WavelengthOutOfRange {
-                    dataset: dataset.to_owned(),
-                    wavelength_nm: l,
-                    min_nm: min,
-                    max_nm: max,
-                });
-            }
-            let hi = s.partition_point(|&x| x < l).min(s.len() - 1);
-            if (s[hi] - l).abs() <= 1e-9 || hi == 0 {
-                taps.push((hi, hi, 0.0));
-            } else {
-                let lo = hi - 1;
-                taps.push((lo, hi, (l - s[lo]) / (s[hi] - s[lo])));
-            }
-        }
-        Ok(Self {
-            channels: wanted.clone(),
-            taps,
-        })
-    }
-
-    /// Whether the selection is the identity.
-    pub fn is_identity(&self, stored: usize) -> bool {
-        self.taps.len() == stored
-            && self
-                .taps
-                .iter()
-                .enumerate()
-                .all(|(c, &(lo, hi, t))| lo == c && hi == c && t == 0.0)
-    }
-}
-
 /// A predicted BRDF: coefficients over the stored materials, evaluated lazily.
 ///
 /// Each value costs one read of the N stored values at its index and N multiply-adds (plus N
@@ -619,10 +554,10 @@ impl PredictedMaterial {
     /// The same material evaluated at `wavelengths` (linear interpolation between stored
     /// wavelengths; a wavelength outside the stored range is an error).
     pub fn with_wavelengths(&self, wavelengths: &Channels) -> Result<Self> {
-        let sel = ChannelSelection::wavelengths(
+        let sel = ChannelSelection::new(
+            self.pred.inner.store.path(),
             &self.pred.inner.channels,
             wavelengths,
-            self.pred.inner.store.path(),
         )?;
         Ok(Self {
             selection: Arc::new(sel),
@@ -657,7 +592,7 @@ impl PredictedMaterial {
         let inner = &*self.pred.inner;
         let (nc, n) = (inner.channels.len(), inner.n);
         let sel = &*self.selection;
-        let (first, last) = self.channel_span();
+        let (first, last) = self.selection.span();
         SCRATCH.with(|scratch| {
             let mut scratch = scratch.borrow_mut();
             let (raw, wide, vals) = &mut *scratch;
@@ -667,35 +602,16 @@ impl PredictedMaterial {
             let block = store.values_in_ref(a * nc + first..a * nc + last + 1, raw)?;
             debug_assert_eq!(block.len(), span * n);
             self.combine_block(block, transformed, wide, vals);
-            for (o, &(lo, hi, w)) in out.iter_mut().zip(&sel.taps) {
-                let v_lo = vals[lo - first];
-                *o = if w == 0.0 {
-                    v_lo
-                } else {
-                    (1.0 - w) * v_lo + w * vals[hi - first]
-                };
-            }
+            sel.apply(vals, first, out);
             Ok(())
         })
-    }
-
-    /// The first and last stored channel the selected wavelengths read.
-    fn channel_span(&self) -> (usize, usize) {
-        let taps = &self.selection.taps;
-        let first = taps.iter().map(|tap| tap.0).min().unwrap_or(0);
-        let last = taps
-            .iter()
-            .map(|&(lo, hi, t)| if t == 0.0 { lo } else { hi })
-            .max()
-            .unwrap_or(0);
-        (first, last)
     }
 
     /// A hint that [`PredictedMaterial::eval_cell`] of cell `a` follows soon: starts fetching
     /// its stored values into the cache (see [`brdf_io::store::Store::prefetch`]).
     pub fn prefetch_cell(&self, a: usize) {
         let nc = self.pred.inner.channels.len();
-        let (first, last) = self.channel_span();
+        let (first, last) = self.selection.span();
         let (store, _) = self.pred.lookup_store();
         store.prefetch(a * nc + first..a * nc + last + 1);
     }

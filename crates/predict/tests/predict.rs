@@ -494,7 +494,10 @@ fn bad_inputs_give_clear_errors() {
     let e = m
         .with_wavelengths(&Channels::parse_wavelengths("380,500").unwrap())
         .unwrap_err();
-    assert!(matches!(e, Error::WavelengthOutOfRange { .. }), "{e}");
+    assert!(
+        matches!(e, Error::Store(brdf_io::Error::WavelengthOutOfRange { .. })),
+        "{e}"
+    );
     assert!(
         e.to_string().contains("380 nm") && e.to_string().contains("400..=700"),
         "{e}"

@@ -112,7 +112,7 @@ pub fn open_render_source(
     illuminant: Illuminant,
 ) -> anyhow::Result<Box<dyn brdf_io::BrdfSource>> {
     // Ask the source only for the wavelengths the observer needs, where it can select them
-    // (spectral .bsdf files and model points); other sources return all their channels.
+    // (spectral .bsdf files, stored materials, model points); others return all their channels.
     if let Some(m) = crate::cmd_predict::open_model_source(spec, None) {
         let mut m = m?;
         if let Some(w) = render::colour::needed_wavelengths(m.channels(), illuminant)? {

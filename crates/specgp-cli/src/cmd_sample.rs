@@ -4,7 +4,8 @@
 //! Sources plug in through [`brdf_io::BrdfSource`]; [`open_source`] maps a SOURCE argument to one:
 //! - `FILE.bsdf`: an RGL file (spectral files may be evaluated at `--wavelengths`);
 //! - `FILE.binary`: a MERL file (nearest cell, as MERL's own lookup);
-//! - `DATA.sbrdf:MATERIAL`: a stored material (multilinear interpolation on the store's grid);
+//! - `DATA.sbrdf:MATERIAL`: a stored material (multilinear interpolation on the store's grid;
+//!   `--wavelengths` interpolates between stored wavelengths);
 //! - `MODEL.toml@X,Y`: the GP prediction (exact predictor) at a latent point, evaluated lazily
 //!   (nothing materialised; `--wavelengths` interpolates between stored wavelengths).
 //!
@@ -29,8 +30,9 @@ pub struct SampleArgs {
     /// standard output).
     #[arg(long)]
     pub out: PathBuf,
-    /// Wavelengths START:END:STEP or a comma list in nm (spectral `.bsdf` sources only;
-    /// default: the stored wavelengths).
+    /// Wavelengths START:END:STEP or a comma list in nm, inside the stored range (spectral
+    /// sources; linear interpolation between stored wavelengths; default: the stored ones).
+    /// Not for MERL files.
     #[arg(long)]
     pub wavelengths: Option<String>,
 }
@@ -40,19 +42,15 @@ pub fn open_source(
     spec: &str,
     wavelengths: Option<&Channels>,
 ) -> anyhow::Result<Box<dyn BrdfSource>> {
-    let only_native = |kind: &str| -> anyhow::Result<()> {
-        if wavelengths.is_some() {
-            bail!("--wavelengths applies to spectral .bsdf sources only, not to {kind} {spec:?}");
-        }
-        Ok(())
-    };
     if let Some(m) = crate::cmd_predict::open_model_source(spec, wavelengths) {
         return Ok(Box::new(m?));
     }
     if let Some((path, name)) = brdf_io::store::parse_store_spec(spec) {
-        only_native("the stored material")?;
-        let m = brdf_io::store::StoreMaterial::open(&path, &name)
+        let mut m = brdf_io::store::StoreMaterial::open(&path, &name)
             .with_context(|| format!("opening {spec}"))?;
+        if let Some(ch) = wavelengths {
+            m = m.with_wavelengths(ch)?;
+        }
         return Ok(Box::new(m));
     }
     let path = Path::new(spec);
@@ -65,7 +63,9 @@ pub fn open_source(
             Ok(Box::new(bsdf))
         }
         Some("binary") => {
-            only_native("the MERL file")?;
+            if wavelengths.is_some() {
+                bail!("--wavelengths: the MERL file {spec:?} is RGB; it has no wavelengths");
+            }
             Ok(Box::new(brdf_io::merl::read_merl(path)?))
         }
         _ => bail!(

@@ -346,6 +346,45 @@ fn sample_writes_csv_to_stdout_with_a_dash() {
         d,
     );
     assert_eq!(std::fs::read_to_string(d.join("v.csv")).unwrap(), stdout);
+    // At chosen wavelengths: linear interpolation between the stored ones.
+    let chosen = specgp(
+        &[
+            "sample",
+            "data.sbrdf:paper_white",
+            "--dirs",
+            "dirs.csv",
+            "--out",
+            "-",
+            "--wavelengths",
+            "450,700",
+        ],
+        d,
+    );
+    let lines: Vec<&str> = chosen.lines().collect();
+    assert_eq!(lines[0], "450,700");
+    let at: Vec<f64> = lines[1].split(',').map(|v| v.parse().unwrap()).collect();
+    assert!(
+        (at[0] - 0.5 * (white[0] + white[1])).abs() <= 1e-12 * white[0],
+        "{at:?} {white:?}"
+    );
+    assert_eq!(at[1], white[3]);
+    let err = specgp_fails(
+        &[
+            "sample",
+            "data.sbrdf:paper_white",
+            "--dirs",
+            "dirs.csv",
+            "--out",
+            "-",
+            "--wavelengths",
+            "380",
+        ],
+        d,
+    );
+    assert!(
+        err.contains("data.sbrdf") && err.contains("380 nm is outside"),
+        "{err}"
+    );
 }
 
 /// SIGTERM (or SIGINT, SIGHUP) while an output is being written: exit status 130 and no

@@ -4,14 +4,15 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use crate::error::{Error, Result};
-use crate::grid::{AngularGrid, Channels, HalfDiff, Vec3};
+use crate::grid::{AngularGrid, ChannelSelection, Channels, HalfDiff, Vec3};
 use crate::source::BrdfSource;
 
 use super::Store;
 
 /// One material of a [`Store`], evaluated at arbitrary angles by multilinear interpolation in
 /// [`crate::AngularGrid::continuous_coords`] (theta_h and theta_d clamped to the grid, phi_d
-/// wrapping with period pi). Values are the stored BRDF values f (1/sr), one per channel.
+/// wrapping with period pi). Values are the stored BRDF values f (1/sr), one per stored channel,
+/// or at chosen wavelengths ([`StoreMaterial::with_wavelengths`]).
 ///
 /// Implements [`BrdfSource`], so `specgp sample DATA.sbrdf:MATERIAL` and `render` treat it like a
 /// measured file. Cheap to clone (the store is shared).
@@ -19,6 +20,8 @@ use super::Store;
 pub struct StoreMaterial {
     store: Arc<Store>,
     index: usize,
+    /// The output channels: all stored ones unless chosen by [`StoreMaterial::with_wavelengths`].
+    selection: Arc<ChannelSelection>,
 }
 
 /// Splits a source spec `DATA.sbrdf:MATERIAL` into the store path and the material name
@@ -31,10 +34,8 @@ pub fn parse_store_spec(spec: &str) -> Option<(PathBuf, String)> {
 impl StoreMaterial {
     /// The material called `name`.
     pub fn new(store: Arc<Store>, name: &str) -> Result<Self> {
-        Ok(Self {
-            index: store.material_index(name)?,
-            store,
-        })
+        let index = store.material_index(name)?;
+        Self::by_index(store, index)
     }
 
     /// Opens the store at `path` (memory-mapped) and selects the material called `name`.
@@ -58,7 +59,23 @@ impl StoreMaterial {
                 ),
             });
         }
-        Ok(Self { store, index })
+        Ok(Self {
+            selection: Arc::new(ChannelSelection::all(store.channels())),
+            store,
+            index,
+        })
+    }
+
+    /// The same material evaluated at `wavelengths`: linear interpolation between the stored
+    /// wavelengths (as for RGL files and predicted materials); a wavelength outside the stored
+    /// range, or wavelengths of an RGB store, are an error naming the store.
+    pub fn with_wavelengths(&self, wavelengths: &Channels) -> Result<Self> {
+        let selection =
+            ChannelSelection::new(self.store.path(), self.store.channels(), wavelengths)?;
+        Ok(Self {
+            selection: Arc::new(selection),
+            ..self.clone()
+        })
     }
 
     /// Row index of the material.
@@ -66,28 +83,35 @@ impl StoreMaterial {
         self.index
     }
 
-    /// Number of channels (the length `eval` fills).
+    /// Number of output channels (the length `eval` fills).
     pub fn n_channels(&self) -> usize {
-        self.store.channels().len()
+        self.selection.taps.len()
     }
 
-    /// Interpolated values at half/difference angles `hd` into `out` (one per channel).
+    /// Interpolated values at half/difference angles `hd` into `out` (one per output channel).
     pub fn eval_half_diff(&self, hd: &HalfDiff, out: &mut [f64]) -> Result<()> {
-        let g = self.store.grid();
-        let nc = self.n_channels();
         self.check_out(out)?;
-        out[..nc].iter_mut().for_each(|o| *o = 0.0);
-        let mut vals = vec![0f32; nc];
-        for (a, w) in g.interpolation_stencil(hd) {
+        self.weighted_cells(&self.store.grid().interpolation_stencil(hd), out)
+    }
+
+    /// The sum of `w` times cell `a`'s stored channels over `cells` (only the channels the
+    /// selection reads), through the selection into `out`.
+    fn weighted_cells(&self, cells: &[(usize, f64)], out: &mut [f64]) -> Result<()> {
+        let nc = self.store.channels().len();
+        let (first, last) = self.selection.span();
+        let mut vals = vec![0f32; last + 1 - first];
+        let mut sum = vec![0f64; vals.len()];
+        for &(a, w) in cells {
             if w == 0.0 {
                 continue;
             }
             self.store
-                .material_row(self.index, a * nc..(a + 1) * nc, &mut vals)?;
-            for (o, v) in out.iter_mut().zip(&vals) {
-                *o += w * f64::from(*v);
+                .material_row(self.index, a * nc + first..a * nc + last + 1, &mut vals)?;
+            for (s, v) in sum.iter_mut().zip(&vals) {
+                *s += w * f64::from(*v);
             }
         }
+        self.selection.apply(&sum, first, out);
         Ok(())
     }
 
@@ -122,7 +146,7 @@ impl StoreMaterial {
 
 impl BrdfSource for StoreMaterial {
     fn channels(&self) -> Channels {
-        self.store.channels().clone()
+        self.selection.channels.clone()
     }
 
     fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
@@ -134,14 +158,7 @@ impl BrdfSource for StoreMaterial {
     }
 
     fn eval_cell(&self, a: usize, out: &mut [f64]) -> Result<()> {
-        let nc = self.n_channels();
         self.check_out(out)?;
-        let mut vals = vec![0f32; nc];
-        self.store
-            .material_row(self.index, a * nc..(a + 1) * nc, &mut vals)?;
-        for (o, v) in out.iter_mut().zip(&vals) {
-            *o = f64::from(*v);
-        }
-        Ok(())
+        self.weighted_cells(&[(a, 1.0)], out)
     }
 }
