@@ -315,17 +315,20 @@ fn sample_writes_csv_to_stdout_with_a_dash() {
     let d = dir.path();
     synth_small(d, "400:700:100");
     std::fs::write(d.join("dirs.csv"), "0,0,1,0,0,1\n0.6,0,0.8,0,0,1\n").unwrap();
-    let stdout = specgp(
-        &[
+    // `specgp sample data.sbrdf:paper_white --dirs dirs.csv --out OUT [extra...]`.
+    let args = |out: &'static str, extra: &[&'static str]| {
+        let mut a = vec![
             "sample",
             "data.sbrdf:paper_white",
             "--dirs",
             "dirs.csv",
             "--out",
-            "-",
-        ],
-        d,
-    );
+            out,
+        ];
+        a.extend_from_slice(extra);
+        a
+    };
+    let stdout = specgp(&args("-", &[]), d);
     let lines: Vec<&str> = stdout.lines().collect();
     assert_eq!(lines.len(), 3, "{stdout}");
     assert_eq!(lines[0], "400,500,600,700");
@@ -334,32 +337,10 @@ fn sample_writes_csv_to_stdout_with_a_dash() {
     assert!(white.iter().all(|v| *v > 0.05 && *v < 1.0), "{white:?}");
     assert!(!d.join("-").exists());
     // The same values as through a file.
-    specgp(
-        &[
-            "sample",
-            "data.sbrdf:paper_white",
-            "--dirs",
-            "dirs.csv",
-            "--out",
-            "v.csv",
-        ],
-        d,
-    );
+    specgp(&args("v.csv", &[]), d);
     assert_eq!(std::fs::read_to_string(d.join("v.csv")).unwrap(), stdout);
     // At chosen wavelengths: linear interpolation between the stored ones.
-    let chosen = specgp(
-        &[
-            "sample",
-            "data.sbrdf:paper_white",
-            "--dirs",
-            "dirs.csv",
-            "--out",
-            "-",
-            "--wavelengths",
-            "450,700",
-        ],
-        d,
-    );
+    let chosen = specgp(&args("-", &["--wavelengths", "450,700"]), d);
     let lines: Vec<&str> = chosen.lines().collect();
     assert_eq!(lines[0], "450,700");
     let at: Vec<f64> = lines[1].split(',').map(|v| v.parse().unwrap()).collect();
@@ -368,19 +349,7 @@ fn sample_writes_csv_to_stdout_with_a_dash() {
         "{at:?} {white:?}"
     );
     assert_eq!(at[1], white[3]);
-    let err = specgp_fails(
-        &[
-            "sample",
-            "data.sbrdf:paper_white",
-            "--dirs",
-            "dirs.csv",
-            "--out",
-            "-",
-            "--wavelengths",
-            "380",
-        ],
-        d,
-    );
+    let err = specgp_fails(&args("-", &["--wavelengths", "380"]), d);
     assert!(
         err.contains("data.sbrdf") && err.contains("380 nm is outside"),
         "{err}"
