@@ -130,6 +130,12 @@ pub fn fast_exp_m1(y: f64) -> f64 {
 pub fn exp_m1_scaled_in_place(values: &mut [f64], scale: f64) {
     #[cfg(target_arch = "x86_64")]
     {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU supports AVX-512F (checked just above; it implies AVX2 and FMA),
+            // the only requirement of a `#[target_feature]` function.
+            unsafe { exp_m1_scaled_avx512(values, scale) };
+            return;
+        }
         if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
         {
             // SAFETY: the CPU supports AVX2 and FMA (checked just above), the only requirement
@@ -138,6 +144,17 @@ pub fn exp_m1_scaled_in_place(values: &mut [f64], scale: f64) {
             return;
         }
     }
+    values.iter_mut().for_each(|v| *v = scale * fast_exp_m1(*v));
+}
+
+/// [`exp_m1_scaled_in_place`] compiled for AVX-512 (8 lanes; the same arithmetic, so the same
+/// bits as the AVX2 version).
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,fma")]
+unsafe fn exp_m1_scaled_avx512(values: &mut [f64], scale: f64) {
     values.iter_mut().for_each(|v| *v = scale * fast_exp_m1(*v));
 }
 
@@ -163,6 +180,12 @@ pub fn ln_1p_scaled_f64(input: &[f32], scale: f64, out: &mut [f64]) {
     assert_eq!(input.len(), out.len());
     #[cfg(target_arch = "x86_64")]
     {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU supports AVX-512F (checked just above; it implies AVX2 and FMA),
+            // the only requirement of a `#[target_feature]` function.
+            unsafe { ln_1p_scaled_f64_avx512(input, scale, out) };
+            return;
+        }
         if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
         {
             // SAFETY: the CPU supports AVX2 and FMA (checked just above), the only requirement
@@ -183,6 +206,19 @@ pub fn ln_1p_scaled_f64(input: &[f32], scale: f64, out: &mut [f64]) {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn ln_1p_scaled_f64_avx2(input: &[f32], scale: f64, out: &mut [f64]) {
+    for (o, v) in out.iter_mut().zip(input) {
+        *o = ln_1p_lanes(f64::from(*v) * scale);
+    }
+}
+
+/// [`ln_1p_scaled_f64`] compiled for AVX-512 (8 lanes; the same arithmetic, so the same bits as
+/// the AVX2 version, tested).
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,fma")]
+unsafe fn ln_1p_scaled_f64_avx512(input: &[f32], scale: f64, out: &mut [f64]) {
     for (o, v) in out.iter_mut().zip(input) {
         *o = ln_1p_lanes(f64::from(*v) * scale);
     }
@@ -333,6 +369,61 @@ mod tests {
             let v = std::f64::consts::SQRT_2 - 1.0 + f64::from(k) * 1e-12;
             assert!((fast_ln_1p(v) - v.ln_1p()).abs() < 1e-15);
         }
+    }
+
+    /// The AVX-512, AVX2 and portable builds of the batch transforms give the same bits
+    /// (fits are chaotic in the last bits of the Gram matrix, so they must not depend on the
+    /// CPU's vector width); each build is checked where the CPU has it.
+    #[test]
+    fn vector_builds_of_the_batch_transforms_agree_bitwise() {
+        let xs: Vec<f32> = (0..4099)
+            .map(|i| 1e-6 * 1.0071f64.powi(i) as f32 * if i % 17 == 0 { -1.0 } else { 1.0 })
+            .collect();
+        let scale = 1.0 / 0.01;
+        let want: Vec<u64> = xs
+            .iter()
+            .map(|v| ln_1p_lanes(f64::from(*v) * scale).to_bits())
+            .collect();
+        let ys: Vec<f64> = (0..4099).map(|i| f64::from(i) * 0.003 - 2.0).collect();
+        let want_inv: Vec<u64> = ys
+            .iter()
+            .map(|y| (0.01 * fast_exp_m1(*y)).to_bits())
+            .collect();
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let mut builds = 0;
+        #[cfg(target_arch = "x86_64")]
+        {
+            let mut out = vec![0.0; xs.len()];
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                // SAFETY: the CPU supports AVX-512F (checked just above).
+                unsafe { ln_1p_scaled_f64_avx512(&xs, scale, &mut out) };
+                assert_eq!(bits(&out), want, "ln, AVX-512");
+                let mut inv = ys.clone();
+                // SAFETY: as above.
+                unsafe { exp_m1_scaled_avx512(&mut inv, 0.01) };
+                assert_eq!(bits(&inv), want_inv, "exp_m1, AVX-512");
+                builds += 1;
+            }
+            if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
+                // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+                unsafe { ln_1p_scaled_f64_avx2(&xs, scale, &mut out) };
+                assert_eq!(bits(&out), want, "ln, AVX2");
+                let mut inv = ys.clone();
+                // SAFETY: as above.
+                unsafe { exp_m1_scaled_avx2(&mut inv, 0.01) };
+                assert_eq!(bits(&inv), want_inv, "exp_m1, AVX2");
+                builds += 1;
+            }
+        }
+        let mut out = vec![0.0; xs.len()];
+        ln_1p_scaled_f64(&xs, scale, &mut out);
+        assert_eq!(bits(&out), want, "ln, dispatched");
+        let mut inv = ys.clone();
+        exp_m1_scaled_in_place(&mut inv, 0.01);
+        assert_eq!(bits(&inv), want_inv, "exp_m1, dispatched");
+        eprintln!("{builds} vector builds checked besides the dispatched one");
     }
 
     #[test]
