@@ -62,37 +62,42 @@ impl<'t, T: GramTransform + ?Sized> GramAccumulator<'t, T> {
         }
     }
 
-    /// Adds one index-major chunk (`block[(d - range.start) * n + m]`); `valid(d)` tells whether
-    /// index d carries data. Runs of valid indices are transformed straight from the chunk
-    /// into the block (one batch call per run and block).
+    /// Adds one index-major chunk (`block[(d - range.start) * n + m]`) of a store whose
+    /// indices come `channels` to a cell: index d carries data when `cell_valid[d / channels]`.
+    /// Runs of valid cells are transformed straight from the chunk into the block (one batch
+    /// call per run and block); validity is looked up once per cell, not per index.
     pub(crate) fn push_chunk(
         &mut self,
         range: Range<usize>,
         block: &[f32],
-        valid: impl Fn(usize) -> bool,
+        cell_valid: &[bool],
+        channels: usize,
     ) {
         let n = self.n;
-        let rows = block.len() / n;
-        let mut i = 0;
-        while i < rows {
-            if !valid(range.start + i) {
-                i += 1;
+        let cell_end = |d: usize| ((d / channels + 1) * channels).min(range.end);
+        let mut d = range.start;
+        while d < range.end {
+            if !cell_valid[d / channels] {
+                d = cell_end(d);
                 continue;
             }
-            let mut end = i + 1;
-            while end < rows && end - i < F64_BLOCK - self.filled && valid(range.start + end) {
-                end += 1;
+            let mut end = cell_end(d);
+            while end < range.end && cell_valid[end / channels] {
+                end = cell_end(end);
             }
-            let at = self.filled * n;
-            self.transform.to_f64(
-                &block[i * n..end * n],
-                &mut self.wide[at..at + (end - i) * n],
-            );
-            self.filled += end - i;
-            if self.filled == F64_BLOCK {
-                self.flush();
+            while d < end {
+                let take = (end - d).min(F64_BLOCK - self.filled);
+                let (i, at) = (d - range.start, self.filled * n);
+                self.transform.to_f64(
+                    &block[i * n..(i + take) * n],
+                    &mut self.wide[at..at + take * n],
+                );
+                self.filled += take;
+                if self.filled == F64_BLOCK {
+                    self.flush();
+                }
+                d += take;
             }
-            i = end;
         }
     }
 
@@ -140,15 +145,25 @@ pub const F64_BLOCK: usize = 48;
 
 /// Adds the lower triangle of `A A^T` to `g` in f64, where `A` has k columns starting every `ld`
 /// values of `a` and `g` is `np x np` column-major (`np` a multiple of 8). Computed by tiles of
-/// 4 rows over rows `0..rows` (`rows` a multiple of 4, <= np); a tile reads up
+/// 4 or 8 rows over rows `0..rows` (`rows` a multiple of 4, <= np); a tile reads up
 /// to row `max(rows, np) - 1` of a column, i.e. into the next column or the slack after the last
 /// one when `ld` is smaller: those values only reach rows/columns of g beyond the caller's
 /// matrix, and entries above the diagonal inside a tile are written too and are ignored.
+///
+/// Every build (AVX-512, AVX2 + FMA, portable) computes each entry the same way: one chain of
+/// fused multiply-adds over the k columns in order, added to `g` at the end, so the result has
+/// the same bits on every CPU (the fits are chaotic in the last bits of the Gram matrix).
 fn lower_gram_f64(a: &[f64], k: usize, ld: usize, rows: usize, np: usize, g: &mut [f64]) {
     assert!(np % 8 == 0 && rows % 4 == 0 && rows <= np && g.len() >= np * np);
     assert!(k == 0 || (ld > 0 && a.len() >= (k - 1) * ld + np));
     #[cfg(target_arch = "x86_64")]
     {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU supports AVX-512F (checked above; it implies AVX2 and FMA); the
+            // slice lengths and shape conditions the kernel relies on are asserted above.
+            unsafe { x86::lower_gram_f64_avx512(a, k, ld, rows, np, g) };
+            return;
+        }
         if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
         {
             // SAFETY: the CPU supports AVX2 and FMA (checked above); the slice lengths and
@@ -160,7 +175,7 @@ fn lower_gram_f64(a: &[f64], k: usize, ld: usize, rows: usize, np: usize, g: &mu
     lower_gram_f64_portable(a, k, ld, rows, np, g);
 }
 
-/// Portable version of [`lower_gram_f64`] (4 x 8 tiles, scalar arithmetic).
+/// Portable version of [`lower_gram_f64`] (4 x 8 tiles, scalar fused multiply-adds).
 fn lower_gram_f64_portable(a: &[f64], k: usize, ld: usize, rows: usize, np: usize, g: &mut [f64]) {
     for rb in 0..rows / 4 {
         for jb in 0..(4 * rb + 4).div_ceil(8) {
@@ -171,7 +186,7 @@ fn lower_gram_f64_portable(a: &[f64], k: usize, ld: usize, rows: usize, np: usiz
                 for (jj, acc_j) in acc.iter_mut().enumerate() {
                     let b = col[jb * 8 + jj];
                     for (x, v) in acc_j.iter_mut().zip(r) {
-                        *x += v * b;
+                        *x = v.mul_add(b, *x);
                     }
                 }
             }
@@ -185,14 +200,33 @@ fn lower_gram_f64_portable(a: &[f64], k: usize, ld: usize, rows: usize, np: usiz
     }
 }
 
+/// Widths, in blocks of columns, of the tiles that cover `blocks` blocks of a row panel: 3 at
+/// a time (the widest tile), ending in 2 + 2 rather than 3 + 1, so only a one-block panel
+/// has a one-block tile (too few accumulators to hide the FMA latency).
+fn tile_widths(blocks: usize) -> impl Iterator<Item = usize> {
+    let mut left = blocks;
+    std::iter::from_fn(move || {
+        let w = match left {
+            0 => return None,
+            1 | 2 => left,
+            4 => 2,
+            _ => 3,
+        };
+        left -= w;
+        Some(w)
+    })
+}
+
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use std::arch::x86_64::*;
 
+    use super::tile_widths;
+
     /// AVX2 + FMA kernel of `lower_gram_f64`. Row panels of 4 rows (`i0 = 4 rb`, one ymm);
-    /// each panel's columns `0..i0 + 4` go in tiles of 12 columns (12 broadcasts x 1 ymm = 12
-    /// accumulators, enough to hide the FMA latency at two FMAs per cycle, and 14 registers in
-    /// all, so nothing spills) and a last tile of 4 or 8 columns. Ending each panel at its
+    /// each panel's columns `0..i0 + 4` go in tiles of 4, 8 or 12 columns ([`tile_widths`]:
+    /// up to 12 broadcasts x 1 ymm = 12 accumulators, enough to hide the FMA latency at two
+    /// FMAs per cycle, and 14 registers in all, so nothing spills). Ending each panel at its
     /// diagonal wastes only the 4 x 4 diagonal blocks' upper halves (about 9 % extra work for
     /// n = 51, against 18 % for square 4 x 8 tiles).
     ///
@@ -208,32 +242,83 @@ mod x86 {
         np: usize,
         g: &mut [f64],
     ) {
-        let base = a.as_ptr();
-        let g = g.as_mut_ptr();
+        let (base, g) = (a.as_ptr(), g.as_mut_ptr());
         for i0 in (0..rows).step_by(4) {
-            let mut j0 = 0;
-            while j0 <= i0 {
-                // SAFETY: forwarded contract; i0 + 4 <= rows and j0 + 4 C <= i0 + 4 <= rows.
-                unsafe {
-                    match (i0 + 4 - j0) / 4 {
-                        1 => tile::<1, 2>(base, k, ld, i0, j0, np, g),
-                        2 => tile::<2, 1>(base, k, ld, i0, j0, np, g),
-                        _ => tile::<3, 1>(base, k, ld, i0, j0, np, g),
+            // SAFETY: forwarded contract; i0 + 4 <= rows.
+            unsafe { panel4(base, k, ld, i0, np, g) };
+        }
+    }
+
+    /// AVX-512 kernel of `lower_gram_f64`: row panels of 8 rows (one zmm) whose columns
+    /// `0..i0 + 8` go in tiles of 8, 16 or 24 columns (up to 24 accumulators of the 32
+    /// registers; the column values are broadcast from memory by the FMAs themselves), half
+    /// the instructions of the AVX2 kernel for the same arithmetic. The diagonal 8 x 8 block's
+    /// upper half is wasted work; a last panel of 4 rows (`rows % 8 == 4`) takes the AVX2
+    /// kernel's 4-row panel instead of wasting a zmm's upper half on padding.
+    ///
+    /// # Safety
+    /// As [`lower_gram_f64_avx2`], and the CPU must support AVX-512F.
+    #[target_feature(enable = "avx512f,avx2,fma")]
+    pub(super) unsafe fn lower_gram_f64_avx512(
+        a: &[f64],
+        k: usize,
+        ld: usize,
+        rows: usize,
+        np: usize,
+        g: &mut [f64],
+    ) {
+        let (base, g) = (a.as_ptr(), g.as_mut_ptr());
+        let mut i0 = 0;
+        while i0 < rows {
+            // SAFETY: forwarded contract; an 8-row panel has i0 + 8 <= rows, a 4-row one
+            // i0 + 4 <= rows (rows is a multiple of 4).
+            unsafe {
+                if i0 + 8 <= rows {
+                    let mut j0 = 0;
+                    for w in tile_widths(i0 / 8 + 1) {
+                        match w {
+                            1 => tile8::<1>(base, k, ld, i0, j0, np, g),
+                            2 => tile8::<2>(base, k, ld, i0, j0, np, g),
+                            _ => tile8::<3>(base, k, ld, i0, j0, np, g),
+                        }
+                        j0 += 8 * w;
                     }
+                    i0 += 8;
+                } else {
+                    panel4(base, k, ld, i0, np, g);
+                    i0 += 4;
                 }
-                j0 += 12;
             }
         }
     }
 
-    /// One tile: rows `i0..i0 + 4`, columns `j0..j0 + 4 C`, summed over the k columns of `a`
-    /// and added to `g`. `S` interleaved sets of accumulators (columns c with c % S = s) give
-    /// the narrow tiles enough independent FMA chains.
+    /// The 4-row panel at `i0`: columns `0..i0 + 4` in tiles of 4, 8 or 12.
+    ///
+    /// # Safety
+    /// As [`lower_gram_f64_avx2`] (AVX2 + FMA), and `i0 + 4 <= rows`.
+    #[inline(always)]
+    unsafe fn panel4(base: *const f64, k: usize, ld: usize, i0: usize, np: usize, g: *mut f64) {
+        let mut j0 = 0;
+        for w in tile_widths(i0 / 4 + 1) {
+            // SAFETY: forwarded contract; j0 + 4 w <= i0 + 4 <= rows.
+            unsafe {
+                match w {
+                    1 => tile4::<1>(base, k, ld, i0, j0, np, g),
+                    2 => tile4::<2>(base, k, ld, i0, j0, np, g),
+                    _ => tile4::<3>(base, k, ld, i0, j0, np, g),
+                }
+            }
+            j0 += 4 * w;
+        }
+    }
+
+    /// One AVX2 tile: rows `i0..i0 + 4`, columns `j0..j0 + 4 C`, summed over the k columns of
+    /// `a` and added to `g`.
     ///
     /// # Safety
     /// As [`lower_gram_f64_avx2`], and `i0 + 4 <= rows`, `j0 + 4 C <= rows`.
     #[inline(always)]
-    unsafe fn tile<const C: usize, const S: usize>(
+    unsafe fn tile4<const C: usize>(
         base: *const f64,
         k: usize,
         ld: usize,
@@ -246,42 +331,59 @@ mod x86 {
         // c < k and x < rows <= np, inside a[..(k - 1) * ld + np]; every write is at a column
         // j < rows <= np, rows i0 .. i0 + 4 <= np of g[..np * np].
         unsafe {
-            let mut acc = [[[_mm256_setzero_pd(); 4]; C]; S];
-            let mut c = 0;
-            while c + S <= k {
-                for (s, acc_s) in acc.iter_mut().enumerate() {
-                    let col = base.add((c + s) * ld);
-                    let r = _mm256_loadu_pd(col.add(i0));
-                    for (x, acc_x) in acc_s.iter_mut().enumerate() {
-                        for (jj, v) in acc_x.iter_mut().enumerate() {
-                            let b = _mm256_broadcast_sd(&*col.add(j0 + 4 * x + jj));
-                            *v = _mm256_fmadd_pd(r, b, *v);
-                        }
-                    }
-                }
-                c += S;
-            }
-            for (s, c) in (c..k).enumerate() {
+            let mut acc = [[_mm256_setzero_pd(); 4]; C];
+            for c in 0..k {
                 let col = base.add(c * ld);
                 let r = _mm256_loadu_pd(col.add(i0));
-                for (x, acc_x) in acc[s].iter_mut().enumerate() {
+                for (x, acc_x) in acc.iter_mut().enumerate() {
                     for (jj, v) in acc_x.iter_mut().enumerate() {
                         let b = _mm256_broadcast_sd(&*col.add(j0 + 4 * x + jj));
                         *v = _mm256_fmadd_pd(r, b, *v);
                     }
                 }
             }
-            let (first, rest) = acc.split_at_mut(1);
-            let acc = &mut first[0];
-            for other in rest.iter() {
-                for (a, b) in acc.iter_mut().flatten().zip(other.iter().flatten()) {
-                    *a = _mm256_add_pd(*a, *b);
-                }
-            }
             for (x, acc_x) in acc.iter().enumerate() {
                 for (jj, v) in acc_x.iter().enumerate() {
                     let dst = g.add((j0 + 4 * x + jj) * np + i0);
                     _mm256_storeu_pd(dst, _mm256_add_pd(_mm256_loadu_pd(dst), *v));
+                }
+            }
+        }
+    }
+
+    /// One AVX-512 tile: rows `i0..i0 + 8`, columns `j0..j0 + 8 C`, summed over the k columns
+    /// of `a` and added to `g`.
+    ///
+    /// # Safety
+    /// As [`lower_gram_f64_avx512`], and `i0 + 8 <= rows`, `j0 + 8 C <= rows`.
+    #[inline(always)]
+    unsafe fn tile8<const C: usize>(
+        base: *const f64,
+        k: usize,
+        ld: usize,
+        i0: usize,
+        j0: usize,
+        np: usize,
+        g: *mut f64,
+    ) {
+        // SAFETY: the CPU supports AVX-512F (caller); reads and writes as in `tile4`, with
+        // rows i0 .. i0 + 8 <= rows <= np.
+        unsafe {
+            let mut acc = [[_mm512_setzero_pd(); 8]; C];
+            for c in 0..k {
+                let col = base.add(c * ld);
+                let r = _mm512_loadu_pd(col.add(i0));
+                for (x, acc_x) in acc.iter_mut().enumerate() {
+                    for (jj, v) in acc_x.iter_mut().enumerate() {
+                        let b = _mm512_set1_pd(*col.add(j0 + 8 * x + jj));
+                        *v = _mm512_fmadd_pd(r, b, *v);
+                    }
+                }
+            }
+            for (x, acc_x) in acc.iter().enumerate() {
+                for (jj, v) in acc_x.iter().enumerate() {
+                    let dst = g.add((j0 + 8 * x + jj) * np + i0);
+                    _mm512_storeu_pd(dst, _mm512_add_pd(_mm512_loadu_pd(dst), *v));
                 }
             }
         }
@@ -321,14 +423,17 @@ mod tests {
     }
 
     fn run(n: usize, values: &[f32], chunk: usize) -> Vec<f64> {
-        let valid = |d: usize| d % 7 != 3;
+        // Cells of 3 indices, every seventh invalid.
+        let cells: Vec<bool> = (0..values.len().div_ceil(3 * n))
+            .map(|c| c % 7 != 3)
+            .collect();
         let mut acc = GramAccumulator::new(n, &Identity);
         let d = values.len() / n;
         let mut other = GramAccumulator::new(n, &Identity);
         for start in (0..d).step_by(chunk) {
             let end = (start + chunk).min(d);
             let target = if start < d / 2 { &mut acc } else { &mut other };
-            target.push_chunk(start..end, &values[start * n..end * n], valid);
+            target.push_chunk(start..end, &values[start * n..end * n], &cells, 3);
         }
         acc.merge(other).finish()
     }
@@ -345,7 +450,7 @@ mod tests {
         for n in [1, 5, 8, 13, 51] {
             let d = 1000;
             let values = pseudo_random(n * d, n as u64);
-            let want = reference(n, &values, |d| d % 7 != 3);
+            let want = reference(n, &values, |d| (d / 3) % 7 != 3);
             // chunks of 97 indices split between two workers, blocks of F64_BLOCK valid ones.
             let got = run(n, &values, 97);
             assert!(max_rel(&got, &want) < 1e-13, "n = {n}");
@@ -357,32 +462,75 @@ mod tests {
         }
     }
 
+    /// Every build of the kernel gives the same bits (one FMA chain per entry), for panels
+    /// ending on 8- and 4-row boundaries; each vector build is checked where the CPU has it.
     #[test]
-    fn simd_and_portable_f64_kernels_agree() {
-        let (np, rows, k) = (56, 52, 48);
-        let a: Vec<f64> = pseudo_random(np * k, 5)
-            .iter()
-            .map(|v| f64::from(*v))
-            .collect();
-        let mut g1 = vec![0.0; np * np];
-        let mut g2 = vec![0.0; np * np];
-        lower_gram_f64(&a, k, np, rows, np, &mut g1);
-        lower_gram_f64_portable(&a, k, np, rows, np, &mut g2);
-        for j in 0..np {
-            for i in 0..rows {
-                let want: f64 = (0..k).map(|c| a[c * np + i] * a[c * np + j]).sum();
-                let (x, y) = (g1[j * np + i], g2[j * np + i]);
-                if j <= i {
+    fn simd_and_portable_f64_kernels_agree_bitwise() {
+        for (np, rows, k) in [(56, 52, 48), (56, 56, 47), (8, 4, 3), (16, 16, 1)] {
+            let a: Vec<f64> = pseudo_random(np * k, 5)
+                .iter()
+                .map(|v| f64::from(*v))
+                .collect();
+            let lower = |g: &[f64]| {
+                let mut v = Vec::new();
+                for j in 0..rows {
+                    for i in j..rows {
+                        v.push(g[j * np + i].to_bits());
+                    }
+                }
+                v
+            };
+            let mut g = vec![0.5; np * np];
+            lower_gram_f64_portable(&a, k, np, rows, np, &mut g);
+            for j in 0..rows {
+                for i in j..rows {
+                    let want: f64 =
+                        0.5 + (0..k).map(|c| a[c * np + i] * a[c * np + j]).sum::<f64>();
+                    let x = g[j * np + i];
                     assert!(
                         (x - want).abs() <= 1e-13 * want,
                         "({i}, {j}): {x} vs {want}"
                     );
-                    assert!(
-                        (y - want).abs() <= 1e-13 * want,
-                        "({i}, {j}): {y} vs {want}"
-                    );
                 }
             }
+            let want = lower(&g);
+            let mut builds: Vec<(&str, Vec<f64>)> = Vec::new();
+            let mut g = vec![0.5; np * np];
+            lower_gram_f64(&a, k, np, rows, np, &mut g);
+            builds.push(("dispatched", g));
+            #[cfg(target_arch = "x86_64")]
+            {
+                if std::arch::is_x86_feature_detected!("avx512f") {
+                    let mut g = vec![0.5; np * np];
+                    // SAFETY: the CPU supports AVX-512F; shapes as the kernel requires.
+                    unsafe { x86::lower_gram_f64_avx512(&a, k, np, rows, np, &mut g) };
+                    builds.push(("AVX-512", g));
+                }
+                if std::arch::is_x86_feature_detected!("avx2")
+                    && std::arch::is_x86_feature_detected!("fma")
+                {
+                    let mut g = vec![0.5; np * np];
+                    // SAFETY: the CPU supports AVX2 and FMA; shapes as the kernel requires.
+                    unsafe { x86::lower_gram_f64_avx2(&a, k, np, rows, np, &mut g) };
+                    builds.push(("AVX2", g));
+                }
+            }
+            for (name, g) in builds {
+                assert!(
+                    lower(&g) == want,
+                    "{name} differs from the portable kernel ({np}, {rows}, {k})"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn tile_widths_cover_the_panel_with_wide_tiles() {
+        for blocks in 0..20 {
+            let w: Vec<usize> = tile_widths(blocks).collect();
+            assert_eq!(w.iter().sum::<usize>(), blocks);
+            assert!(w.iter().all(|&x| (1..=3).contains(&x)));
+            assert!(blocks <= 1 || w.iter().all(|&x| x >= 2), "{blocks}: {w:?}");
         }
     }
 
@@ -434,7 +582,7 @@ mod tests {
             }
         }
         let mut acc = GramAccumulator::new(n, &Square);
-        acc.push_chunk(0..300, &values, |_| true);
+        acc.push_chunk(0..300, &values, &[true; 300], 1);
         assert!(max_rel(&acc.finish(), &want) < 1e-13);
     }
 }

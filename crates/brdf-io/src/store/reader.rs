@@ -457,7 +457,7 @@ impl Store {
         let mask = self.validity_mask();
         let acc = self.par_fold_chunks(
             || GramAccumulator::new(n, t),
-            |acc, range, block| acc.push_chunk(range, block, |d| mask[d / nc]),
+            |acc, range, block| acc.push_chunk(range, block, mask, nc),
             GramAccumulator::merge,
         )?;
         Ok(acc.finish())
