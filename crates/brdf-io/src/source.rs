@@ -226,7 +226,7 @@ where
 {
     use rayon::prelude::*;
     if n_channels == 0
-        || out.len() % n_channels != 0
+        || !out.len().is_multiple_of(n_channels)
         || first_cell + out.len() / n_channels > grid.len()
     {
         return Err(crate::error::Error::InvalidArgument {

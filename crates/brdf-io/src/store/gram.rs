@@ -154,7 +154,7 @@ pub const F64_BLOCK: usize = 48;
 /// fused multiply-adds over the k columns in order, added to `g` at the end, so the result has
 /// the same bits on every CPU (the fits are chaotic in the last bits of the Gram matrix).
 fn lower_gram_f64(a: &[f64], k: usize, ld: usize, rows: usize, np: usize, g: &mut [f64]) {
-    assert!(np % 8 == 0 && rows % 4 == 0 && rows <= np && g.len() >= np * np);
+    assert!(np.is_multiple_of(8) && rows.is_multiple_of(4) && rows <= np && g.len() >= np * np);
     assert!(k == 0 || (ld > 0 && a.len() >= (k - 1) * ld + np));
     #[cfg(target_arch = "x86_64")]
     {
