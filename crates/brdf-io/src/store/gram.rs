@@ -93,10 +93,15 @@ impl<'t, T: GramTransform + ?Sized> GramAccumulator<'t, T> {
                     &mut self.wide[at..at + take * n],
                 );
                 self.filled += take;
+                d += take;
                 if self.filled == F64_BLOCK {
+                    // The next block's input streams in while the kernel works on this one.
+                    let next = (d - range.start) * n;
+                    prefetch(
+                        &block[next.min(block.len())..(next + F64_BLOCK * n).min(block.len())],
+                    );
                     self.flush();
                 }
-                d += take;
             }
         }
     }
@@ -138,6 +143,22 @@ impl<'t, T: GramTransform + ?Sized> GramAccumulator<'t, T> {
         }
         out
     }
+}
+
+/// Asks the CPU to fetch the cache lines of `values` (x86-64; a hint that never faults).
+fn prefetch(values: &[f32]) {
+    #[cfg(target_arch = "x86_64")]
+    for line in values.chunks(16) {
+        // SAFETY: prefetching is a hint that never faults, the pointer is in bounds anyway, and
+        // SSE is part of x86-64.
+        unsafe {
+            std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                line.as_ptr().cast(),
+            )
+        };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = values;
 }
 
 /// Indices per block of the f64 kernel: 48 x 56 f64 values (21 KiB) stay in the L1 cache.
@@ -275,7 +296,7 @@ mod x86 {
             unsafe {
                 if i0 + 8 <= rows {
                     let mut j0 = 0;
-                    for w in tile_widths(i0 / 8 + 1) {
+                    for w in tile_widths(i0 / 8) {
                         match w {
                             1 => tile8::<1>(base, k, ld, i0, j0, np, g),
                             2 => tile8::<2>(base, k, ld, i0, j0, np, g),
@@ -283,11 +304,49 @@ mod x86 {
                         }
                         j0 += 8 * w;
                     }
+                    diagonal8(base, k, ld, i0, np, g);
                     i0 += 8;
                 } else {
                     panel4(base, k, ld, i0, np, g);
                     i0 += 4;
                 }
+            }
+        }
+    }
+
+    /// The lower half of the diagonal 8 x 8 block at `i0` as two ymm row halves: rows
+    /// `i0..i0 + 4` x columns `i0..i0 + 4` and rows `i0 + 4..i0 + 8` x columns `i0..i0 + 8`,
+    /// 12 accumulators and 48 products per column of `a` instead of a zmm tile's 64.
+    ///
+    /// # Safety
+    /// As [`lower_gram_f64_avx512`], and `i0 + 8 <= rows`.
+    #[inline(always)]
+    unsafe fn diagonal8(base: *const f64, k: usize, ld: usize, i0: usize, np: usize, g: *mut f64) {
+        // SAFETY: the CPU supports AVX2 + FMA (caller); reads at c * ld + x with x < i0 + 8
+        // <= rows, writes at columns < i0 + 8 <= np, rows < i0 + 8 <= np.
+        unsafe {
+            let mut top = [_mm256_setzero_pd(); 4];
+            let mut bottom = [_mm256_setzero_pd(); 8];
+            for c in 0..k {
+                let col = base.add(c * ld + i0);
+                let (r0, r1) = (_mm256_loadu_pd(col), _mm256_loadu_pd(col.add(4)));
+                for (jj, (t, b)) in top.iter_mut().zip(&mut bottom[..4]).enumerate() {
+                    let x = _mm256_broadcast_sd(&*col.add(jj));
+                    *t = _mm256_fmadd_pd(r0, x, *t);
+                    *b = _mm256_fmadd_pd(r1, x, *b);
+                }
+                for (jj, b) in bottom[4..].iter_mut().enumerate() {
+                    let x = _mm256_broadcast_sd(&*col.add(4 + jj));
+                    *b = _mm256_fmadd_pd(r1, x, *b);
+                }
+            }
+            for (jj, v) in top.iter().enumerate() {
+                let dst = g.add((i0 + jj) * np + i0);
+                _mm256_storeu_pd(dst, _mm256_add_pd(_mm256_loadu_pd(dst), *v));
+            }
+            for (jj, v) in bottom.iter().enumerate() {
+                let dst = g.add((i0 + jj) * np + i0 + 4);
+                _mm256_storeu_pd(dst, _mm256_add_pd(_mm256_loadu_pd(dst), *v));
             }
         }
     }
