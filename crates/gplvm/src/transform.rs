@@ -265,11 +265,7 @@ impl GramTransform for Transform {
     /// Batch version of [`Transform::forward`] (vectorised; within 1e-14 of it).
     fn to_f64(&self, input: &[f32], out: &mut [f64]) {
         match *self {
-            Self::Raw => {
-                for (o, v) in out.iter_mut().zip(input) {
-                    *o = f64::from(*v);
-                }
-            }
+            Self::Raw => brdf_io::store::Identity.to_f64(input, out),
             Self::Log { offset } => ln_1p_scaled_f64(input, 1.0 / offset, out),
         }
     }
