@@ -138,9 +138,9 @@ impl<'t, T: GramTransform + ?Sized> GramAccumulator<'t, T> {
                 if self.filled == F64_BLOCK {
                     // The next block's input streams in while the kernel works on this one.
                     let next = (d - range.start) * n;
-                    prefetch(
-                        &block[next.min(block.len())..(next + F64_BLOCK * n).min(block.len())],
-                    );
+                    let ahead =
+                        &block[next.min(block.len())..(next + F64_BLOCK * n).min(block.len())];
+                    super::prefetch_lines(bytemuck::cast_slice(ahead), super::CacheLevel::L2);
                     self.flush();
                 }
             }
@@ -184,22 +184,6 @@ impl<'t, T: GramTransform + ?Sized> GramAccumulator<'t, T> {
         }
         out
     }
-}
-
-/// Asks the CPU to fetch the cache lines of `values` (x86-64; a hint that never faults).
-fn prefetch(values: &[f32]) {
-    #[cfg(target_arch = "x86_64")]
-    for line in values.chunks(16) {
-        // SAFETY: prefetching is a hint that never faults, the pointer is in bounds anyway, and
-        // SSE is part of x86-64.
-        unsafe {
-            std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T1 }>(
-                line.as_ptr().cast(),
-            )
-        };
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = values;
 }
 
 /// Indices per block of the f64 kernel: 48 x 56 f64 values (21 KiB) stay in the L1 cache.
@@ -314,9 +298,10 @@ mod x86 {
     /// AVX-512 kernel of `lower_gram_f64`: row panels of 8 rows (one zmm) whose columns
     /// `0..i0 + 8` go in tiles of 8, 16 or 24 columns (up to 24 accumulators of the 32
     /// registers; the column values are broadcast from memory by the FMAs themselves), half
-    /// the instructions of the AVX2 kernel for the same arithmetic. The diagonal 8 x 8 block's
-    /// upper half is wasted work; a last panel of 4 rows (`rows % 8 == 4`) takes the AVX2
-    /// kernel's 4-row panel instead of wasting a zmm's upper half on padding.
+    /// the instructions of the AVX2 kernel for the same arithmetic. The diagonal 8 x 8 block
+    /// goes in two ymm halves ([`diagonal8`]: its lower triangle with 4 x 4 blocks, as the AVX2
+    /// kernel computes it); a last panel of 4 rows (`rows % 8 == 4`) takes the AVX2 kernel's
+    /// 4-row panel instead of wasting a zmm's upper half on padding.
     ///
     /// # Safety
     /// As [`lower_gram_f64_avx2`], and the CPU must support AVX-512F.
@@ -339,9 +324,9 @@ mod x86 {
                     let mut j0 = 0;
                     for w in tile_widths(i0 / 8) {
                         match w {
-                            1 => tile8::<1>(base, k, ld, i0, j0, np, g),
-                            2 => tile8::<2>(base, k, ld, i0, j0, np, g),
-                            _ => tile8::<3>(base, k, ld, i0, j0, np, g),
+                            1 => tile::<__m512d, 8, 1>(base, k, ld, i0, j0, np, g),
+                            2 => tile::<__m512d, 8, 2>(base, k, ld, i0, j0, np, g),
+                            _ => tile::<__m512d, 8, 3>(base, k, ld, i0, j0, np, g),
                         }
                         j0 += 8 * w;
                     }
@@ -403,61 +388,97 @@ mod x86 {
             // SAFETY: forwarded contract; j0 + 4 w <= i0 + 4 <= rows.
             unsafe {
                 match w {
-                    1 => tile4::<1>(base, k, ld, i0, j0, np, g),
-                    2 => tile4::<2>(base, k, ld, i0, j0, np, g),
-                    _ => tile4::<3>(base, k, ld, i0, j0, np, g),
+                    1 => tile::<__m256d, 4, 1>(base, k, ld, i0, j0, np, g),
+                    2 => tile::<__m256d, 4, 2>(base, k, ld, i0, j0, np, g),
+                    _ => tile::<__m256d, 4, 3>(base, k, ld, i0, j0, np, g),
                 }
             }
             j0 += 4 * w;
         }
     }
 
-    /// One AVX2 tile: rows `i0..i0 + 4`, columns `j0..j0 + 4 C`, summed over the k columns of
-    /// `a` and added to `g`.
-    ///
-    /// # Safety
-    /// As [`lower_gram_f64_avx2`], and `i0 + 4 <= rows`, `j0 + 4 C <= rows`.
-    #[inline(always)]
-    unsafe fn tile4<const C: usize>(
-        base: *const f64,
-        k: usize,
-        ld: usize,
-        i0: usize,
-        j0: usize,
-        np: usize,
-        g: *mut f64,
-    ) {
-        // SAFETY: the CPU supports AVX2 + FMA (caller); every read is at c * ld + x with
-        // c < k and x < rows <= np, inside a[..(k - 1) * ld + np]; every write is at a column
-        // j < rows <= np, rows i0 .. i0 + 4 <= np of g[..np * np].
-        unsafe {
-            let mut acc = [[_mm256_setzero_pd(); 4]; C];
-            for c in 0..k {
-                let col = base.add(c * ld);
-                let r = _mm256_loadu_pd(col.add(i0));
-                for (x, acc_x) in acc.iter_mut().enumerate() {
-                    for (jj, v) in acc_x.iter_mut().enumerate() {
-                        let b = _mm256_broadcast_sd(&*col.add(j0 + 4 * x + jj));
-                        *v = _mm256_fmadd_pd(r, b, *v);
-                    }
-                }
-            }
-            for (x, acc_x) in acc.iter().enumerate() {
-                for (jj, v) in acc_x.iter().enumerate() {
-                    let dst = g.add((j0 + 4 * x + jj) * np + i0);
-                    _mm256_storeu_pd(dst, _mm256_add_pd(_mm256_loadu_pd(dst), *v));
-                }
-            }
-        }
+    /// A vector of f64 lanes as the tiles use it: `__m256d` (AVX2 + FMA) or `__m512d`
+    /// (AVX-512F). Every method is inlined into a function compiled with its feature.
+    trait Lanes: Copy {
+        /// Lanes per vector: rows of a tile.
+        const N: usize;
+        /// All lanes zero.
+        unsafe fn zero() -> Self;
+        /// `N` values from `p` (unaligned).
+        unsafe fn load(p: *const f64) -> Self;
+        /// `*p` in every lane.
+        unsafe fn splat(p: *const f64) -> Self;
+        /// `a * b + c`, fused.
+        unsafe fn fma(a: Self, b: Self, c: Self) -> Self;
+        /// `p[..N] += self`.
+        unsafe fn add_into(self, p: *mut f64);
     }
 
-    /// One AVX-512 tile: rows `i0..i0 + 8`, columns `j0..j0 + 8 C`, summed over the k columns
-    /// of `a` and added to `g`.
+    /// Implements [`Lanes`] for one vector type from its intrinsics.
+    macro_rules! lanes {
+        ($t:ty, $n:expr, $zero:ident, $load:ident, $splat:ident, $fma:ident, $add:ident, $store:ident) => {
+            impl Lanes for $t {
+                const N: usize = $n;
+                #[inline(always)]
+                unsafe fn zero() -> Self {
+                    // SAFETY: the caller runs with the vector's CPU features.
+                    unsafe { $zero() }
+                }
+                #[inline(always)]
+                unsafe fn load(p: *const f64) -> Self {
+                    // SAFETY: as above, and `p` is valid for `N` values.
+                    unsafe { $load(p) }
+                }
+                #[inline(always)]
+                unsafe fn splat(p: *const f64) -> Self {
+                    // SAFETY: as above, and `p` is valid (a broadcast from memory, which the
+                    // FMA takes as its memory operand).
+                    unsafe { $splat(*p) }
+                }
+                #[inline(always)]
+                unsafe fn fma(a: Self, b: Self, c: Self) -> Self {
+                    // SAFETY: the caller runs with the vector's CPU features.
+                    unsafe { $fma(a, b, c) }
+                }
+                #[inline(always)]
+                unsafe fn add_into(self, p: *mut f64) {
+                    // SAFETY: as above, and `p` is valid for reading and writing `N` values.
+                    unsafe { $store(p, $add($load(p), self)) }
+                }
+            }
+        };
+    }
+    lanes!(
+        __m256d,
+        4,
+        _mm256_setzero_pd,
+        _mm256_loadu_pd,
+        _mm256_set1_pd,
+        _mm256_fmadd_pd,
+        _mm256_add_pd,
+        _mm256_storeu_pd
+    );
+    lanes!(
+        __m512d,
+        8,
+        _mm512_setzero_pd,
+        _mm512_loadu_pd,
+        _mm512_set1_pd,
+        _mm512_fmadd_pd,
+        _mm512_add_pd,
+        _mm512_storeu_pd
+    );
+
+    /// One tile: rows `i0..i0 + W`, columns `j0..j0 + W C` (W = the vector's lanes), each entry
+    /// one FMA chain over the k columns of `a` in order, then added to `g`.
     ///
     /// # Safety
-    /// As [`lower_gram_f64_avx512`], and `i0 + 8 <= rows`, `j0 + 8 C <= rows`.
+    /// The CPU supports `V`'s instructions; `W == V::N`; the shape contract of
+    /// [`lower_gram_f64_avx2`] with `i0 + W <= rows` and `j0 + W C <= rows`, so that every read
+    /// is at c * ld + x with c < k and x < rows <= np, inside a[..(k - 1) * ld + np], and every
+    /// write at a column j < rows <= np, rows i0 .. i0 + W <= np of g[..np * np].
     #[inline(always)]
-    unsafe fn tile8<const C: usize>(
+    unsafe fn tile<V: Lanes, const W: usize, const C: usize>(
         base: *const f64,
         k: usize,
         ld: usize,
@@ -466,24 +487,22 @@ mod x86 {
         np: usize,
         g: *mut f64,
     ) {
-        // SAFETY: the CPU supports AVX-512F (caller); reads and writes as in `tile4`, with
-        // rows i0 .. i0 + 8 <= rows <= np.
+        debug_assert_eq!(W, V::N);
+        // SAFETY: as documented above.
         unsafe {
-            let mut acc = [[_mm512_setzero_pd(); 8]; C];
+            let mut acc = [[V::zero(); W]; C];
             for c in 0..k {
                 let col = base.add(c * ld);
-                let r = _mm512_loadu_pd(col.add(i0));
+                let r = V::load(col.add(i0));
                 for (x, acc_x) in acc.iter_mut().enumerate() {
                     for (jj, v) in acc_x.iter_mut().enumerate() {
-                        let b = _mm512_set1_pd(*col.add(j0 + 8 * x + jj));
-                        *v = _mm512_fmadd_pd(r, b, *v);
+                        *v = V::fma(r, V::splat(col.add(j0 + W * x + jj)), *v);
                     }
                 }
             }
             for (x, acc_x) in acc.iter().enumerate() {
                 for (jj, v) in acc_x.iter().enumerate() {
-                    let dst = g.add((j0 + 8 * x + jj) * np + i0);
-                    _mm512_storeu_pd(dst, _mm512_add_pd(_mm512_loadu_pd(dst), *v));
+                    v.add_into(g.add((j0 + W * x + jj) * np + i0));
                 }
             }
         }

@@ -596,21 +596,9 @@ impl Store {
     /// store opened with a memory map, asks the CPU to fetch their cache lines (x86-64); no
     /// effect otherwise, or for a range outside the store.
     pub fn prefetch(&self, d_range: Range<usize>) {
-        let Some(bytes) = self.mapped_bytes(d_range) else {
-            return;
-        };
-        #[cfg(target_arch = "x86_64")]
-        for line in bytes.chunks(64) {
-            // SAFETY: prefetching is a hint that never faults; the pointer is into the map (in
-            // bounds) anyway, and SSE is part of x86-64.
-            unsafe {
-                std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
-                    line.as_ptr().cast(),
-                )
-            };
+        if let Some(bytes) = self.mapped_bytes(d_range) {
+            super::prefetch_lines(bytes, super::CacheLevel::L1);
         }
-        #[cfg(not(target_arch = "x86_64"))]
-        let _ = bytes;
     }
 
     /// The stored bytes of `d_range` (all materials) in the memory map, when the range is
