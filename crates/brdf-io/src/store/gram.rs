@@ -348,31 +348,29 @@ mod x86 {
     /// As [`lower_gram_f64_avx512`], and `i0 + 8 <= rows`.
     #[inline(always)]
     unsafe fn diagonal8(base: *const f64, k: usize, ld: usize, i0: usize, np: usize, g: *mut f64) {
+        type V = __m256d;
         // SAFETY: the CPU supports AVX2 + FMA (caller); reads at c * ld + x with x < i0 + 8
         // <= rows, writes at columns < i0 + 8 <= np, rows < i0 + 8 <= np.
         unsafe {
-            let mut top = [_mm256_setzero_pd(); 4];
-            let mut bottom = [_mm256_setzero_pd(); 8];
+            let mut top = [V::zero(); 4];
+            let mut bottom = [V::zero(); 8];
             for c in 0..k {
                 let col = base.add(c * ld + i0);
-                let (r0, r1) = (_mm256_loadu_pd(col), _mm256_loadu_pd(col.add(4)));
+                let (r0, r1) = (V::load(col), V::load(col.add(4)));
                 for (jj, (t, b)) in top.iter_mut().zip(&mut bottom[..4]).enumerate() {
-                    let x = _mm256_broadcast_sd(&*col.add(jj));
-                    *t = _mm256_fmadd_pd(r0, x, *t);
-                    *b = _mm256_fmadd_pd(r1, x, *b);
+                    let x = V::splat(col.add(jj));
+                    *t = V::fma(r0, x, *t);
+                    *b = V::fma(r1, x, *b);
                 }
                 for (jj, b) in bottom[4..].iter_mut().enumerate() {
-                    let x = _mm256_broadcast_sd(&*col.add(4 + jj));
-                    *b = _mm256_fmadd_pd(r1, x, *b);
+                    *b = V::fma(r1, V::splat(col.add(4 + jj)), *b);
                 }
             }
             for (jj, v) in top.iter().enumerate() {
-                let dst = g.add((i0 + jj) * np + i0);
-                _mm256_storeu_pd(dst, _mm256_add_pd(_mm256_loadu_pd(dst), *v));
+                v.add_into(g.add((i0 + jj) * np + i0));
             }
             for (jj, v) in bottom.iter().enumerate() {
-                let dst = g.add((i0 + jj) * np + i0 + 4);
-                _mm256_storeu_pd(dst, _mm256_add_pd(_mm256_loadu_pd(dst), *v));
+                v.add_into(g.add((i0 + jj) * np + i0 + 4));
             }
         }
     }
