@@ -1,6 +1,7 @@
 //! Page-cache benchmark of the dataset store at full scale (see BENCHMARKS.md, "dataset store").
 //!
-//! `cargo run --release -p brdf-io --example store_bench -- DIR [CHANNELS] [N]`
+//! `cargo run --release -p brdf-io --example store_bench -- DIR [CHANNELS] [N]` (DIR is created
+//! if it does not exist)
 //! `cargo run --release -p brdf-io --example store_bench -- --file STORE.sbrdf` (an existing
 //! store: streaming pass, Gram pass, lookups; nothing written)
 //!
@@ -152,6 +153,10 @@ fn main() {
         return;
     }
     let dir = Path::new(args.get(1).map(String::as_str).unwrap_or("."));
+    if let Err(e) = std::fs::create_dir_all(dir) {
+        eprintln!("store_bench: cannot create {}: {e}", dir.display());
+        std::process::exit(2);
+    }
     let nc: usize = args.get(2).map_or(8, |s| s.parse().unwrap());
     let n: usize = args.get(3).map_or(51, |s| s.parse().unwrap());
     let channels = Channels::spectral(
