@@ -62,6 +62,17 @@ impl Image {
         }
     }
 
+    /// Draws a one-pixel line from (x0, y0) to (x1, y1) (pixel units), blended with opacity
+    /// `a` (one pixel per step along the longer axis).
+    pub fn line(&mut self, x0: f64, y0: f64, x1: f64, y1: f64, rgb: [f64; 3], a: f64) {
+        let steps = (x1 - x0).abs().max((y1 - y0).abs()).ceil().max(1.0) as usize;
+        for k in 0..=steps {
+            let t = k as f64 / steps as f64;
+            let (x, y) = (x0 + (x1 - x0) * t, y0 + (y1 - y0) * t);
+            self.blend(x.floor() as i64, y.floor() as i64, rgb, a);
+        }
+    }
+
     /// Draws a filled, anti-aliased disc of radius `r` centred at (cx, cy) (pixel units, pixel
     /// centres at +0.5).
     pub fn disc(&mut self, cx: f64, cy: f64, r: f64, rgb: [f64; 3]) {

@@ -197,12 +197,38 @@ pub fn latent_map(
     }
     img.text(l + 130, bar_y, "0", 1, black);
     img.text(l + 290, bar_y, &format!("{vmax:.3}"), 1, black);
-    // Dots and labels.
-    for (name, p) in points {
-        let (cx, cy) = to_px(*p);
-        img.disc(cx, cy, 4.5, [1.0; 3]);
-        img.disc(cx, cy, 3.0, [0.8, 0.05, 0.02]);
-        img.text(cx as i64 + 6, cy as i64 - 3, name, 1, black);
+    // Dots and labels: each label beside its dot where there is room, else on a ring further
+    // out with a leader line; none covers another label or a dot.
+    let dots: Vec<(f64, f64)> = points.iter().map(|(_, p)| to_px(*p)).collect();
+    let widths: Vec<usize> = points
+        .iter()
+        .map(|(name, _)| font::text_width(name, 1))
+        .collect();
+    let plot = Rect {
+        x0: margin as i64,
+        y0: margin as i64,
+        x1: (margin + size) as i64,
+        y1: (margin + size) as i64,
+    };
+    let spots = place_labels(&dots, &widths, plot);
+    for ((cx, cy), (spot, w)) in dots.iter().zip(spots.iter().zip(&widths)) {
+        if spot.leader {
+            let (tx, ty) = spot.label_box(*w).nearest_point(*cx, *cy);
+            img.line(*cx, *cy, tx, ty, [0.25; 3], 0.8);
+        }
+    }
+    for (cx, cy) in &dots {
+        img.disc(*cx, *cy, 4.5, [1.0; 3]);
+        img.disc(*cx, *cy, 3.0, [0.8, 0.05, 0.02]);
+    }
+    for (((name, _), spot), w) in points.iter().zip(&spots).zip(&widths) {
+        let b = spot.label_box(*w);
+        for y in b.y0..b.y1 {
+            for x in b.x0..b.x1 {
+                img.blend(x, y, [1.0; 3], 0.6);
+            }
+        }
+        img.text(spot.x, spot.y, name, 1, black);
     }
     // Thumbnails.
     if let (Some(f), true) = (source_at, panel > 0) {
@@ -229,4 +255,227 @@ pub fn latent_map(
         img.text(ox, 8, &title, 1, black);
     }
     Ok(img)
+}
+
+/// A pixel rectangle `[x0, x1) x [y0, y1)`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Rect {
+    x0: i64,
+    y0: i64,
+    x1: i64,
+    y1: i64,
+}
+
+impl Rect {
+    /// Area of the intersection with `o` (0 when they do not meet).
+    fn overlap(&self, o: &Rect) -> i64 {
+        let w = self.x1.min(o.x1) - self.x0.max(o.x0);
+        let h = self.y1.min(o.y1) - self.y0.max(o.y0);
+        if w > 0 && h > 0 { w * h } else { 0 }
+    }
+
+    /// Whether the rectangle lies inside `o`.
+    fn inside(&self, o: &Rect) -> bool {
+        self.x0 >= o.x0 && self.y0 >= o.y0 && self.x1 <= o.x1 && self.y1 <= o.y1
+    }
+
+    /// The point of the rectangle nearest to (x, y).
+    fn nearest_point(&self, x: f64, y: f64) -> (f64, f64) {
+        (
+            x.clamp(self.x0 as f64, self.x1 as f64),
+            y.clamp(self.y0 as f64, self.y1 as f64),
+        )
+    }
+}
+
+/// Where a label's text goes (its top-left corner) and whether it sits away from its dot
+/// (then a leader line joins them).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct LabelSpot {
+    x: i64,
+    y: i64,
+    leader: bool,
+}
+
+impl LabelSpot {
+    /// The box a label of `width` text pixels occupies here: the text plus a 1-pixel border.
+    fn label_box(&self, width: usize) -> Rect {
+        Rect {
+            x0: self.x - 1,
+            y0: self.y - 1,
+            x1: self.x + width as i64 + 1,
+            y1: self.y + font::GLYPH_H as i64 + 1,
+        }
+    }
+}
+
+/// Half the side of the square a dot keeps free of labels, in pixels.
+const DOT_CLEARANCE: f64 = 5.5;
+
+/// Places one label per dot (`widths[i]`: the text width of dot i's label), greedily and
+/// deterministically: labels of dots with more neighbours go first, and each takes the first
+/// free spot among: beside its dot (right, left, above, below, then the four corners), then on
+/// rings of growing radius around it (16 directions each; drawn with a leader line). Free
+/// means inside `bounds`, over no dot's clearance square and no label placed before. Where no
+/// spot is free, the label takes the one it overlaps least.
+fn place_labels(dots: &[(f64, f64)], widths: &[usize], bounds: Rect) -> Vec<LabelSpot> {
+    const RINGS: [f64; 7] = [16.0, 26.0, 38.0, 52.0, 68.0, 88.0, 112.0];
+    const DIRECTIONS: usize = 16;
+    let h = font::GLYPH_H as i64;
+    let dot_boxes: Vec<Rect> = dots
+        .iter()
+        .map(|&(x, y)| Rect {
+            x0: (x - DOT_CLEARANCE).floor() as i64,
+            y0: (y - DOT_CLEARANCE).floor() as i64,
+            x1: (x + DOT_CLEARANCE).ceil() as i64,
+            y1: (y + DOT_CLEARANCE).ceil() as i64,
+        })
+        .collect();
+    let crowd = |i: usize| {
+        let (x, y) = dots[i];
+        dots.iter()
+            .filter(|&&(u, v)| (u - x).hypot(v - y) < 48.0)
+            .count()
+    };
+    let mut order: Vec<usize> = (0..dots.len()).collect();
+    order.sort_by_key(|&i| (std::cmp::Reverse(crowd(i)), i));
+    let mut placed: Vec<Rect> = Vec::with_capacity(dots.len());
+    let mut spots = vec![
+        LabelSpot {
+            x: 0,
+            y: 0,
+            leader: false
+        };
+        dots.len()
+    ];
+    for i in order {
+        let (cx, cy) = dots[i];
+        let (x, y, w) = (cx.round() as i64, cy.round() as i64, widths[i] as i64);
+        let beside = [
+            (x + 7, y - h / 2),
+            (x - 7 - w, y - h / 2),
+            (x - w / 2, y - 7 - h),
+            (x - w / 2, y + 7),
+            (x + 5, y - 5 - h),
+            (x + 5, y + 5),
+            (x - 5 - w, y - 5 - h),
+            (x - 5 - w, y + 5),
+        ]
+        .map(|(x, y)| LabelSpot {
+            x,
+            y,
+            leader: false,
+        });
+        let rings = RINGS.iter().flat_map(|&r| {
+            (0..DIRECTIONS).map(move |k| {
+                let a = std::f64::consts::TAU * k as f64 / DIRECTIONS as f64;
+                let (ax, ay) = (cx + r * a.cos(), cy + r * a.sin());
+                // The box's side nearest the dot faces it.
+                let left = if a.cos() >= 0.0 { ax } else { ax - w as f64 };
+                LabelSpot {
+                    x: left.round() as i64,
+                    y: (ay - h as f64 / 2.0).round() as i64,
+                    leader: true,
+                }
+            })
+        });
+        let cost = |s: &LabelSpot| {
+            let b = s.label_box(widths[i]);
+            let out = if b.inside(&bounds) { 0 } else { 1 << 20 };
+            out + dot_boxes.iter().map(|d| b.overlap(d)).sum::<i64>()
+                + placed.iter().map(|p| b.overlap(p)).sum::<i64>()
+        };
+        let mut best = (i64::MAX, beside[0]);
+        for s in beside.into_iter().chain(rings) {
+            let c = cost(&s);
+            if c < best.0 {
+                best = (c, s);
+            }
+            if c == 0 {
+                break;
+            }
+        }
+        spots[i] = best.1;
+        placed.push(best.1.label_box(widths[i]));
+    }
+    spots
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const BOUNDS: Rect = Rect {
+        x0: 40,
+        y0: 40,
+        x1: 680,
+        y1: 680,
+    };
+
+    fn boxes(spots: &[LabelSpot], widths: &[usize]) -> Vec<Rect> {
+        spots
+            .iter()
+            .zip(widths)
+            .map(|(s, w)| s.label_box(*w))
+            .collect()
+    }
+
+    #[test]
+    fn sparse_labels_sit_right_of_their_dots() {
+        let dots = [(100.0, 100.0), (300.0, 300.0), (500.0, 200.0)];
+        let widths = [60, 90, 30];
+        let spots = place_labels(&dots, &widths, BOUNDS);
+        for ((x, y), s) in dots.iter().zip(&spots) {
+            assert_eq!(
+                *s,
+                LabelSpot {
+                    x: *x as i64 + 7,
+                    y: *y as i64 - 3,
+                    leader: false
+                }
+            );
+        }
+    }
+
+    #[test]
+    fn crowded_labels_overlap_neither_each_other_nor_dots() {
+        // 40 dots packed in a 30 x 30 pixel patch (the metals of the default map), labels up
+        // to 20 characters.
+        let dots: Vec<(f64, f64)> = (0..40)
+            .map(|k| {
+                let t = k as f64;
+                (300.0 + (t * 7.3) % 30.0, 320.0 + (t * 11.9) % 30.0)
+            })
+            .collect();
+        let widths: Vec<usize> = (0..40).map(|k| 6 * (8 + k % 13) - 1).collect();
+        let spots = place_labels(&dots, &widths, BOUNDS);
+        let b = boxes(&spots, &widths);
+        for (i, bi) in b.iter().enumerate() {
+            assert!(bi.inside(&BOUNDS), "label {i} leaves the plot: {bi:?}");
+            for (j, bj) in b.iter().enumerate().skip(i + 1) {
+                assert_eq!(bi.overlap(bj), 0, "labels {i} and {j} overlap");
+            }
+            for (k, &(x, y)) in dots.iter().enumerate() {
+                let d = Rect {
+                    x0: (x - DOT_CLEARANCE).floor() as i64,
+                    y0: (y - DOT_CLEARANCE).floor() as i64,
+                    x1: (x + DOT_CLEARANCE).ceil() as i64,
+                    y1: (y + DOT_CLEARANCE).ceil() as i64,
+                };
+                assert_eq!(bi.overlap(&d), 0, "label {i} covers dot {k}");
+            }
+        }
+        assert!(spots.iter().any(|s| s.leader));
+        // Deterministic.
+        assert_eq!(place_labels(&dots, &widths, BOUNDS), spots);
+    }
+
+    #[test]
+    fn labels_near_the_border_stay_inside() {
+        let dots = [(675.0, 45.0), (45.0, 675.0)];
+        let widths = [120, 120];
+        for b in boxes(&place_labels(&dots, &widths, BOUNDS), &widths) {
+            assert!(b.inside(&BOUNDS), "{b:?}");
+        }
+    }
 }
