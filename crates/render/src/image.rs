@@ -55,9 +55,14 @@ impl Image {
 
     /// Fills the rectangle [x0, x0 + w) x [y0, y0 + h) (clipped).
     pub fn fill_rect(&mut self, x0: i64, y0: i64, w: usize, h: usize, rgb: [f64; 3]) {
+        self.blend_rect(x0, y0, w, h, rgb, 1.0);
+    }
+
+    /// Blends `rgb` with opacity `a` over the rectangle [x0, x0 + w) x [y0, y0 + h) (clipped).
+    pub fn blend_rect(&mut self, x0: i64, y0: i64, w: usize, h: usize, rgb: [f64; 3], a: f64) {
         for y in y0..y0 + h as i64 {
             for x in x0..x0 + w as i64 {
-                self.set(x, y, rgb);
+                self.blend(x, y, rgb, a);
             }
         }
     }

@@ -223,11 +223,8 @@ pub fn latent_map(
     }
     for (((name, _), spot), w) in points.iter().zip(&spots).zip(&widths) {
         let b = spot.label_box(*w);
-        for y in b.y0..b.y1 {
-            for x in b.x0..b.x1 {
-                img.blend(x, y, [1.0; 3], 0.6);
-            }
-        }
+        let (bw, bh) = ((b.x1 - b.x0) as usize, (b.y1 - b.y0) as usize);
+        img.blend_rect(b.x0, b.y0, bw, bh, [1.0; 3], 0.6);
         img.text(spot.x, spot.y, name, 1, black);
     }
     // Thumbnails.
@@ -267,6 +264,16 @@ struct Rect {
 }
 
 impl Rect {
+    /// The square a dot at (x, y) keeps free of labels ([`DOT_CLEARANCE`]).
+    fn around_dot(x: f64, y: f64) -> Self {
+        Self {
+            x0: (x - DOT_CLEARANCE).floor() as i64,
+            y0: (y - DOT_CLEARANCE).floor() as i64,
+            x1: (x + DOT_CLEARANCE).ceil() as i64,
+            y1: (y + DOT_CLEARANCE).ceil() as i64,
+        }
+    }
+
     /// Area of the intersection with `o` (0 when they do not meet).
     fn overlap(&self, o: &Rect) -> i64 {
         let w = self.x1.min(o.x1) - self.x0.max(o.x0);
@@ -322,15 +329,7 @@ fn place_labels(dots: &[(f64, f64)], widths: &[usize], bounds: Rect) -> Vec<Labe
     const RINGS: [f64; 7] = [16.0, 26.0, 38.0, 52.0, 68.0, 88.0, 112.0];
     const DIRECTIONS: usize = 16;
     let h = font::GLYPH_H as i64;
-    let dot_boxes: Vec<Rect> = dots
-        .iter()
-        .map(|&(x, y)| Rect {
-            x0: (x - DOT_CLEARANCE).floor() as i64,
-            y0: (y - DOT_CLEARANCE).floor() as i64,
-            x1: (x + DOT_CLEARANCE).ceil() as i64,
-            y1: (y + DOT_CLEARANCE).ceil() as i64,
-        })
-        .collect();
+    let dot_boxes: Vec<Rect> = dots.iter().map(|&(x, y)| Rect::around_dot(x, y)).collect();
     let crowd = |i: usize| {
         let (x, y) = dots[i];
         dots.iter()
@@ -456,12 +455,7 @@ mod tests {
                 assert_eq!(bi.overlap(bj), 0, "labels {i} and {j} overlap");
             }
             for (k, &(x, y)) in dots.iter().enumerate() {
-                let d = Rect {
-                    x0: (x - DOT_CLEARANCE).floor() as i64,
-                    y0: (y - DOT_CLEARANCE).floor() as i64,
-                    x1: (x + DOT_CLEARANCE).ceil() as i64,
-                    y1: (y + DOT_CLEARANCE).ceil() as i64,
-                };
+                let d = Rect::around_dot(x, y);
                 assert_eq!(bi.overlap(&d), 0, "label {i} covers dot {k}");
             }
         }
