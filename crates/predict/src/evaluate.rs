@@ -2,10 +2,11 @@
 //!
 //! Every predictor here is linear in the stored rows of the transformed data, `y* = sum_j c_j
 //! y_j`, so its squared error against a material `h` in the transformed ("model") space follows
-//! from the uncentred Gram matrix alone: `G_hh - 2 c^T G_h + c^T G c` ([`sq_error`]). The
-//! leave-one-out protocol ([`leave_one_out`]) therefore needs no pass over the data: refit
-//! without `h` from the subset Gram matrix, place `h` at the latent point minimising that error,
-//! and compare with baselines chosen the same way (with knowledge of `h`: these are oracles).
+//! from the uncentred Gram matrix alone: `G_hh - 2 c^T G_h + c^T G c` = `d^T G d` with
+//! `d = c - e_h` ([`sq_error`]). The leave-one-out protocol ([`leave_one_out`]) therefore needs
+//! no pass over the data: refit without `h` from the subset Gram matrix, place `h` at the
+//! latent point minimising that error, and compare with baselines chosen the same way (with
+//! knowledge of `h`: these are oracles).
 //! Errors in BRDF space (after the inverse transform) of every method for every material come
 //! from one streaming pass ([`brdf_space_rmse`]: the coefficient matrix times each data block).
 //!
@@ -68,19 +69,24 @@ impl Method {
 }
 
 /// Squared error of the linear predictor `sum_j c_j y_j` against row `h`, from the uncentred
-/// Gram matrix `g` (N x N, `c` of length N): `G_hh - 2 c^T G_h + c^T G c`, clamped at 0.
+/// Gram matrix `g` (N x N, `c` of length N): `d^T G d` with `d = c - e_h` (equal to `G_hh -
+/// 2 c^T G_h + c^T G c`), clamped at 0.
+///
+/// Forming `d` first keeps a small error small: the expanded form subtracts terms of the size
+/// of `G_hh`, so its rounding (~1e-16 `G_hh`) swamped the error of a near-exact reconstruction
+/// (`c` close to `e_h`) on raw data with large values; `d^T G d` rounds relative to `|d|^2 G`.
 pub fn sq_error(g: MatRef<'_, f64>, h: usize, c: &[f64]) -> f64 {
     let n = g.nrows();
-    let mut e = g[(h, h)];
-    for i in 0..n {
-        if c[i] == 0.0 {
+    let d: Vec<f64> = (0..n)
+        .map(|i| if i == h { c[i] - 1.0 } else { c[i] })
+        .collect();
+    let mut e = 0.0;
+    for (i, &di) in d.iter().enumerate() {
+        if di == 0.0 {
             continue;
         }
-        let mut gi = 0.0;
-        for j in 0..n {
-            gi += g[(i, j)] * c[j];
-        }
-        e += c[i] * (gi - 2.0 * g[(h, i)]);
+        let gi: f64 = d.iter().enumerate().map(|(j, &dj)| g[(i, j)] * dj).sum();
+        e += di * gi;
     }
     e.max(0.0)
 }

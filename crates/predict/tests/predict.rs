@@ -319,6 +319,45 @@ fn dense_data(n: usize, d: usize) -> Mat<f64> {
     })
 }
 
+/// A near-exact reconstruction on data with a large offset (raw values of a bright specular
+/// peak): the Gram error keeps its relative accuracy instead of drowning in the rounding of
+/// `G_hh` (the expanded `G_hh - 2 c^T G_h + c^T G c` gave ~1e-16 G_hh of noise, here ~1e-3,
+/// against a true error of ~1e-12).
+#[test]
+fn gram_error_of_a_near_exact_reconstruction_is_accurate_on_large_values() {
+    let (n, d) = (9, 40);
+    let y = Mat::from_fn(n, d, |i, j| 1.0e5 * dense_data(n, d)[(i, j)]);
+    let g = y.as_ref() * y.as_ref().transpose();
+    // A direction v summing to 0 (every method's coefficients sum to 1: affine predictors).
+    let v: Vec<f64> = (0..n)
+        .map(|i| [1.0, -1.0][i % 2] * (i + 1) as f64)
+        .collect();
+    let v_mean = v.iter().sum::<f64>() / n as f64;
+    for (h, delta) in [(0, 1e-9), (4, 1e-11), (8, 1e-13)] {
+        // c = e_h + delta (v - mean v).
+        let c: Vec<f64> = (0..n)
+            .map(|i| f64::from(u8::from(i == h)) + delta * (v[i] - v_mean))
+            .collect();
+        // Direct: the residual vector formed from the data, each entry computed as
+        // sum_i (c_i - [i == h]) y_ij so that no large terms cancel.
+        let direct: f64 = (0..d)
+            .map(|j| {
+                (0..n)
+                    .map(|i| (c[i] - f64::from(u8::from(i == h))) * y[(i, j)])
+                    .sum::<f64>()
+                    .powi(2)
+            })
+            .sum();
+        let got = sq_error(g.as_ref(), h, &c);
+        assert!(direct > 0.0);
+        assert!(
+            rel(got, direct) < 1e-6,
+            "h {h}, delta {delta:e}: Gram error {got:e} vs direct {direct:e} (G_hh {:e})",
+            g[(h, h)]
+        );
+    }
+}
+
 #[test]
 fn leave_one_out_via_the_gram_matrix_equals_brute_force() {
     let (n, d) = (9, 40);
