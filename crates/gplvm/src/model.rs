@@ -120,6 +120,18 @@ pub struct Model {
 }
 
 impl Model {
+    /// Where the dataset store is, for the model read from `model_file`: the recorded path,
+    /// taken relative to the model file's directory when it is relative (`fit` records
+    /// absolute paths; an edited or moved model may hold a relative one).
+    pub fn dataset_path(&self, model_file: &Path) -> PathBuf {
+        let p = &self.dataset.path;
+        if p.is_relative() {
+            model_file.parent().unwrap_or(Path::new(".")).join(p)
+        } else {
+            p.clone()
+        }
+    }
+
     /// Latent coordinates as an N x q matrix.
     pub fn latent_matrix(&self) -> faer::Mat<f64> {
         faer::Mat::from_fn(self.materials.len(), self.latent_dim, |i, k| {

@@ -25,5 +25,5 @@ pub use error::{Error, Result};
 pub use materialize::{MaterializeReport, OutputFormat};
 pub use predictor::{
     ChannelSelection, PredictedMaterial, Predictor, PredictorKind, kernel_params,
-    weights_to_coefficients,
+    transformed_store_path, weights_to_coefficients,
 };

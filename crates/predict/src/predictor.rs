@@ -89,6 +89,18 @@ pub fn kernel_params(model: &Model) -> Result<KernelParams> {
     Ok(KernelParams::new(h.signal_variance, ls, h.noise)?)
 }
 
+/// Default path of the sidecar store of `transform`ed values of the dataset at `dataset`:
+/// `DATA.sbrdf.<transform>.sbrdf` next to it ([`Predictor::transformed_store_path`]).
+pub fn transformed_store_path(dataset: &Path, transform: Transform) -> PathBuf {
+    let tag = match transform {
+        Transform::Raw => "raw".to_owned(),
+        Transform::Log { offset } => format!("log-{offset}"),
+    };
+    let mut name = dataset.file_name().unwrap_or_default().to_os_string();
+    name.push(format!(".{tag}.sbrdf"));
+    dataset.with_file_name(name)
+}
+
 impl Predictor {
     /// Loads the model file at `model_path` and opens the dataset store it records.
     ///
@@ -104,14 +116,7 @@ impl Predictor {
         let model = Model::load(model_path)?;
         let path = match dataset {
             Some(p) => p.to_owned(),
-            None => {
-                let p = &model.dataset.path;
-                if p.is_relative() {
-                    model_path.parent().unwrap_or(Path::new(".")).join(p)
-                } else {
-                    p.clone()
-                }
-            }
+            None => model.dataset_path(model_path),
         };
         if !path.is_file() {
             return Err(Error::DatasetMissing {
@@ -215,14 +220,7 @@ impl Predictor {
     /// Default path of the sidecar store of forward-transformed values:
     /// `DATA.sbrdf.<transform>.sbrdf` next to the dataset (e.g. `synth.sbrdf.log-0.01.sbrdf`).
     pub fn transformed_store_path(&self) -> PathBuf {
-        let p = self.inner.store.path();
-        let tag = match self.inner.transform {
-            Transform::Raw => "raw".to_owned(),
-            Transform::Log { offset } => format!("log-{offset}"),
-        };
-        let mut name = p.file_name().unwrap_or_default().to_os_string();
-        name.push(format!(".{tag}.sbrdf"));
-        p.with_file_name(name)
+        transformed_store_path(self.inner.store.path(), self.inner.transform)
     }
 
     fn transformed_source(&self) -> String {

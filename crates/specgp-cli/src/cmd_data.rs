@@ -365,7 +365,8 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
 fn model_info(args: &InfoArgs) -> anyhow::Result<()> {
     let model = gplvm::Model::load(&args.path)?;
     let ds = &model.dataset;
-    let dataset = match Store::open(&ds.path) {
+    let ds_path = model.dataset_path(&args.path);
+    let dataset = match Store::open(&ds_path) {
         Ok(store) => {
             if store.header().checksum.to_string() == ds.checksum {
                 "present, checksum matches".to_owned()
@@ -388,7 +389,7 @@ fn model_info(args: &InfoArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     out!("file           {} (model)", args.path.display())?;
-    out!("dataset        {} ({dataset})", ds.path.display())?;
+    out!("dataset        {} ({dataset})", ds_path.display())?;
     out!("checksum       {}", ds.checksum)?;
     out!(
         "data           {} materials, grid {}, {} channels, D {} ({} with data)",

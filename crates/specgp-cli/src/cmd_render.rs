@@ -189,7 +189,9 @@ pub struct MapArgs {
 /// thumbnails), predictive variance of the GP (`predict::Predictor::variance`), thumbnails of
 /// the exact predictor's materials (lazy, only the observer's wavelengths looked up).
 pub fn map(args: &MapArgs) -> anyhow::Result<()> {
-    crate::paths::ensure_output_is_not_an_input(&args.out, &[&args.model])?;
+    let mut inputs = vec![args.model.as_path()];
+    inputs.extend(args.dataset.as_deref());
+    crate::paths::ensure_output_is_not_an_input(&args.out, &inputs)?;
     let start = std::time::Instant::now();
     let model = gplvm::Model::load(&args.model)?;
     if model.latent_dim < 1 {

@@ -40,14 +40,31 @@ fn resolved(path: &Path) -> Option<PathBuf> {
 
 /// Refuses an output path that is one of the command's inputs: writing it would replace the
 /// input (e.g. `fit data.sbrdf --out data.sbrdf` would turn the dataset into a model file that
-/// points at itself). Paths are compared after resolving symbolic links; inputs that do not
-/// exist are ignored (their own error comes later).
+/// points at itself). A model file (`.toml`) brings the files it reads along: its dataset store
+/// and that store's forward-transformed sidecar ([`model_data_files`]). Paths are compared
+/// after resolving symbolic links; inputs given that do not exist are ignored (their own error
+/// comes later). `-` (standard output) is never an input.
 pub fn ensure_output_is_not_an_input(out: &Path, inputs: &[&Path]) -> anyhow::Result<()> {
+    if out == Path::new("-") {
+        return Ok(());
+    }
     let Some(o) = resolved(out) else {
         return Ok(());
     };
+    // Inputs as given must exist (else their own error comes later); a model's data files
+    // count even before they exist (`predict --sidecar` writes the sidecar it then reads).
+    let mut all: Vec<(PathBuf, Option<PathBuf>)> = inputs
+        .iter()
+        .map(|p| (p.to_path_buf(), std::fs::canonicalize(p).ok()))
+        .collect();
     for input in inputs {
-        if std::fs::canonicalize(input).is_ok_and(|i| i == o) {
+        all.extend(model_data_files(input).into_iter().map(|p| {
+            let r = resolved(&p);
+            (p, r)
+        }));
+    }
+    for (input, r) in &all {
+        if r.as_ref().is_some_and(|i| *i == o) {
             bail!(
                 "{}: the output is the input {}; writing it would replace the input (choose \
                  another --out)",
@@ -57,6 +74,23 @@ pub fn ensure_output_is_not_an_input(out: &Path, inputs: &[&Path]) -> anyhow::Re
         }
     }
     Ok(())
+}
+
+/// The files a model file reads besides itself: its dataset store (resolved as
+/// `predict::Predictor::open` does) and the store's sidecar of forward-transformed values.
+/// Empty when `path` is not a readable model file.
+pub fn model_data_files(path: &Path) -> Vec<PathBuf> {
+    if path.extension().is_none_or(|e| e != "toml") {
+        return Vec::new();
+    }
+    match gplvm::Model::load(path) {
+        Ok(model) => {
+            let data = model.dataset_path(path);
+            let side = predict::transformed_store_path(&data, model.transform);
+            vec![data, side]
+        }
+        Err(_) => Vec::new(),
+    }
 }
 
 #[cfg(test)]
@@ -82,6 +116,7 @@ mod tests {
         let new = dir.path().join("model.toml");
         assert!(ensure_output_is_not_an_input(&new, &[&data]).is_ok());
         assert!(ensure_output_is_not_an_input(&new, &[&dir.path().join("nope")]).is_ok());
+        assert!(ensure_output_is_not_an_input(Path::new("-"), &[&data]).is_ok());
     }
 
     #[test]

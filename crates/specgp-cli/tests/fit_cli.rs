@@ -307,6 +307,30 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
         assert!(err.contains("replace the input"), "{args:?}: {err}");
     }
     assert_eq!(std::fs::read(d.join("data.sbrdf")).unwrap(), before);
+    // A model brings its dataset (and the dataset's sidecar) along: no output may replace
+    // them, nor the model itself (`evaluate --json`).
+    specgp(&["fit", "data.sbrdf", "--out", "m.toml"], d);
+    let model = std::fs::read(d.join("m.toml")).unwrap();
+    for args in [
+        &["evaluate", "m.toml", "--json", "m.toml"][..],
+        &["evaluate", "m.toml", "--json", "data.sbrdf"],
+        &["predict", "m.toml", "--at", "0,0", "--out", "data.sbrdf"],
+        &[
+            "predict",
+            "m.toml",
+            "--at",
+            "0,0",
+            "--out",
+            "data.sbrdf.log-0.01.sbrdf",
+        ],
+        &["map", "m.toml", "--out", "./data.sbrdf"],
+        &["render", "m.toml@0,0", "--out", "data.sbrdf"],
+    ] {
+        let err = specgp_fails(args, d);
+        assert!(err.contains("replace the input"), "{args:?}: {err}");
+    }
+    assert_eq!(std::fs::read(d.join("data.sbrdf")).unwrap(), before);
+    assert_eq!(std::fs::read(d.join("m.toml")).unwrap(), model);
 }
 
 #[test]
