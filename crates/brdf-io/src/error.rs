@@ -122,10 +122,12 @@ pub enum Error {
         /// Largest stored wavelength, in nm.
         max_nm: f64,
     },
-    /// An output that must be seekable (a dataset store) aimed at a pipe, terminal or socket.
+    /// An output that must be seekable (a dataset store) aimed at a pipe, terminal or socket,
+    /// or at standard output that is not a regular file at its start.
     #[error(
-        "{path}: cannot write {what} to a pipe, terminal or socket (it needs a seekable file); \
-         write it to a regular file"
+        "{path}: cannot write {what} there: it is written at offsets, so it needs a seekable \
+         file (not a pipe, terminal or socket; standard output only when redirected to a file \
+         with `>`, at its start); write it to a regular file"
     )]
     NotSeekable {
         /// The output path.

@@ -17,6 +17,12 @@
 //!   since renaming would replace the special file by a regular one. Such output is not atomic.
 //!   Writers that need to seek ([`AtomicOutput::create_seekable`]) refuse targets that cannot
 //!   seek (pipes, terminals, sockets) with [`Error::NotSeekable`].
+//! - **`-`, standard output**: the data is written to the process's standard output as it is
+//!   open (a dup of descriptor 1), at its current position: `{ echo a; specgp ... --out -; } >
+//!   f` keeps `a`, `>> f` appends. Nothing is resolved or renamed (following `/dev/stdout` to a
+//!   redirected file and renaming over it lost what the shell had written). Seeking writers
+//!   need standard output to be a regular file at its start, not opened for appending (`> f`),
+//!   and refuse anything else with [`Error::NotSeekable`].
 //! - **interrupted runs**: an exit that skips destructors (a signal, `std::process::exit`) would
 //!   leave the temporary files behind. Every temporary file is listed while it exists, so a
 //!   signal handler can call [`remove_unfinished_outputs`] before it exits
@@ -53,10 +59,64 @@ enum Inner {
     Direct(File),
 }
 
+/// The output path that means standard output.
+pub const STDOUT: &str = "-";
+
+/// How error messages name standard output.
+const STDOUT_NAME: &str = "<standard output>";
+
+/// A handle on this process's standard output (a duplicate of descriptor 1), after flushing
+/// what the standard library's `stdout()` buffers.
+fn stdout_file() -> std::io::Result<File> {
+    std::io::stdout().flush()?;
+    #[cfg(unix)]
+    {
+        use std::os::fd::AsFd;
+        Ok(File::from(std::io::stdout().as_fd().try_clone_to_owned()?))
+    }
+    #[cfg(windows)]
+    {
+        use std::os::windows::io::AsHandle;
+        Ok(File::from(
+            std::io::stdout().as_handle().try_clone_to_owned()?,
+        ))
+    }
+}
+
+/// Whether `file` was opened for appending (Linux: `/proc/self/fdinfo`; elsewhere assumed not).
+fn is_append_mode(file: &File) -> bool {
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::fd::AsRawFd;
+        const O_APPEND: u32 = 0o2000;
+        let info = std::fs::read_to_string(format!("/proc/self/fdinfo/{}", file.as_raw_fd()));
+        info.ok()
+            .and_then(|t| {
+                let line = t.lines().find(|l| l.starts_with("flags:"))?;
+                u32::from_str_radix(line["flags:".len()..].trim(), 8).ok()
+            })
+            .is_some_and(|flags| flags & O_APPEND != 0)
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = file;
+        false
+    }
+}
+
 impl AtomicOutput {
-    /// Starts writing `path` (see the [module docs](self) for what happens with special files).
+    /// Starts writing `path` (see the [module docs](self) for what happens with special files
+    /// and with [`STDOUT`]).
     pub fn create(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref().to_owned();
+        if path == Path::new(STDOUT) {
+            let path = PathBuf::from(STDOUT_NAME);
+            let file = stdout_file().map_err(|e| Error::io(&path, e))?;
+            return Ok(Self {
+                path,
+                inner: Inner::Direct(file),
+            });
+        }
         let io = |e| Error::io(&path, e);
         let (target, existing) = match std::fs::metadata(&path) {
             Ok(meta) if !meta.is_file() => {
@@ -117,17 +177,37 @@ impl AtomicOutput {
     /// Like [`AtomicOutput::create`], for a writer that seeks: fails with
     /// [`Error::NotSeekable`] when `path` is a pipe, terminal or socket. `what` names the
     /// output in that message (e.g. "a dataset store").
+    /// Standard output ([`STDOUT`]) must be a regular file at its start, not opened for
+    /// appending (the writer seeks to absolute offsets).
     pub fn create_seekable(path: impl AsRef<Path>, what: &str) -> Result<Self> {
+        let is_stdout = path.as_ref() == Path::new(STDOUT);
         let out = Self::create(path)?;
-        if let Inner::Direct(file) = &out.inner
-            && (&*file).stream_position().is_err()
-        {
-            return Err(Error::NotSeekable {
-                path: out.path,
-                what: what.to_owned(),
-            });
+        if let Inner::Direct(file) = &out.inner {
+            let position = (&*file).stream_position();
+            let unusable = if is_stdout {
+                position.map_or(true, |p| p != 0) || is_append_mode(file)
+            } else {
+                position.is_err()
+            };
+            if unusable {
+                return Err(Error::NotSeekable {
+                    path: out.path,
+                    what: what.to_owned(),
+                });
+            }
         }
         Ok(out)
+    }
+
+    /// Sets the length of the output when it is a regular file (the temporary file, or standard
+    /// output redirected to a file); special files have no length to set.
+    pub fn set_len(&self, len: u64) -> Result<()> {
+        let file = self.file();
+        let regular = file.metadata().is_ok_and(|m| m.is_file());
+        if regular {
+            file.set_len(len).map_err(|e| Error::io(&self.path, e))?;
+        }
+        Ok(())
     }
 
     /// The path the output was created for.

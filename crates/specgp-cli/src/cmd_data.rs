@@ -495,15 +495,11 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
     let size = if f64_out { 8 } else { 4 };
     let header = npy_header(if f64_out { "<f8" } else { "<f4" }, rows.len(), d);
     // Rows are written window by window at their offsets, so the output must be seekable.
-    let out = brdf_io::output::AtomicOutput::create_seekable(
-        crate::paths::output(&args.out),
-        "an .npy export",
-    )?;
+    let out = brdf_io::output::AtomicOutput::create_seekable(&args.out, "an .npy export")?;
     let io = |e: std::io::Error| anyhow::anyhow!("{}: {e}", args.out.display());
     let mut file: File = out.file().try_clone().map_err(io)?;
     file.write_all(&header).map_err(io)?;
-    file.set_len((header.len() + rows.len() * d * size) as u64)
-        .map_err(io)?;
+    out.set_len((header.len() + rows.len() * d * size) as u64)?;
     // Gather a window of indices for every selected row, then write each row's segment.
     let window = ((256usize << 20) / (rows.len() * size)).max(1);
     let mut bufs: Vec<Vec<u8>> = vec![Vec::with_capacity(window * size); rows.len()];

@@ -1,6 +1,7 @@
 //! `specgp predict` (materialise a predicted material) and `specgp evaluate` (reconstruction and
 //! leave-one-out errors), plus the `MODEL.toml@X,Y` source of `specgp sample`.
 
+use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
@@ -296,16 +297,29 @@ pub fn evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
         }
     };
     let ev = run_evaluation(&pred, &options, &progress)?;
-    println!(
+    // The table goes to standard error when the JSON goes to standard output.
+    let json_to_stdout = args
+        .json
+        .as_deref()
+        .is_some_and(|p| p == Path::new(brdf_io::output::STDOUT));
+    let mut table: Box<dyn std::io::Write> = if json_to_stdout {
+        Box::new(std::io::stderr())
+    } else {
+        Box::new(std::io::stdout())
+    };
+    writeln!(
+        table,
         "{} materials, transform {}, q = {}, Eq. 22 RMSE (divided by {} angular cells)",
         ev.n_materials, ev.transform, ev.latent_dim, ev.n_angles
-    );
-    println!(
+    )?;
+    writeln!(
+        table,
         "{:<24} {:>12} {:>12} {:>12} {:>12} {:>10}",
         "method", "brdf mean", "brdf median", "model mean", "model median", "gp better"
-    );
+    )?;
     for s in &ev.summary {
-        println!(
+        writeln!(
+            table,
             "{:<24} {:>12.5e} {:>12.5e} {:>12.5e} {:>12.5e} {:>10}",
             s.method,
             s.brdf_mean,
@@ -314,14 +328,17 @@ pub fn evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
             s.model_median,
             s.gp_better
                 .map_or(String::new(), |k| format!("{k}/{}", ev.n_materials))
-        );
+        )?;
     }
     if args.loo {
-        println!(
+        writeln!(
+            table,
             "leave-one-out refits and searches {:.2} s, error pass {:.2} s",
             ev.loo_seconds, ev.pass_seconds
-        );
+        )?;
     }
+    table.flush()?;
+    drop(table);
     if let Some(path) = &args.json {
         let text = serde_json::to_string_pretty(&ev)?;
         brdf_io::output::write_file_atomic(path, text.as_bytes())?;

@@ -165,7 +165,7 @@ pub fn sample(args: &SampleArgs) -> anyhow::Result<()> {
         .with_context(|| format!("reading {}", args.dirs.display()))?;
     let pairs = parse_dirs(&text, &args.dirs)?;
     let csv = sample_csv(source.as_ref(), &pairs)?;
-    brdf_io::output::write_file_atomic(crate::paths::output(&args.out), csv.as_bytes())?;
+    brdf_io::output::write_file_atomic(&args.out, csv.as_bytes())?;
     tracing::info!(pairs = pairs.len(), out = %args.out.display(), "sampled {}", args.source);
     Ok(())
 }

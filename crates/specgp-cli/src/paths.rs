@@ -14,16 +14,6 @@ pub fn source_file(source: &str) -> PathBuf {
     cut.map_or_else(|| source.into(), |i| source[..i].into())
 }
 
-/// An output argument: `-` means standard output (`/dev/stdout`, written in place, see
-/// [`brdf_io::output`]); anything else is the path itself.
-pub fn output(path: &Path) -> PathBuf {
-    if path == Path::new("-") {
-        PathBuf::from("/dev/stdout")
-    } else {
-        path.to_owned()
-    }
-}
-
 /// `path` made absolute with symbolic links resolved as far as it exists (the output may not
 /// exist yet: its directory is resolved and the file name appended).
 fn resolved(path: &Path) -> Option<PathBuf> {
@@ -45,7 +35,7 @@ fn resolved(path: &Path) -> Option<PathBuf> {
 /// after resolving symbolic links; inputs given that do not exist are ignored (their own error
 /// comes later). `-` (standard output) is never an input.
 pub fn ensure_output_is_not_an_input(out: &Path, inputs: &[&Path]) -> anyhow::Result<()> {
-    if out == Path::new("-") {
+    if out == Path::new(brdf_io::output::STDOUT) {
         return Ok(());
     }
     let Some(o) = resolved(out) else {
@@ -124,7 +114,5 @@ mod tests {
         assert_eq!(source_file("d.sbrdf:felt"), PathBuf::from("d.sbrdf"));
         assert_eq!(source_file("m.toml@0.5,-1"), PathBuf::from("m.toml"));
         assert_eq!(source_file("a.bsdf"), PathBuf::from("a.bsdf"));
-        assert_eq!(output(Path::new("-")), PathBuf::from("/dev/stdout"));
-        assert_eq!(output(Path::new("x.csv")), PathBuf::from("x.csv"));
     }
 }

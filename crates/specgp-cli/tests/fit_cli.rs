@@ -383,6 +383,81 @@ fn sample_writes_csv_to_stdout_with_a_dash() {
 /// SIGTERM (or SIGINT, SIGHUP) while an output is being written: exit status 130 and no
 /// `.NAME.XXXXXX.tmp` file left behind (a signal skips the destructors that delete it).
 #[cfg(unix)]
+/// Runs the shell command `script` in `dir` with `$SPECGP` set to the binary: its status.
+#[cfg(unix)]
+fn shell(script: &str, dir: &Path) -> std::process::ExitStatus {
+    Command::new("sh")
+        .arg("-c")
+        .arg(script)
+        .env("SPECGP", env!("CARGO_BIN_EXE_specgp"))
+        .current_dir(dir)
+        .status()
+        .expect("run sh")
+}
+
+/// `--out -` writes to standard output as the shell opened it: what the shell wrote before
+/// and after stays, `>>` appends (it used to follow /dev/stdout to the file and rename a new
+/// file over it, losing both). Writers that seek (`export`) need `> file` at its start, and
+/// refuse anything else without touching the file.
+#[cfg(unix)]
+#[test]
+fn dash_outputs_write_into_redirected_standard_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    synth_small(d, "400:700:100");
+    std::fs::write(d.join("dirs.csv"), "0,0,1,0,0,1\n").unwrap();
+    specgp(
+        &[
+            "sample",
+            "data.sbrdf:paper_white",
+            "--dirs",
+            "dirs.csv",
+            "--out",
+            "v.csv",
+        ],
+        d,
+    );
+    let csv = std::fs::read_to_string(d.join("v.csv")).unwrap();
+    let sample = r#""$SPECGP" sample data.sbrdf:paper_white --dirs dirs.csv --out -"#;
+    assert!(
+        shell(
+            &format!("{{ echo BEFORE; {sample}; echo AFTER; }} > f.txt"),
+            d
+        )
+        .success()
+    );
+    assert_eq!(
+        std::fs::read_to_string(d.join("f.txt")).unwrap(),
+        format!("BEFORE\n{csv}AFTER\n")
+    );
+    std::fs::write(d.join("a.txt"), "OLD\n").unwrap();
+    assert!(shell(&format!("{sample} >> a.txt"), d).success());
+    assert_eq!(
+        std::fs::read_to_string(d.join("a.txt")).unwrap(),
+        format!("OLD\n{csv}")
+    );
+    // Seeking writers: `> file` gives the same bytes as a file output ...
+    specgp(&["export", "data.sbrdf", "--out", "e.npy"], d);
+    let npy = std::fs::read(d.join("e.npy")).unwrap();
+    let export = r#""$SPECGP" export data.sbrdf --out -"#;
+    assert!(shell(&format!("{export} > s.npy"), d).success());
+    assert_eq!(std::fs::read(d.join("s.npy")).unwrap(), npy);
+    // ... appending or writing after other output is refused, and the file is kept.
+    std::fs::write(d.join("b.txt"), "OLD\n").unwrap();
+    assert!(!shell(&format!("{export} >> b.txt 2> err.txt"), d).success());
+    assert!(!shell(&format!("{{ echo X; {export}; }} > c.txt 2>> err.txt"), d).success());
+    assert_eq!(std::fs::read_to_string(d.join("b.txt")).unwrap(), "OLD\n");
+    assert_eq!(std::fs::read_to_string(d.join("c.txt")).unwrap(), "X\n");
+    let err = std::fs::read_to_string(d.join("err.txt")).unwrap();
+    assert_eq!(err.matches("<standard output>").count(), 2, "{err}");
+    // Streaming outputs of other commands go to standard output too (no file named `-`).
+    specgp(&["fit", "data.sbrdf", "--out", "m.toml"], d);
+    let json = specgp(&["evaluate", "m.toml", "--json", "-"], d);
+    let v: serde_json::Value = serde_json::from_str(&json).expect("standard output is the JSON");
+    assert_eq!(v["n_materials"], 51, "{json}");
+    assert!(!d.join("-").exists());
+}
+
 #[test]
 fn interrupted_run_removes_its_temporary_output() {
     use std::time::{Duration, Instant};
