@@ -241,6 +241,32 @@ pub struct RglBsdf {
     spec_h: usize,
 }
 
+/// Checks that every value of field `name` is finite and passes `ok` (`rule` says what it
+/// requires): the first offender is an error naming the file, the field and the index.
+fn check_values<T: Copy + Into<f64>>(
+    path: &Path,
+    name: &str,
+    values: &[T],
+    ok: impl Fn(f64) -> bool,
+    rule: &str,
+) -> Result<()> {
+    match values
+        .iter()
+        .map(|&v| v.into())
+        .enumerate()
+        .find(|&(_, v)| !(v.is_finite() && ok(v)))
+    {
+        Some((i, v)) => Err(Error::Format {
+            path: path.to_path_buf(),
+            reason: format!(
+                "field \"{name}\" must be {rule}; value {i} of {} is {v}",
+                values.len()
+            ),
+        }),
+        None => Ok(()),
+    }
+}
+
 fn shape_error(path: &Path, reason: String) -> Error {
     Error::Format {
         path: path.to_path_buf(),
@@ -377,6 +403,9 @@ impl RglBsdf {
             path,
         )?;
         let spectra = tf.field_f32(spec_name)?;
+        check_values(path, "ndf", &ndf.data, |v| v >= 0.0, "finite and >= 0")?;
+        // sigma divides every value: zero or negative would give infinite or negative BRDFs.
+        check_values(path, "sigma", &sigma.data, |v| v > 0.0, "finite and > 0")?;
         let selection = ChannelSelection::all(&native);
         Ok(Self {
             path: path.to_path_buf(),
@@ -509,6 +538,10 @@ impl RglBsdf {
                 }
                 acc += wgt * v;
             }
+            // RGB tables dip slightly below zero where the measured spectrum is out of gamut.
+            // Mitsuba 3's `measured` (DESIGN.md's reference, and the test tables) keeps those
+            // values; rgl-epfl/brdf-loader's `powitacq_rgb` clamps them at 0. `resample`
+            // clamps (and counts) them.
             *o = acc * scale * inv_cos_o;
         }
         Ok(())

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use brdf_io::rgl::RglBsdf;
-use brdf_io::tensor::TensorFile;
+use brdf_io::tensor::{Field, TensorFile};
 use proptest::prelude::*;
 
 fn real_file() -> Option<(PathBuf, Vec<u8>)> {
@@ -115,6 +115,39 @@ fn corrupted_offsets_and_data_are_errors() {
         e.contains("nan.bsdf") && e.contains("\"rgb\"") && e.contains("non-finite"),
         "{e}"
     );
+}
+
+/// The BSDF divides by sigma and multiplies by the NDF: a zero sigma (which gave infinite
+/// values) or a negative NDF is an error naming the file and the field.
+#[test]
+fn zero_sigma_and_negative_ndf_are_errors() {
+    let Some((path, _)) = real_file() else {
+        return;
+    };
+    let tf = TensorFile::open(&path).unwrap();
+    for (name, bad, rule) in [("sigma", 0.0f32, "> 0"), ("ndf", -1.0, ">= 0")] {
+        let fields: Vec<Field> = tf
+            .fields()
+            .iter()
+            .map(|f| {
+                if f.name() != name {
+                    return f.clone();
+                }
+                let mut v = f.to_f64(&path).unwrap();
+                v[7] = f64::from(bad);
+                let v: Vec<f32> = v.iter().map(|&x| x as f32).collect();
+                Field::from_f32(name, f.shape().to_vec(), &v).unwrap()
+            })
+            .collect();
+        let bytes = TensorFile::to_bytes(&fields).unwrap();
+        let tf = TensorFile::from_bytes(&bytes, "bad.bsdf").unwrap();
+        let e = RglBsdf::from_tensor_file(&tf).unwrap_err().to_string();
+        assert!(
+            e.contains("bad.bsdf") && e.contains(&format!("\"{name}\"")) && e.contains(rule),
+            "{e}"
+        );
+        assert!(e.contains("value 7 of"), "{e}");
+    }
 }
 
 proptest! {
