@@ -137,6 +137,9 @@ fn import_each(
     let mut total = ImportReport::new();
     for i in 0..count {
         let (name, source, values, report) = load(i)?;
+        report
+            .ensure_finite(&format!("{name} ({source})"))
+            .map_err(store_err)?;
         pb.set_message(name.clone());
         writer
             .add_material(&name, &source, &values)

@@ -135,6 +135,19 @@ pub enum Error {
         /// What was being written.
         what: String,
     },
+    /// A resampled source produced NaN or infinite values (a damaged file or network).
+    #[error(
+        "{source_name}: {count} of {values} resampled values are NaN or infinite (a damaged file \
+         or network?); refusing to store them as zeros"
+    )]
+    NonFiniteValues {
+        /// The source (file, or network name).
+        source_name: String,
+        /// How many values were not finite.
+        count: usize,
+        /// Values resampled.
+        values: usize,
+    },
     /// An argument that does not fit the data (buffer length, channel kind, material index).
     #[error("invalid argument: {reason}")]
     InvalidArgument {

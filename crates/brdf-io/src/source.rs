@@ -160,6 +160,20 @@ impl ImportReport {
         v
     }
 
+    /// An error ([`crate::Error::NonFiniteValues`], naming `source`) when any resampled value
+    /// was NaN or infinite: `record` stores such values as 0, which an import must not do
+    /// silently.
+    pub fn ensure_finite(&self, source: &str) -> crate::Result<()> {
+        if self.non_finite > 0 {
+            return Err(crate::Error::NonFiniteValues {
+                source_name: source.to_owned(),
+                count: self.non_finite,
+                values: self.values,
+            });
+        }
+        Ok(())
+    }
+
     /// Combines two reports (of disjoint parts of the same import).
     pub fn merge(mut self, other: &Self) -> Self {
         self.values += other.values;
@@ -286,5 +300,10 @@ mod tests {
         assert_eq!((r.min, r.max), (0.0, 7.0));
         let m = r.merge(&ImportReport::new());
         assert_eq!(m, r);
+        let e = r.ensure_finite("net").unwrap_err().to_string();
+        assert!(e.starts_with("net: 1 of 5 resampled values are NaN"), "{e}");
+        let mut ok = ImportReport::new();
+        ok.record(1.0, None, false);
+        assert!(ok.ensure_finite("net").is_ok());
     }
 }

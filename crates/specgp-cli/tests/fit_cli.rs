@@ -458,6 +458,80 @@ fn dash_outputs_write_into_redirected_standard_output() {
     assert!(!d.join("-").exists());
 }
 
+/// `import nbrdf` and `import rgl` on the real shared data; a network whose outputs overflow
+/// (weights scaled by 1e30) is an error naming it, and no store is written.
+#[test]
+fn imports_of_real_data_and_a_broken_network() {
+    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let weights = read(shared.join("nbrdf/merl_nbrdf_weights_675.npy")).unwrap();
+    assert_eq!(weights.shape[1], 675);
+    let rows: Vec<f64> = match &weights.data {
+        NpyData::F32(v) => v[..2 * 675].iter().map(|&x| f64::from(x)).collect(),
+        NpyData::F64(v) => v[..2 * 675].to_vec(),
+    };
+    let names = std::fs::read_to_string(shared.join("nbrdf/merl_nbrdf_names.txt")).unwrap();
+    let names: Vec<&str> = names.lines().take(2).collect();
+    std::fs::write(d.join("names.txt"), names.join("\n") + "\n").unwrap();
+    let write_npy = |path: &str, values: &[f64]| {
+        let dict = "{'descr': '<f8', 'fortran_order': False, 'shape': (2, 675), }";
+        let mut header = dict.to_owned();
+        while !(10 + header.len() + 1).is_multiple_of(64) {
+            header.push(' ');
+        }
+        header.push('\n');
+        let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+        bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+        bytes.extend_from_slice(header.as_bytes());
+        values
+            .iter()
+            .for_each(|v| bytes.extend_from_slice(&v.to_le_bytes()));
+        std::fs::write(d.join(path), bytes).unwrap();
+    };
+    write_npy("good.npy", &rows);
+    let import = |w: &'static str, out: &'static str| {
+        vec![
+            "import",
+            "nbrdf",
+            w,
+            "--names",
+            "names.txt",
+            "--grid",
+            "8,8,16",
+            "--out",
+            out,
+        ]
+    };
+    specgp(&import("good.npy", "good.sbrdf"), d);
+    let store = brdf_io::store::Store::open(d.join("good.sbrdf")).unwrap();
+    assert_eq!(store.n_materials(), 2);
+    assert_eq!(store.names()[0], names[0]);
+    let mut broken = rows.clone();
+    broken[675..].iter_mut().for_each(|v| *v *= 1e30);
+    write_npy("broken.npy", &broken);
+    let e = specgp_fails(&import("broken.npy", "broken.sbrdf"), d);
+    assert!(e.contains("NaN or infinite") && e.contains(names[1]), "{e}");
+    assert!(!d.join("broken.sbrdf").exists());
+    // A real RGL file through `import rgl`.
+    let bsdf = shared.join("rgl-rgb/paper_white_rgb.bsdf");
+    let bsdf = bsdf.to_str().unwrap();
+    specgp(
+        &[
+            "import",
+            "rgl",
+            bsdf,
+            "--grid",
+            "8,8,16",
+            "--out",
+            "rgl.sbrdf",
+        ],
+        d,
+    );
+    let store = brdf_io::store::Store::open(d.join("rgl.sbrdf")).unwrap();
+    assert_eq!(store.names(), ["paper_white_rgb"]);
+}
+
 #[test]
 fn interrupted_run_removes_its_temporary_output() {
     use std::time::{Duration, Instant};
