@@ -1,7 +1,7 @@
 //! Integration tests of the BRDF file formats against real data and Mitsuba 3 reference tables.
 //!
-//! Real data lives in `../shared/data` (relative to the project root); tests that need it skip
-//! with a printed reason when it is absent. The Mitsuba tables in `tests/data/mitsuba` are made by
+//! Real data lives in `../shared/data` (relative to the project root); tests that need it fail
+//! when it is absent (unless `SPECGP_SKIP_SHARED_DATA` is set: see the `shared-data` crate). The Mitsuba tables in `tests/data/mitsuba` are made by
 //! `scripts/mitsuba_reference.py`.
 
 use std::path::{Path, PathBuf};
@@ -10,13 +10,7 @@ use brdf_io::grid::{AngularGrid, Channels, HalfDiff};
 use brdf_io::rgl::RglBsdf;
 
 fn shared_data() -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
-    if p.is_dir() {
-        Some(p)
-    } else {
-        eprintln!("skipping: shared data folder {} is absent", p.display());
-        None
-    }
+    shared_data::path("rgl-rgb").map(|_| shared_data::root())
 }
 
 fn rgl_files(data: &Path) -> Vec<PathBuf> {

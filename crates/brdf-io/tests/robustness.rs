@@ -8,15 +8,9 @@ use brdf_io::tensor::{Field, TensorFile};
 use proptest::prelude::*;
 
 fn real_file() -> Option<(PathBuf, Vec<u8>)> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/rgl-rgb/paper_white_rgb.bsdf");
-    match std::fs::read(&p) {
-        Ok(b) => Some((p, b)),
-        Err(_) => {
-            eprintln!("skipping: {} is absent", p.display());
-            None
-        }
-    }
+    let p = shared_data::path("rgl-rgb/paper_white_rgb.bsdf")?;
+    let b = std::fs::read(&p).unwrap();
+    Some((p, b))
 }
 
 /// Parses bytes as a tensor file and, when that works, as an RGL BSDF, evaluating a few pairs.

@@ -489,11 +489,9 @@ mod tests {
 
     #[test]
     fn metal_tables_match_source() {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(
-            "../../../shared/data/spectra/metals-nk/metals_nk_360-1000_5nm_linear_interp.csv",
-        );
-        let Ok(text) = std::fs::read_to_string(&path) else {
-            eprintln!("skipping: {} not found", path.display());
+        let Some(text) = shared_data::read_to_string(
+            "spectra/metals-nk/metals_nk_360-1000_5nm_linear_interp.csv",
+        ) else {
             return;
         };
         let mut lines = text.lines();

@@ -1,20 +1,13 @@
 //! Recognisable colours: the preset's spectra, converted to linear sRGB with the CIE 1931
-//! observer under D65 (read from `../shared/data/spectra/cie`; skipped when absent), have the
+//! observer under D65 (read from `../shared/data/spectra/cie`, required), have the
 //! hue their names promise.
-
-use std::path::PathBuf;
 
 use brdf_synth::{Metal, preset};
 
-fn cie_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/spectra/cie")
-}
-
 /// (lambda, xbar, ybar, zbar, D65) at 5 nm over 380-780 nm.
 fn observer() -> Option<Vec<[f64; 5]>> {
-    let cmf =
-        std::fs::read_to_string(cie_dir().join("cie1931_2deg_xyz_cmf_360-830_1nm.csv")).ok()?;
-    let d65 = std::fs::read_to_string(cie_dir().join("cie_illuminant_D65_300-780_5nm.csv")).ok()?;
+    let cmf = shared_data::read_to_string("spectra/cie/cie1931_2deg_xyz_cmf_360-830_1nm.csv")?;
+    let d65 = shared_data::read_to_string("spectra/cie/cie_illuminant_D65_300-780_5nm.csv")?;
     let parse = |t: &str| -> Vec<Vec<f64>> {
         t.lines()
             .skip(1)
@@ -88,10 +81,6 @@ fn in_range(h: f64, lo: f64, hi: f64) -> bool {
 #[test]
 fn metals_have_their_colours() {
     let Some(obs) = observer() else {
-        eprintln!(
-            "skipping: CIE tables not found under {}",
-            cie_dir().display()
-        );
         return;
     };
     let gold = srgb(&obs, |l| Metal::Gold.normal_reflectance(l));
@@ -119,10 +108,6 @@ fn metals_have_their_colours() {
 #[test]
 fn named_colours_have_their_hues() {
     let Some(obs) = observer() else {
-        eprintln!(
-            "skipping: CIE tables not found under {}",
-            cie_dir().display()
-        );
         return;
     };
     use brdf_synth::{Body, Material};

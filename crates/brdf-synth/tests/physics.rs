@@ -125,18 +125,14 @@ fn reciprocity_and_non_negativity() {
 
 /// At normal incidence and view (theta_h = theta_d = 0) a bare metal's value is
 /// sum_k w_k D_k(0) G2_k(1, 1) / 4 * F(1), and F(1) must be the reflectance of the metal's
-/// (n, k), ((n-1)^2 + k^2) / ((n+1)^2 + k^2), computed here from the source table if present.
+/// (n, k), ((n-1)^2 + k^2) / ((n+1)^2 + k^2), computed here from the source table (shared data).
 #[test]
 fn metal_fresnel_colour_at_normal_incidence() {
-    let csv = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/spectra/metals-nk/metals_nk_360-1000_5nm_linear_interp.csv");
-    let source = std::fs::read_to_string(&csv).ok();
-    if source.is_none() {
-        println!(
-            "{} absent: comparing with the embedded tables only",
-            csv.display()
-        );
-    }
+    let Some(source) =
+        shared_data::read_to_string("spectra/metals-nk/metals_nk_360-1000_5nm_linear_interp.csv")
+    else {
+        return;
+    };
     let lambdas = [
         400.0, 450.0, 500.0, 550.0, 600.0, 650.0, 700.0, 800.0, 900.0,
     ];
@@ -162,13 +158,7 @@ fn metal_fresnel_colour_at_normal_incidence() {
         let mut f = vec![0.0; lambdas.len()];
         p.eval([0.0, 0.0, 1.0], [0.0, 0.0, 1.0], &mut f);
         for (l, v) in lambdas.iter().zip(&f) {
-            let (n, k) = match &source {
-                Some(text) => nk_from_csv(text, metal, *l),
-                None => {
-                    let z = metal.nk(*l);
-                    (z.re, z.im)
-                }
-            };
+            let (n, k) = nk_from_csv(&source, metal, *l);
             let r = ((n - 1.0).powi(2) + k * k) / ((n + 1.0).powi(2) + k * k);
             let got = v / shape;
             assert!(

@@ -1,13 +1,7 @@
 //! Colour reference values: the 24 ColorChecker patches (spectra from ../shared/data) against
 //! their published sRGB values.
 
-use std::path::PathBuf;
-
 use render::colour::{ColourPipeline, Illuminant, delta_e_2000_rgb, srgb_decode};
-
-fn data() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data")
-}
 
 /// Published sRGB (8-bit, D65) of the ColorChecker Classic (BabelColor / X-Rite values as
 /// tabulated on Wikipedia's "ColorChecker" page), in patch order.
@@ -40,9 +34,9 @@ const PUBLISHED_SRGB: [[u8; 3]; 24] = [
 
 #[test]
 fn colorchecker_patches_match_published_srgb() {
-    let file = data().join("spectra/colorchecker/colorchecker_babelcolor_average_380-730_10nm.csv");
-    let Ok(text) = std::fs::read_to_string(&file) else {
-        eprintln!("skipping: {} is absent", file.display());
+    let Some(text) = shared_data::read_to_string(
+        "spectra/colorchecker/colorchecker_babelcolor_average_380-730_10nm.csv",
+    ) else {
         return;
     };
     let mut wl = Vec::new();
@@ -86,12 +80,10 @@ fn colorchecker_patches_match_published_srgb() {
 #[test]
 fn d65_white_point_from_the_embedded_tables_matches_the_shared_csv() {
     // The embedded 5 nm tables against a 1 nm integration of the shared CSV files.
-    let dir = data().join("spectra/cie");
-    let (Ok(cmf), Ok(d65)) = (
-        std::fs::read_to_string(dir.join("cie1931_2deg_xyz_cmf_360-830_1nm.csv")),
-        std::fs::read_to_string(dir.join("CIE_std_illum_D65.csv")),
+    let (Some(cmf), Some(d65)) = (
+        shared_data::read_to_string("spectra/cie/cie1931_2deg_xyz_cmf_360-830_1nm.csv"),
+        shared_data::read_to_string("spectra/cie/CIE_std_illum_D65.csv"),
     ) else {
-        eprintln!("skipping: CIE tables absent in {}", dir.display());
         return;
     };
     let parse = |t: &str| -> Vec<Vec<f64>> {

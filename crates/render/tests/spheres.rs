@@ -1,8 +1,6 @@
 //! Pixel statistics of rendered spheres: white is neutral grey, gold is yellow, real RGB files
 //! render their known colours.
 
-use std::path::PathBuf;
-
 use render::sphere::{SphereOptions, mean_colour, render_sphere};
 
 type Synth = brdf_synth::PreparedMaterial;
@@ -42,13 +40,7 @@ fn gold_is_yellow() {
 }
 
 fn rgl(name: &str) -> Option<brdf_io::rgl::RglBsdf> {
-    let f = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/rgl-rgb")
-        .join(name);
-    if !f.is_file() {
-        eprintln!("skipping: {} is absent", f.display());
-        return None;
-    }
+    let f = shared_data::path(&format!("rgl-rgb/{name}"))?;
     Some(brdf_io::rgl::RglBsdf::open(&f).unwrap())
 }
 

@@ -287,12 +287,9 @@ mod tests {
 
     #[test]
     fn renders_a_real_rgl_file_to_png() {
-        let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../../shared/data/rgl-rgb/vch_golden_yellow_rgb.bsdf");
-        if !file.is_file() {
-            eprintln!("skipping: {} is absent", file.display());
+        let Some(file) = shared_data::path("rgl-rgb/vch_golden_yellow_rgb.bsdf") else {
             return;
-        }
+        };
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("s.png");
         let args = RenderArgs {

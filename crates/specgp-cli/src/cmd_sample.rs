@@ -209,12 +209,9 @@ mod tests {
 
     #[test]
     fn samples_a_real_rgl_file() {
-        let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/rgl-rgb");
-        let file = data.join("paper_white_rgb.bsdf");
-        if !file.is_file() {
-            eprintln!("skipping: {} is absent", file.display());
+        let Some(file) = shared_data::path("rgl-rgb/paper_white_rgb.bsdf") else {
             return;
-        }
+        };
         let src = open_source(file.to_str().unwrap(), None).unwrap();
         let pairs = vec![
             ([0.0, 0.0, 1.0], [0.6, 0.0, 0.8]),
