@@ -6,7 +6,7 @@
 //! ```text
 //! w(x*)   = K^-1 k*                                  (posterior weights, N values)
 //! y*      = m + sum_i w_i (y_i - m)                  (posterior mean, any output dimension)
-//! var(x*) = s^2 + mu - k_s^T K^-1 k_s                (predictive variance, one scalar)
+//! var(x*) = s^2 + mu + j - k_s^T K^-1 k_s            (predictive variance, one scalar)
 //! ```
 //!
 //! Two predictors differ only in `k*` ([`Predictor`]):
@@ -16,7 +16,9 @@
 //!   posterior mean, continuous in `x*` but shrunk towards `m` at training points.
 //!
 //! The variance always uses the smooth `k_s` (the predictive variance of a noisy observation at
-//! `x*`); it is clamped at 0 against rounding.
+//! `x*`); it is clamped at 0 against rounding. The jitter counts as noise everywhere (the
+//! factor is of `K + j I`): in the exact predictor's delta term and in the variance's prior
+//! `s^2 + mu + j`, so a jittered model's variance is that of the model it factors.
 
 use crate::cholesky::{CholeskyFactor, JitterPolicy};
 use crate::error::{GpError, Result, check_finite, check_finite_slice};
@@ -159,13 +161,14 @@ impl GpRegression {
         Ok(jac)
     }
 
-    /// Predictive variance `s^2 + mu - k_s^T K^-1 k_s` at one test point (clamped at 0).
+    /// Predictive variance `s^2 + mu + j - k_s^T K^-1 k_s` at one test point (clamped at 0;
+    /// `j` = the factorisation jitter, usually 0).
     pub fn variance(&self, x_star: &[f64]) -> Result<f64> {
         let k = self.cross_covariance(x_star, Predictor::Smooth)?;
         let mut m = Mat::from_fn(k.len(), 1, |i, _| k[i]);
         self.solve_seq(m.as_mut(), false);
         let q: f64 = (0..k.len()).map(|i| m[(i, 0)] * m[(i, 0)]).sum();
-        Ok((self.params.signal_variance() + self.params.noise() - q).max(0.0))
+        Ok((self.params.signal_variance() + self.effective_noise() - q).max(0.0))
     }
 
     fn solve_seq(&self, b: MatMut<'_, f64>, full: bool) {
@@ -253,7 +256,7 @@ impl GpRegression {
             }
             self.solve_seq(block, false);
         });
-        let prior = self.params.signal_variance() + self.params.noise();
+        let prior = self.params.signal_variance() + self.effective_noise();
         let n = self.n();
         Ok((0..v.ncols())
             .into_par_iter()

@@ -478,6 +478,16 @@ fn stress_duplicates_tiny_noise_and_dynamic_range() {
     assert_eq!(gp.factor().jitter(), e.factor.jitter);
     let w = gp.weights(&[0.1, 0.2], Predictor::Smooth).unwrap();
     assert!(w.iter().all(|v| v.is_finite()));
+    // The jitter is noise of the factored model: far from the data (k_s ~ 0) the variance is
+    // its prior s^2 + mu + j, in both the single-point and the batch path.
+    let far = [1e4, -1e4];
+    let prior = 1e8 + 1e-10 + e.factor.jitter;
+    let v = gp.variance(&far).unwrap();
+    assert!((v - prior).abs() <= 1e-15 * prior, "{v} vs {prior}");
+    let vb = gp
+        .variance_batch(faer::Mat::from_fn(1, 2, |_, j| far[j]).as_ref(), Par::Seq)
+        .unwrap();
+    assert_eq!(vb[0], v);
 
     // No jitter allowed and a numerically singular K: a clear error, not a panic.
     let strict = objective_from_data(y.as_ref()).with_jitter_policy(gp_core::JitterPolicy::none());
