@@ -60,7 +60,9 @@ impl MerlBrdf {
     }
 
     /// A MERL BRDF from dataset-order values (`flat * 3 + channel`, RGB in 1/sr); cells below
-    /// the horizon are written as 0.
+    /// the horizon are written as 0. Negative values (a prediction that undershoots zero, an
+    /// out-of-gamut colour converted to sRGB) become 0: in a MERL file a negative value marks
+    /// the cell invalid, and readers would drop the whole cell.
     pub fn from_dataset_order(grid: AngularGrid, values: &[f32]) -> Result<Self> {
         if values.len() != 3 * grid.len() {
             return Err(Error::InvalidArgument {
@@ -76,7 +78,7 @@ impl MerlBrdf {
         let mut out = vec![0.0; 3 * n];
         for (flat, cell) in values.chunks_exact(3).enumerate() {
             for c in 0..3 {
-                out[c * n + flat] = f64::from(cell[c]);
+                out[c * n + flat] = f64::from(cell[c]).max(0.0);
             }
         }
         Ok(Self { grid, values: out })
@@ -452,6 +454,14 @@ mod tests {
         // Back from dataset order: valid cells survive exactly.
         let again = MerlBrdf::from_dataset_order(grid, &v).unwrap();
         assert_eq!(again.value(2, f) as f32, v[f * 3 + 2]);
+        // A negative value (an out-of-gamut colour) is written as 0, not as an invalid marker
+        // that would drop the cell's other channels too.
+        let mut w = v.clone();
+        w[f * 3 + 1] = -0.25;
+        let clamped = MerlBrdf::from_dataset_order(grid, &w).unwrap();
+        assert_eq!(clamped.value(1, f), 0.0);
+        assert_eq!(clamped.value(2, f) as f32, v[f * 3 + 2]);
+        assert_eq!(clamped.to_dataset_order().1.negatives_clamped, 0);
     }
 
     #[test]
