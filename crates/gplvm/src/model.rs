@@ -119,6 +119,9 @@ pub struct Model {
     pub gram: Vec<Vec<f64>>,
 }
 
+/// Largest latent coordinate a model file may hold (squared distances stay finite).
+pub const MAX_COORDINATE: f64 = 1e100;
+
 impl Model {
     /// Where the dataset store is, for the model read from `model_file`: the recorded path,
     /// taken relative to the model file's directory when it is relative (`fit` records
@@ -181,6 +184,45 @@ impl Model {
             .chain(model.gram.iter().flatten());
         if finite.into_iter().any(|v| !v.is_finite()) {
             return Err(err("non-finite coordinates or Gram entries".into()));
+        }
+        // Squared latent distances must stay finite (64 axes of (2e100)^2 do).
+        if let Some(v) = model
+            .materials
+            .iter()
+            .flat_map(|m| &m.coords)
+            .find(|v| v.abs() > MAX_COORDINATE)
+        {
+            return Err(err(format!(
+                "latent coordinate {v:e} is beyond +-{MAX_COORDINATE:e}"
+            )));
+        }
+        // A Gram matrix of real data: symmetric (written from a symmetric matrix, and TOML
+        // round-trips f64 exactly), non-negative diagonal, |G_ij| <= sqrt(G_ii G_jj).
+        let g = &model.gram;
+        for i in 0..n {
+            if g[i][i] < 0.0 {
+                return Err(err(format!(
+                    "Gram diagonal entry {i} is negative ({:e}): not a Gram matrix",
+                    g[i][i]
+                )));
+            }
+            for j in 0..i {
+                if g[i][j] != g[j][i] {
+                    return Err(err(format!(
+                        "Gram matrix not symmetric at ({i}, {j}): {:e} vs {:e}",
+                        g[i][j], g[j][i]
+                    )));
+                }
+                let bound = (g[i][i] * g[j][j]).sqrt() * (1.0 + 1e-9);
+                if g[i][j].abs() > bound {
+                    return Err(err(format!(
+                        "Gram entry ({i}, {j}) = {:e} exceeds sqrt(G_ii G_jj) = {:e}: not a Gram \
+                         matrix",
+                        g[i][j],
+                        bound / (1.0 + 1e-9)
+                    )));
+                }
+            }
         }
         model
             .transform

@@ -317,4 +317,39 @@ fn bad_model_files_are_clear_errors() {
             "{what}: {err}"
         );
     }
+    // Damaged numbers that parse: a Gram matrix that cannot be one, a coordinate whose square
+    // overflows. (They used to surface later, without the file's name, or as -inf.)
+    let model = Model::load(&good).unwrap();
+    let edits: [(&str, fn(&mut Model), &str); 4] = [
+        ("asymmetric Gram", |m| m.gram[0][1] *= 1.5, "not symmetric"),
+        (
+            "negated Gram",
+            |m| m.gram.iter_mut().flatten().for_each(|v| *v = -*v),
+            "negative",
+        ),
+        (
+            "Cauchy-Schwarz violated",
+            |m| {
+                let v = 2.0 * (m.gram[0][0] * m.gram[1][1]).sqrt();
+                (m.gram[0][1], m.gram[1][0]) = (v, v);
+            },
+            "exceeds",
+        ),
+        (
+            "huge coordinate",
+            |m| m.materials[0].coords[0] = 1e160,
+            "beyond",
+        ),
+    ];
+    for (what, edit, expect) in edits {
+        let mut m = model.clone();
+        edit(&mut m);
+        let bad = dir.path().join("bad.toml");
+        m.save(&bad).unwrap();
+        let err = Model::load(&bad).unwrap_err().to_string();
+        assert!(
+            err.contains("bad.toml") && err.contains(expect),
+            "{what}: {err}"
+        );
+    }
 }
