@@ -78,7 +78,7 @@ pub fn open_source(
 /// Parses DIRS.csv text: rows of six numbers; blank lines and `#` comments are skipped, and a
 /// first line in which no field is a number is a header (a first line with some numbers is a
 /// row, so a typo in it is an error, not a silently skipped header). Errors name the file and
-/// the line.
+/// the line. Directions with components beyond 1e100 (or all below 1e-100) are rescaled.
 pub fn parse_dirs(text: &str, path: &Path) -> anyhow::Result<Vec<(Vec3, Vec3)>> {
     let mut pairs = Vec::new();
     let mut header: Option<(usize, &str)> = None;
@@ -92,6 +92,20 @@ pub fn parse_dirs(text: &str, path: &Path) -> anyhow::Result<Vec<(Vec3, Vec3)>> 
         let parsed: Vec<Option<f64>> = fields.iter().map(|f| f.parse::<f64>().ok()).collect();
         let where_ = || format!("{} line {}", path.display(), k + 1);
         if std::mem::take(&mut first) && parsed.iter().all(Option::is_none) {
+            // Six numbers separated by blanks or semicolons are a row in the wrong format, not
+            // a header.
+            let numbers = line
+                .split(|c: char| c.is_whitespace() || c == ';')
+                .filter(|f| !f.is_empty())
+                .map(str::parse::<f64>)
+                .collect::<Result<Vec<_>, _>>();
+            if numbers.is_ok_and(|n| n.len() == 6) {
+                bail!(
+                    "{}: six numbers not separated by commas in {line:?}; expected \
+                     wi_x,wi_y,wi_z,wo_x,wo_y,wo_z",
+                    where_()
+                );
+            }
             header = Some((k + 1, line));
             continue;
         }
@@ -113,12 +127,25 @@ pub fn parse_dirs(text: &str, path: &Path) -> anyhow::Result<Vec<(Vec3, Vec3)>> 
         if nums.iter().any(|x| !x.is_finite()) {
             bail!("{}: non-finite direction component in {line:?}", where_());
         }
-        let wi = [nums[0], nums[1], nums[2]];
-        let wo = [nums[3], nums[4], nums[5]];
-        let norm = |v: Vec3| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        if norm(wi) == 0.0 || norm(wo) == 0.0 {
+        // Directions whose squared length would over- or underflow are scaled by their largest
+        // component (the sources normalise; ordinary rows pass through unchanged).
+        let unit = |v: Vec3| -> Option<Vec3> {
+            let m = v[0].abs().max(v[1].abs()).max(v[2].abs());
+            if m == 0.0 {
+                return None;
+            }
+            Some(if (1e-100..=1e100).contains(&m) {
+                v
+            } else {
+                v.map(|x| x / m)
+            })
+        };
+        let (Some(wi), Some(wo)) = (
+            unit([nums[0], nums[1], nums[2]]),
+            unit([nums[3], nums[4], nums[5]]),
+        ) else {
             bail!("{}: zero-length direction in {line:?}", where_());
-        }
+        };
         pairs.push((wi, wo));
     }
     if pairs.is_empty() {
@@ -164,7 +191,8 @@ pub fn sample(args: &SampleArgs) -> anyhow::Result<()> {
     let text = std::fs::read_to_string(&args.dirs)
         .with_context(|| format!("reading {}", args.dirs.display()))?;
     let pairs = parse_dirs(&text, &args.dirs)?;
-    let csv = sample_csv(source.as_ref(), &pairs)?;
+    let csv = sample_csv(source.as_ref(), &pairs)
+        .with_context(|| format!("sampling {} at {}", args.source, args.dirs.display()))?;
     brdf_io::output::write_file_atomic(&args.out, csv.as_bytes())?;
     tracing::info!(pairs = pairs.len(), out = %args.out.display(), "sampled {}", args.source);
     Ok(())
@@ -182,6 +210,9 @@ mod tests {
         let pairs = parse_dirs(text, p).unwrap();
         assert_eq!(pairs.len(), 2);
         assert_eq!(pairs[0].1, [0.6, 0.0, 0.8]);
+        // Huge and tiny components: the same unit directions.
+        let big = parse_dirs("1e300,0,1e300,0,0,1e-300\n", p).unwrap();
+        assert_eq!(big[0], ([1.0, 0.0, 1.0], [0.0, 0.0, 1.0]));
         let e = parse_dirs("0,0,1,0,0,1\n0,0,1,0,x,1\n", p)
             .unwrap_err()
             .to_string();
@@ -196,11 +227,15 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("d.csv line 1") && e.contains("\"abc\""), "{e}");
-        let e = parse_dirs("0;0;1;0;0;1\n", p).unwrap_err().to_string();
-        assert!(
-            e.contains("line 1") && e.contains("read as a header"),
-            "{e}"
-        );
+        for text in ["0;0;1;0;0;1\n", "0 0 1 0.6 0 0.8\n"] {
+            let e = parse_dirs(text, p).unwrap_err().to_string();
+            assert!(
+                e.contains("line 1") && e.contains("not separated by commas"),
+                "{e}"
+            );
+        }
+        let e = parse_dirs("x;y\n", p).unwrap_err().to_string();
+        assert!(e.contains("read as a header"), "{e}");
         let e = parse_dirs("\n# only a comment\n", p)
             .unwrap_err()
             .to_string();
