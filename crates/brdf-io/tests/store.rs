@@ -335,6 +335,14 @@ fn material_sampling_interpolates_on_the_grid() {
     src.eval(wi, wo, &mut out).unwrap();
     assert!((out[2] - 26.0).abs() < 1e-9, "{out:?}");
     assert!(brdf_io::store::parse_store_spec("x.bsdf").is_none());
+    // Names may contain `:` (the store path ends at the first `.sbrdf:`).
+    assert_eq!(
+        brdf_io::store::parse_store_spec("d/x.sbrdf:a:b@0.5,1"),
+        Some((
+            std::path::PathBuf::from("d/x.sbrdf"),
+            "a:b@0.5,1".to_owned()
+        ))
+    );
     // A grid source: its cells are the stored values, and interpolating them with the stencil
     // is `eval` (what renderers use to evaluate each touched cell once).
     assert_eq!(src.grid(), Some(g));

@@ -320,7 +320,8 @@ fn bad_model_files_are_clear_errors() {
     // Damaged numbers that parse: a Gram matrix that cannot be one, a coordinate whose square
     // overflows. (They used to surface later, without the file's name, or as -inf.)
     let model = Model::load(&good).unwrap();
-    let edits: [(&str, fn(&mut Model), &str); 4] = [
+    type Edit = (&'static str, fn(&mut Model), &'static str);
+    let edits: [Edit; 4] = [
         ("asymmetric Gram", |m| m.gram[0][1] *= 1.5, "not symmetric"),
         (
             "negated Gram",

@@ -451,12 +451,13 @@ pub struct ExportArgs {
     /// A dataset store (`.sbrdf`).
     path: PathBuf,
     /// Output `.npy`: an N x D matrix, rows in store order (or `--materials` order), columns in
-    /// the store's dimension order (`-`: standard output when it is a file, not a pipe).
+    /// the store's dimension order (`-`: standard output, redirected to a file with `>`).
     #[arg(long)]
     out: PathBuf,
-    /// Comma-separated material names to export (default: all).
-    #[arg(long, value_delimiter = ',')]
-    materials: Option<Vec<String>>,
+    /// Comma-separated material names to export (default: all); names that contain commas
+    /// (e.g. `gp-exact@0.1,0.2` from `specgp predict`) are recognised whole.
+    #[arg(long)]
+    materials: Option<String>,
     /// Element type of the `.npy`.
     #[arg(long, default_value = "f32", value_parser = ["f32", "f64"])]
     dtype: String,
@@ -477,15 +478,35 @@ fn npy_header(descr: &str, rows: usize, cols: usize) -> Vec<u8> {
     h
 }
 
+/// The rows named by a comma-separated `list`; a name may itself contain commas: from each
+/// position, the shortest run of comma-separated pieces that names a material is taken.
+fn select_materials(store: &Store, list: &str) -> anyhow::Result<Vec<usize>> {
+    let pieces: Vec<&str> = list.split(',').collect();
+    let mut rows = Vec::new();
+    let mut i = 0;
+    while i < pieces.len() {
+        let found = (i..pieces.len()).find_map(|j| {
+            let name = pieces[i..=j].join(",");
+            store.material_index(name.trim()).ok().map(|r| (r, j))
+        });
+        match found {
+            Some((row, j)) => {
+                rows.push(row);
+                i = j + 1;
+            }
+            // The error of the first piece alone (it names the store and the known names).
+            None => return Err(store.material_index(pieces[i].trim()).unwrap_err().into()),
+        }
+    }
+    Ok(rows)
+}
+
 /// Runs `specgp export`: streams the chosen rows out chunk by chunk (bounded memory).
 pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
     crate::paths::ensure_output_is_not_an_input(&args.out, &[&args.path])?;
     let store = Store::open(&args.path)?;
     let rows: Vec<usize> = match &args.materials {
-        Some(names) => names
-            .iter()
-            .map(|n| store.material_index(n.trim()))
-            .collect::<Result<_, _>>()?,
+        Some(list) => select_materials(&store, list)?,
         None => (0..store.n_materials()).collect(),
     };
     if rows.is_empty() {
@@ -639,7 +660,7 @@ mod tests {
             export(&ExportArgs {
                 path: path.clone(),
                 out: out.clone(),
-                materials: Some(vec!["m2".into(), "m0".into()]),
+                materials: Some("m2,m0".into()),
                 dtype: dtype.into(),
             })
             .unwrap();
@@ -655,7 +676,7 @@ mod tests {
         let bad = ExportArgs {
             path: path.clone(),
             out: dir.path().join("z.npy"),
-            materials: Some(vec!["nope".into()]),
+            materials: Some("nope".into()),
             dtype: "f32".into(),
         };
         assert!(export(&bad).unwrap_err().to_string().contains("nope"));

@@ -10,6 +10,9 @@ pub fn source_file(source: &str) -> PathBuf {
     if Path::new(source).exists() {
         return source.into();
     }
+    if let Some((store, _)) = brdf_io::store::parse_store_spec(source) {
+        return store;
+    }
     let cut = source.rfind('@').or_else(|| source.rfind(':'));
     cut.map_or_else(|| source.into(), |i| source[..i].into())
 }
@@ -112,6 +115,7 @@ mod tests {
     #[test]
     fn source_arguments_name_their_file() {
         assert_eq!(source_file("d.sbrdf:felt"), PathBuf::from("d.sbrdf"));
+        assert_eq!(source_file("d.sbrdf:gp@0.5,1:x"), PathBuf::from("d.sbrdf"));
         assert_eq!(source_file("m.toml@0.5,-1"), PathBuf::from("m.toml"));
         assert_eq!(source_file("a.bsdf"), PathBuf::from("a.bsdf"));
     }

@@ -452,6 +452,34 @@ fn dash_outputs_write_into_redirected_standard_output() {
     assert_eq!(err.matches("<standard output>").count(), 2, "{err}");
     // Streaming outputs of other commands go to standard output too (no file named `-`).
     specgp(&["fit", "data.sbrdf", "--out", "m.toml"], d);
+    // A predicted material's name holds commas (its latent point): export selects it whole,
+    // alone or in a list.
+    specgp(
+        &[
+            "predict",
+            "m.toml",
+            "--at",
+            "0.1,0.2,0,0,0",
+            "--out",
+            "p.sbrdf",
+        ],
+        d,
+    );
+    let name = brdf_io::store::Store::open(d.join("p.sbrdf"))
+        .unwrap()
+        .names()[0]
+        .to_owned();
+    assert!(name.contains(','), "{name}");
+    specgp(
+        &["export", "p.sbrdf", "--materials", &name, "--out", "p.npy"],
+        d,
+    );
+    let list = format!("{name},{name}");
+    specgp(
+        &["export", "p.sbrdf", "--materials", &list, "--out", "p2.npy"],
+        d,
+    );
+    assert_eq!(read(d.join("p2.npy")).unwrap().shape[0], 2);
     let json = specgp(&["evaluate", "m.toml", "--json", "-"], d);
     let v: serde_json::Value = serde_json::from_str(&json).expect("standard output is the JSON");
     assert_eq!(v["n_materials"], 51, "{json}");

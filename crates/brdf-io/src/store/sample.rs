@@ -27,8 +27,12 @@ pub struct StoreMaterial {
 /// Splits a source spec `DATA.sbrdf:MATERIAL` into the store path and the material name
 /// (`None` when `spec` does not have that form).
 pub fn parse_store_spec(spec: &str) -> Option<(PathBuf, String)> {
-    let (path, name) = spec.rsplit_once(':')?;
-    (path.ends_with(".sbrdf") && !name.is_empty()).then(|| (PathBuf::from(path), name.to_owned()))
+    // The first `:` after a `.sbrdf` path: the material name may contain `:` itself.
+    spec.match_indices(':').find_map(|(i, _)| {
+        let (path, name) = (&spec[..i], &spec[i + 1..]);
+        (path.ends_with(".sbrdf") && !name.is_empty())
+            .then(|| (PathBuf::from(path), name.to_owned()))
+    })
 }
 
 impl StoreMaterial {
