@@ -324,6 +324,11 @@ impl RglBsdf {
             expect(tf, "wavelengths", DType::F32, 1)?;
             ("spectra", Some(tf.field_f64("wavelengths")?))
         } else {
+            if tf.get("rgb").is_none() && tf.get("spectra").is_some() {
+                return Err(bad(
+                    "a spectral file (field \"spectra\") without its field \"wavelengths\"".into(),
+                ));
+            }
             ("rgb", None)
         };
         let spec_s = expect(tf, spec_name, DType::F32, 5)?.to_vec();

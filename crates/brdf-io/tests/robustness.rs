@@ -142,6 +142,25 @@ fn zero_sigma_and_negative_ndf_are_errors() {
         );
         assert!(e.contains("value 7 of"), "{e}");
     }
+    // A spectral table without its wavelengths is named as such (not "missing field rgb").
+    let renamed: Vec<Field> = tf
+        .fields()
+        .iter()
+        .map(|f| {
+            if f.name() != "rgb" {
+                return f.clone();
+            }
+            let v: Vec<f32> = f.to_f64(&path).unwrap().iter().map(|&x| x as f32).collect();
+            Field::from_f32("spectra", f.shape().to_vec(), &v).unwrap()
+        })
+        .collect();
+    let bytes = TensorFile::to_bytes(&renamed).unwrap();
+    let tf = TensorFile::from_bytes(&bytes, "spec.bsdf").unwrap();
+    let e = RglBsdf::from_tensor_file(&tf).unwrap_err().to_string();
+    assert!(
+        e.contains("spec.bsdf") && e.contains("without its field \"wavelengths\""),
+        "{e}"
+    );
 }
 
 proptest! {

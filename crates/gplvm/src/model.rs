@@ -154,7 +154,13 @@ impl Model {
             path: path.to_owned(),
             reason,
         };
-        let text = std::fs::read_to_string(path).map_err(|e| err(e.to_string()))?;
+        let text = std::fs::read_to_string(path).map_err(|e| {
+            err(if e.kind() == std::io::ErrorKind::InvalidData {
+                "not a model file (not UTF-8 text)".into()
+            } else {
+                e.to_string()
+            })
+        })?;
         let model: Model =
             toml::from_str(&text).map_err(|e| err(format!("not a model file: {e}")))?;
         if model.format != MODEL_FORMAT || model.version != MODEL_VERSION {

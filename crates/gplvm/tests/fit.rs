@@ -258,12 +258,14 @@ fn bad_model_files_are_clear_errors() {
     let err = Model::load(&missing).unwrap_err().to_string();
     assert!(err.contains("nope.toml"), "{err}");
     let junk = dir.path().join("junk.toml");
-    std::fs::write(&junk, "format = 3\n[[[").unwrap();
-    let err = Model::load(&junk).unwrap_err().to_string();
-    assert!(
-        err.contains("junk.toml") && err.contains("not a model file"),
-        "{err}"
-    );
+    for bytes in [&b"format = 3\n[[["[..], b"SBRDF\x00\xff\xfe binary"] {
+        std::fs::write(&junk, bytes).unwrap();
+        let err = Model::load(&junk).unwrap_err().to_string();
+        assert!(
+            err.contains("junk.toml") && err.contains("not a model file"),
+            "{err}"
+        );
+    }
     // A valid model, then values no fit writes: each is refused on load, naming the file.
     let data = synth_store(dir.path(), "few.sbrdf", &[1, 6, 11, 16, 21]);
     let p = FitParams {

@@ -154,6 +154,7 @@ pub fn import(args: &ImportArgs) -> anyhow::Result<()> {
         ImportFormat::Nbrdf(a) => (&a.store.out, vec![&a.weights, &a.names]),
     };
     crate::paths::ensure_output_is_not_an_input(out, &inputs)?;
+    crate::paths::ensure_extension(out, "sbrdf", "a dataset store")?;
     match &args.format {
         ImportFormat::Rgl(a) => import_rgl(a),
         ImportFormat::Merl(a) => import_merl(a),
@@ -504,6 +505,7 @@ fn select_materials(store: &Store, list: &str) -> anyhow::Result<Vec<usize>> {
 /// Runs `specgp export`: streams the chosen rows out chunk by chunk (bounded memory).
 pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
     crate::paths::ensure_output_is_not_an_input(&args.out, &[&args.path])?;
+    crate::paths::ensure_extension(&args.out, "npy", "an .npy array")?;
     let store = Store::open(&args.path)?;
     let rows: Vec<usize> = match &args.materials {
         Some(list) => select_materials(&store, list)?,

@@ -55,6 +55,8 @@ pub fn fit(args: &FitArgs) -> anyhow::Result<()> {
             .chain(config_file)
             .collect::<Vec<_>>(),
     )?;
+    // `info` and the SOURCE syntax `MODEL.toml@X,Y` recognise models by their extension.
+    crate::paths::ensure_extension(&args.out, "toml", "a model file")?;
     let mut params = match &args.config {
         Some(path) => FitParams::from_toml_file(path)?,
         None => FitParams::default(),

@@ -67,8 +67,9 @@ pub struct EvaluateArgs {
     /// Write the full results (per material and summary) as JSON.
     #[arg(long)]
     pub json: Option<PathBuf>,
-    /// Starting points of the latent search per held-out material.
-    #[arg(long, default_value_t = 3)]
+    /// Starting points of the latent search per held-out material (1..=1000; at most the N - 1
+    /// training points are used).
+    #[arg(long, default_value_t = 3, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1000))]
     pub starts: usize,
     /// Refit each leave-one-out model from the PCA start (a fresh fit) instead of warm-starting
     /// from the full model's latent points.
@@ -147,14 +148,25 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
         .with_context(|| format!("opening model {}", args.model.display()))?;
     if args.sidecar {
         let side = pred.transformed_store_path();
-        if !side.is_file() {
-            let pb = bar(pred.store().n_chunks() as u64, "sidecar");
-            pred.build_transformed_store(&side, |done, _| pb.set_position(done as u64))
-                .with_context(|| format!("writing {}", side.display()))?;
-            pb.finish_and_clear();
-            println!("wrote the forward-transformed sidecar {}", side.display());
-        }
-        pred = pred.with_transformed_store(&side)?;
+        // An existing sidecar is used when it opens and belongs to this dataset; a damaged or
+        // stale one (another dataset, an interrupted copy) is rebuilt, not an error.
+        let existing = side
+            .is_file()
+            .then(|| pred.clone().with_transformed_store(&side));
+        pred = match existing {
+            Some(Ok(p)) => p,
+            stale => {
+                if let Some(Err(e)) = stale {
+                    eprintln!("the sidecar is unusable ({e}); rebuilding it");
+                }
+                let pb = bar(pred.store().n_chunks() as u64, "sidecar");
+                pred.build_transformed_store(&side, |done, _| pb.set_position(done as u64))
+                    .with_context(|| format!("writing {}", side.display()))?;
+                pb.finish_and_clear();
+                eprintln!("wrote the forward-transformed sidecar {}", side.display());
+                pred.with_transformed_store(&side)?
+            }
+        };
     }
     let kind = if args.smooth {
         PredictorKind::Smooth
@@ -206,7 +218,7 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
     }
     .with_context(|| format!("writing {}", args.out.display()))?;
     pb.finish_and_clear();
-    println!(
+    eprintln!(
         "wrote {}: {} ({} values, {} bytes, {:.2} s)",
         report.path.display(),
         material.label(),

@@ -72,6 +72,7 @@ pub fn parse_light(s: &str) -> anyhow::Result<(f64, f64)> {
 pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
     let source = crate::paths::source_file(&args.source);
     crate::paths::ensure_output_is_not_an_input(&args.out, &[&source])?;
+    crate::paths::ensure_extension(&args.out, "png", "a PNG image")?;
     let env_mode = match args.env.as_str() {
         "table" => render::EnvMode::default(),
         "fast" => render::EnvMode::Table(render::EnvTableSpec::FAST),
@@ -172,13 +173,13 @@ pub struct MapArgs {
     #[arg(long)]
     pub thumbnails: bool,
     /// Thumbnails per axis (with --thumbnails; 1..=64, a panel of at most 16384 pixels).
-    #[arg(long, default_value_t = 6)]
+    #[arg(long, default_value_t = 6, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=64))]
     pub grid: usize,
     /// Side of the plot area in pixels (64..=16384).
-    #[arg(long, default_value_t = 640)]
+    #[arg(long, default_value_t = 640, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(64..=16384))]
     pub size: usize,
     /// Thumbnail sphere size in pixels (8..=1024).
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, default_value_t = 64, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(8..=1024))]
     pub thumbnail_size: usize,
     /// The dataset store, when it moved since fitting (default: the path in the model).
     #[arg(long)]
@@ -192,6 +193,7 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
     let mut inputs = vec![args.model.as_path()];
     inputs.extend(args.dataset.as_deref());
     crate::paths::ensure_output_is_not_an_input(&args.out, &inputs)?;
+    crate::paths::ensure_extension(&args.out, "png", "a PNG image")?;
     let start = std::time::Instant::now();
     let model = gplvm::Model::load(&args.model)?;
     if model.latent_dim < 1 {

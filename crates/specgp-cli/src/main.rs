@@ -32,7 +32,8 @@ enum Command {
     Grid(GridArgs),
     /// Import measured BRDF files into a dataset store (`.sbrdf`).
     Import(cmd_data::ImportArgs),
-    /// Describe a dataset store: materials, grid, channels, D, bytes, layout, checksum.
+    /// Describe a dataset store (materials, grid, channels, D, bytes, layout, checksum) or a
+    /// model file (`.toml`: the fit, and whether its dataset is still there).
     Info(cmd_data::InfoArgs),
     /// Export materials of a dataset store as an N x D `.npy` matrix (streamed).
     Export(cmd_data::ExportArgs),

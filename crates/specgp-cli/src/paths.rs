@@ -17,6 +17,22 @@ pub fn source_file(source: &str) -> PathBuf {
     cut.map_or_else(|| source.into(), |i| source[..i].into())
 }
 
+/// Refuses an output name whose extension says another format than the one written (`render
+/// --out x.jpg` would write PNG data under a JPEG name): `out` must end in `.ext` (any case)
+/// or be `-` (standard output). `what` names the format in the message.
+pub fn ensure_extension(out: &Path, ext: &str, what: &str) -> anyhow::Result<()> {
+    let matches = out
+        .extension()
+        .is_some_and(|e| e.to_string_lossy().eq_ignore_ascii_case(ext));
+    if !matches && out != Path::new(brdf_io::output::STDOUT) {
+        bail!(
+            "{}: the output is {what}; its name must end in .{ext} (or be - for standard output)",
+            out.display()
+        );
+    }
+    Ok(())
+}
+
 /// `path` made absolute with symbolic links resolved as far as it exists (the output may not
 /// exist yet: its directory is resolved and the file name appended).
 fn resolved(path: &Path) -> Option<PathBuf> {
@@ -110,6 +126,19 @@ mod tests {
         assert!(ensure_output_is_not_an_input(&new, &[&data]).is_ok());
         assert!(ensure_output_is_not_an_input(&new, &[&dir.path().join("nope")]).is_ok());
         assert!(ensure_output_is_not_an_input(Path::new("-"), &[&data]).is_ok());
+    }
+
+    #[test]
+    fn output_extensions_must_name_the_format() {
+        assert!(ensure_extension(Path::new("a/b.png"), "png", "a PNG image").is_ok());
+        assert!(ensure_extension(Path::new("B.PNG"), "png", "a PNG image").is_ok());
+        assert!(ensure_extension(Path::new("-"), "png", "a PNG image").is_ok());
+        for bad in ["x.jpg", "x", "png"] {
+            let e = ensure_extension(Path::new(bad), "png", "a PNG image")
+                .unwrap_err()
+                .to_string();
+            assert!(e.starts_with(bad) && e.contains("must end in .png"), "{e}");
+        }
     }
 
     #[test]

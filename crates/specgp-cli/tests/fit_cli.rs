@@ -284,12 +284,28 @@ fn lazy_renders_of_model_points_read_an_existing_sidecar() {
             .chunks(4)
             .any(|p| p[3] == 255 && p[0].max(p[1]).max(p[2]) > 20)
     );
-    // Proof the sidecar is read: a damaged one is an error naming it, for both commands.
+    // Proof the sidecar is read: a damaged one is an error naming it, for both commands ...
     std::fs::write(d.join(&sidecar[0]), b"not a store").unwrap();
     let e = specgp_fails(&["render", point, "--out", "x.png"], d);
     assert!(e.contains(&sidecar[0]), "{e}");
     let e = specgp_fails(&["map", "m.toml", "--thumbnails", "--out", "y.png"], d);
     assert!(e.contains(&sidecar[0]), "{e}");
+    // ... and `predict --sidecar` rebuilds it, after which both work again.
+    let out = run(
+        &[
+            "predict",
+            "m.toml",
+            "--at",
+            "0,0",
+            "--sidecar",
+            "--out",
+            "p.sbrdf",
+        ],
+        d,
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && err.contains("rebuilding"), "{err}");
+    specgp(&["render", point, "--out", "x.png"], d);
 }
 
 #[test]
