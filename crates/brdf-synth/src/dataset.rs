@@ -22,10 +22,26 @@ pub const DEFAULT_GRID: AngularGrid = AngularGrid {
 /// The default wavelengths of `specgp synth`, nm (33 samples over the RGL range).
 pub const DEFAULT_WAVELENGTHS: &str = "360:1000:20";
 
-/// The wavelengths of a spectral channel axis; synthesis is spectral only.
+/// The range (nm) the embedded spectra and metal n, k tables cover; synthesis refuses
+/// wavelengths outside it (the tables would be extrapolated as constants).
+pub const WAVELENGTH_RANGE_NM: (f64, f64) = (360.0, 1000.0);
+
+/// The wavelengths of a spectral channel axis; synthesis is spectral only, inside
+/// [`WAVELENGTH_RANGE_NM`].
 pub fn wavelengths_of(channels: &Channels) -> Result<&[f64]> {
     match channels {
-        Channels::Spectral(w) => Ok(w),
+        Channels::Spectral(w) => {
+            let (lo, hi) = WAVELENGTH_RANGE_NM;
+            if let Some(l) = w.iter().find(|l| !(lo..=hi).contains(*l)) {
+                return Err(Error::InvalidRequest {
+                    reason: format!(
+                        "wavelength {l} nm is outside {lo}-{hi} nm, the range of the embedded \
+                         spectra"
+                    ),
+                });
+            }
+            Ok(w)
+        }
         Channels::Rgb => Err(Error::InvalidRequest {
             reason: "synthetic materials are spectral: give wavelengths, not RGB channels".into(),
         }),
@@ -119,4 +135,21 @@ pub fn generate(
 /// `400:700:50` gives D = 7168).
 pub fn preset_dataset(grid: AngularGrid, channels: &Channels, seed: u64) -> Result<SynthDataset> {
     generate(&crate::preset::preset(seed), grid, channels)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wavelengths_outside_the_tables_are_refused() {
+        let ok = Channels::parse_wavelengths("360:1000:20").unwrap();
+        assert_eq!(wavelengths_of(&ok).unwrap().len(), 33);
+        for bad in ["1:10:1", "5000:6000:500", "1e-300", "359.9,500"] {
+            let ch = Channels::parse_wavelengths(bad).unwrap();
+            let e = wavelengths_of(&ch).unwrap_err().to_string();
+            assert!(e.contains("outside 360-1000 nm"), "{bad}: {e}");
+        }
+        assert!(wavelengths_of(&Channels::Rgb).is_err());
+    }
 }
