@@ -598,3 +598,92 @@ fn optimiser_path_falls_back_to_jitter() {
         Err(GpError::NotPositiveDefinite { .. })
     ));
 }
+
+/// Every partial hyperparameter mask (and iso/ARD): the flat layout has the learnt entries only,
+/// unpack inverts pack and keeps the template's fixed values, and the flat gradient matches
+/// central differences of the flat objective.
+#[test]
+fn partial_learn_masks_pack_and_differentiate() {
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let (n, q, d) = (5, 2, 6);
+    let y = rand_mat(&mut rng, n, d, -2.0, 2.0);
+    let x = rand_mat(&mut rng, n, q, -1.5, 1.5);
+    let obj = objective_from_data(y.as_ref());
+    for ard in [false, true] {
+        let template = params(&mut rng, q, ard, -2.0);
+        let other = params(&mut rng, q, ard, -1.0);
+        for bits in 0..8u8 {
+            let learn = Learn {
+                signal_variance: bits & 1 != 0,
+                length_scale: bits & 2 != 0,
+                noise: bits & 4 != 0,
+            };
+            let flat = obj.flat(q, template.clone(), learn).unwrap();
+            let k = template.length_scale().len();
+            let n_hyper = usize::from(learn.signal_variance)
+                + if learn.length_scale { k } else { 0 }
+                + usize::from(learn.noise);
+            let theta = flat.pack(x.as_ref(), &other).unwrap();
+            assert_eq!(theta.len(), n * q + n_hyper, "{learn:?}");
+            // Learnt values come from `other`, fixed ones from the template.
+            let (x2, p2) = flat.unpack(&theta).unwrap();
+            assert_eq!(x2, x);
+            let pick = |learnt: bool, o: f64, t: f64| if learnt { o } else { t };
+            let close = |a: f64, b: f64| (a - b).abs() <= 1e-14 * b.abs();
+            assert!(close(
+                p2.signal_variance(),
+                pick(
+                    learn.signal_variance,
+                    other.signal_variance(),
+                    template.signal_variance()
+                )
+            ));
+            assert!(close(
+                p2.noise(),
+                pick(learn.noise, other.noise(), template.noise())
+            ));
+            for j in 0..k {
+                let (o, t) = (
+                    other.length_scale().axis(j),
+                    template.length_scale().axis(j),
+                );
+                assert!(close(
+                    p2.length_scale().axis(j),
+                    pick(learn.length_scale, o, t)
+                ));
+            }
+            // Flat gradient against central differences of the flat objective.
+            let (v, g) = flat
+                .neg_log_likelihood_and_gradient(&theta, Par::Seq)
+                .unwrap();
+            let f = |t: &[f64]| flat.neg_log_likelihood(t, Par::Seq).unwrap();
+            for (i, gi) in g.iter().enumerate() {
+                assert_close(central_diff(&f, &theta, i), *gi, v.abs(), "flat gradient");
+            }
+        }
+    }
+}
+
+/// Dropping the constant shifts the likelihood by exactly N D/2 log(2 pi) and leaves the
+/// gradients alone.
+#[test]
+fn the_constant_term_only_shifts_the_value() {
+    let mut rng = ChaCha8Rng::seed_from_u64(12);
+    let (n, q, d) = (6, 2, 9);
+    let y = rand_mat(&mut rng, n, d, -2.0, 2.0);
+    let x = rand_mat(&mut rng, n, q, -1.5, 1.5);
+    let p = params(&mut rng, q, false, -2.0);
+    let with = objective_from_data(y.as_ref());
+    let without = objective_from_data(y.as_ref()).with_constant(false);
+    let a = with.evaluate(x.as_ref(), &p, Par::Seq).unwrap();
+    let b = without.evaluate(x.as_ref(), &p, Par::Seq).unwrap();
+    let shift = (n * d) as f64 / 2.0 * (2.0 * std::f64::consts::PI).ln();
+    assert!(
+        ((b.value - a.value) - shift).abs() <= 1e-12 * a.value.abs().max(shift),
+        "{} - {} vs {shift}",
+        b.value,
+        a.value
+    );
+    assert_eq!(a.grad_x, b.grad_x);
+    assert_eq!(a.grad_hyper_log, b.grad_hyper_log);
+}

@@ -93,17 +93,28 @@ fn model_log_likelihood_matches_recomputation_from_export() {
         let mask = grid.validity_mask();
         let keep: Vec<usize> = (0..cols).filter(|&j| mask[j / nc]).collect();
         assert_eq!(keep.len(), model.dataset.d_effective);
-        // Transform, centre over materials, divide by the recorded scale.
+        // Transform (restated here with the standard library: raw, or ln(1 + max(f, 0) / c)),
+        // centre over materials, and scale to unit average variance (the fit's default data
+        // scaling), all recomputed from the export; the model's recorded scale must agree.
+        let forward = |v: f64| match model.transform {
+            gplvm::Transform::Raw => v,
+            gplvm::Transform::Log { offset } => (v.max(0.0) / offset).ln_1p(),
+        };
         let mut yt = Mat::<f64>::zeros(n, keep.len());
         for (c, &j) in keep.iter().enumerate() {
-            let col: Vec<f64> = (0..n)
-                .map(|i| model.transform.forward(values[i * cols + j]))
-                .collect();
+            let col: Vec<f64> = (0..n).map(|i| forward(values[i * cols + j])).collect();
             let mean = col.iter().sum::<f64>() / n as f64;
             for i in 0..n {
-                yt[(i, c)] = (col[i] - mean) / model.data_scale.sqrt();
+                yt[(i, c)] = col[i] - mean;
             }
         }
+        let scale = yt.squared_norm_l2() / (n * keep.len()) as f64;
+        assert!(
+            (scale - model.data_scale).abs() <= 1e-10 * scale,
+            "{model_name}: data scale {} vs recomputed {scale}",
+            model.data_scale
+        );
+        let yt = Mat::from_fn(n, keep.len(), |i, c| yt[(i, c)] / scale.sqrt());
         let h = &model.hyperparameters;
         let params =
             KernelParams::isotropic(h.signal_variance, h.length_scale[0], h.noise).unwrap();
