@@ -86,8 +86,16 @@ pub const INV: [f64; 16] = [
 /// `sum_i a_i b_i` with four independent partial sums, so the loop vectorises instead of
 /// waiting on the latency of every addition (`b` may be f32 or f64; the result does not depend
 /// on the CPU: the same operations in the same order everywhere).
+///
+/// `a` and `b` must have the same length (checked in debug builds; in release builds the
+/// longer one's extra elements would be ignored).
 #[inline(always)]
 pub fn dot<T: Copy + Into<f64>>(a: &[f64], b: &[T]) -> f64 {
+    debug_assert_eq!(
+        a.len(),
+        b.len(),
+        "fastmath::dot of slices of different lengths"
+    );
     let mut part = [0f64; 4];
     let (ac, bc) = (a.chunks_exact(4), b.chunks_exact(4));
     let rest: f64 = ac

@@ -51,6 +51,9 @@ impl Transform {
 
     /// [`Transform::forward`] of a batch of stored values (vectorised; within 1e-14 of the
     /// scalar version): `out[i] = forward(input[i])`.
+    ///
+    /// # Panics
+    /// If `input` and `out` differ in length.
     pub fn forward_batch(&self, input: &[f32], out: &mut [f64]) {
         GramTransform::to_f64(self, input, out);
     }
@@ -176,6 +179,9 @@ unsafe fn exp_m1_scaled_avx2(values: &mut [f64], scale: f64) {
 /// conversion), the polynomial uses FMAs, and the rounding of `u = 1 + x` is corrected by
 /// `(x - (u - 1)) (2 - u)^+`, an estimate of `(x - (u - 1)) / u` good to 2e-16 of the result.
 /// About 1.5 ns per value on one core here (the division and the FMA pipe bound it).
+///
+/// # Panics
+/// If `input` and `out` differ in length.
 pub fn ln_1p_scaled_f64(input: &[f32], scale: f64, out: &mut [f64]) {
     assert_eq!(input.len(), out.len());
     #[cfg(target_arch = "x86_64")]

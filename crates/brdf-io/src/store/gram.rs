@@ -16,8 +16,8 @@ use std::ops::Range;
 
 /// A pointwise transform applied to every stored value before it enters the Gram matrix.
 pub trait GramTransform: Sync {
-    /// Transformed values in f64: `out[i] = t(input[i])` (same lengths); called on batches, so
-    /// an implementation can vectorise.
+    /// Transformed values in f64: `out[i] = t(input[i])`; called on batches, so an
+    /// implementation can vectorise. Implementations panic when the lengths differ.
     fn to_f64(&self, input: &[f32], out: &mut [f64]);
 }
 
@@ -28,6 +28,7 @@ pub struct Identity;
 impl GramTransform for Identity {
     /// Widens the values to f64 (8 lanes with AVX-512, 4 with AVX2, selected at run time).
     fn to_f64(&self, input: &[f32], out: &mut [f64]) {
+        assert_eq!(input.len(), out.len(), "Identity::to_f64: lengths differ");
         #[cfg(target_arch = "x86_64")]
         {
             if std::arch::is_x86_feature_detected!("avx512f") {
@@ -397,6 +398,12 @@ mod x86 {
 
     /// A vector of f64 lanes as the tiles use it: `__m256d` (AVX2 + FMA) or `__m512d`
     /// (AVX-512F). Every method is inlined into a function compiled with its feature.
+    ///
+    /// # Safety
+    /// Every method may only run on a CPU with the vector type's features (AVX2 + FMA, or
+    /// AVX-512F), i.e. inside a function compiled with them after a run-time check; `load`,
+    /// `splat` and `add_into` additionally need `p` valid for `N` (`splat`: 1) `f64` reads,
+    /// resp. reads and writes.
     trait Lanes: Copy {
         /// Lanes per vector: rows of a tile.
         const N: usize;
