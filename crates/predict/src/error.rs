@@ -9,15 +9,27 @@ pub type Result<T, E = Error> = std::result::Result<T, E>;
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum Error {
-    /// The model's dataset store is not where the model says (moved or deleted).
+    /// The model's dataset store is not where the model says (moved or deleted), or not where
+    /// the caller said.
     #[error(
-        "model {model}: its dataset {dataset} does not exist (moved or deleted?); pass the store's new path explicitly"
+        "model {model}: {}",
+        if *given {
+            format!("the dataset {} given for it does not exist", dataset.display())
+        } else {
+            format!(
+                "its dataset {} does not exist (moved or deleted?); pass the store's new path \
+                 explicitly",
+                dataset.display()
+            )
+        }
     )]
     DatasetMissing {
         /// The model file.
         model: PathBuf,
-        /// The dataset path recorded in the model.
+        /// The dataset path: recorded in the model, or given.
         dataset: PathBuf,
+        /// Whether the path was given by the caller (not read from the model).
+        given: bool,
     },
     /// The store does not match what the model was fitted on.
     #[error("model {model} does not match dataset {dataset}: {what}")]

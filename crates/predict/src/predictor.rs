@@ -122,6 +122,7 @@ impl Predictor {
             return Err(Error::DatasetMissing {
                 model: model_path.to_owned(),
                 dataset: path,
+                given: dataset.is_some(),
             });
         }
         let store = Arc::new(Store::open(&path)?);

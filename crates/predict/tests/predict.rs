@@ -564,8 +564,17 @@ fn bad_inputs_give_clear_errors() {
         msg.contains("model.toml") && msg.contains("data.sbrdf"),
         "{msg}"
     );
-    // ... and can be passed explicitly.
+    assert!(msg.contains("pass the store's new path"), "{msg}");
+    // ... and can be passed explicitly; a wrong explicit path is named as given.
     Predictor::open_with_dataset(&f.model, Some(&moved)).unwrap();
+    let nope = f._dir.path().join("nope.sbrdf");
+    let msg = Predictor::open_with_dataset(&f.model, Some(&nope))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        msg.contains("nope.sbrdf given for it does not exist") && !msg.contains("pass the"),
+        "{msg}"
+    );
 
     // Same path, different content: checksum mismatch.
     write_store(&f.store, 6, 5, grid());
