@@ -202,6 +202,30 @@ fn import_each(
     Ok(())
 }
 
+/// Refuses repeated material names before anything is read or written (a store's names are
+/// unique; the store writer would only find out after resampling the earlier sources).
+/// `names` pairs each name with the source it comes from.
+fn ensure_unique_names(names: &[(String, String)]) -> anyhow::Result<()> {
+    let mut seen: std::collections::HashMap<&str, &str> = std::collections::HashMap::new();
+    for (name, source) in names {
+        if let Some(first) = seen.insert(name, source) {
+            bail!(
+                "{source}: the material name {name:?} is already taken by {first} (names in a \
+                 store must be unique)"
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Names (file stems) and sources of material files.
+fn file_names(files: &[PathBuf]) -> Vec<(String, String)> {
+    files
+        .iter()
+        .map(|f| (stem(f), f.display().to_string()))
+        .collect()
+}
+
 fn import_merl(args: &MerlArgs) -> anyhow::Result<()> {
     use brdf_io::merl::{Resampling, read_merl};
     let method = if args.resampling == "nearest" {
@@ -209,6 +233,7 @@ fn import_merl(args: &MerlArgs) -> anyhow::Result<()> {
     } else {
         Resampling::Average
     };
+    ensure_unique_names(&file_names(&args.files))?;
     import_each(
         &args.store,
         Channels::Rgb,
@@ -237,6 +262,15 @@ fn import_nbrdf(args: &NbrdfArgs) -> anyhow::Result<()> {
             .collect::<anyhow::Result<_>>()?,
         None => (0..set.len()).collect(),
     };
+    ensure_unique_names(
+        &rows
+            .iter()
+            .map(|&r| {
+                let source = format!("{} line {}", args.names.display(), r + 1);
+                (set.names()[r].clone(), source)
+            })
+            .collect::<Vec<_>>(),
+    )?;
     let options = NbrdfOptions {
         outlier_threshold: args.outlier_threshold,
         clamp_outliers: args.clamp,
@@ -257,6 +291,7 @@ fn import_nbrdf(args: &NbrdfArgs) -> anyhow::Result<()> {
 
 fn import_rgl(args: &RglArgs) -> anyhow::Result<()> {
     use brdf_io::rgl::RglBsdf;
+    ensure_unique_names(&file_names(&args.files))?;
     let channels = match &args.wavelengths {
         Some(spec) => Channels::parse_wavelengths(spec)?,
         None => RglBsdf::open(&args.files[0])?.native_channels().clone(),
@@ -581,6 +616,23 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn repeated_material_names_are_refused_up_front() {
+        let files = [
+            PathBuf::from("a/gold.bsdf"),
+            PathBuf::from("b/felt.bsdf"),
+            PathBuf::from("c/gold.bsdf"),
+        ];
+        let e = ensure_unique_names(&file_names(&files))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("c/gold.bsdf") && e.contains("\"gold\"") && e.contains("a/gold.bsdf"),
+            "{e}"
+        );
+        assert!(ensure_unique_names(&file_names(&files[..2])).is_ok());
+    }
 
     #[test]
     fn npy_header_is_aligned_and_parsable() {
