@@ -258,18 +258,16 @@ fn lazy_renders_of_model_points_read_an_existing_sidecar() {
     };
     let before = renders("plain");
     // Build the sidecar (stored f32 log values instead of logarithms per lookup).
-    specgp(
-        &[
-            "predict",
-            "m.toml",
-            "--at",
-            "0,0",
-            "--sidecar",
-            "--out",
-            "p.npy",
-        ],
-        d,
-    );
+    let predict_with_sidecar = [
+        "predict",
+        "m.toml",
+        "--at",
+        "0,0",
+        "--sidecar",
+        "--out",
+        "p.npy",
+    ];
+    specgp(&predict_with_sidecar, d);
     let sidecar: Vec<_> = std::fs::read_dir(d)
         .unwrap()
         .map(|e| e.unwrap().file_name().into_string().unwrap())
@@ -302,18 +300,7 @@ fn lazy_renders_of_model_points_read_an_existing_sidecar() {
     let e = specgp_fails(&["map", "m.toml", "--thumbnails", "--out", "y.png"], d);
     assert!(e.contains(&sidecar[0]), "{e}");
     // ... and `predict --sidecar` rebuilds it, after which both work again.
-    let out = run(
-        &[
-            "predict",
-            "m.toml",
-            "--at",
-            "0,0",
-            "--sidecar",
-            "--out",
-            "p.sbrdf",
-        ],
-        d,
-    );
+    let out = run(&predict_with_sidecar, d);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success() && err.contains("rebuilding"), "{err}");
     specgp(&["render", point, "--out", "x.png"], d);
