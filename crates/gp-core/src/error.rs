@@ -79,6 +79,14 @@ pub enum GpError {
         /// The collection's size.
         len: usize,
     },
+    /// A learnt noise variance at or below the floor it is kept above.
+    #[error("noise {noise:e} must exceed the noise floor {floor:e} when the noise is learnt")]
+    NoiseBelowFloor {
+        /// The noise variance given.
+        noise: f64,
+        /// The floor ([`crate::FlatGplvm::with_noise_floor`]).
+        floor: f64,
+    },
     /// A computation on valid inputs overflowed to a non-finite result.
     #[error("non-finite result in {what}: {value}")]
     NonFiniteResult {

@@ -457,13 +457,17 @@ impl Learn {
 /// minimising the *negative* log-likelihood.
 ///
 /// Layout: `X` row-major (`x_00, x_01, .., x_0(q-1), x_10, ..`, `N q` values), then in order
-/// `log s^2` (if learnt), `log l` (1, or `q` for ARD, if learnt), `log mu` (if learnt).
+/// `log s^2` (if learnt), `log l` (1, or `q` for ARD, if learnt), `log(mu - floor)` (if learnt;
+/// the floor is 0 unless set with [`with_noise_floor`](FlatGplvm::with_noise_floor), and then
+/// the entry is `log mu`).
 #[derive(Debug, Clone)]
 pub struct FlatGplvm<'a> {
     obj: &'a GplvmObjective,
     q: usize,
     template: KernelParams,
     learn: Learn,
+    /// A learnt noise stays above this: `mu = floor + exp(theta_mu)`.
+    noise_floor: f64,
 }
 
 impl<'a> FlatGplvm<'a> {
@@ -481,7 +485,23 @@ impl<'a> FlatGplvm<'a> {
             q,
             template,
             learn,
+            noise_floor: 0.0,
         })
+    }
+
+    /// Keeps a learnt noise variance above `floor` (finite, >= 0): the free parameter becomes
+    /// `log(mu - floor)`. Without a floor, data that a noise-free GP interpolates drive `mu`
+    /// towards 0 and `K` towards singular (measured on raw synthetic data: mu = 1e-16, cond(K)
+    /// ~ 1e12, the fit stuck at its iteration cap). No effect when the noise is fixed.
+    pub fn with_noise_floor(mut self, floor: f64) -> Result<Self> {
+        if !(floor.is_finite() && floor >= 0.0) {
+            return Err(GpError::InvalidHyperparameter {
+                name: "noise floor".into(),
+                value: floor,
+            });
+        }
+        self.noise_floor = floor;
+        Ok(self)
     }
 
     /// Number of free log-hyperparameters.
@@ -538,7 +558,18 @@ impl<'a> FlatGplvm<'a> {
             v.extend_from_slice(&lt[1..1 + k]);
         }
         if self.learn.noise {
-            v.push(lt[k + 1]);
+            let mu = params.noise();
+            if mu <= self.noise_floor {
+                return Err(GpError::NoiseBelowFloor {
+                    noise: mu,
+                    floor: self.noise_floor,
+                });
+            }
+            v.push(if self.noise_floor == 0.0 {
+                lt[k + 1]
+            } else {
+                (mu - self.noise_floor).ln()
+            });
         }
         Ok(v)
     }
@@ -566,15 +597,18 @@ impl<'a> FlatGplvm<'a> {
             lt[1..1 + k].copy_from_slice(&theta[p..p + k]);
             p += k;
         }
-        if self.learn.noise {
-            lt[k + 1] = theta[p];
-        }
+        // (With a floor of 0 this is exactly the former `exp(log mu)`.)
+        let noise = if self.learn.noise {
+            self.noise_floor + theta[p].exp()
+        } else {
+            lt[k + 1].exp()
+        };
         let ls: Vec<f64> = lt[1..1 + k].iter().map(|v| v.exp()).collect();
         let length_scale = match self.template.length_scale() {
             LengthScale::Isotropic(_) => LengthScale::Isotropic(ls[0]),
             LengthScale::Ard(_) => LengthScale::Ard(ls),
         };
-        let params = KernelParams::new(lt[0].exp(), length_scale, lt[k + 1].exp())?;
+        let params = KernelParams::new(lt[0].exp(), length_scale, noise)?;
         Ok((x, params))
     }
 
@@ -616,7 +650,9 @@ impl<'a> FlatGplvm<'a> {
             g.extend(e.grad_hyper_log.length_scale.iter().map(|v| -v));
         }
         if self.learn.noise {
-            g.push(-e.grad_hyper_log.noise);
+            // d/d log(mu - floor) = (mu - floor) / mu * d/d log mu.
+            let mu = params.noise();
+            g.push(-e.grad_hyper_log.noise * ((mu - self.noise_floor) / mu));
         }
         Ok((-e.value, g))
     }

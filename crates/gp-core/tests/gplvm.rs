@@ -612,13 +612,19 @@ fn partial_learn_masks_pack_and_differentiate() {
     for ard in [false, true] {
         let template = params(&mut rng, q, ard, -2.0);
         let other = params(&mut rng, q, ard, -1.0);
-        for bits in 0..8u8 {
+        // Without a floor, and with one below both noises (mu = floor + exp(theta)).
+        let floor = 0.5 * template.noise().min(other.noise());
+        for (bits, floor) in (0..8u8).flat_map(|b| [(b, 0.0), (b, floor)]) {
             let learn = Learn {
                 signal_variance: bits & 1 != 0,
                 length_scale: bits & 2 != 0,
                 noise: bits & 4 != 0,
             };
-            let flat = obj.flat(q, template.clone(), learn).unwrap();
+            let flat = obj
+                .flat(q, template.clone(), learn)
+                .unwrap()
+                .with_noise_floor(floor)
+                .unwrap();
             let k = template.length_scale().len();
             let n_hyper = usize::from(learn.signal_variance)
                 + if learn.length_scale { k } else { 0 }
@@ -660,8 +666,23 @@ fn partial_learn_masks_pack_and_differentiate() {
             for (i, gi) in g.iter().enumerate() {
                 assert_close(central_diff(&f, &theta, i), *gi, v.abs(), "flat gradient");
             }
+            if learn.noise && floor > 0.0 {
+                // The floor holds for any theta, and a noise at or below it cannot be packed.
+                let mut t = theta.clone();
+                *t.last_mut().unwrap() = -800.0;
+                assert_eq!(flat.unpack(&t).unwrap().1.noise(), floor);
+                let low =
+                    KernelParams::new(other.signal_variance(), other.length_scale().clone(), floor)
+                        .unwrap();
+                assert!(matches!(
+                    flat.pack(x.as_ref(), &low),
+                    Err(GpError::NoiseBelowFloor { .. })
+                ));
+            }
         }
     }
+    let flat = obj.flat(q, params(&mut rng, q, false, -2.0), Learn::ALL);
+    assert!(flat.unwrap().with_noise_floor(-1.0).is_err());
 }
 
 /// Dropping the constant shifts the likelihood by exactly N D/2 log(2 pi) and leaves the

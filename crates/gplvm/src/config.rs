@@ -93,6 +93,10 @@ pub struct FitParams {
     pub noise: f64,
     /// Learn s, l and mu with the latent points (type-II maximum likelihood).
     pub learn_hyperparameters: bool,
+    /// With `learn_hyperparameters`: the learnt noise stays above this floor (on the scaled
+    /// data; `0` for none). Without it, data a noise-free GP can interpolate drive mu to ~1e-16
+    /// and cond(K) to ~1e12 (raw synthetic data), where the gradient loses its accuracy.
+    pub min_noise: f64,
     /// Standard-normal prior on the latent points.
     pub prior: bool,
     /// Scaling of the PCA start.
@@ -127,6 +131,7 @@ impl Default for FitParams {
             lengthscale: 1.0,
             noise: 1e-4,
             learn_hyperparameters: false,
+            min_noise: 1e-6,
             prior: true,
             init_scaling: InitScaling::Likelihood,
             restarts: 0,
@@ -193,6 +198,18 @@ impl FitParams {
         }
         if self.max_iterations == 0 || self.max_evaluations == 0 {
             return bad("max_iterations and max_evaluations must be >= 1".into());
+        }
+        if !(self.min_noise.is_finite() && self.min_noise >= 0.0) {
+            return bad(format!(
+                "min_noise must be finite and >= 0, got {}",
+                self.min_noise
+            ));
+        }
+        if self.learn_hyperparameters && self.noise <= self.min_noise {
+            return bad(format!(
+                "noise {} must exceed min_noise {} when hyperparameters are learnt",
+                self.noise, self.min_noise
+            ));
         }
         let transform: Transform = self.transform.parse()?;
         Ok(FitConfig {
@@ -266,5 +283,14 @@ mod tests {
             ..Default::default()
         };
         assert!(p.check().is_ok());
+        for (min_noise, learn) in [(-1.0, false), (f64::NAN, false), (1e-4, true)] {
+            let p = FitParams {
+                min_noise,
+                learn_hyperparameters: learn,
+                ..Default::default()
+            };
+            let err = p.check().unwrap_err().to_string();
+            assert!(err.contains("min_noise"), "{err}");
+        }
     }
 }

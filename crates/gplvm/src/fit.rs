@@ -5,11 +5,11 @@ use std::time::Instant;
 
 use brdf_io::store::Store;
 use faer::{Mat, MatRef, Par};
-use gp_core::{GplvmObjective, KernelParams, Learn, centre_gram};
+use gp_core::{FlatGplvm, GplvmObjective, KernelParams, Learn, centre_gram};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
-use crate::config::{DataScaling, FitConfig, InitScaling, OptimizerKind};
+use crate::config::{DataScaling, FitConfig, FitParams, InitScaling, OptimizerKind};
 use crate::error::{Error, Result};
 use crate::model::{
     DatasetRef, FitReport, Hyperparameters, LatentMaterial, MODEL_FORMAT, MODEL_VERSION, Model,
@@ -99,6 +99,24 @@ pub struct Fit {
     pub report: FitReport,
 }
 
+/// The flat objective the optimisers see: latent points, plus every hyperparameter when
+/// `params.learn_hyperparameters` (the noise then kept above `params.min_noise`).
+pub fn flat_objective<'a>(
+    objective: &'a GplvmObjective,
+    q: usize,
+    template: KernelParams,
+    params: &FitParams,
+) -> Result<FlatGplvm<'a>> {
+    let (learn, floor) = if params.learn_hyperparameters {
+        (Learn::ALL, params.min_noise)
+    } else {
+        (Learn::NONE, 0.0)
+    };
+    Ok(objective
+        .flat(q, template, learn)?
+        .with_noise_floor(floor)?)
+}
+
 fn template_params(config: &FitConfig) -> Result<KernelParams> {
     let p = &config.params;
     Ok(KernelParams::isotropic(
@@ -180,12 +198,7 @@ pub fn fit_gram(g: MatRef<'_, f64>, d: usize, config: &FitConfig) -> Result<Fit>
     let pca = Pca::from_centred_gram(s.as_ref(), q)?;
     let objective = GplvmObjective::new(s, d)?.with_prior(p.prior);
     let template = template_params(config)?;
-    let learn = if p.learn_hyperparameters {
-        Learn::ALL
-    } else {
-        Learn::NONE
-    };
-    let flat = objective.flat(q, template.clone(), learn)?;
+    let flat = flat_objective(&objective, q, template.clone(), p)?;
     let par = Par::Seq;
     let mut x0 = pca.latent_start(p.init_scaling);
     if p.init_scaling == InitScaling::Likelihood {

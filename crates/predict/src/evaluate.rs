@@ -19,7 +19,7 @@ use std::time::Instant;
 use brdf_io::store::Store;
 use faer::{Mat, MatRef, Par, Side};
 use gp_core::{GpRegression, all_but, centre_gram, subset_gram};
-use gp_core::{GplvmObjective, KernelParams, Learn};
+use gp_core::{GplvmObjective, KernelParams};
 use gplvm::optim::{HookeJeevesSettings, hooke_jeeves};
 use gplvm::optim::{LbfgsSettings, lbfgs};
 use gplvm::{FitConfig, OptimizerKind, Transform, fit_gram};
@@ -350,12 +350,7 @@ pub fn refit_warm(
     let (s, _) = gplvm::fit::scaled_centred_gram(g, d_eff, p.data_scaling)?;
     let n = s.nrows();
     let objective = GplvmObjective::new(s, d_eff)?.with_prior(p.prior);
-    let learn = if p.learn_hyperparameters {
-        Learn::ALL
-    } else {
-        Learn::NONE
-    };
-    let flat = objective.flat(x0.ncols(), params.clone(), learn)?;
+    let flat = gplvm::fit::flat_objective(&objective, x0.ncols(), params.clone(), p)?;
     let theta0 = flat.pack(x0, params)?;
     let per_value = 1.0 / (n as f64 * d_eff as f64);
     let par = Par::Seq;
