@@ -23,6 +23,36 @@ pub enum Error {
         /// What is wrong.
         reason: String,
     },
+    /// A material of the store holds NaN or infinite values (found by the Gram pass).
+    #[error(
+        "{path} holds non-finite values (NaN or infinity) in material {index} ({name}): a \
+         damaged store? (`specgp info` verifies its checksum)"
+    )]
+    NonFiniteData {
+        /// The store.
+        path: PathBuf,
+        /// Row of the material.
+        index: usize,
+        /// Its name.
+        name: String,
+    },
+    /// Fewer than two materials: a GPLVM needs at least two.
+    #[error("a GPLVM needs at least 2 materials, got {n}")]
+    TooFewMaterials {
+        /// The number given.
+        n: usize,
+    },
+    /// Every material is the same after the transform: no variance to fit.
+    #[error(
+        "the {n} materials are identical after the transform (total variance {total_variance:e}); \
+         nothing to fit"
+    )]
+    IdenticalMaterials {
+        /// Number of materials.
+        n: usize,
+        /// Trace of the centred Gram matrix.
+        total_variance: f64,
+    },
     /// The data cannot support the requested fit.
     #[error("invalid data: {reason}")]
     InvalidData {

@@ -36,14 +36,10 @@ pub fn gram_pass(store: &Store, transform: Transform) -> Result<GramPass> {
     let g = store.gram_with(&transform)?;
     // A non-finite value of material i makes its diagonal entry non-finite.
     if let Some(i) = (0..n).find(|&i| !g[i * n + i].is_finite()) {
-        return Err(Error::InvalidData {
-            reason: format!(
-                "{} holds non-finite values (NaN or infinity) in material {} ({}): a damaged \
-                 store? (`specgp info` verifies its checksum)",
-                store.path().display(),
-                i,
-                store.names().get(i).copied().unwrap_or("?")
-            ),
+        return Err(Error::NonFiniteData {
+            path: store.path().to_owned(),
+            index: i,
+            name: store.names().get(i).copied().unwrap_or("?").to_owned(),
         });
     }
     let gram = Mat::from_fn(n, n, |i, j| g[i * n + j]);
@@ -63,9 +59,7 @@ pub fn scaled_centred_gram(
 ) -> Result<(Mat<f64>, f64)> {
     let n = g.nrows();
     if n < 2 {
-        return Err(Error::InvalidData {
-            reason: format!("a GPLVM needs at least 2 materials, got {n}"),
-        });
+        return Err(Error::TooFewMaterials { n });
     }
     let s = centre_gram(g)?;
     let trace: f64 = (0..n).map(|i| s[(i, i)]).sum();
@@ -73,10 +67,9 @@ pub fn scaled_centred_gram(
         DataScaling::None => 1.0,
         DataScaling::UnitVariance => {
             if !(trace > 0.0 && trace.is_finite()) {
-                return Err(Error::InvalidData {
-                    reason: format!(
-                        "the {n} materials are identical after the transform (total variance {trace:e}); nothing to fit"
-                    ),
+                return Err(Error::IdenticalMaterials {
+                    n,
+                    total_variance: trace,
                 });
             }
             trace / (n as f64 * d as f64)

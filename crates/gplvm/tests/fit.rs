@@ -184,8 +184,11 @@ fn small_and_degenerate_datasets() {
     let p = FitParams::default().check().unwrap();
     // One material: a clear error.
     let one = synth_store(dir.path(), "one.sbrdf", &[3]);
-    let err = fit_store(&one, &p).unwrap_err().to_string();
-    assert!(err.contains("at least 2 materials"), "{err}");
+    let err = fit_store(&one, &p).unwrap_err();
+    assert!(
+        matches!(err, gplvm::Error::TooFewMaterials { n: 1 }),
+        "{err}"
+    );
     // Two materials: a finite fit that separates them.
     let two = synth_store(dir.path(), "two.sbrdf", &[3, 40]);
     let m = fit_store(&two, &p).unwrap();
@@ -204,10 +207,26 @@ fn small_and_degenerate_datasets() {
     };
     let spread = dist(&m.materials[0].coords, &m.materials[3].coords);
     assert!(dist(&m.materials[0].coords, &m.materials[1].coords) < 1e-3 * spread.max(1e-12));
+    // A damaged store (a NaN where material 0's first value was; the uncompressed payload
+    // starts at byte 4096, index-major, and cell 0 is valid): an error naming it and the
+    // material.
+    let bad = synth_store(dir.path(), "bad.sbrdf", &[3, 40, 12]);
+    let mut bytes = std::fs::read(&bad).unwrap();
+    bytes[4096..4100].copy_from_slice(&f32::NAN.to_le_bytes());
+    std::fs::write(&bad, bytes).unwrap();
+    let err = fit_store(&bad, &p).unwrap_err();
+    assert!(
+        matches!(&err, gplvm::Error::NonFiniteData { index: 0, .. }),
+        "{err}"
+    );
+    assert!(err.to_string().contains("bad.sbrdf"), "{err}");
     // All materials identical: nothing to fit, a clear error.
     let same = synth_store(dir.path(), "same.sbrdf", &[7, 7, 7]);
-    let err = fit_store(&same, &p).unwrap_err().to_string();
-    assert!(err.contains("identical"), "{err}");
+    let err = fit_store(&same, &p).unwrap_err();
+    assert!(
+        matches!(err, gplvm::Error::IdenticalMaterials { n: 3, total_variance } if total_variance.abs() < 1e-12),
+        "{err}"
+    );
 }
 
 /// The model's log-likelihood recomputed independently from the stored values: read every row,
