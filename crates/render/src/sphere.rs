@@ -336,13 +336,15 @@ fn colour_weights(
 }
 
 /// `k` x linear sRGB of the per-channel values `acc`: `weights` are the rows restricted to the
-/// `needed` channels.
+/// `needed` channels. Negative channel values count as 0: a BRDF is non-negative, and the
+/// values that dip below (a raw-space GP prediction that undershoots, the out-of-gamut cells of
+/// RGB tensor files) rendered as black holes ringed by saturated colour.
 fn project(weights: &[Vec<f64>; 3], needed: &[usize], acc: &[f64], k: f64) -> [f64; 3] {
     [0, 1, 2].map(|r| {
         k * weights[r]
             .iter()
             .zip(needed)
-            .map(|(w, &c)| w * acc[c])
+            .map(|(w, &c)| w * acc[c].max(0.0))
             .sum::<f64>()
     })
 }
@@ -855,6 +857,42 @@ mod tests {
             out.fill(v);
             Ok(())
         }
+    }
+
+    /// Negative BRDF values render as 0, not as negative light: a Lambertian whose red channel
+    /// is negative gives red exactly 0 and the other channels unchanged.
+    #[test]
+    fn negative_brdf_values_render_as_zero() {
+        struct Signed;
+        impl BrdfSource for Signed {
+            fn channels(&self) -> Channels {
+                Channels::Rgb
+            }
+            fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
+                let up = wi[2] > 0.0 && wo[2] > 0.0;
+                out.copy_from_slice(&if up { [-0.3, 0.2, 0.1] } else { [0.0; 3] });
+                Ok(())
+            }
+        }
+        let opts = SphereOptions {
+            size: 24,
+            ..SphereOptions::default()
+        };
+        let signed = render_sphere(&Signed, &opts).unwrap();
+        let grey =
+            render_sphere(&Lambert(Channels::Rgb, 0.2 * std::f64::consts::PI), &opts).unwrap();
+        let mut lit = 0;
+        for ((p, q), a) in signed.rgb.iter().zip(&grey.rgb).zip(&signed.alpha) {
+            if *a > 0.0 {
+                assert_eq!(p[0], 0.0, "{p:?}");
+                assert!(
+                    (p[1] - q[1]).abs() <= 1e-12 * q[1].max(1e-300),
+                    "{p:?} {q:?}"
+                );
+                lit += usize::from(p[1] > 0.0);
+            }
+        }
+        assert!(lit > 300, "{lit} lit pixels");
     }
 
     #[test]
