@@ -165,17 +165,24 @@ pub fn render_figures(
             x[0] = p[0];
             x[1] = p[1];
             pred.variance(&x)
+                .map(|v| v * model.data_scale)
                 .map_err(|e| render::Error::InvalidArgument {
                     reason: e.to_string(),
                 })
         };
-        let img = render::latent_map(&points, &variance, None, &render::MapOptions::default())
-            .map_err(|e| err(&path, e))?;
+        let opts = render::MapOptions {
+            caption: render::map::variance_caption(&model.transform.to_string(), q),
+            predicted_points: predictions.len(),
+            ..render::MapOptions::default()
+        };
+        let img = render::latent_map(&points, &variance, None, &opts).map_err(|e| err(&path, e))?;
         img.save_png(&path).map_err(|e| err(&path, e))?;
         files.push((
             "latent.png".to_string(),
-            "The training materials and the predicted points in the first two latent \
-             coordinates (equal scales), over the GP's predictive variance."
+            "The training materials (red dots) and the predicted points (blue rings) in the first \
+             two latent coordinates (equal scales), over the GP's predictive variance per \
+             transformed value (the units of the predictions table; for q > 2, the slice through \
+             0 of the other coordinates)."
                 .to_string(),
         ));
     }

@@ -27,6 +27,12 @@ pub struct MapOptions {
     pub sphere: SphereOptions,
     /// Variance samples per axis of the background (bilinearly interpolated).
     pub variance_samples: usize,
+    /// A line under the title saying what the shading is (its units; for q > 2 the slice the
+    /// map shows); empty: none.
+    pub caption: String,
+    /// The last `predicted_points` points are predictions, not training materials: drawn as
+    /// blue rings instead of red dots.
+    pub predicted_points: usize,
 }
 
 impl Default for MapOptions {
@@ -40,12 +46,27 @@ impl Default for MapOptions {
                 ..SphereOptions::default()
             },
             variance_samples: 96,
+            caption: String::new(),
+            predicted_points: 0,
         }
     }
 }
 
 /// A latent point with its label.
 pub type LabelledPoint = (String, [f64; 2]);
+
+/// The map caption of a model with latent dimension `q` and data transform `transform` (its
+/// display form), shaded by the predictive variance per transformed value (model variance x
+/// `data_scale`, the units the reports use): what the colour bar means, and for q > 2 that the
+/// map is the slice through the origin of the other axes.
+pub fn variance_caption(transform: &str, q: usize) -> String {
+    let slice = match q {
+        0..=2 => String::new(),
+        3 => "; SLICE X3 = 0".to_owned(),
+        _ => format!("; SLICE X3..X{q} = 0"),
+    };
+    format!("VARIANCE PER TRANSFORMED VALUE, {transform}{slice}")
+}
 
 /// Makes a source for a latent point (e.g. a lazily predicted material).
 pub type SourceAt<'a> = dyn Fn([f64; 2]) -> Result<Box<dyn BrdfSource + 'a>> + Sync + 'a;
@@ -71,7 +92,9 @@ pub fn extent(points: &[LabelledPoint]) -> [f64; 4] {
 }
 
 /// Draws the map: variance shading (white = low, deep blue = high, scaled to the largest
-/// sampled variance), dots with labels, axis ranges, a colour bar; with
+/// sampled variance), training materials as red dots and predictions as blue rings (see
+/// [`MapOptions::predicted_points`]) with labels, axis ranges, a colour bar, an optional
+/// caption; with
 /// `opts.thumbnails > 0` and `source_at`, a panel of spheres of the predicted materials on a
 /// regular grid over the same extent to the right.
 pub fn latent_map(
@@ -190,6 +213,10 @@ pub fn latent_map(
         1,
         black,
     );
+    if !opts.caption.is_empty() {
+        let caption = font::fit(&opts.caption, width.saturating_sub(l as usize + 4), 1);
+        img.text(l, 20, &caption, 1, [0.3; 3]);
+    }
     // Colour bar.
     let bar_y = b + 20;
     for i in 0..120 {
@@ -217,9 +244,15 @@ pub fn latent_map(
             img.line(*cx, *cy, tx, ty, [0.25; 3], 0.8);
         }
     }
-    for (cx, cy) in &dots {
+    let first_predicted = dots.len().saturating_sub(opts.predicted_points);
+    for (k, (cx, cy)) in dots.iter().enumerate() {
         img.disc(*cx, *cy, 4.5, [1.0; 3]);
-        img.disc(*cx, *cy, 3.0, [0.8, 0.05, 0.02]);
+        if k < first_predicted {
+            img.disc(*cx, *cy, 3.0, [0.8, 0.05, 0.02]);
+        } else {
+            img.disc(*cx, *cy, 4.0, [0.05, 0.25, 0.85]);
+            img.disc(*cx, *cy, 2.0, [1.0; 3]);
+        }
     }
     for (((name, _), spot), w) in points.iter().zip(&spots).zip(&widths) {
         let b = spot.label_box(*w);
@@ -403,6 +436,19 @@ fn place_labels(dots: &[(f64, f64)], widths: &[usize], bounds: Rect) -> Vec<Labe
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn captions_name_the_units_and_the_slice() {
+        assert_eq!(
+            variance_caption("raw", 2),
+            "VARIANCE PER TRANSFORMED VALUE, raw"
+        );
+        assert_eq!(
+            variance_caption("raw", 3),
+            "VARIANCE PER TRANSFORMED VALUE, raw; SLICE X3 = 0"
+        );
+        assert!(variance_caption("log(offset=0.01)", 5).ends_with("; SLICE X3..X5 = 0"));
+    }
 
     const BOUNDS: Rect = Rect {
         x0: 40,

@@ -113,6 +113,8 @@ fn path_comparison_and_map_draw() {
             ..SphereOptions::default()
         },
         variance_samples: 16,
+        caption: render::map::variance_caption("log(offset=0.01)", 5),
+        predicted_points: 1,
     };
     // Sizes that would need a huge allocation are refused before any work.
     for bad in [
@@ -151,6 +153,24 @@ fn path_comparison_and_map_draw() {
     let near = px([-1.0, 0.1 + 0.1]);
     let far = px([0.0, y0 + 0.05]);
     assert!(near[0] > far[0] + 0.1, "near {near:?} far {far:?}");
+    // The training material is a red dot, the last point (a prediction) a blue ring with a
+    // white centre.
+    let (dot, red_point) = (px(points[0].1), points[1].1);
+    assert!(dot[0] > 0.7 && dot[1] < 0.2 && dot[2] < 0.2, "{dot:?}");
+    let centre = px(red_point);
+    assert!(centre.iter().all(|c| *c > 0.9), "{centre:?}");
+    let ring = {
+        let x = 40.0 + (red_point[0] - x0) / (x1 - x0) * 160.0 + 3.0;
+        let y = 40.0 + (y1 - red_point[1]) / (y1 - y0) * 160.0;
+        map.get(x as usize, y as usize)
+    };
+    assert!(ring[2] > 0.6 && ring[0] < 0.3, "{ring:?}");
+    // The caption line is drawn (grey text under the title).
+    let caption_ink = (40..200)
+        .flat_map(|x| (20..27).map(move |y| (x, y)))
+        .filter(|&(x, y)| map.get(x, y)[0] < 0.5)
+        .count();
+    assert!(caption_ink > 50, "{caption_ink}");
     // The right panel has red-ish and white-ish spheres.
     let row = 40 + 24 + 12;
     let left = map.get(40 + 160 + 40 + 12, row);

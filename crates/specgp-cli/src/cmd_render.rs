@@ -225,8 +225,11 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
             size: args.thumbnail_size,
             ..SphereOptions::default()
         },
+        caption: render::map::variance_caption(&model.transform.to_string(), q),
         ..render::MapOptions::default()
     };
+    // Variance per transformed value, as `predict --variance` and the reports give it.
+    let scale = model.data_scale;
     let img = if args.thumbnails {
         let pred = predict::Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
             .with_context(|| format!("opening model {}", args.model.display()))?;
@@ -235,6 +238,7 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
         let needed = render::colour::needed_wavelengths(pred.channels(), opts.sphere.illuminant)?;
         let variance = |p: [f64; 2]| -> render::Result<f64> {
             pred.variance(&full(p))
+                .map(|v| v * scale)
                 .map_err(|e| render::Error::InvalidArgument {
                     reason: e.to_string(),
                 })
@@ -259,6 +263,7 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
             gp_core::GpRegression::new(model.latent_matrix().as_ref(), params, faer::Par::Seq)?;
         let variance = |p: [f64; 2]| -> render::Result<f64> {
             gp.variance(&full(p))
+                .map(|v| v * scale)
                 .map_err(|e| render::Error::InvalidArgument {
                     reason: e.to_string(),
                 })
