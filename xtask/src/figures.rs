@@ -51,9 +51,14 @@ pub fn mean_delta_e(a: &Image, b: &Image) -> f64 {
     if k == 0 { f64::NAN } else { sum / k as f64 }
 }
 
-fn label(img: &mut Image, x: usize, y: usize, width: usize, text: &str) {
-    let t = render::font::fit(text, width, 1);
-    img.text(x as i64, y as i64, &t, 1, INK);
+/// Height of one label line (7-pixel glyphs plus spacing).
+const LINE_H: usize = 9;
+
+/// Draws `text` wrapped into at most `lines` lines of `width` pixels at (x, y).
+fn label(img: &mut Image, x: usize, y: usize, width: usize, text: &str, lines: usize) {
+    for (k, line) in render::font::wrap(text, width, 1, lines).iter().enumerate() {
+        img.text(x as i64, (y + k * LINE_H) as i64, line, 1, INK);
+    }
 }
 
 fn err(path: &Path, e: impl std::fmt::Display) -> Error {
@@ -83,7 +88,8 @@ pub fn render_figures(
     let k = sheet_materials.min(n).max(1);
     let picks: Vec<usize> = (0..k).map(|j| j * n / k).collect();
     let cell = size + 8;
-    let label_h = 12;
+    // Names of up to three lines (long ones wrap at '_').
+    let label_h = 3 * LINE_H + 3;
     let mut sheet = Image::new(k * cell + 4, 2 * (cell + label_h) + 4, BG);
     let mut delta_e = Vec::new();
     let sheet_path = out.join("sheet.png");
@@ -100,10 +106,17 @@ pub fn render_figures(
         let de = mean_delta_e(&a, &b);
         let x = 4 + col * cell;
         sheet.blit(&a, x as i64, 4);
-        label(&mut sheet, x, 4 + size + 2, size, name);
+        label(&mut sheet, x, 4 + size + 2, size, name, 3);
         let y2 = 4 + cell + label_h;
         sheet.blit(&b, x as i64, y2 as i64);
-        label(&mut sheet, x, y2 + size + 2, size, &format!("dE {de:.2}"));
+        label(
+            &mut sheet,
+            x,
+            y2 + size + 2,
+            size,
+            &format!("dE {de:.2}"),
+            1,
+        );
         delta_e.push(SphereDeltaE {
             name: name.clone(),
             mean_delta_e: de,
@@ -134,9 +147,16 @@ pub fn render_figures(
             spheres += 1;
             let x = 4 + col * cell;
             img.blit(&s, x as i64, 4);
-            label(&mut img, x, 4 + size + 2, size, &p.label);
+            label(&mut img, x, 4 + size + 2, size, &p.label, 3);
             let coords: Vec<String> = p.point.iter().map(|v| format!("{v:.2}")).collect();
-            label(&mut img, x, 4 + size + 2 + label_h, size, &coords.join(","));
+            label(
+                &mut img,
+                x,
+                4 + size + 2 + label_h,
+                size,
+                &coords.join(", "),
+                3,
+            );
         }
         img.save_png(&path).map_err(|e| err(&path, e))?;
         files.push((

@@ -183,9 +183,56 @@ pub fn fit(text: &str, width: usize, scale: usize) -> String {
     text.chars().take(max).collect()
 }
 
+/// `text` broken into lines of at most `width` pixels at `scale`, at most `max_lines` of them:
+/// breaks go after `_`, `,`, `-` or a space where possible (a word longer than a line is cut),
+/// and a last line that cannot hold the rest is cut like [`fit`].
+pub fn wrap(text: &str, width: usize, scale: usize, max_lines: usize) -> Vec<String> {
+    let max = ((width / scale.max(1) + 1) / ADVANCE).max(1);
+    let chars: Vec<char> = text.chars().collect();
+    let mut lines = Vec::new();
+    let mut start = 0;
+    while start < chars.len() && lines.len() < max_lines.max(1) {
+        let rest = chars.len() - start;
+        let take = if rest <= max || lines.len() + 1 == max_lines.max(1) {
+            rest.min(max)
+        } else {
+            // The last break character within the line, else a hard cut.
+            (1..=max)
+                .rev()
+                .find(|&k| matches!(chars[start + k - 1], '_' | ',' | '-' | ' '))
+                .unwrap_or(max)
+        };
+        let line: String = chars[start..start + take].iter().collect();
+        lines.push(line.trim_end().to_owned());
+        start += take;
+        while start < chars.len() && chars[start] == ' ' {
+            start += 1;
+        }
+    }
+    lines
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn wrap_breaks_at_separators_and_keeps_lines_in_width() {
+        let w = text_width("ACRYLIC_FEL", 1);
+        assert_eq!(
+            wrap("acrylic_felt_green", w, 1, 3),
+            ["acrylic_", "felt_green"]
+        );
+        assert_eq!(wrap("mid(a, b)", 200, 1, 3), ["mid(a, b)"]);
+        // No break character: hard cuts; the line limit cuts the rest.
+        assert_eq!(
+            wrap("abcdefghij", text_width("abcd", 1), 1, 2),
+            ["abcd", "efgh"]
+        );
+        for line in wrap("carpaint_metallic_blue,0.12,-0.5", 60, 1, 9) {
+            assert!(text_width(&line, 1) <= 60, "{line}");
+        }
+    }
 
     #[test]
     fn glyphs_are_distinct_and_five_wide() {
