@@ -214,7 +214,16 @@ fn small_and_degenerate_datasets() {
     let mut bytes = std::fs::read(&bad).unwrap();
     bytes[4096..4100].copy_from_slice(&f32::NAN.to_le_bytes());
     std::fs::write(&bad, bytes).unwrap();
+    // `fit_store` verifies the payload checksum first; the Gram pass alone finds the NaN.
     let err = fit_store(&bad, &p).unwrap_err();
+    assert!(
+        matches!(
+            &err,
+            gplvm::Error::Store(brdf_io::Error::StoreChecksum { .. })
+        ),
+        "{err}"
+    );
+    let err = gplvm::gram_pass(&Store::open(&bad).unwrap(), p.transform).unwrap_err();
     assert!(
         matches!(&err, gplvm::Error::NonFiniteData { index: 0, .. }),
         "{err}"

@@ -522,8 +522,12 @@ fn select_materials(store: &Store, list: &str) -> anyhow::Result<Vec<usize>> {
     let mut i = 0;
     while i < pieces.len() {
         let found = (i..pieces.len()).find_map(|j| {
+            // The name as given (names may start or end with spaces), else trimmed.
             let name = pieces[i..=j].join(",");
-            store.material_index(name.trim()).ok().map(|r| (r, j))
+            let row = store
+                .material_index(&name)
+                .or_else(|_| store.material_index(name.trim()));
+            row.ok().map(|r| (r, j))
         });
         match found {
             Some((row, j)) => {
@@ -542,6 +546,8 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
     crate::paths::ensure_output_is_not_an_input(&args.out, &[&args.path])?;
     crate::paths::ensure_extension(&args.out, "npy", "an .npy array")?;
     let store = Store::open(&args.path)?;
+    // Export reads every value anyway: damaged data must not leave as numbers.
+    store.verify_checksum()?;
     let rows: Vec<usize> = match &args.materials {
         Some(list) => select_materials(&store, list)?,
         None => (0..store.n_materials()).collect(),

@@ -397,6 +397,27 @@ fn sample_writes_csv_to_stdout_with_a_dash() {
 /// SIGTERM (or SIGINT, SIGHUP) while an output is being written: exit status 130 and no
 /// `.NAME.XXXXXX.tmp` file left behind (a signal skips the destructors that delete it).
 #[cfg(unix)]
+/// A store damaged after it was written is refused by the commands that read all of it
+/// (`export`, `fit`) instead of leaving as wrong numbers or a model that records the checksum
+/// of other data; nothing is written.
+#[test]
+fn damaged_stores_are_refused_by_export_and_fit() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    synth_small(d, "400:700:100");
+    let mut bytes = std::fs::read(d.join("data.sbrdf")).unwrap();
+    bytes[4096 + 1001] ^= 0x40;
+    std::fs::write(d.join("data.sbrdf"), bytes).unwrap();
+    for (args, out) in [
+        (&["export", "data.sbrdf", "--out", "y.npy"][..], "y.npy"),
+        (&["fit", "data.sbrdf", "--out", "m.toml"], "m.toml"),
+    ] {
+        let e = specgp_fails(args, d);
+        assert!(e.contains("data.sbrdf") && e.contains("checksum"), "{e}");
+        assert!(!d.join(out).exists());
+    }
+}
+
 /// Runs the shell command `script` in `dir` with `$SPECGP` set to the binary: its status.
 #[cfg(unix)]
 fn shell(script: &str, dir: &Path) -> std::process::ExitStatus {

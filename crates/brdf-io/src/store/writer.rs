@@ -89,14 +89,20 @@ fn encode_chunk(
 ) -> Result<Vec<u8>> {
     let mut bytes = Vec::new();
     encode_values(values, dtype, &mut bytes);
+    // Every zstd frame carries its content checksum, so a damaged chunk is an error when it is
+    // read, not wrong numbers (a damaged frame could still decompress).
+    let compress = |data: &[u8], level: i32| -> Result<Vec<u8>> {
+        let io = |e| Error::io(path, e);
+        let mut c = zstd::bulk::Compressor::new(level).map_err(io)?;
+        c.set_parameter(zstd::stream::raw::CParameter::ChecksumFlag(true))
+            .map_err(io)?;
+        c.compress(data).map_err(io)
+    };
     match compression {
         Compression::None => Ok(bytes),
-        Compression::Zstd { level } => {
-            zstd::bulk::compress(&bytes, level).map_err(|e| Error::io(path, e))
-        }
+        Compression::Zstd { level } => compress(&bytes, level),
         Compression::ZstdShuffle { level } => {
-            zstd::bulk::compress(&super::shuffle(&bytes, dtype.size()), level)
-                .map_err(|e| Error::io(path, e))
+            compress(&super::shuffle(&bytes, dtype.size()), level)
         }
     }
 }
