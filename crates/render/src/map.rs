@@ -62,8 +62,8 @@ pub type LabelledPoint = (String, [f64; 2]);
 pub fn variance_caption(transform: &str, q: usize) -> String {
     let slice = match q {
         0..=2 => String::new(),
-        3 => "; SLICE X3 = 0".to_owned(),
-        _ => format!("; SLICE X3..X{q} = 0"),
+        3 => ", SLICE X3 = 0".to_owned(),
+        _ => format!(", SLICE X3..X{q} = 0"),
     };
     format!("VARIANCE PER TRANSFORMED VALUE, {transform}{slice}")
 }
@@ -445,9 +445,9 @@ mod tests {
         );
         assert_eq!(
             variance_caption("raw", 3),
-            "VARIANCE PER TRANSFORMED VALUE, raw; SLICE X3 = 0"
+            "VARIANCE PER TRANSFORMED VALUE, raw, SLICE X3 = 0"
         );
-        assert!(variance_caption("log(offset=0.01)", 5).ends_with("; SLICE X3..X5 = 0"));
+        assert!(variance_caption("log(offset=0.01)", 5).ends_with(", SLICE X3..X5 = 0"));
     }
 
     const BOUNDS: Rect = Rect {
