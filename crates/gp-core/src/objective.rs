@@ -565,11 +565,8 @@ impl<'a> FlatGplvm<'a> {
                     floor: self.noise_floor,
                 });
             }
-            v.push(if self.noise_floor == 0.0 {
-                lt[k + 1]
-            } else {
-                (mu - self.noise_floor).ln()
-            });
+            // With a floor of 0 this is `ln(mu)`, the same bits as `to_log_vec`'s entry.
+            v.push((mu - self.noise_floor).ln());
         }
         Ok(v)
     }
