@@ -141,8 +141,7 @@ pub fn with_existing_sidecar(pred: Predictor) -> anyhow::Result<Predictor> {
 
 /// Runs `specgp predict`.
 pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
-    let mut inputs = vec![args.model.as_path()];
-    inputs.extend(args.dataset.as_deref());
+    let inputs = crate::paths::model_inputs(&args.model, args.dataset.as_deref());
     crate::paths::ensure_output_is_not_an_input(&args.out, &inputs)?;
     let mut pred = Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
         .with_context(|| format!("opening model {}", args.model.display()))?;
@@ -275,8 +274,7 @@ fn write_spectral_merl(
 /// Runs `specgp evaluate`.
 pub fn evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
     if let Some(json) = &args.json {
-        let mut inputs = vec![args.model.as_path()];
-        inputs.extend(args.dataset.as_deref());
+        let inputs = crate::paths::model_inputs(&args.model, args.dataset.as_deref());
         crate::paths::ensure_output_is_not_an_input(json, &inputs)?;
     }
     let pred = Predictor::open_with_dataset(&args.model, args.dataset.as_deref())

@@ -190,8 +190,7 @@ pub struct MapArgs {
 /// thumbnails), predictive variance of the GP (`predict::Predictor::variance`), thumbnails of
 /// the exact predictor's materials (lazy, only the observer's wavelengths looked up).
 pub fn map(args: &MapArgs) -> anyhow::Result<()> {
-    let mut inputs = vec![args.model.as_path()];
-    inputs.extend(args.dataset.as_deref());
+    let inputs = crate::paths::model_inputs(&args.model, args.dataset.as_deref());
     crate::paths::ensure_output_is_not_an_input(&args.out, &inputs)?;
     crate::paths::ensure_extension(&args.out, "png", "a PNG image")?;
     let start = std::time::Instant::now();

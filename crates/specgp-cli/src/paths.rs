@@ -85,6 +85,12 @@ pub fn ensure_output_is_not_an_input(out: &Path, inputs: &[&Path]) -> anyhow::Re
     Ok(())
 }
 
+/// The inputs of a command that reads the model file `model` and, when given, its dataset
+/// from `dataset` (`--dataset`), for [`ensure_output_is_not_an_input`].
+pub fn model_inputs<'a>(model: &'a Path, dataset: Option<&'a Path>) -> Vec<&'a Path> {
+    std::iter::once(model).chain(dataset).collect()
+}
+
 /// The files a model file reads besides itself: its dataset store (resolved as
 /// `predict::Predictor::open` does) and the store's sidecar of forward-transformed values.
 /// Empty when `path` is not a readable model file.
