@@ -177,23 +177,27 @@ pub fn text_width(text: &str, scale: usize) -> usize {
     if n == 0 { 0 } else { (n * ADVANCE - 1) * scale }
 }
 
+/// How many characters fit in `width` pixels at `scale`.
+fn chars_in(width: usize, scale: usize) -> usize {
+    (width / scale.max(1) + 1) / ADVANCE
+}
+
 /// `text` cut to at most `width` pixels at `scale` (whole characters).
 pub fn fit(text: &str, width: usize, scale: usize) -> String {
-    let max = (width / scale.max(1) + 1) / ADVANCE;
-    text.chars().take(max).collect()
+    text.chars().take(chars_in(width, scale)).collect()
 }
 
 /// `text` broken into lines of at most `width` pixels at `scale`, at most `max_lines` of them:
 /// breaks go after `_`, `,`, `-` or a space where possible (a word longer than a line is cut),
 /// and a last line that cannot hold the rest is cut like [`fit`].
 pub fn wrap(text: &str, width: usize, scale: usize, max_lines: usize) -> Vec<String> {
-    let max = ((width / scale.max(1) + 1) / ADVANCE).max(1);
+    let (max, max_lines) = (chars_in(width, scale).max(1), max_lines.max(1));
     let chars: Vec<char> = text.chars().collect();
     let mut lines = Vec::new();
     let mut start = 0;
-    while start < chars.len() && lines.len() < max_lines.max(1) {
+    while start < chars.len() && lines.len() < max_lines {
         let rest = chars.len() - start;
-        let take = if rest <= max || lines.len() + 1 == max_lines.max(1) {
+        let take = if rest <= max || lines.len() + 1 == max_lines {
             rest.min(max)
         } else {
             // The last break character within the line, else a hard cut.
