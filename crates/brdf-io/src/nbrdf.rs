@@ -217,17 +217,10 @@ impl Nbrdf {
         grid: &AngularGrid,
         options: NbrdfOptions,
     ) -> Result<(Vec<f32>, ImportReport)> {
-        options.validate()?;
-        let (values, report) = resample_cells(
-            grid,
-            3,
-            Some(options.outlier_threshold),
-            options.clamp_outliers,
-            |wi, wo, out| {
-                out.copy_from_slice(&self.eval(wi, wo));
-                Ok(())
-            },
-        )?;
+        let (values, report) = resample_cells(grid, 3, options, |wi, wo, out| {
+            out.copy_from_slice(&self.eval(wi, wo));
+            Ok(())
+        })?;
         tracing::info!(material = %self.name, %grid, "resampled Neural-BRDF: {report}");
         Ok((values, report))
     }
@@ -314,6 +307,7 @@ mod tests {
             let options = NbrdfOptions {
                 outlier_threshold: t,
                 clamp_outliers: true,
+                ..NbrdfOptions::default()
             };
             let e = net.resample_with(&grid, options).unwrap_err();
             assert!(matches!(e, Error::InvalidArgument { .. }), "{e}");
@@ -327,6 +321,7 @@ mod tests {
         let options = NbrdfOptions {
             outlier_threshold: 0.5,
             clamp_outliers: true,
+            ..NbrdfOptions::default()
         };
         let (values, report) = net.resample_with(&grid, options).unwrap();
         assert_eq!(values.len(), 3 * grid.len());

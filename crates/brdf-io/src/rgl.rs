@@ -575,16 +575,11 @@ impl RglBsdf {
         channels: &Channels,
         options: ResampleOptions,
     ) -> Result<(Vec<f32>, ImportReport)> {
-        options.validate()?;
         let sel = ChannelSelection::new(&self.path, &self.native, channels)?;
         let n = sel.taps.len();
-        let (values, report) = resample_cells(
-            grid,
-            n,
-            Some(options.outlier_threshold),
-            options.clamp_outliers,
-            |wi, wo, out| self.eval_selection(&sel, wi, wo, out),
-        )?;
+        let (values, report) = resample_cells(grid, n, options, |wi, wo, out| {
+            self.eval_selection(&sel, wi, wo, out)
+        })?;
         tracing::info!(file = %self.path.display(), %grid, "resampled RGL BSDF: {report}");
         Ok((values, report))
     }
@@ -604,15 +599,13 @@ impl RglBsdf {
         first_cell: usize,
         out: &mut [f32],
     ) -> Result<ImportReport> {
-        options.validate()?;
         let sel = ChannelSelection::new(&self.path, &self.native, channels)?;
         resample_cells_into(
             grid,
             first_cell,
             out,
             sel.taps.len(),
-            Some(options.outlier_threshold),
-            options.clamp_outliers,
+            options,
             |wi, wo, o| self.eval_selection(&sel, wi, wo, o),
         )
     }

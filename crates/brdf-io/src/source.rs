@@ -65,13 +65,24 @@ pub fn check_output_len(out: &[f64], channels: usize) -> Result<()> {
 /// cos(theta_o) at grazing bin centres (up to ~3e7 1/sr on the MERL grid).
 pub const DEFAULT_OUTLIER_THRESHOLD: f64 = 1e4;
 
-/// How resampling treats extreme values.
+/// How resampling treats extreme values and sources that are not reciprocal.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ResampleOptions {
     /// Values above this (1/sr) are counted as outliers in the report.
     pub outlier_threshold: f64,
     /// Clamp outliers to the threshold (otherwise they are stored as computed).
     pub clamp_outliers: bool,
+    /// Store the reciprocal mean `(f(wi, wo) + f(wo, wi)) / 2` of each bin centre (default).
+    ///
+    /// The grid folds phi_d into [0, pi) by reciprocity, so every lookup of a pair and of its
+    /// swapped pair reads the same cell. Measured RGL files and Neural-BRDF networks are not
+    /// exactly reciprocal (the two orders differ by a few % at the median, by tens of % on some
+    /// glossy materials); storing one order would show the other order's pixels, on the far side
+    /// of the plane of incidence, a different material (a seam through the highlight). The mean
+    /// is the least-squares reciprocal fit; the report measures the part it removes
+    /// ([`ImportReport::non_reciprocity`]). `false` stores `f(wi, wo)` of the bin centre's own
+    /// direction pair ([`crate::HalfDiff::to_dirs`]) and costs half the evaluations.
+    pub reciprocal: bool,
 }
 
 impl ResampleOptions {
@@ -90,11 +101,12 @@ impl ResampleOptions {
 }
 
 impl Default for ResampleOptions {
-    /// Count values above [`DEFAULT_OUTLIER_THRESHOLD`], do not clamp.
+    /// Count values above [`DEFAULT_OUTLIER_THRESHOLD`], do not clamp, store reciprocal means.
     fn default() -> Self {
         Self {
             outlier_threshold: DEFAULT_OUTLIER_THRESHOLD,
             clamp_outliers: false,
+            reciprocal: true,
         }
     }
 }
@@ -121,6 +133,14 @@ pub struct ImportReport {
     pub min: f64,
     /// Largest stored value (after clamping), `-inf` when nothing was stored.
     pub max: f64,
+    /// Sum over stored values of the squared non-reciprocal part `((f(wi, wo) - f(wo, wi)) / 2)^2`
+    /// (0 unless [`ResampleOptions::reciprocal`] resampling measured it).
+    #[serde(default)]
+    pub non_reciprocal_sq: f64,
+    /// Sum over stored values of the squared reciprocal mean `((f(wi, wo) + f(wo, wi)) / 2)^2`
+    /// (0 unless [`ResampleOptions::reciprocal`] resampling measured it).
+    #[serde(default)]
+    pub reciprocal_sq: f64,
 }
 
 impl ImportReport {
@@ -174,8 +194,28 @@ impl ImportReport {
         Ok(())
     }
 
+    /// Records the two orders `a = f(wi, wo)`, `b = f(wo, wi)` of one value and returns their
+    /// mean (to pass to [`ImportReport::record`]); non-finite pairs are not measured.
+    pub fn record_pair(&mut self, a: f64, b: f64) -> f64 {
+        let (mean, half_diff) = (0.5 * (a + b), 0.5 * (a - b));
+        if mean.is_finite() && half_diff.is_finite() {
+            self.reciprocal_sq += mean * mean;
+            self.non_reciprocal_sq += half_diff * half_diff;
+        }
+        mean
+    }
+
+    /// The relative RMS size of the source's non-reciprocal part, `sqrt(sum h^2 / sum m^2)`
+    /// with `h`, `m` the half difference and the mean of the two orders of each value; `None`
+    /// when resampling did not measure it (or every value was 0).
+    pub fn non_reciprocity(&self) -> Option<f64> {
+        (self.reciprocal_sq > 0.0).then(|| (self.non_reciprocal_sq / self.reciprocal_sq).sqrt())
+    }
+
     /// Combines two reports (of disjoint parts of the same import).
     pub fn merge(mut self, other: &Self) -> Self {
+        self.non_reciprocal_sq += other.non_reciprocal_sq;
+        self.reciprocal_sq += other.reciprocal_sq;
         self.values += other.values;
         self.below_horizon_cells += other.below_horizon_cells;
         self.negatives_clamped += other.negatives_clamped;
@@ -202,25 +242,29 @@ impl std::fmt::Display for ImportReport {
             self.non_finite,
             self.outliers,
             self.outliers_clamped
-        )
+        )?;
+        match self.non_reciprocity() {
+            Some(r) => write!(f, ", non-reciprocal part {:.2} % (RMS)", 100.0 * r),
+            None => Ok(()),
+        }
     }
 }
 
 /// Resamples `eval` over every bin centre of `grid` in dataset order
 /// (`angular_index * n_channels + channel`), in parallel; cells whose bin-centre directions are
-/// not both above the horizon are 0.0. `eval(wi, wo, out)` fills one cell's channels.
+/// not both above the horizon are 0.0. `eval(wi, wo, out)` fills one cell's channels; with
+/// [`ResampleOptions::reciprocal`] a cell stores the mean of `eval(wi, wo)` and `eval(wo, wi)`.
 pub(crate) fn resample_cells<F>(
     grid: &crate::grid::AngularGrid,
     n_channels: usize,
-    outlier: Option<f64>,
-    clamp_outliers: bool,
+    options: ResampleOptions,
     eval: F,
 ) -> Result<(Vec<f32>, ImportReport)>
 where
     F: Fn(Vec3, Vec3, &mut [f64]) -> Result<()> + Sync,
 {
     let mut out = vec![0f32; grid.len() * n_channels];
-    let report = resample_cells_into(grid, 0, &mut out, n_channels, outlier, clamp_outliers, eval)?;
+    let report = resample_cells_into(grid, 0, &mut out, n_channels, options, eval)?;
     Ok((out, report))
 }
 
@@ -231,14 +275,14 @@ pub(crate) fn resample_cells_into<F>(
     first_cell: usize,
     out: &mut [f32],
     n_channels: usize,
-    outlier: Option<f64>,
-    clamp_outliers: bool,
+    options: ResampleOptions,
     eval: F,
 ) -> Result<ImportReport>
 where
     F: Fn(Vec3, Vec3, &mut [f64]) -> Result<()> + Sync,
 {
     use rayon::prelude::*;
+    options.validate()?;
     if n_channels == 0
         || !out.len().is_multiple_of(n_channels)
         || first_cell + out.len() / n_channels > grid.len()
@@ -250,6 +294,7 @@ where
             ),
         });
     }
+    let outlier = Some(options.outlier_threshold);
     // Chunks of whole theta_h rows keep the per-task overhead small.
     let cells_per_chunk = (grid.n_theta_d * grid.n_phi_d).max(1);
     out.par_chunks_mut(cells_per_chunk * n_channels)
@@ -257,6 +302,7 @@ where
         .map(|(chunk, values)| -> Result<ImportReport> {
             let mut report = ImportReport::new();
             let mut buf = vec![0f64; n_channels];
+            let mut swapped = vec![0f64; n_channels];
             for (k, cell) in values.chunks_mut(n_channels).enumerate() {
                 let flat = first_cell + chunk * cells_per_chunk + k;
                 let (wi, wo) = grid.bin_centre_flat(flat).to_dirs();
@@ -266,8 +312,14 @@ where
                     continue;
                 }
                 eval(wi, wo, &mut buf)?;
+                if options.reciprocal {
+                    eval(wo, wi, &mut swapped)?;
+                    for (a, &b) in buf.iter_mut().zip(&swapped) {
+                        *a = report.record_pair(*a, b);
+                    }
+                }
                 for (o, &v) in cell.iter_mut().zip(&buf) {
-                    *o = report.record(v, outlier, clamp_outliers) as f32;
+                    *o = report.record(v, outlier, options.clamp_outliers) as f32;
                 }
             }
             Ok(report)
@@ -305,5 +357,67 @@ mod tests {
         let mut ok = ImportReport::new();
         ok.record(1.0, None, false);
         assert!(ok.ensure_finite("net").is_ok());
+    }
+
+    /// A source that is not reciprocal (its value depends on which direction is incident):
+    /// reciprocal resampling stores the mean of both orders and measures the removed part;
+    /// one-order resampling stores f of the bin centre's own pair.
+    #[test]
+    fn reciprocal_resampling_stores_the_mean_of_both_orders() {
+        let grid = crate::grid::AngularGrid::new(5, 6, 8).unwrap();
+        let f = |wi: Vec3, wo: Vec3| [1.0 + 0.5 * wi[2] - 0.2 * wo[2], 2.0 + wi[0] * wo[1]];
+        let eval = |wi: Vec3, wo: Vec3, out: &mut [f64]| {
+            out.copy_from_slice(&f(wi, wo));
+            Ok(())
+        };
+        let both = ResampleOptions::default();
+        assert!(both.reciprocal);
+        let one = ResampleOptions {
+            reciprocal: false,
+            ..both
+        };
+        let (mean, report) = resample_cells(&grid, 2, both, eval).unwrap();
+        let (plain, plain_report) = resample_cells(&grid, 2, one, eval).unwrap();
+        let (mut diff_sq, mut mean_sq, mut differs) = (0.0, 0.0, 0);
+        for a in 0..grid.len() {
+            let (wi, wo) = grid.bin_centre_flat(a).to_dirs();
+            if !(wi[2] > 0.0 && wo[2] > 0.0) {
+                assert_eq!(&mean[2 * a..2 * a + 2], [0.0, 0.0]);
+                continue;
+            }
+            let (x, y) = (f(wi, wo), f(wo, wi));
+            for c in 0..2 {
+                let m = 0.5 * (x[c] + y[c]);
+                assert!(
+                    (f64::from(mean[2 * a + c]) - m).abs() <= 1e-6 * m.abs(),
+                    "{a}"
+                );
+                assert!((f64::from(plain[2 * a + c]) - x[c]).abs() <= 1e-6 * x[c].abs());
+                diff_sq += 0.25 * (x[c] - y[c]).powi(2);
+                mean_sq += m * m;
+                differs += usize::from((x[c] - y[c]).abs() > 1e-3);
+            }
+        }
+        assert!(differs > 50, "the test source must not be reciprocal");
+        let r = report.non_reciprocity().unwrap();
+        assert!(
+            r > 0.01 && (r - (diff_sq / mean_sq).sqrt()).abs() < 1e-12 * r,
+            "{r}"
+        );
+        assert!(
+            report.to_string().contains("non-reciprocal part"),
+            "{report}"
+        );
+        assert_eq!(plain_report.non_reciprocity(), None);
+        assert_eq!(report.values, plain_report.values);
+        // A reciprocal source is stored as it is.
+        let sym = |wi: Vec3, wo: Vec3, out: &mut [f64]| {
+            out[0] = 1.0 + wi[2] * wo[2];
+            Ok(())
+        };
+        let (a, ra) = resample_cells(&grid, 1, both, sym).unwrap();
+        let (b, _) = resample_cells(&grid, 1, one, sym).unwrap();
+        assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() <= 1e-6 * y));
+        assert!(ra.non_reciprocity().unwrap() < 1e-12);
     }
 }

@@ -111,6 +111,11 @@ struct NbrdfArgs {
     /// Clamp outliers to `--outlier-threshold` (otherwise they are stored as computed).
     #[arg(long)]
     clamp: bool,
+    /// Store f(wi, wo) of each bin centre's own direction pair instead of the reciprocal mean
+    /// of both orders, (f(wi, wo) + f(wo, wi)) / 2 (half the evaluations; the source's
+    /// non-reciprocal part then shows as a seam along the plane of incidence in renders).
+    #[arg(long)]
+    no_reciprocal: bool,
     #[command(flatten)]
     store: StoreOut,
 }
@@ -125,6 +130,11 @@ struct RglArgs {
     /// first file's own channels.
     #[arg(long)]
     wavelengths: Option<String>,
+    /// Store f(wi, wo) of each bin centre's own direction pair instead of the reciprocal mean
+    /// of both orders, (f(wi, wo) + f(wo, wi)) / 2 (half the evaluations; the source's
+    /// non-reciprocal part then shows as a seam along the plane of incidence in renders).
+    #[arg(long)]
+    no_reciprocal: bool,
     #[command(flatten)]
     store: StoreOut,
 }
@@ -274,6 +284,7 @@ fn import_nbrdf(args: &NbrdfArgs) -> anyhow::Result<()> {
     let options = NbrdfOptions {
         outlier_threshold: args.outlier_threshold,
         clamp_outliers: args.clamp,
+        reciprocal: !args.no_reciprocal,
     };
     import_each(
         &args.store,
@@ -292,6 +303,10 @@ fn import_nbrdf(args: &NbrdfArgs) -> anyhow::Result<()> {
 fn import_rgl(args: &RglArgs) -> anyhow::Result<()> {
     use brdf_io::rgl::RglBsdf;
     ensure_unique_names(&file_names(&args.files))?;
+    let options = brdf_io::source::ResampleOptions {
+        reciprocal: !args.no_reciprocal,
+        ..Default::default()
+    };
     let channels = match &args.wavelengths {
         Some(spec) => Channels::parse_wavelengths(spec)?,
         None => RglBsdf::open(&args.files[0])?.native_channels().clone(),
@@ -304,7 +319,7 @@ fn import_rgl(args: &RglArgs) -> anyhow::Result<()> {
         |i| {
             let file = &args.files[i];
             let (values, report) = RglBsdf::open(file)?
-                .resample(&args.store.grid, &channels)
+                .resample_with(&args.store.grid, &channels, options)
                 .with_context(|| format!("resampling {}", file.display()))?;
             Ok((stem(file), file.display().to_string(), values, report))
         },
