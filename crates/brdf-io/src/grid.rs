@@ -61,6 +61,20 @@ impl HalfDiff {
     /// Returns `None` when the half vector is undefined (wi = -wo) or a vector is not finite.
     /// The inputs need not be normalised.
     pub fn from_dirs(wi: Vec3, wo: Vec3) -> Option<Self> {
+        let mut hd = Self::from_dirs_merl(wi, wo)?;
+        if hd.phi_d >= PI {
+            hd.phi_d -= PI;
+        }
+        Some(hd)
+    }
+
+    /// As [`HalfDiff::from_dirs`] with MERL's own fold (`BRDFRead.cpp`'s `phi_diff_index`):
+    /// a negative phi_d gains pi, and phi_d = pi exactly (in-plane pairs, for instance, whose
+    /// difference vector lies on the negative x axis) stays pi, so it lands in the last phi_d
+    /// bin rather than the first. The two bins border phi_d = 0 = pi from either side and are
+    /// equal for reciprocal data; MERL lookups ([`crate::merl::MerlBrdf`]) use this to read the
+    /// reference reader's cell.
+    pub fn from_dirs_merl(wi: Vec3, wo: Vec3) -> Option<Self> {
         let wi = normalize(wi)?;
         let wo = normalize(wo)?;
         let h = normalize([wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]])?;
@@ -82,9 +96,6 @@ impl HalfDiff {
         let mut phi_d = d[1].atan2(d[0]);
         if phi_d < 0.0 {
             phi_d += PI;
-        }
-        if phi_d >= PI {
-            phi_d -= PI;
         }
         Some(Self {
             theta_h,

@@ -181,10 +181,14 @@ impl BrdfSource for MerlBrdf {
         if !(wi[2] > 0.0 && wo[2] > 0.0) || len(wi) == 0.0 || len(wo) == 0.0 {
             return Ok(());
         }
-        let Some(hd) = HalfDiff::from_dirs(wi, wo) else {
+        let Some(hd) = HalfDiff::from_dirs_merl(wi, wo) else {
             return Ok(());
         };
-        let (i, j, k) = self.grid.locate(&hd);
+        let (i, j, mut k) = self.grid.locate(&hd);
+        if hd.phi_d >= std::f64::consts::PI {
+            // `BRDFRead.cpp` clamps phi_d = pi into the last bin (`locate` folds it to 0).
+            k = self.grid.n_phi_d - 1;
+        }
         let flat = self.grid.index(i, j, k);
         for (c, o) in out.iter_mut().enumerate() {
             *o = self.value(c, flat).max(0.0);
@@ -340,6 +344,7 @@ pub fn write_merl(path: impl AsRef<Path>, brdf: &MerlBrdf) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::f64::consts::PI;
 
     #[test]
     fn non_finite_values_are_refused_with_their_merl_index() {
@@ -385,6 +390,51 @@ mod tests {
             })
             .collect();
         MerlBrdf::new(grid, values).unwrap()
+    }
+
+    /// `BRDFRead.cpp` reads phi_d = pi (in-plane pairs whose difference vector points along
+    /// -x; normal incidence) from the last phi_d bin, and phi_d just above 0 from the first.
+    #[test]
+    fn lookups_at_phi_d_pi_read_the_reference_readers_last_bin() {
+        let grid = AngularGrid::new(9, 9, 18).unwrap();
+        // Each cell's value is its flat index (channel 0).
+        let n = grid.len();
+        let values = (0..3 * n).map(|i| (i % n) as f64).collect();
+        let brdf = MerlBrdf::new(grid, values).unwrap();
+        let read = |wi: Vec3, wo: Vec3| {
+            let mut out = [0.0; 3];
+            brdf.eval(wi, wo, &mut out).unwrap();
+            out[0].round() as usize
+        };
+        // In-plane directions (y = 0 exactly) at signed polar angles.
+        let dir = |t: f64| [t.sin(), 0.0, t.cos()];
+        let mut at_pi = 0;
+        for (a, b) in [
+            (0.3, -0.7),
+            (-0.5, 0.1),
+            (0.0, 0.4),
+            (0.0, -0.4),
+            (0.6, 0.2),
+            (-0.6, -0.2),
+        ] {
+            let (wi, wo) = (dir(a), dir(b));
+            let hd = HalfDiff::from_dirs_merl(wi, wo).unwrap();
+            let folded = HalfDiff::from_dirs(wi, wo).unwrap();
+            let (i, j, k) = grid.locate(&folded);
+            let want = if hd.phi_d == PI {
+                at_pi += 1;
+                assert_eq!(
+                    (folded.phi_d, k),
+                    (0.0, 0),
+                    "folded, it sits in the first bin"
+                );
+                grid.index(i, j, grid.n_phi_d - 1)
+            } else {
+                grid.index(i, j, k)
+            };
+            assert_eq!(read(wi, wo), want, "{wi:?} {wo:?}: {hd:?}");
+        }
+        assert!(at_pi >= 1, "none of the in-plane pairs has phi_d = pi");
     }
 
     #[test]
