@@ -283,6 +283,60 @@ fn f16_store_within_half_precision() {
     }
 }
 
+/// f16 statistics describe the stored values, and inputs too small for f16 are counted (they
+/// used to vanish silently, the header describing the f32 input), in both write modes.
+#[test]
+fn f16_statistics_describe_stored_values_and_count_flushed_inputs() {
+    let info = info(3, 3, 6, Channels::Rgb);
+    let mask = info.grid.validity_mask();
+    // Valid values cycle through 1e-9 (below f16's smallest subnormal, 6e-8: stored as 0),
+    // 0.1 (rounded to 0.0999755859375) and 1.0.
+    let cycle = [1e-9f32, 0.1, 1.0];
+    let row: Vec<f32> = (0..info.d())
+        .map(|d| if mask[d / 3] { cycle[d % 3] } else { 0.0 })
+        .collect();
+    let valid = (0..info.d()).filter(|d| mask[d / 3]).count() as u64;
+    let tiny = (0..info.d()).filter(|&d| mask[d / 3] && d % 3 == 0).count() as u64;
+    let t = dir();
+    for dtype in [Dtype::F16, Dtype::F32] {
+        let opts = StoreOptions {
+            dtype,
+            ..Default::default()
+        };
+        let a = t.path().join(format!("{}-materials.sbrdf", dtype.name()));
+        let ha = write_materials(&a, &info, std::slice::from_ref(&row), opts.clone(), 7).unwrap();
+        let b = t.path().join(format!("{}-blocks.sbrdf", dtype.name()));
+        let mut w = StoreWriter::create(&b, info.clone(), opts).unwrap();
+        w.declare_materials(&[("mat0", "test:0")]).unwrap();
+        w.write_block(0..info.d(), &row).unwrap();
+        let hb = w.finish().unwrap();
+        for h in [&ha, &hb] {
+            let s = &h.materials[0].stats;
+            assert_eq!(s.count, valid);
+            let (flushed, min) = match dtype {
+                Dtype::F16 => (tiny, 0.0),
+                Dtype::F32 => (0, f64::from(1e-9f32)),
+            };
+            assert_eq!((s.flushed_to_zero, s.min, s.max), (flushed, min, 1.0));
+            assert_eq!(h.stats.flushed_to_zero, flushed);
+            // The sum of squares is that of the stored values (the rounded 0.1 in f16).
+            let tenth = f64::from(dtype.round(0.1));
+            let n = (valid - tiny) as f64 / 2.0;
+            let tiny_sq = if dtype == Dtype::F32 {
+                1e-18 * tiny as f64
+            } else {
+                0.0
+            };
+            let want = n * (tenth * tenth + 1.0) + tiny_sq;
+            assert!((s.sum_sq - want).abs() < 1e-9 * want, "{} {want}", s.sum_sq);
+        }
+        let stored = read_all(&Store::open(&a).unwrap());
+        let zeros = stored[0].iter().filter(|v| **v == 0.0).count() as u64;
+        let invalid = info.d() as u64 - valid;
+        assert_eq!(zeros - invalid, if dtype == Dtype::F16 { tiny } else { 0 });
+    }
+}
+
 #[test]
 fn material_sampling_interpolates_on_the_grid() {
     // A material linear in the continuous theta_d coordinate is reproduced exactly between

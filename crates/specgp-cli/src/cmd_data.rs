@@ -363,8 +363,12 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
         out!("file           {}", args.path.display())?;
         out!("materials      {}", h.n_materials())?;
         for m in &h.materials {
+            let flushed = match m.stats.flushed_to_zero {
+                0 => String::new(),
+                n => format!("  flushed to 0 by {} {n}", h.layout.dtype.name()),
+            };
             out!(
-                "  {:<24} mean {:.4e}  min {:.4e}  max {:.4e}  negatives {}  from {}",
+                "  {:<24} mean {:.4e}  min {:.4e}  max {:.4e}  negatives {}{flushed}  from {}",
                 m.name,
                 m.stats.mean,
                 m.stats.min,

@@ -100,6 +100,14 @@ impl Dtype {
         }
     }
 
+    /// `v` as this type stores it (f16: rounded to nearest, magnitudes below 2^-25 become 0).
+    pub fn round(self, v: f32) -> f32 {
+        match self {
+            Self::F32 => v,
+            Self::F16 => half::f16::from_f32(v).to_f32(),
+        }
+    }
+
     /// The name used in headers and on the command line (`f32`, `f16`).
     pub fn name(self) -> &'static str {
         match self {
@@ -259,6 +267,10 @@ pub struct ValueStats {
     pub negatives: u64,
     /// Number of non-zero below-horizon inputs the writer replaced by 0.
     pub zeroed_below_horizon: u64,
+    /// Number of non-zero valid inputs the storage type rounded to 0 (f16: magnitudes below
+    /// 2^-25 ~ 3e-8). The other statistics describe the values as stored.
+    #[serde(default)]
+    pub flushed_to_zero: u64,
 }
 
 impl Default for ValueStats {
@@ -271,6 +283,7 @@ impl Default for ValueStats {
             sum_sq: 0.0,
             negatives: 0,
             zeroed_below_horizon: 0,
+            flushed_to_zero: 0,
         }
     }
 }
@@ -288,6 +301,7 @@ impl ValueStats {
         self.sum_sq += o.sum_sq;
         self.negatives += o.negatives;
         self.zeroed_below_horizon += o.zeroed_below_horizon;
+        self.flushed_to_zero += o.flushed_to_zero;
     }
 
     pub(crate) fn finalize(mut self) -> Self {

@@ -478,7 +478,7 @@ impl StoreWriter {
                 if let Some(e) = self.check_range(m, di, v, valid) {
                     return self.fail(e);
                 }
-                accumulate(&mut stats[m], &mut sums[m], v, valid);
+                accumulate(&mut stats[m], &mut sums[m], v, valid, self.options.dtype);
             }
         }
         for (m, (s, sum)) in stats.into_iter().zip(sums).enumerate() {
@@ -571,6 +571,16 @@ impl StoreWriter {
         for m in &mut this.materials {
             m.stats = m.stats.clone().finalize();
             stats.merge(&m.stats);
+            if m.stats.flushed_to_zero > 0 {
+                tracing::warn!(
+                    store = %this.path.display(),
+                    material = %m.name,
+                    "{} of {} values are below the {} range and were stored as 0",
+                    m.stats.flushed_to_zero,
+                    m.stats.count,
+                    this.options.dtype.name()
+                );
+            }
         }
         let header = StoreHeader {
             format: "specgp-sbrdf".into(),
@@ -673,14 +683,19 @@ impl StoreWriter {
     }
 }
 
-fn accumulate(s: &mut ValueStats, sum: &mut f64, v: f32, valid: bool) {
+/// Adds input `v` to the statistics of the values as `dtype` stores them.
+fn accumulate(s: &mut ValueStats, sum: &mut f64, v: f32, valid: bool, dtype: Dtype) {
     if !valid {
         if v != 0.0 {
             s.zeroed_below_horizon += 1;
         }
         return;
     }
-    let x = f64::from(v);
+    let stored = dtype.round(v);
+    if stored == 0.0 && v != 0.0 {
+        s.flushed_to_zero += 1;
+    }
+    let x = f64::from(stored);
     s.count += 1;
     s.min = s.min.min(x);
     s.max = s.max.max(x);
@@ -731,7 +746,7 @@ impl MaterialWriter<'_> {
             if let Some(e) = w.check_range(self.index, di, v, valid) {
                 return w.fail(e);
             }
-            accumulate(&mut stats, &mut sum, v, valid);
+            accumulate(&mut stats, &mut sum, v, valid, w.options.dtype);
             let v = if valid { v } else { 0.0 };
             self.buf.extend_from_slice(&v.to_le_bytes());
         }
