@@ -84,6 +84,45 @@ impl MerlBrdf {
         Ok(Self { grid, values: out })
     }
 
+    /// A MERL BRDF on MERL's own 90 x 90 x 180 grid ([`AngularGrid::MERL`], the only one the
+    /// reference reader `BRDFRead.cpp` accepts) from dataset-order RGB values on `grid`: each
+    /// MERL cell holds the values interpolated at its bin centre with `grid`'s lookup
+    /// interpolation ([`AngularGrid::interpolation_stencil`], what every specgp lookup of the
+    /// values reads), cells below the horizon 0; negative values become 0 as in
+    /// [`MerlBrdf::from_dataset_order`]. On MERL's grid this is `from_dataset_order` itself.
+    pub fn on_merl_grid(grid: AngularGrid, values: &[f32]) -> Result<Self> {
+        if grid == AngularGrid::MERL {
+            return Self::from_dataset_order(grid, values);
+        }
+        if values.len() != 3 * grid.len() {
+            return Err(Error::InvalidArgument {
+                reason: format!(
+                    "dataset-order RGB values on grid {grid} need {} values, got {}",
+                    3 * grid.len(),
+                    values.len()
+                ),
+            });
+        }
+        check_finite(values, |i| (i % 3) * grid.len() + i / 3)?;
+        use rayon::prelude::*;
+        let merl = AngularGrid::MERL;
+        let mut rgb = vec![0f32; 3 * merl.len()];
+        rgb.par_chunks_mut(3).enumerate().for_each(|(flat, out)| {
+            let hd = merl.bin_centre_flat(flat);
+            if !hd.is_above_horizon() {
+                return;
+            }
+            let mut acc = [0.0f64; 3];
+            for (a, w) in grid.interpolation_stencil(&hd) {
+                if w != 0.0 {
+                    (0..3).for_each(|c| acc[c] += w * f64::from(values[3 * a + c]));
+                }
+            }
+            (0..3).for_each(|c| out[c] = acc[c] as f32);
+        });
+        Self::from_dataset_order(merl, &rgb)
+    }
+
     /// The grid of the file.
     pub fn grid(&self) -> &AngularGrid {
         &self.grid
@@ -435,6 +474,56 @@ mod tests {
             assert_eq!(read(wi, wo), want, "{wi:?} {wo:?}: {hd:?}");
         }
         assert!(at_pi >= 1, "none of the in-plane pairs has phi_d = pi");
+    }
+
+    /// Values on another grid reach MERL's grid through the lookup interpolation: a constant
+    /// stays constant above the horizon, and every MERL cell equals the coarse grid's
+    /// interpolation at its bin centre.
+    #[test]
+    fn values_on_another_grid_are_interpolated_onto_merls_grid() {
+        let coarse = AngularGrid::new(4, 5, 6).unwrap();
+        let constant: Vec<f32> = (0..3 * coarse.len())
+            .map(|i| [0.5, 1.0, 2.0][i % 3])
+            .collect();
+        let m = MerlBrdf::on_merl_grid(coarse, &constant).unwrap();
+        let merl = AngularGrid::MERL;
+        assert_eq!(m.grid(), &merl);
+        for flat in (0..merl.len()).step_by(101) {
+            let want = if merl.bin_centre_flat(flat).is_above_horizon() {
+                [0.5, 1.0, 2.0]
+            } else {
+                [0.0; 3]
+            };
+            for c in 0..3 {
+                assert!((m.value(c, flat) - want[c]).abs() < 1e-6, "{flat} {c}");
+            }
+        }
+        let varied: Vec<f32> = (0..3 * coarse.len())
+            .map(|i| (i * 37 % 101) as f32 / 10.0)
+            .collect();
+        let m = MerlBrdf::on_merl_grid(coarse, &varied).unwrap();
+        for flat in (0..merl.len()).step_by(997) {
+            let hd = merl.bin_centre_flat(flat);
+            if !hd.is_above_horizon() {
+                continue;
+            }
+            for c in 0..3 {
+                let want: f64 = coarse
+                    .interpolation_stencil(&hd)
+                    .iter()
+                    .map(|&(a, w)| w * f64::from(varied[3 * a + c]))
+                    .sum();
+                assert!(
+                    (m.value(c, flat) - want).abs() <= 1e-5 * want.max(1.0),
+                    "{flat}"
+                );
+            }
+        }
+        // On MERL's grid the values are kept as they are.
+        let small: Vec<f32> = vec![0.25; 3 * merl.len()];
+        let same = MerlBrdf::on_merl_grid(merl, &small).unwrap();
+        assert_eq!(same, MerlBrdf::from_dataset_order(merl, &small).unwrap());
+        assert!(MerlBrdf::on_merl_grid(coarse, &varied[1..]).is_err());
     }
 
     #[test]

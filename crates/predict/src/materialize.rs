@@ -49,7 +49,7 @@ pub struct MaterializeReport {
     pub path: PathBuf,
     /// Its format.
     pub format: OutputFormat,
-    /// Values written (cells x output channels).
+    /// Values written (cells x output channels; MERL files: on MERL's grid).
     pub values: usize,
     /// Size of the file in bytes.
     pub bytes: u64,
@@ -138,7 +138,9 @@ impl PredictedMaterial {
     ///
     /// MERL `.binary` output needs RGB channels here (clear error for spectral data; the CLI
     /// converts spectral predictions to sRGB with `render::ColourPipeline` and
-    /// [`stream_values`](Self::stream_values)).
+    /// [`stream_values`](Self::stream_values)); it is always on MERL's 90 x 90 x 180 grid, the
+    /// only one MERL readers accept (values of another grid are interpolated onto it,
+    /// [`brdf_io::merl::MerlBrdf::on_merl_grid`]), and the report counts the file's values.
     pub fn materialize(
         &self,
         path: &Path,
@@ -148,6 +150,7 @@ impl PredictedMaterial {
         let format = OutputFormat::from_path(path)?;
         let total = self.output_len();
         let grid = *self.predictor().grid();
+        let mut values = total;
         match format {
             OutputFormat::Npy => {
                 let mut w = NpyWriter::create(path, NpyDtype::F32, &[1, total])?;
@@ -189,8 +192,9 @@ impl PredictedMaterial {
                     },
                     progress,
                 )?;
-                let merl = brdf_io::merl::MerlBrdf::from_dataset_order(grid, &all)?;
+                let merl = brdf_io::merl::MerlBrdf::on_merl_grid(grid, &all)?;
                 brdf_io::merl::write_merl(path, &merl)?;
+                values = merl.values().len();
             }
         }
         let bytes = std::fs::metadata(path)
@@ -202,7 +206,7 @@ impl PredictedMaterial {
         Ok(MaterializeReport {
             path: path.to_owned(),
             format,
-            values: total,
+            values,
             bytes,
             seconds: start.elapsed().as_secs_f64(),
         })

@@ -230,7 +230,7 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
 
 /// Streams a spectral prediction, converts every cell to linear sRGB (CIE 1931 2-degree
 /// observer under D65, white diffuser -> Y = 1; `render::ColourPipeline`, DESIGN.md section 6)
-/// and writes a MERL `.binary` file (values in 1/sr).
+/// and writes a MERL `.binary` file (values in 1/sr) on MERL's own grid.
 fn write_spectral_merl(
     material: &PredictedMaterial,
     out: &Path,
@@ -260,12 +260,12 @@ fn write_spectral_merl(
         },
         |done, _| pb.set_position(done as u64),
     )?;
-    let merl = brdf_io::merl::MerlBrdf::from_dataset_order(grid, &rgb)?;
+    let merl = brdf_io::merl::MerlBrdf::on_merl_grid(grid, &rgb)?;
     brdf_io::merl::write_merl(out, &merl)?;
     Ok(predict::MaterializeReport {
         path: out.to_owned(),
         format: predict::OutputFormat::Merl,
-        values: rgb.len(),
+        values: merl.values().len(),
         bytes: std::fs::metadata(out)?.len(),
         seconds: start.elapsed().as_secs_f64(),
     })

@@ -642,3 +642,75 @@ fn interrupted_run_removes_its_temporary_output() {
     assert_eq!(temporaries(), Vec::<String>::new());
     assert!(!dir.path().join("data.sbrdf").exists());
 }
+
+/// `predict --out x.binary` writes a standard MERL file (90 x 90 x 180, what `BRDFRead.cpp`
+/// accepts) from a model on another grid, and `sample` reads it.
+#[test]
+fn merl_output_of_a_coarse_model_is_on_merls_grid() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    synth_small(d, "400:700:50");
+    specgp(
+        &["fit", "data.sbrdf", "--out", "m.toml", "--latent-dim", "2"],
+        d,
+    );
+    let out = run(
+        &["predict", "m.toml", "--at", "0,0", "--out", "x.binary"],
+        d,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        said.contains(&format!("{} values", 3 * 90 * 90 * 180)),
+        "{said}"
+    );
+    let merl = brdf_io::merl::read_merl(d.join("x.binary")).unwrap();
+    assert_eq!(merl.grid(), &AngularGrid::MERL);
+    let bytes = std::fs::metadata(d.join("x.binary")).unwrap().len();
+    assert_eq!(bytes, 12 + 24 * 90 * 90 * 180);
+    let above: Vec<usize> = (0..AngularGrid::MERL.len())
+        .filter(|&a| AngularGrid::MERL.bin_centre_flat(a).is_above_horizon())
+        .collect();
+    // Every MERL cell above the horizon holds a colour, except those whose interpolation reads
+    // only coarse cells below the horizon (they hold 0 in the dataset). (Single channels may be
+    // 0: out-of-gamut colours are clamped.)
+    let coarse = AngularGrid::new(8, 8, 16).unwrap();
+    let black: Vec<usize> = above
+        .iter()
+        .copied()
+        .filter(|&a| (0..3).all(|c| merl.value(c, a) <= 0.0))
+        .collect();
+    let unseen: Vec<usize> = above
+        .iter()
+        .copied()
+        .filter(|&a| {
+            coarse
+                .interpolation_stencil(&AngularGrid::MERL.bin_centre_flat(a))
+                .iter()
+                .all(|&(c, w)| w == 0.0 || !coarse.bin_centre_flat(c).is_above_horizon())
+        })
+        .collect();
+    assert_eq!(black, unseen);
+    assert!(
+        black.len() * 1000 < above.len(),
+        "{} black cells",
+        black.len()
+    );
+    std::fs::write(d.join("dirs.csv"), "0.3,0,0.954,-0.3,0,0.954\n").unwrap();
+    let csv = specgp(
+        &["sample", "x.binary", "--dirs", "dirs.csv", "--out", "-"],
+        d,
+    );
+    let row: Vec<f64> = csv
+        .lines()
+        .nth(1)
+        .unwrap()
+        .split(',')
+        .map(|v| v.parse().unwrap())
+        .collect();
+    assert!(row.len() == 3 && row.iter().all(|v| *v > 0.0), "{csv}");
+}
