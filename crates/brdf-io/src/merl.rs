@@ -494,8 +494,8 @@ mod tests {
             } else {
                 [0.0; 3]
             };
-            for c in 0..3 {
-                assert!((m.value(c, flat) - want[c]).abs() < 1e-6, "{flat} {c}");
+            for (c, w) in want.iter().enumerate() {
+                assert!((m.value(c, flat) - w).abs() < 1e-6, "{flat} {c}");
             }
         }
         let varied: Vec<f32> = (0..3 * coarse.len())
