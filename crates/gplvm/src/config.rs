@@ -27,7 +27,9 @@ impl std::str::FromStr for OptimizerKind {
             "hooke-jeeves" => Ok(Self::HookeJeeves),
             "lbfgs" => Ok(Self::Lbfgs),
             other => Err(Error::InvalidConfig {
-                reason: format!("unknown optimizer {other:?}: expected hooke-jeeves or lbfgs"),
+                field: "optimizer",
+                value: format!("{other:?}"),
+                expected: "hooke-jeeves or lbfgs".into(),
             }),
         }
     }
@@ -170,18 +172,22 @@ impl FitParams {
 
     /// Validates every value.
     pub fn check(self) -> Result<FitConfig> {
-        let bad = |reason: String| Err(Error::InvalidConfig { reason });
+        let bad = |field: &'static str, value: &dyn std::fmt::Display, expected: String| {
+            Err(Error::InvalidConfig {
+                field,
+                value: value.to_string(),
+                expected,
+            })
+        };
         if self.latent_dim == 0 || self.latent_dim > 64 {
-            return bad(format!(
-                "latent_dim must be in 1..=64, got {}",
-                self.latent_dim
-            ));
+            return bad("latent_dim", &self.latent_dim, "in 1..=64".into());
         }
         if self.restarts > MAX_RESTARTS {
-            return bad(format!(
-                "restarts must be at most {MAX_RESTARTS}, got {}",
-                self.restarts
-            ));
+            return bad(
+                "restarts",
+                &self.restarts,
+                format!("at most {MAX_RESTARTS}"),
+            );
         }
         for (name, v) in [
             ("amplitude", self.amplitude),
@@ -193,23 +199,27 @@ impl FitParams {
             ("cost_tolerance", self.cost_tolerance),
         ] {
             if !(v.is_finite() && v > 0.0) {
-                return bad(format!("{name} must be finite and > 0, got {v}"));
+                return bad(name, &v, "finite and > 0".into());
             }
         }
-        if self.max_iterations == 0 || self.max_evaluations == 0 {
-            return bad("max_iterations and max_evaluations must be >= 1".into());
+        if self.max_iterations == 0 {
+            return bad("max_iterations", &0, ">= 1".into());
+        }
+        if self.max_evaluations == 0 {
+            return bad("max_evaluations", &0, ">= 1".into());
         }
         if !(self.min_noise.is_finite() && self.min_noise >= 0.0) {
-            return bad(format!(
-                "min_noise must be finite and >= 0, got {}",
-                self.min_noise
-            ));
+            return bad("min_noise", &self.min_noise, "finite and >= 0".into());
         }
         if self.learn_hyperparameters && self.noise <= self.min_noise {
-            return bad(format!(
-                "noise {} must exceed min_noise {} when hyperparameters are learnt",
-                self.noise, self.min_noise
-            ));
+            return bad(
+                "noise",
+                &self.noise,
+                format!(
+                    "above min_noise ({}) when hyperparameters are learnt",
+                    self.min_noise
+                ),
+            );
         }
         let transform: Transform = self.transform.parse()?;
         Ok(FitConfig {
@@ -277,7 +287,10 @@ mod tests {
             ..Default::default()
         };
         let err = p.check().unwrap_err().to_string();
-        assert!(err.contains("restarts must be at most 1000"), "{err}");
+        assert!(
+            err.contains("restarts = 1001: must be at most 1000"),
+            "{err}"
+        );
         let p = FitParams {
             restarts: MAX_RESTARTS,
             ..Default::default()

@@ -10,10 +10,14 @@ pub type Result<T, E = Error> = std::result::Result<T, E>;
 #[non_exhaustive]
 pub enum Error {
     /// A configuration value that cannot be used.
-    #[error("invalid configuration: {reason}")]
+    #[error("invalid configuration: {field} = {value}: must be {expected}")]
     InvalidConfig {
-        /// What is wrong.
-        reason: String,
+        /// The setting (its name in fit configuration files).
+        field: &'static str,
+        /// The value given.
+        value: String,
+        /// What it must be (the message reads "must be {expected}").
+        expected: String,
     },
     /// A configuration or model file that cannot be read or parsed.
     #[error("{path}: {reason}")]

@@ -7,7 +7,7 @@ use brdf_io::store::Store;
 use faer::{Mat, MatRef, Par};
 use gp_core::{FlatGplvm, GplvmObjective, KernelParams, Learn, centre_gram};
 use rand::SeedableRng;
-use rand_distr::{Distribution, Normal};
+use rand_distr::{Distribution, StandardNormal};
 
 use crate::config::{DataScaling, FitConfig, FitParams, InitScaling, OptimizerKind};
 use crate::error::{Error, Result};
@@ -212,16 +212,17 @@ pub fn fit_gram(g: MatRef<'_, f64>, d: usize, config: &FitConfig) -> Result<Fit>
     let start = Instant::now();
     let mut best: Option<Minimum> = None;
     let (mut iterations, mut evaluations) = (0u64, 0u64);
-    let normal = Normal::new(0.0, 0.1).map_err(|e| Error::InvalidConfig {
-        reason: e.to_string(),
-    })?;
+    // Restart perturbations: N(0, 0.1^2) per latent coordinate (0.1 z, as rand_distr's
+    // `Normal::new(0.0, 0.1)` draws them, without its fallible constructor).
+    const RESTART_STD: f64 = 0.1;
     for restart in 0..=p.restarts {
         let mut start_theta = theta0.clone();
         if restart > 0 {
             let mut rng =
                 rand_chacha::ChaCha8Rng::seed_from_u64(p.seed.wrapping_add(restart as u64));
             for v in start_theta.iter_mut().take(n * q) {
-                *v += normal.sample(&mut rng);
+                let z: f64 = StandardNormal.sample(&mut rng);
+                *v += RESTART_STD * z;
             }
         }
         let run = match p.optimizer {

@@ -88,9 +88,9 @@ pub fn hooke_jeeves(
     let s = *settings;
     if !(s.initial_step > 0.0 && s.step_reduction > 0.0 && s.step_reduction < 1.0) {
         return Err(Error::InvalidConfig {
-            reason: format!(
-                "Hooke-Jeeves needs initial_step > 0 and 0 < step_reduction < 1, got {s:?}"
-            ),
+            field: "initial_step, step_reduction",
+            value: format!("{}, {}", s.initial_step, s.step_reduction),
+            expected: "initial_step > 0 and step_reduction in (0, 1) (Hooke-Jeeves)".into(),
         });
     }
     let evaluations = Cell::new(0u64);

@@ -71,7 +71,9 @@ impl Transform {
         match self {
             Self::Log { offset } if !(offset.is_finite() && offset > 0.0) => {
                 Err(Error::InvalidConfig {
-                    reason: format!("log transform offset must be finite and > 0, got {offset}"),
+                    field: "transform",
+                    value: format!("log:{offset}"),
+                    expected: "log:OFFSET with OFFSET finite and > 0".into(),
                 })
             }
             t => Ok(t),
@@ -299,7 +301,9 @@ impl FromStr for Transform {
             other => match other.strip_prefix("log:").map(str::parse::<f64>) {
                 Some(Ok(offset)) => Self::Log { offset }.check(),
                 _ => Err(Error::InvalidConfig {
-                    reason: format!("unknown transform {other:?}: expected raw, log or log:OFFSET"),
+                    field: "transform",
+                    value: format!("{other:?}"),
+                    expected: "raw, log or log:OFFSET".into(),
                 }),
             },
         }

@@ -203,7 +203,7 @@ fn fit_errors_name_the_file() {
         dir.path(),
     );
     assert!(
-        err.contains("zero.toml") && err.contains("latent_dim must be in 1..=64"),
+        err.contains("zero.toml") && err.contains("latent_dim = 0: must be in 1..=64"),
         "{err}"
     );
 }
