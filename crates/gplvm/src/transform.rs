@@ -73,7 +73,7 @@ impl Transform {
                 Err(Error::InvalidConfig {
                     field: "transform",
                     value: format!("log:{offset}"),
-                    expected: "log:OFFSET with OFFSET finite and > 0".into(),
+                    expected: "log:OFFSET with an offset that is finite and > 0".into(),
                 })
             }
             t => Ok(t),
