@@ -279,6 +279,18 @@ pub fn fit_gram(g: MatRef<'_, f64>, d: usize, config: &FitConfig) -> Result<Fit>
     let eval = flat.evaluate(&best.x, par)?;
     let (_, grad) = flat.neg_log_likelihood_and_gradient(&best.x, par)?;
     let gradient_norm = grad.iter().map(|g| g * g).sum::<f64>().sqrt();
+    if best.at_limit {
+        tracing::warn!(
+            "the optimiser stopped at its cap ({}) before converging: log-likelihood {:.6e}, \
+             |gradient| {gradient_norm:.2e}; raise {} in the fit configuration for a converged fit",
+            best.stop_reason,
+            -best.value / per_value,
+            match p.optimizer {
+                OptimizerKind::Lbfgs => "max_iterations",
+                OptimizerKind::HookeJeeves => "max_evaluations",
+            }
+        );
+    }
     let (x, params) = flat.unpack(&best.x)?;
     Ok(Fit {
         x,

@@ -72,6 +72,8 @@ pub struct Minimum {
     pub evaluations: u64,
     /// Why the method stopped.
     pub stop_reason: String,
+    /// Whether it stopped at its iteration or evaluation cap (not converged by its own test).
+    pub at_limit: bool,
 }
 
 /// Minimises `f` by Hooke-Jeeves direct search from `x0`.
@@ -137,11 +139,13 @@ pub fn hooke_jeeves(
         (x, best)
     }
 
+    let mut at_limit = false;
     let stop_reason = loop {
         if step < s.min_step {
             break format!("step {step:.3e} below {:.1e}", s.min_step);
         }
         if evaluations.get() as usize >= s.max_evaluations {
+            at_limit = true;
             break format!("reached {} evaluations", s.max_evaluations);
         }
         iterations += 1;
@@ -171,6 +175,7 @@ pub fn hooke_jeeves(
         iterations,
         evaluations: evaluations.get(),
         stop_reason,
+        at_limit,
     })
 }
 
@@ -420,12 +425,14 @@ pub fn lbfgs(
     let mut alpha = vec![0.0; memory];
     let mut dir = vec![0.0; x.len()];
     let mut iterations = 0u64;
+    let mut at_limit = false;
     let stop_reason = loop {
         let gnorm = dot(&grad, &grad).sqrt();
         if gnorm <= settings.gradient_tolerance {
             break format!("gradient norm {gnorm:.2e} below tolerance");
         }
         if iterations >= settings.max_iterations {
+            at_limit = true;
             break format!("reached {} iterations", settings.max_iterations);
         }
         two_loop(&pairs, &grad, gnorm, &mut alpha, &mut dir);
@@ -466,6 +473,7 @@ pub fn lbfgs(
         iterations,
         evaluations,
         stop_reason,
+        at_limit,
     })
 }
 
@@ -564,6 +572,27 @@ mod tests {
             "{m:?}"
         );
         assert!(m.evaluations < 200, "{m:?}");
+        assert!(!m.at_limit, "{m:?}");
+    }
+
+    /// Both methods say when they stop at their cap rather than by their convergence test.
+    #[test]
+    fn stopping_at_the_cap_is_reported() {
+        let capped = LbfgsSettings {
+            max_iterations: 3,
+            ..LbfgsSettings::default()
+        };
+        let m = lbfgs(|x| Ok(rosenbrock(x)), &[-1.2, 1.0], &capped).unwrap();
+        assert!(m.at_limit && m.iterations == 3, "{m:?}");
+        assert_eq!(m.stop_reason, "reached 3 iterations");
+        let s = HookeJeevesSettings {
+            max_evaluations: 20,
+            ..Default::default()
+        };
+        let m = hooke_jeeves(|x| rosenbrock(x).0, &[-1.2, 1.0], &s).unwrap();
+        assert!(m.at_limit && m.evaluations >= 20, "{m:?}");
+        let m = hooke_jeeves(|x| x[0] * x[0], &[0.3], &HookeJeevesSettings::default()).unwrap();
+        assert!(!m.at_limit, "{m:?}");
     }
 
     #[test]

@@ -43,6 +43,13 @@ pub struct FitArgs {
     /// Seed of the restart perturbations.
     #[arg(long)]
     seed: Option<u64>,
+    /// Cap on L-BFGS iterations (`max_iterations`; a fit that reaches it is not converged and
+    /// says so).
+    #[arg(long)]
+    max_iterations: Option<u64>,
+    /// Cap on Hooke-Jeeves objective evaluations (`max_evaluations`).
+    #[arg(long)]
+    max_evaluations: Option<usize>,
 }
 
 /// Runs `specgp fit`.
@@ -84,6 +91,12 @@ pub fn fit(args: &FitArgs) -> anyhow::Result<()> {
     }
     if let Some(s) = args.seed {
         params.seed = s;
+    }
+    if let Some(n) = args.max_iterations {
+        params.max_iterations = n;
+    }
+    if let Some(n) = args.max_evaluations {
+        params.max_evaluations = n;
     }
     let config = params.check().with_context(|| match &args.config {
         Some(path) => format!(

@@ -714,3 +714,50 @@ fn merl_output_of_a_coarse_model_is_on_merls_grid() {
         .collect();
     assert!(row.len() == 3 && row.iter().all(|v| *v > 0.0), "{csv}");
 }
+
+/// A fit that stops at its iteration cap says so (it is not converged); a converged one does
+/// not; `--max-iterations` sets the cap.
+#[test]
+fn fits_stopped_at_their_cap_are_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    synth_small(d, "400:700:50");
+    let capped = run(
+        &[
+            "fit",
+            "data.sbrdf",
+            "--out",
+            "c.toml",
+            "--max-iterations",
+            "5",
+        ],
+        d,
+    );
+    assert!(capped.status.success());
+    let said = String::from_utf8_lossy(&capped.stderr);
+    assert!(
+        said.contains("stopped at its cap (reached 5 iterations)")
+            && said.contains("raise max_iterations"),
+        "{said}"
+    );
+    assert_eq!(
+        Model::load(&d.join("c.toml")).unwrap().fit.stop_reason,
+        "reached 5 iterations"
+    );
+    let free = run(
+        &[
+            "fit",
+            "data.sbrdf",
+            "--out",
+            "f.toml",
+            "--max-iterations",
+            "100000",
+        ],
+        d,
+    );
+    assert!(free.status.success());
+    let said = String::from_utf8_lossy(&free.stderr);
+    assert!(!said.contains("stopped at its cap"), "{said}");
+    let stop = Model::load(&d.join("f.toml")).unwrap().fit.stop_reason;
+    assert!(!stop.starts_with("reached"), "{stop}");
+}
