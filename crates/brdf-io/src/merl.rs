@@ -64,17 +64,8 @@ impl MerlBrdf {
     /// out-of-gamut colour converted to sRGB) become 0: in a MERL file a negative value marks
     /// the cell invalid, and readers would drop the whole cell.
     pub fn from_dataset_order(grid: AngularGrid, values: &[f32]) -> Result<Self> {
-        if values.len() != 3 * grid.len() {
-            return Err(Error::InvalidArgument {
-                reason: format!(
-                    "dataset-order RGB values on grid {grid} need {} values, got {}",
-                    3 * grid.len(),
-                    values.len()
-                ),
-            });
-        }
+        check_dataset_order(grid, values)?;
         let n = grid.len();
-        check_finite(values, |i| (i % 3) * n + i / 3)?;
         let mut out = vec![0.0; 3 * n];
         for (flat, cell) in values.chunks_exact(3).enumerate() {
             for c in 0..3 {
@@ -94,16 +85,7 @@ impl MerlBrdf {
         if grid == AngularGrid::MERL {
             return Self::from_dataset_order(grid, values);
         }
-        if values.len() != 3 * grid.len() {
-            return Err(Error::InvalidArgument {
-                reason: format!(
-                    "dataset-order RGB values on grid {grid} need {} values, got {}",
-                    3 * grid.len(),
-                    values.len()
-                ),
-            });
-        }
-        check_finite(values, |i| (i % 3) * grid.len() + i / 3)?;
+        check_dataset_order(grid, values)?;
         use rayon::prelude::*;
         let merl = AngularGrid::MERL;
         let mut rgb = vec![0f32; 3 * merl.len()];
@@ -234,6 +216,22 @@ impl BrdfSource for MerlBrdf {
         }
         Ok(())
     }
+}
+
+/// Checks dataset-order RGB values (`flat * 3 + channel`) on `grid`: their number, and that
+/// they are finite (an error names the first bad one by its MERL index).
+fn check_dataset_order(grid: AngularGrid, values: &[f32]) -> Result<()> {
+    if values.len() != 3 * grid.len() {
+        return Err(Error::InvalidArgument {
+            reason: format!(
+                "dataset-order RGB values on grid {grid} need {} values, got {}",
+                3 * grid.len(),
+                values.len()
+            ),
+        });
+    }
+    let n = grid.len();
+    check_finite(values, |i| (i % 3) * n + i / 3)
 }
 
 /// Reads a MERL `.binary` file (values in 1/sr, negative markers kept).
