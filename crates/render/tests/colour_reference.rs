@@ -66,8 +66,10 @@ fn colorchecker_patches_match_published_srgb() {
     let mean = des.iter().sum::<f64>() / des.len() as f64;
     let max = des.iter().copied().fold(0.0, f64::max);
     println!("ColorChecker (BabelColor average, D65): mean dE00 {mean:.3}, max {max:.3}");
-    assert!(mean < 2.0, "mean dE00 {mean}");
-    assert!(max < 5.0, "max dE00 {max}");
+    // Today 1.28 / 2.71 (an independent pure-Python reference gets 1.28 / 2.67: the rest is the
+    // data against the published numbers). Swapped interpolation weights add ~0.35 to the mean.
+    assert!(mean < 1.5, "mean dE00 {mean}");
+    assert!(max < 3.0, "max dE00 {max}");
     // The neutral row (neutral 8 to black; white 9.5 is measurably warm) is neutral.
     for (k, patch) in patches.iter().enumerate().skip(19) {
         let rgb = pipe.reflectance_to_rgb(&wl, patch).unwrap();
