@@ -113,7 +113,7 @@ pub struct RenderParams {
     /// Sphere size in pixels.
     #[serde(default = "default_size")]
     pub size: u32,
-    /// At most this many training materials in the comparison sheet.
+    /// At most this many training materials in the comparison sheet (1..=64).
     #[serde(default = "default_sheet")]
     pub sheet_materials: usize,
 }
@@ -306,9 +306,7 @@ impl PipelineParams {
                             "data.only: no preset material named {missing:?}"
                         )));
                     }
-                    if only.len() < 3 {
-                        return Err(bad("data.only needs at least 3 materials".into()));
-                    }
+                    check_only(only).map_err(bad)?;
                 }
                 DataSource::Synth {
                     channels: wavelengths(spec)?,
@@ -328,6 +326,9 @@ impl PipelineParams {
                     .names
                     .as_deref()
                     .ok_or_else(|| bad("data.names is required for kind \"nbrdf\"".into()))?;
+                if let Some(only) = &d.only {
+                    check_only(only).map_err(bad)?;
+                }
                 DataSource::Nbrdf {
                     weights: resolve(weights),
                     names: resolve(names),
@@ -363,6 +364,35 @@ impl PipelineParams {
                 )));
             }
         };
+
+        // The store's size, known before anything is written: a typo in the grid or the
+        // wavelengths must not start streaming hundreds of GB.
+        let n_materials = match &source {
+            DataSource::Synth { only, .. } => {
+                Some(only.as_ref().map_or(brdf_synth::N_MATERIALS, Vec::len))
+            }
+            DataSource::Nbrdf { only, .. } => only.as_ref().map(Vec::len),
+            DataSource::Merl { files } | DataSource::Rgl { files, .. } => Some(files.len()),
+        };
+        let n_channels = match &source {
+            DataSource::Synth { channels, .. } => Some(channels.len()),
+            DataSource::Nbrdf { .. } | DataSource::Merl { .. } => Some(3),
+            DataSource::Rgl { channels, .. } => channels.as_ref().map(Channels::len),
+        };
+        if let (Some(n), Some(c)) = (n_materials, n_channels) {
+            let bytes = (grid.len() as u128) * (c as u128) * (n as u128) * (dtype.size() as u128);
+            if bytes > MAX_STORE_BYTES as u128 {
+                return Err(bad(format!(
+                    "the dataset store would take {:.1} GB ({n} materials x {} cells x {c} \
+                     channels x {} bytes), over the {} GB a pipeline may write; choose a coarser \
+                     data.grid or fewer data.wavelengths",
+                    bytes as f64 / 1e9,
+                    grid.len(),
+                    dtype.size(),
+                    MAX_STORE_BYTES / 1_000_000_000
+                )));
+            }
+        }
 
         let (fit_params, fit_source) = match (&self.fit_config, &self.fit) {
             (Some(_), Some(_)) => {
@@ -410,12 +440,26 @@ impl PipelineParams {
                 self.render.size
             )));
         }
+        if !(1..=64).contains(&self.render.sheet_materials) {
+            return Err(bad(format!(
+                "render.sheet_materials must be in 1..=64, got {}",
+                self.render.sheet_materials
+            )));
+        }
         let predict = PredictConfig {
             points: p.points.clone(),
             midpoints: p.midpoints.clone(),
             predictor,
             materialize: p.materialize,
         };
+        // Synthetic materials are known now; other kinds' names once the data are read
+        // (`PipelineConfig::check_midpoints`, before the fit).
+        if let DataSource::Synth { only, .. } = &source {
+            let names = only
+                .clone()
+                .unwrap_or_else(|| brdf_synth::preset(0).into_iter().map(|m| m.name).collect());
+            check_midpoints(&predict.midpoints, &names).map_err(bad)?;
+        }
         Ok(PipelineConfig {
             path: path.to_owned(),
             data: DataConfig {
@@ -427,6 +471,58 @@ impl PipelineParams {
             fit_source,
             predict,
             params: self,
+        })
+    }
+}
+
+/// Largest dataset store a pipeline config may ask for (64 GB: the MERL grid with 195
+/// wavelengths for 51 materials, 58 GB, still fits).
+pub const MAX_STORE_BYTES: u64 = 64_000_000_000;
+
+/// A `data.only` list: at least 3 names, no name twice.
+fn check_only(only: &[String]) -> std::result::Result<(), String> {
+    if let Some((i, name)) = only
+        .iter()
+        .enumerate()
+        .find(|(i, n)| only[..*i].contains(n))
+    {
+        return Err(format!("data.only lists {name:?} twice (entry {})", i + 1));
+    }
+    if only.len() < 3 {
+        return Err(format!(
+            "data.only needs at least 3 materials (a GPLVM and its leave-one-out evaluation), got {}",
+            only.len()
+        ));
+    }
+    Ok(())
+}
+
+/// Every midpoint names two different materials of `names`.
+fn check_midpoints(midpoints: &[[String; 2]], names: &[String]) -> std::result::Result<(), String> {
+    for [a, b] in midpoints {
+        for n in [a, b] {
+            if !names.contains(n) {
+                return Err(format!(
+                    "predict.midpoints: no material named {n:?} in the data"
+                ));
+            }
+        }
+        if a == b {
+            return Err(format!(
+                "predict.midpoints: [{a:?}, {b:?}] names one material twice"
+            ));
+        }
+    }
+    Ok(())
+}
+
+impl PipelineConfig {
+    /// Checks the midpoints against the materials of the data (`names`, the store's): an error
+    /// naming the config before anything is fitted.
+    pub fn check_midpoints(&self, names: &[String]) -> Result<()> {
+        check_midpoints(&self.predict.midpoints, names).map_err(|reason| Error::Config {
+            path: self.path.clone(),
+            reason,
         })
     }
 }

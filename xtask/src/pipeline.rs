@@ -209,11 +209,99 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     brdf_io::output::write_file_atomic(path, bytes).map_err(|e| Error::stage("write", path, e))
 }
 
+/// Whether `name` is a file the pipeline writes into its output directory (an earlier run's
+/// copy that a new run does not produce is stale: it would describe other data).
+pub fn is_pipeline_output(name: &str) -> bool {
+    const FILES: [&str; 7] = [
+        "data.sbrdf",
+        "model.toml",
+        "report.md",
+        "results.json",
+        "latent.png",
+        "sheet.png",
+        "predictions.png",
+    ];
+    FILES.contains(&name)
+        || name
+            .strip_prefix("prediction-")
+            .and_then(|rest| rest.split_once('.'))
+            .is_some_and(|(k, ext)| {
+                !k.is_empty()
+                    && k.bytes().all(|b| b.is_ascii_digit())
+                    && ["npy", "sbrdf", "binary"].contains(&ext)
+            })
+}
+
+/// The files a run of `config` reads: the config itself, its fit config and its data files.
+fn inputs(config: &PipelineConfig) -> Vec<PathBuf> {
+    let mut v = vec![config.path.clone()];
+    if let Some(f) = &config.params.fit_config {
+        v.push(project_root().join(f));
+    }
+    match &config.data.source {
+        crate::config::DataSource::Synth { .. } => {}
+        crate::config::DataSource::Nbrdf { weights, names, .. } => {
+            v.extend([weights.clone(), names.clone()]);
+        }
+        crate::config::DataSource::Merl { files }
+        | crate::config::DataSource::Rgl { files, .. } => {
+            v.extend(files.iter().cloned());
+        }
+    }
+    v
+}
+
+/// An error when publishing into `out` would replace or delete one of the run's inputs (a
+/// config or data file kept in the output directory under an output's name).
+fn ensure_inputs_survive(config: &PipelineConfig, out: &Path) -> Result<()> {
+    let Ok(out_dir) = out.canonicalize() else {
+        return Ok(()); // a new directory holds no input
+    };
+    for input in inputs(config) {
+        let (Some(parent), Some(name)) = (input.parent(), input.file_name()) else {
+            continue;
+        };
+        let parent = if parent.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            parent
+        };
+        if parent.canonicalize().is_ok_and(|p| p == out_dir)
+            && is_pipeline_output(&name.to_string_lossy())
+        {
+            return Err(Error::Config {
+                path: config.path.clone(),
+                reason: format!(
+                    "the run would overwrite its input {} (the output directory {} receives a \
+                     file of that name); choose another --out",
+                    input.display(),
+                    out.display()
+                ),
+            });
+        }
+    }
+    Ok(())
+}
+
 /// Runs the pipeline of `config` into `out` (created if needed) and writes `report.md` and
-/// `results.json` there.
+/// `results.json` there. The run writes into a staging directory inside `out` and publishes
+/// its files together at the end ([`brdf_io::output::StagingDir`]): a failed or interrupted run
+/// leaves `out` as it was, and a successful one removes the earlier run's outputs it does not
+/// produce. The model records its dataset as `data.sbrdf` beside it.
 pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
+    ensure_inputs_survive(config, out)?;
+    let stage =
+        brdf_io::output::StagingDir::create(out).map_err(|e| Error::stage("output", out, e))?;
+    let results = run_in(config, stage.path())?;
+    stage
+        .publish(is_pipeline_output)
+        .map_err(|e| Error::stage("output", out, e))?;
+    Ok(results)
+}
+
+/// The stages of [`run`], writing into `out`.
+fn run_in(config: &PipelineConfig, out: &Path) -> Result<Results> {
     let total = Instant::now();
-    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let mut stages = Vec::new();
 
     // Data.
@@ -222,6 +310,13 @@ pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
     let (import, data_seconds) = build_store(&config.data, &store_path)?;
     let store =
         brdf_io::Store::open(&store_path).map_err(|e| Error::stage("data", &store_path, e))?;
+    let names: Vec<String> = store
+        .header()
+        .materials
+        .iter()
+        .map(|m| m.name.clone())
+        .collect();
+    config.check_midpoints(&names)?;
     let data = DataResults {
         kind: config.data.source.kind().into(),
         store: "data.sbrdf".into(),
@@ -247,8 +342,10 @@ pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
     let model_path = out.join("model.toml");
     let fit_start = Instant::now();
     tracing::info!(config = %config.fit_source, "fit");
-    let model = gplvm::fit_store(&store_path, &config.fit)
+    let mut model = gplvm::fit_store(&store_path, &config.fit)
         .map_err(|e| Error::stage("fit", &store_path, e))?;
+    // Beside the model (relative to its directory): the files move out of the staging directory.
+    model.dataset.path = PathBuf::from("data.sbrdf");
     model
         .save(&model_path)
         .map_err(|e| Error::stage("fit", &model_path, e))?;

@@ -309,13 +309,22 @@ fn paper_table(s: &mut String, r: &Results) {
         .filter(|p| p.file.is_some())
         .map(|p| p.materialize_seconds)
         .fold(f64::NAN, f64::min);
+    let timing = match (per_prediction_us.is_nan(), full_s.is_nan()) {
+        (true, _) => "no prediction was configured".to_owned(),
+        (false, true) => format!(
+            "{per_prediction_us:.1} us for the N coefficients (lazy); nothing was materialised"
+        ),
+        (false, false) => format!(
+            "{per_prediction_us:.1} us for the N coefficients (lazy), {full_s:.3} s to \
+             materialise all D values (fastest of the configured points)"
+        ),
+    };
     let _ = writeln!(
         s,
         "\n## By kind of material\n\nMean Eq. 22 RMSE (BRDF space, 1/sr) per kind of synthetic \
          material (preset families: diffuse = felt, paper, cardboard, wall paint, leaf, \
          diffuser; glossy = vinyl, satin, car paint; metallic = metal, painted metal, \
-         iridescent). Time per prediction: {per_prediction_us:.1} us for the N coefficients \
-         (lazy), {full_s:.3} s to materialise all D values (fastest of the configured points).\n"
+         iridescent). Time per prediction: {timing}.\n"
     );
     let _ = writeln!(
         s,

@@ -170,6 +170,34 @@ fn unknown_keys_and_bad_values_are_named() {
             base.replace("[fit]\nlatent_dim = 2", "[fit]\nlatent_dim = 0\n"),
             "latent_dim",
         ),
+        // Checked before any data is written (they used to fail after the data and the fit).
+        (
+            base.replace("\"metal_copper\"]]", "\"no_such\"]]"),
+            "no material named \"no_such\"",
+        ),
+        (
+            base.replace("\"metal_copper\"]]", "\"metal_gold\"]]"),
+            "names one material twice",
+        ),
+        (
+            base.replace(
+                "seed = 0",
+                "seed = 0\nonly = [\"metal_gold\", \"metal_gold\", \"metal_copper\", \"paper_white\"]",
+            ),
+            "lists \"metal_gold\" twice",
+        ),
+        (
+            base.replace("sheet_materials = 2", "sheet_materials = 0"),
+            "render.sheet_materials",
+        ),
+        (
+            base.replace("grid = \"8,8,16\"", "grid = \"512,512,512\""),
+            "would take 191.7 GB",
+        ),
+        (
+            base.replace("400:700:50", "400:700:0.01"),
+            "data.wavelengths",
+        ),
     ];
     for (i, (text, needle)) in cases.iter().enumerate() {
         let path = dir.path().join(format!("bad{i}.toml"));
@@ -178,4 +206,74 @@ fn unknown_keys_and_bad_values_are_named() {
         assert!(err.contains(needle), "case {i}: {err}");
         assert!(err.contains(&format!("bad{i}.toml")), "case {i}: {err}");
     }
+}
+
+/// A run writes into a staging directory and publishes its files together: a failed run leaves
+/// the output directory as it was; a successful one replaces the earlier run's outputs,
+/// deletes the stale ones (a prediction it does not make), keeps other files, and its model
+/// finds its dataset beside it. A config kept in the output directory under an output's name
+/// is refused, untouched.
+#[test]
+fn runs_publish_their_outputs_together() {
+    let root = project_root();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    for (name, text) in [
+        ("prediction-9.npy", "old"),
+        ("report.md", "old"),
+        ("notes.txt", "mine"),
+    ] {
+        std::fs::write(out.join(name), text).unwrap();
+    }
+    let list = || {
+        let mut v: Vec<String> = std::fs::read_dir(&out)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        v.sort();
+        v
+    };
+    // A run that fails in its data stage (missing MERL files).
+    let failing = dir.path().join("failing.toml");
+    std::fs::write(
+        &failing,
+        "name = \"failing\"\n[data]\nkind = \"merl\"\ngrid = \"8,8,16\"\n\
+         files = [\"/nonexistent/a.binary\", \"/nonexistent/b.binary\", \"/nonexistent/c.binary\"]\n",
+    )
+    .unwrap();
+    let config = PipelineConfig::load(&failing, &root).unwrap();
+    let err = xtask::run(&config, &out).unwrap_err().to_string();
+    assert!(err.contains("a.binary"), "{err}");
+    assert_eq!(list(), ["notes.txt", "prediction-9.npy", "report.md"]);
+
+    let config = load(&root, "configs/quick.toml");
+    xtask::run(&config, &out).unwrap();
+    let files = list();
+    assert!(!files.iter().any(|f| f.starts_with('.')), "{files:?}");
+    assert!(!files.contains(&"prediction-9.npy".to_owned()), "{files:?}");
+    assert!(
+        files.contains(&"notes.txt".to_owned()) && files.contains(&"prediction-1.npy".to_owned())
+    );
+    assert_ne!(
+        std::fs::read_to_string(out.join("report.md")).unwrap(),
+        "old"
+    );
+    let model = gplvm::Model::load(&out.join("model.toml")).unwrap();
+    assert_eq!(
+        model.dataset_path(&out.join("model.toml")),
+        out.join("data.sbrdf")
+    );
+    predict::Predictor::open(&out.join("model.toml")).unwrap();
+
+    // A config named like an output, inside the output directory.
+    let inside = out.join("model.toml");
+    std::fs::copy(root.join("configs/quick.toml"), &inside).unwrap();
+    let config = PipelineConfig::load(&inside, &root).unwrap();
+    let err = xtask::run(&config, &out).unwrap_err().to_string();
+    assert!(err.contains("would overwrite its input"), "{err}");
+    assert_eq!(
+        std::fs::read_to_string(&inside).unwrap(),
+        std::fs::read_to_string(root.join("configs/quick.toml")).unwrap()
+    );
 }

@@ -356,6 +356,10 @@ pub enum Channels {
     Rgb,
 }
 
+/// Most wavelengths a `START:END:STEP` range may give (0.16 nm steps over 360-1000 nm): a finer
+/// step is almost always a typo, and would make every store of it huge.
+pub const MAX_WAVELENGTHS: usize = 4096;
+
 impl Channels {
     /// Spectral channels at the given wavelengths (nm); they must be finite, positive and
     /// strictly increasing.
@@ -379,7 +383,7 @@ impl Channels {
     }
 
     /// Parses a wavelength specification: `START:END:STEP` in nm (END included when it falls on
-    /// the step) or a comma-separated list.
+    /// the step; at most [`MAX_WAVELENGTHS`]) or a comma-separated list.
     pub fn parse_wavelengths(spec: &str) -> Result<Self> {
         let bad = |why: &str| Error::InvalidGrid {
             reason: format!(
@@ -393,13 +397,17 @@ impl Channels {
                 return Err(bad("a range needs exactly three fields"));
             }
             let (start, end, step) = (num(parts[0])?, num(parts[1])?, num(parts[2])?);
-            if !step.is_finite() || step <= 0.0 || !end.is_finite() || end < start {
-                return Err(bad("need STEP > 0 and END >= START"));
+            if ![start, end, step].iter().all(|v| v.is_finite()) || step <= 0.0 || end < start {
+                return Err(bad("need finite numbers, STEP > 0 and END >= START"));
             }
-            let count = ((end - start) / step + 1e-9).floor() as usize + 1;
-            if count > 100_000 {
-                return Err(bad("more than 100000 wavelengths"));
+            // Counted in f64 first: a tiny step would overflow the integer.
+            let steps = ((end - start) / step + 1e-9).floor();
+            if steps.is_nan() || steps >= MAX_WAVELENGTHS as f64 {
+                return Err(bad(&format!(
+                    "more than {MAX_WAVELENGTHS} wavelengths (is STEP meant to be that small?)"
+                )));
             }
+            let count = steps as usize + 1;
             Self::spectral((0..count).map(|i| start + i as f64 * step).collect())
         } else {
             Self::spectral(spec.split(',').map(num).collect::<Result<_>>()?)
@@ -693,6 +701,21 @@ mod tests {
         assert!(Channels::parse_wavelengths("550,450").is_err());
         assert!(Channels::parse_wavelengths("400:300:10").is_err());
         assert!(Channels::parse_wavelengths("a:b").is_err());
+        // Non-finite ends and steps so small that the count overflows, or just too many.
+        for spec in [
+            "-inf:700:50",
+            "400:inf:50",
+            "400:700:1e-310",
+            "400:700:0.01",
+            "nan:700:1",
+        ] {
+            let e = Channels::parse_wavelengths(spec).unwrap_err().to_string();
+            assert!(e.contains(spec), "{e}");
+        }
+        assert_eq!(
+            Channels::parse_wavelengths("360:1000:0.25").unwrap().len(),
+            2561
+        );
     }
 
     proptest! {

@@ -27,6 +27,8 @@
 //!   leave the temporary files behind. Every temporary file is listed while it exists, so a
 //!   signal handler can call [`remove_unfinished_outputs`] before it exits
 //!   ([`remove_unfinished_outputs_on_signal`] installs one; the `specgp` and `xtask` binaries do).
+//! - **runs that write several files** stage them in a [`StagingDir`] inside the output
+//!   directory and publish them together.
 
 use std::fs::File;
 use std::io::{Seek, SeekFrom, Write};
@@ -308,15 +310,93 @@ pub fn unfinished_outputs() -> Vec<PathBuf> {
     unfinished().clone()
 }
 
-/// Deletes the temporary files of every output this process is still writing and returns how
-/// many it deleted. Meant for a signal handler that exits right after: such an exit skips the
-/// destructors that would delete them. Targets are never touched; an output of this process
-/// committed afterwards fails, since its temporary file is gone.
+/// Deletes the temporary files (and staging directories, [`StagingDir`]) of every output this
+/// process is still writing and returns how many it deleted. Meant for a signal handler that
+/// exits right after: such an exit skips the destructors that would delete them. Targets are
+/// never touched; an output of this process committed afterwards fails, since its temporary
+/// file is gone.
 pub fn remove_unfinished_outputs() -> usize {
     let list = unfinished();
     list.iter()
-        .filter(|p| std::fs::remove_file(p).is_ok())
+        .filter(|p| match std::fs::symlink_metadata(p) {
+            Ok(m) if m.is_dir() => std::fs::remove_dir_all(p).is_ok(),
+            _ => std::fs::remove_file(p).is_ok(),
+        })
         .count()
+}
+
+/// A hidden directory (`.NAME.XXXXXX.tmp`) inside an output directory where a run that writes
+/// several files puts them, so that a run that fails or is interrupted leaves the output
+/// directory as it was, and a run that succeeds replaces the earlier run's files as a set
+/// ([`StagingDir::publish`]): never a mix of two runs' outputs. Dropped unpublished (an error),
+/// it is deleted with everything in it; it is listed for [`remove_unfinished_outputs`] while it
+/// exists.
+#[derive(Debug)]
+pub struct StagingDir {
+    dir: tempfile::TempDir,
+    dest: PathBuf,
+    _listed: Listed,
+}
+
+impl StagingDir {
+    /// A new staging directory inside `dest` (created if missing).
+    pub fn create(dest: impl AsRef<Path>) -> Result<Self> {
+        let dest = dest.as_ref();
+        std::fs::create_dir_all(dest).map_err(|e| Error::io(dest, e))?;
+        let name = dest
+            .file_name()
+            .map_or("out".into(), |n| n.to_string_lossy().into_owned());
+        let dir = tempfile::Builder::new()
+            .prefix(&format!(".{name}."))
+            .suffix(".tmp")
+            .tempdir_in(dest)
+            .map_err(|e| Error::io(dest, e))?;
+        let listed = Listed::new(dir.path());
+        Ok(Self {
+            dir,
+            dest: dest.to_owned(),
+            _listed: listed,
+        })
+    }
+
+    /// The staging directory: write the run's files here.
+    pub fn path(&self) -> &Path {
+        self.dir.path()
+    }
+
+    /// Moves every file of the staging directory into the output directory (a rename each,
+    /// replacing files of the same name), after deleting the output directory's files for which
+    /// `is_stale(name)` holds and that this run did not write (an earlier run's outputs that
+    /// this run does not produce: they would describe other data). Then removes the staging
+    /// directory. Returns the published paths.
+    pub fn publish(self, is_stale: impl Fn(&str) -> bool) -> Result<Vec<PathBuf>> {
+        let read = |dir: &Path| -> Result<Vec<String>> {
+            let mut names = Vec::new();
+            for entry in std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))? {
+                let entry = entry.map_err(|e| Error::io(dir, e))?;
+                let is_file = entry.file_type().map_err(|e| Error::io(dir, e))?.is_file();
+                if let (true, Some(name)) = (is_file, entry.file_name().to_str()) {
+                    names.push(name.to_owned());
+                }
+            }
+            names.sort();
+            Ok(names)
+        };
+        let new = read(self.path())?;
+        for old in read(&self.dest)? {
+            if is_stale(&old) && !new.contains(&old) {
+                let p = self.dest.join(&old);
+                std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
+            }
+        }
+        let mut published = Vec::with_capacity(new.len());
+        for name in new {
+            let (from, to) = (self.path().join(&name), self.dest.join(&name));
+            std::fs::rename(&from, &to).map_err(|e| Error::io(&to, e))?;
+            published.push(to);
+        }
+        Ok(published)
+    }
 }
 
 /// Installs the process's handler of SIGINT, SIGTERM and SIGHUP (for binaries; a library must
@@ -406,6 +486,55 @@ mod tests {
 
     #[cfg(target_os = "linux")]
     use super::test_util::{fifo, is_fifo, mode, umask};
+
+    /// A staged run replaces the earlier run's files as a set, deletes its stale ones, keeps
+    /// other files; an unpublished stage leaves the directory as it was.
+    #[test]
+    fn staged_runs_publish_together_or_not_at_all() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        let stale = |n: &str| n.ends_with(".npy") || n == "report.md";
+        std::fs::create_dir_all(&out).unwrap();
+        for (name, text) in [
+            ("report.md", "old"),
+            ("p-1.npy", "old"),
+            ("p-2.npy", "old"),
+            ("notes.txt", "mine"),
+        ] {
+            std::fs::write(out.join(name), text).unwrap();
+        }
+        // A failed run: nothing changes, nothing stays behind.
+        let stage = StagingDir::create(&out).unwrap();
+        std::fs::write(stage.path().join("report.md"), "failed").unwrap();
+        assert!(unfinished_outputs().contains(&stage.path().to_owned()));
+        let staged = stage.path().to_owned();
+        drop(stage);
+        assert!(!staged.exists() && !unfinished_outputs().contains(&staged));
+        let list = |d: &Path| {
+            let mut v: Vec<String> = std::fs::read_dir(d)
+                .unwrap()
+                .map(|e| e.unwrap().file_name().into_string().unwrap())
+                .collect();
+            v.sort();
+            v
+        };
+        assert_eq!(list(&out), ["notes.txt", "p-1.npy", "p-2.npy", "report.md"]);
+        // A run that writes one prediction: p-2.npy is stale, notes.txt is not the run's.
+        let stage = StagingDir::create(&out).unwrap();
+        std::fs::write(stage.path().join("report.md"), "new").unwrap();
+        std::fs::write(stage.path().join("p-1.npy"), "new").unwrap();
+        let published = stage.publish(stale).unwrap();
+        assert_eq!(published, [out.join("p-1.npy"), out.join("report.md")]);
+        assert_eq!(list(&out), ["notes.txt", "p-1.npy", "report.md"]);
+        assert_eq!(
+            std::fs::read_to_string(out.join("report.md")).unwrap(),
+            "new"
+        );
+        assert_eq!(
+            std::fs::read_to_string(out.join("notes.txt")).unwrap(),
+            "mine"
+        );
+    }
 
     #[test]
     fn writes_bytes_and_leaves_no_temporary_file() {
