@@ -304,10 +304,16 @@ impl CholeskyFactor {
 }
 
 /// faer's Cholesky factorisation of the lower triangle of `l`, in place, with scratch from
-/// `mem` (sized for it). True when every pivot is positive and finite (faer only reports
-/// non-positive pivots; NaN pivots, from overflow, are failures too).
+/// `mem` (sized for it). True when every pivot is positive, finite and above rounding: a pivot
+/// `d_i = L_ii^2` is computed as `a_ii - sum_k L_ik^2` with an error of about `n eps max a_jj`,
+/// so one below that is noise (a numerically indefinite matrix factors "successfully" with
+/// rounding-level pivots, and its log-determinant is then noise: 43 % off in an audit case at
+/// condition 1e17). Such a matrix fails, so the caller adds jitter. (faer only reports
+/// non-positive pivots; NaN pivots, from overflow, are failures too.)
 fn factor_lower_in_place(mut l: MatMut<'_, f64>, par: Par, mem: &mut MemBuffer) -> bool {
     let n = l.nrows();
+    let max_diag = (0..n).map(|i| l[(i, i)]).fold(0.0f64, f64::max);
+    let min_pivot = n as f64 * f64::EPSILON * max_diag;
     let ok = llt::factor::cholesky_in_place(
         l.as_mut(),
         Default::default(),
@@ -316,7 +322,10 @@ fn factor_lower_in_place(mut l: MatMut<'_, f64>, par: Par, mem: &mut MemBuffer) 
         Default::default(),
     )
     .is_ok();
-    ok && (0..n).all(|i| l[(i, i)].is_finite() && l[(i, i)] > 0.0)
+    ok && (0..n).all(|i| {
+        let p = l[(i, i)];
+        p.is_finite() && p > 0.0 && p * p > min_pivot
+    })
 }
 
 /// Reusable buffers for the optimisers' inner loop: the plain (unjittered, unchecked)
@@ -482,6 +491,40 @@ mod tests {
             e,
             Err(GpError::NotPositiveDefinite { attempts: 1, .. })
         ));
+    }
+
+    /// An RBF kernel matrix with a huge amplitude and length-scale (10 points, s^2 = 1e8,
+    /// l = 100, mu = 1e-10) is numerically indefinite: its smallest eigenvalues are below the
+    /// rounding of its entries. It used to factor without jitter, with rounding-level pivots
+    /// and a log-determinant that was noise; it now takes the jittered path, and its
+    /// log-determinant is that of A + j I.
+    #[test]
+    fn numerically_indefinite_matrices_get_jitter() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let x: Vec<[f64; 2]> = (0..10)
+            .map(|_| [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)])
+            .collect();
+        let k = Mat::from_fn(10, 10, |i, j| {
+            let d2 = (x[i][0] - x[j][0]).powi(2) + (x[i][1] - x[j][1]).powi(2);
+            1e8 * (-0.5 * d2 / 1e4).exp() + if i == j { 1e-10 } else { 0.0 }
+        });
+        let f = CholeskyFactor::new(k.as_ref(), Par::Seq).unwrap();
+        assert!(
+            f.jitter() > 0.0,
+            "no jitter: pivots {:?}",
+            (0..10).map(|i| f.l()[(i, i)]).collect::<Vec<_>>()
+        );
+        let min_pivot = (0..10)
+            .map(|i| f.l()[(i, i)].powi(2))
+            .fold(f64::INFINITY, f64::min);
+        assert!(min_pivot > 10.0 * f64::EPSILON * 1e8, "{min_pivot}");
+        // Well-conditioned matrices keep their exact factor.
+        assert_eq!(
+            CholeskyFactor::new(spd(30, 3).as_ref(), Par::Seq)
+                .unwrap()
+                .jitter(),
+            0.0
+        );
     }
 
     #[test]

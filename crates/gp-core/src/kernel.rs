@@ -493,10 +493,14 @@ impl KernelParams {
             })
             .collect();
         // W[n][m] = sym(dF/dK)[n][m] K_rbf[n][m] off the diagonal. With row sums r = W 1 and
-        // the points centred (the kernel part is translation-invariant; centring keeps the
-        // differences below exact), every sum over pairs becomes a product with W X:
+        // the points centred (the kernel part is translation-invariant), the sum over pairs of
+        // the latent gradient becomes a product with W X:
         //   dF/dx_n       = -2/l^2 (r_n x_n - (W X)_n)
-        //   dF/dlog l_j   = 1/l_j^2 sum_nm W_nm (x_nj - x_mj)^2 = 2/l_j^2 sum_n x_nj (r_n x_nj - (W X)_nj)
+        // The length-scale gradient is summed over pairs with explicit differences,
+        //   dF/dlog l_j   = 1/l_j^2 sum_nm W_nm (x_nj - x_mj)^2 = 2/l_j^2 sum_{n<m} W_nm d_nm^2:
+        // the product form 2/l_j^2 sum_n x_nj (r_n x_nj - (W X)_nj) rounds at eps |W| |x|^2,
+        // which swamps it when a (near-)duplicate pair has a huge W (~1/mu^2) and d ~ 0 (a 25 %
+        // error at mu = 1e-10, the wrong sign with two such pairs).
         // W is symmetric and kept column-major in a Vec (plain slices in the hot loops).
         let mut w = vec![0.0f64; n * n];
         let mut r = vec![0.0f64; n];
@@ -535,8 +539,18 @@ impl KernelParams {
             for i in 0..n {
                 let t = r[i] * xc[i] - wx[i];
                 gx[(i, j)] = -2.0 * inv_l2[j] * t;
-                d_log_l_axis[j] += 2.0 * inv_l2[j] * xc[i] * t;
             }
+            let mut pairs = 0.0;
+            for (m, wm) in w.chunks_exact(n).enumerate() {
+                let a = xj[m];
+                let mut col = 0.0;
+                for i in (m + 1)..n {
+                    let d = xj[i] - a;
+                    col += wm[i] * d * d;
+                }
+                pairs += col;
+            }
+            d_log_l_axis[j] = 2.0 * inv_l2[j] * pairs;
         }
         let mut trace = 0.0;
         for i in 0..n {
@@ -602,6 +616,53 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+
+    /// The length-scale gradient with a duplicate latent pair whose dF/dK is huge (~1/mu^2,
+    /// as at a tiny noise): the pair contributes nothing (d = 0), and the gradient equals the
+    /// explicit sum over pairs to rounding (the product form was 25 % off at mu = 1e-10).
+    #[test]
+    fn length_scale_gradient_survives_duplicate_points_with_huge_weights() {
+        let x = Mat::from_fn(5, 2, |i, j| {
+            [
+                [0.9, 0.1],
+                [0.9, 0.1],
+                [-0.4, 0.7],
+                [0.2, -0.5],
+                [0.91, 0.1],
+            ][i][j]
+                + 1000.0
+        });
+        let dk = Mat::from_fn(5, 5, |i, j| match (i.min(j), i.max(j)) {
+            (0, 1) => 1e20,
+            (0, 4) | (1, 4) => -3e12,
+            (a, b) => 0.1 * (a + 2 * b) as f64 - 0.4,
+        });
+        for p in [
+            KernelParams::isotropic(1.0, 1.0, 1e-10).unwrap(),
+            KernelParams::new(2.0, LengthScale::Ard(vec![0.5, 2.0]), 1e-10).unwrap(),
+        ] {
+            let g = p.backprop(x.as_ref(), dk.as_ref()).unwrap();
+            let k = p.rbf_matrix(x.as_ref()).unwrap();
+            let mut want = [0.0f64; 2];
+            for n in 0..5 {
+                for m in 0..5 {
+                    for (j, w) in want.iter_mut().enumerate() {
+                        let l = p.length_scale.axis(j);
+                        let d = x[(n, j)] - x[(m, j)];
+                        *w += dk[(n, m)] * k[(n, m)] * d * d / (l * l);
+                    }
+                }
+            }
+            let got = &g.hyper_log.length_scale;
+            let want: Vec<f64> = match p.length_scale {
+                LengthScale::Isotropic(_) => vec![want[0] + want[1]],
+                LengthScale::Ard(_) => want.to_vec(),
+            };
+            for (a, b) in got.iter().zip(&want) {
+                assert!((a - b).abs() <= 1e-9 * b.abs(), "{got:?} vs {want:?}");
+            }
+        }
+    }
 
     #[test]
     fn cross_matrix_matches_kernel_matrix_bitwise() {
