@@ -91,11 +91,19 @@ impl BenchConfig {
             path: path.to_owned(),
             reason: e.to_string(),
         })?;
-        for (_, _, s) in c.points() {
-            s.check().map_err(|reason| Error::Config {
-                path: path.to_owned(),
-                reason,
-            })?;
+        let bad = |reason: String| Error::Config {
+            path: path.to_owned(),
+            reason,
+        };
+        for (sweep, value, s) in c.points() {
+            s.check(c.max_iterations, c.max_evaluations)
+                .map_err(|reason| bad(format!("{sweep} = {value}: {reason}")))?;
+        }
+        if c.delta_e_materials > 0 && !(16..=1024).contains(&c.sphere_size) {
+            return Err(bad(format!(
+                "sphere_size must be in 16..=1024 when delta_e_materials > 0, got {}",
+                c.sphere_size
+            )));
         }
         Ok(c)
     }
@@ -218,9 +226,21 @@ impl Settings {
         }
     }
 
-    /// Checks every value.
-    pub fn check(&self) -> std::result::Result<(), String> {
-        self.parsed()?;
+    /// Checks every value, with the fits' caps.
+    pub fn check(
+        &self,
+        max_iterations: u64,
+        max_evaluations: usize,
+    ) -> std::result::Result<(), String> {
+        let (_, channels, _) = self.parsed()?;
+        if let Channels::Spectral(w) = &channels
+            && let Some(bad) = w.iter().find(|v| !(360.0..=1000.0).contains(*v))
+        {
+            return Err(format!(
+                "wavelengths {:?}: {bad} nm is outside the synthetic materials' 360-1000 nm",
+                self.wavelengths
+            ));
+        }
         self.optimizer
             .parse::<OptimizerKind>()
             .map_err(|e| e.to_string())?;
@@ -230,7 +250,7 @@ impl Settings {
                 self.predictor
             ));
         }
-        self.fit_params(1, 1)
+        self.fit_params(max_iterations, max_evaluations)
             .check()
             .map(|_| ())
             .map_err(|e| e.to_string())
@@ -282,9 +302,11 @@ pub struct BenchRow {
 
 /// Runs every point of `config`, writes `bench.md`, `bench.json` and `bench.png` into `out`.
 pub fn run(config: &BenchConfig, config_path: &Path, out: &Path) -> Result<Vec<BenchRow>> {
-    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
-    let scratch = out.join("scratch");
-    std::fs::create_dir_all(&scratch).map_err(|e| Error::io(&scratch, e))?;
+    // Stores and models of the points live in a hidden scratch directory of `out`, deleted
+    // when the run ends, whether it succeeds or fails (or is interrupted).
+    let scratch_dir =
+        brdf_io::output::StagingDir::create(out).map_err(|e| Error::stage("bench", out, e))?;
+    let scratch = scratch_dir.path().to_owned();
     let mut stores: BTreeMap<(String, String, String), (PathBuf, f64)> = BTreeMap::new();
     let points = config.points();
     let mut rows = Vec::new();
@@ -395,7 +417,7 @@ pub fn run(config: &BenchConfig, config_path: &Path, out: &Path) -> Result<Vec<B
         });
     }
     mark_pareto(&mut rows);
-    let _ = std::fs::remove_dir_all(&scratch);
+    drop(scratch_dir);
 
     let json = serde_json::to_string_pretty(&rows)
         .map_err(|e| Error::stage("bench", out.join("bench.json"), e))?;
@@ -566,5 +588,27 @@ mod tests {
         std::fs::write(&bad, text).unwrap();
         let e = BenchConfig::load(&bad).unwrap_err().to_string();
         assert!(e.contains("bench.toml") && e.contains("latent_dim"), "{e}");
+        // Checked at load, before any point runs (they used to fail after earlier points had
+        // built their stores): the fits' caps, swept wavelengths outside 360-1000 nm, the
+        // sphere size of the Delta E spheres.
+        let original = std::fs::read_to_string(&path).unwrap();
+        for (from, to, needle) in [
+            (
+                "max_iterations = 2000",
+                "max_iterations = 0",
+                "max_iterations",
+            ),
+            (
+                "\"380:780:20\"]",
+                "\"200:300:50\"]",
+                "wavelengths = 200:300:50",
+            ),
+            ("sphere_size = 48", "sphere_size = 1", "sphere_size"),
+        ] {
+            assert!(original.contains(from), "{from}");
+            std::fs::write(&bad, original.replace(from, to)).unwrap();
+            let e = BenchConfig::load(&bad).unwrap_err().to_string();
+            assert!(e.contains(needle), "{e}");
+        }
     }
 }
