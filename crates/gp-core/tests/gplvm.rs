@@ -391,6 +391,18 @@ fn bad_inputs_are_clear_errors() {
         Err(GpError::NonFinite { .. })
     ));
     assert!(GplvmObjective::new(s.clone(), 0).is_err());
+    // Latent points at +-1e308: the kernel is exactly diagonal, dL/dX finite, but the
+    // length-scale gradient's (x_n - x_m)^2 overflows (it came back as NaN inside Ok).
+    let two = GplvmObjective::new(
+        Mat::from_fn(2, 2, |i, j| if i == j { 1.0 } else { -1.0 }),
+        1,
+    )
+    .unwrap();
+    let far = Mat::from_fn(2, 1, |i, _| if i == 0 { 1e308 } else { -1e308 });
+    assert!(matches!(
+        two.evaluate(far.as_ref(), &p, Par::Seq),
+        Err(GpError::NonFiniteResult { .. })
+    ));
     let x3 = Mat::<f64>::zeros(3, 2);
     assert!(matches!(
         obj.log_likelihood(x3.as_ref(), &p, Par::Seq),
