@@ -233,14 +233,8 @@ impl Settings {
         max_evaluations: usize,
     ) -> std::result::Result<(), String> {
         let (_, channels, _) = self.parsed()?;
-        if let Channels::Spectral(w) = &channels
-            && let Some(bad) = w.iter().find(|v| !(360.0..=1000.0).contains(*v))
-        {
-            return Err(format!(
-                "wavelengths {:?}: {bad} nm is outside the synthetic materials' 360-1000 nm",
-                self.wavelengths
-            ));
-        }
+        brdf_synth::dataset::wavelengths_of(&channels)
+            .map_err(|e| format!("wavelengths {:?}: {e}", self.wavelengths))?;
         self.optimizer
             .parse::<OptimizerKind>()
             .map_err(|e| e.to_string())?;

@@ -308,8 +308,11 @@ impl PipelineParams {
                     }
                     check_only(only).map_err(bad)?;
                 }
+                let channels = wavelengths(spec)?;
+                brdf_synth::dataset::wavelengths_of(&channels)
+                    .map_err(|e| bad(format!("data.wavelengths {spec:?}: {e}")))?;
                 DataSource::Synth {
-                    channels: wavelengths(spec)?,
+                    channels,
                     seed: d.seed.unwrap_or(0),
                     only: d.only.clone(),
                 }

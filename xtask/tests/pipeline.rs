@@ -198,6 +198,10 @@ fn unknown_keys_and_bad_values_are_named() {
             base.replace("400:700:50", "400:700:0.01"),
             "data.wavelengths",
         ),
+        (
+            base.replace("400:700:50", "300:700:100"),
+            "data.wavelengths \"300:700:100\": ",
+        ),
     ];
     for (i, (text, needle)) in cases.iter().enumerate() {
         let path = dir.path().join(format!("bad{i}.toml"));
