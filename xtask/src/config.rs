@@ -289,6 +289,8 @@ impl PipelineParams {
                 Ok(())
             }
         };
+        // The synthetic materials' names (known before any data is written).
+        let mut synth_names: Option<Vec<String>> = None;
         let source = match d.kind.as_str() {
             "synth" => {
                 not_for("files", !d.files.is_empty())?;
@@ -298,16 +300,17 @@ impl PipelineParams {
                     .wavelengths
                     .as_deref()
                     .unwrap_or(brdf_synth::DEFAULT_WAVELENGTHS);
+                let preset: Vec<String> =
+                    brdf_synth::preset(0).into_iter().map(|m| m.name).collect();
                 if let Some(only) = &d.only {
-                    let names: Vec<String> =
-                        brdf_synth::preset(0).into_iter().map(|m| m.name).collect();
-                    if let Some(missing) = only.iter().find(|n| !names.contains(n)) {
+                    if let Some(missing) = only.iter().find(|n| !preset.contains(n)) {
                         return Err(bad(format!(
                             "data.only: no preset material named {missing:?}"
                         )));
                     }
                     check_only(only).map_err(bad)?;
                 }
+                synth_names = Some(d.only.clone().unwrap_or(preset));
                 let channels = wavelengths(spec)?;
                 brdf_synth::dataset::wavelengths_of(&channels)
                     .map_err(|e| bad(format!("data.wavelengths {spec:?}: {e}")))?;
@@ -457,11 +460,8 @@ impl PipelineParams {
         };
         // Synthetic materials are known now; other kinds' names once the data are read
         // (`PipelineConfig::check_midpoints`, before the fit).
-        if let DataSource::Synth { only, .. } = &source {
-            let names = only
-                .clone()
-                .unwrap_or_else(|| brdf_synth::preset(0).into_iter().map(|m| m.name).collect());
-            check_midpoints(&predict.midpoints, &names).map_err(bad)?;
+        if let Some(names) = &synth_names {
+            check_midpoints(&predict.midpoints, names).map_err(bad)?;
         }
         Ok(PipelineConfig {
             path: path.to_owned(),
