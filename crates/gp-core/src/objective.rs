@@ -369,7 +369,11 @@ impl GplvmObjective {
             check_finite(grad_x.as_ref(), "GPLVM gradient dL/dX")?;
             // The hyperparameter gradients can overflow where dL/dX does not (latent points
             // near 1e308: (x_n - x_m)^2 is infinite while its weight is 0).
-            if let Some(&v) = g.hyper_log.to_vec().iter().find(|v| !v.is_finite()) {
+            let h = &g.hyper_log;
+            let mut hyper = std::iter::once(h.signal_variance)
+                .chain(h.length_scale.iter().copied())
+                .chain(std::iter::once(h.noise));
+            if let Some(v) = hyper.find(|v| !v.is_finite()) {
                 return Err(GpError::NonFiniteResult {
                     what: "GPLVM hyperparameter gradient",
                     value: v,
