@@ -27,11 +27,15 @@ use faer::{Mat, MatMut, MatRef, Par};
 /// How [`CholeskyFactor`] escalates jitter on failure.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct JitterPolicy {
-    /// First jitter, relative to the mean of the diagonal (default `1e-10`).
+    /// First jitter, relative to the mean of the diagonal (default `1e-13`: a few hundred
+    /// times the pivots' rounding `n eps max(diag)` for the N of a materials dataset, so a
+    /// matrix that is singular only by rounding gets a jitter of that order, not one that
+    /// outweighs a small noise term; the default used to be `1e-10`, ~1e6 times a noise of
+    /// `1e-16` that fails, which made the likelihood jump where `K` first failed).
     pub initial_relative: f64,
     /// Multiplier between successive jitters (default `10`).
     pub factor: f64,
-    /// Maximum number of jittered attempts after the plain one (default `9`, i.e. up to
+    /// Maximum number of jittered attempts after the plain one (default `12`, i.e. up to
     /// `1e-2 * mean diag`).
     pub max_jitter_attempts: usize,
 }
@@ -39,9 +43,9 @@ pub struct JitterPolicy {
 impl Default for JitterPolicy {
     fn default() -> Self {
         JitterPolicy {
-            initial_relative: 1e-10,
+            initial_relative: 1e-13,
             factor: 10.0,
-            max_jitter_attempts: 9,
+            max_jitter_attempts: 12,
         }
     }
 }
@@ -485,7 +489,8 @@ mod tests {
         assert!(f.jitter() > 0.0);
         assert!(f.attempts() >= 2);
         let mean = (0..6).map(|i| a[(i, i)]).sum::<f64>() / 6.0;
-        let expected = 1e-10 * mean * 10f64.powi(f.attempts() as i32 - 2);
+        let expected =
+            JitterPolicy::default().initial_relative * mean * 10f64.powi(f.attempts() as i32 - 2);
         assert!((f.jitter() - expected).abs() <= 1e-9 * expected);
         assert!(f.condition_estimate().is_finite() && f.condition_estimate() > 1e6);
         // Without jitter the same matrix is an error, not a panic.
@@ -494,6 +499,34 @@ mod tests {
             e,
             Err(GpError::NotPositiveDefinite { attempts: 1, .. })
         ));
+    }
+
+    /// A matrix singular only by rounding (two identical points of a noise-free kernel, with
+    /// and without a noise term far below rounding) gets a jitter within a few hundred times
+    /// the pivots' rounding, not the old `1e-10 mean(diag)`, which outweighed any noise below
+    /// it and made the log-determinant jump where K first failed.
+    #[test]
+    fn rounding_singular_matrices_get_rounding_sized_jitter() {
+        for (n, noise) in [(2, 0.0), (2, 1e-17), (51, 0.0)] {
+            let a = Mat::from_fn(n, n, |i, j| 1.0 + if i == j { noise } else { 0.0 });
+            let f = CholeskyFactor::new(a.as_ref(), Par::Seq).unwrap();
+            let rounding = n as f64 * f64::EPSILON;
+            assert!(f.jitter() > 0.0, "n {n}");
+            assert!(
+                f.jitter() <= 1e3 * rounding,
+                "n {n}: jitter {:e}",
+                f.jitter()
+            );
+            // log|A + jI| = (n - 1) log(noise + j) + log(n + noise + j), up to the entries'
+            // rounding (eps against j ~ 1e-13: a few per cent in each small pivot).
+            let j = noise + f.jitter();
+            let want = (n - 1) as f64 * j.ln() + (n as f64 + j).ln();
+            assert!(
+                (f.log_det() - want).abs() < 0.05 * (n - 1) as f64,
+                "n {n}: {} vs {want}",
+                f.log_det()
+            );
+        }
     }
 
     /// An RBF kernel matrix with a huge amplitude and length-scale (10 points, s^2 = 1e8,

@@ -63,6 +63,27 @@ pub enum GpError {
         /// Mean of the diagonal of the input.
         mean_diagonal: f64,
     },
+    /// A matrix that must be positive semidefinite (a Gram matrix) fails a necessary condition:
+    /// a negative diagonal entry (`row == col`), or a 2 x 2 principal minor
+    /// `a_ii a_jj - a_ij^2` below zero, each beyond a tolerance of `sqrt(eps) max|a|`.
+    #[error(
+        "{what} is not positive semidefinite, as a Gram matrix must be: {}",
+        if row == col {
+            format!("diagonal entry a[{row},{row}] = {value:e} is negative")
+        } else {
+            format!("|a[{row},{col}]| exceeds sqrt(a[{row},{row}] a[{col},{col}]) (minor {value:e})")
+        }
+    )]
+    NotPositiveSemidefinite {
+        /// Which matrix.
+        what: &'static str,
+        /// Row of the offending entry or minor.
+        row: usize,
+        /// Column of the offending entry or minor (`== row` for a diagonal entry).
+        col: usize,
+        /// The negative diagonal entry, or the negative minor `a_ii a_jj - a_ij^2`.
+        value: f64,
+    },
     /// An input that must be non-empty is empty.
     #[error("{what} is empty")]
     Empty {
@@ -129,6 +150,47 @@ pub(crate) fn check_finite_slice(s: &[f64], what: &'static str) -> Result<()> {
         }),
         None => Ok(()),
     }
+}
+
+/// Checks the necessary conditions of positive semidefiniteness that cost `O(n^2)` on a
+/// symmetric `m`: no diagonal entry below `-tol` and no 2 x 2 principal minor
+/// `(m_ii + tol)(m_jj + tol) - m_ij^2` below zero, `tol = sqrt(eps) max|m|`. (A full test, a
+/// factorisation or an eigen-decomposition, would reject genuine centred Gram matrices, whose
+/// smallest eigenvalue is 0 computed as a rounding-level +- n eps of the *uncentred* entries,
+/// which this function cannot see.)
+pub(crate) fn check_psd_minors(m: faer::MatRef<'_, f64>, what: &'static str) -> Result<()> {
+    let n = m.nrows();
+    let mut amax = 0.0f64;
+    for j in 0..n {
+        for i in 0..n {
+            amax = amax.max(m[(i, j)].abs());
+        }
+    }
+    let tol = f64::EPSILON.sqrt() * amax;
+    for i in 0..n {
+        if m[(i, i)] < -tol {
+            return Err(GpError::NotPositiveSemidefinite {
+                what,
+                row: i,
+                col: i,
+                value: m[(i, i)],
+            });
+        }
+    }
+    for j in 0..n {
+        for i in (j + 1)..n {
+            let minor = (m[(i, i)] + tol) * (m[(j, j)] + tol) - m[(i, j)] * m[(i, j)];
+            if minor < 0.0 {
+                return Err(GpError::NotPositiveSemidefinite {
+                    what,
+                    row: i,
+                    col: j,
+                    value: m[(i, i)] * m[(j, j)] - m[(i, j)] * m[(i, j)],
+                });
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Checks `m` is square and symmetric to a relative tolerance `sqrt(eps) * max|a|`.

@@ -16,7 +16,7 @@
 //! [`FactorInfo`]).
 
 use crate::cholesky::{CholeskyFactor, JitterPolicy};
-use crate::error::{GpError, Result, check_finite, check_symmetric};
+use crate::error::{GpError, Result, check_finite, check_psd_minors, check_symmetric};
 use crate::gram::{centre_gram, symmetrise};
 use crate::kernel::{HyperGradient, KernelParams, LengthScale};
 use faer::linalg::matmul::triangular::BlockStructure;
@@ -116,7 +116,9 @@ pub struct GplvmObjective {
 
 impl GplvmObjective {
     /// From an already centred Gram `S = Y Y^T` (`N x N`, symmetric, finite) and `D >= 1`.
-    /// Prior off, constant term on, default jitter policy.
+    /// Prior off, constant term on, default jitter policy. `S` must look like a Gram matrix:
+    /// a negative diagonal entry or a 2 x 2 principal minor below zero (beyond rounding) is
+    /// [`GpError::NotPositiveSemidefinite`] (`S = -I` used to give a finite likelihood).
     pub fn new(s: Mat<f64>, d: usize) -> Result<Self> {
         if s.nrows() == 0 {
             return Err(GpError::Empty {
@@ -132,6 +134,7 @@ impl GplvmObjective {
         check_symmetric(s.as_ref(), "Gram matrix S")?;
         let mut s = s;
         symmetrise(&mut s);
+        check_psd_minors(s.as_ref(), "Gram matrix S")?;
         Ok(GplvmObjective {
             s,
             d,

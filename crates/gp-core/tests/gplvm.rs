@@ -391,6 +391,26 @@ fn bad_inputs_are_clear_errors() {
         Err(GpError::NonFinite { .. })
     ));
     assert!(GplvmObjective::new(s.clone(), 0).is_err());
+    // Not a Gram matrix: a negative diagonal, or an off-diagonal entry larger than the
+    // geometric mean of its diagonal entries (|cos| > 1 between two materials).
+    assert!(matches!(
+        GplvmObjective::new(-s.clone(), 10),
+        Err(GpError::NotPositiveSemidefinite { row: 0, col: 0, .. })
+    ));
+    let mut too_close = s.clone();
+    too_close[(3, 1)] = 1.01;
+    too_close[(1, 3)] = 1.01;
+    let err = GplvmObjective::new(too_close, 10).unwrap_err();
+    assert!(
+        matches!(err, GpError::NotPositiveSemidefinite { row: 3, col: 1, .. }),
+        "{err}"
+    );
+    // A rank-one Gram matrix (two opposite materials) sits exactly on the boundary: accepted.
+    GplvmObjective::new(
+        Mat::from_fn(2, 2, |i, j| if i == j { 4.0 } else { -4.0 }),
+        3,
+    )
+    .unwrap();
     // Latent points at +-1e308: the kernel is exactly diagonal, dL/dX finite, but the
     // length-scale gradient's (x_n - x_m)^2 overflows (it came back as NaN inside Ok).
     let two = GplvmObjective::new(
