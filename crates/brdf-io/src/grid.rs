@@ -270,10 +270,19 @@ impl AngularGrid {
         )
     }
 
-    /// Multilinear interpolation stencil at `hd`: eight (flat angular index, weight) pairs whose
-    /// weights sum to 1. Bin centres sit at integer [`continuous_coords`](Self::continuous_coords);
-    /// theta_h and theta_d clamp at the grid's first and last centres, phi_d wraps with period pi.
-    /// At a bin centre the stencil reduces to that bin with weight 1 (other weights are 0).
+    /// Multilinear interpolation stencil at `hd`: eight (flat angular index, weight) pairs.
+    /// Bin centres sit at integer [`continuous_coords`](Self::continuous_coords); theta_h and
+    /// theta_d clamp at the grid's first and last centres, phi_d wraps with period pi. At a bin
+    /// centre the stencil reduces to that bin with weight 1 (other weights are 0).
+    ///
+    /// Cells below the horizon ([`AngularGrid::is_valid_cell`]) hold no value, so they get
+    /// weight 0 and the valid cells' weights are renormalised to sum to 1 (all weights are 0
+    /// when none of the eight is valid). A grazing lookup therefore reads only measured cells:
+    /// interpolating towards the stored 0 of an invalid neighbour read grazing values ~19 %
+    /// low at the median, up to 74 % (an audit against Neural-BRDF networks, lower direction
+    /// within 1.1 degrees of the horizon). Away from the horizon (theta_h + theta_d of the
+    /// stencil's largest corner below pi/2, where every corner is valid) this costs one
+    /// comparison.
     pub fn interpolation_stencil(&self, hd: &HalfDiff) -> [(usize, f64); 8] {
         let c = self.continuous_coords(hd);
         // (`as` truncates, which is the floor for the non-negative values here: cheaper than
@@ -306,15 +315,45 @@ impl AngularGrid {
                 }
             }
         }
+        // Both directions of a bin centre are above the horizon when theta_h + theta_d < pi/2
+        // (their heights are cos theta_h cos theta_d -+ sin theta_h sin theta_d cos phi_d >=
+        // cos(theta_h + theta_d)); h1 and d1 are the largest corners. The margin keeps the
+        // shortcut clear of rounding in `is_above_horizon`.
+        let centre = self.bin_centre(h1, d1, 0);
+        if centre.theta_h + centre.theta_d < FRAC_PI_2 - 1e-9 {
+            return out;
+        }
+        let mut total = 0.0;
+        for (a, w) in &mut out {
+            if self.is_valid_flat(*a) {
+                total += *w;
+            } else {
+                *w = 0.0;
+            }
+        }
+        if total > 0.0 {
+            for (_, w) in &mut out {
+                *w /= total;
+            }
+        }
         out
+    }
+
+    /// Whether both directions of the centre of bin (ith, itd, ipd) are above the horizon: the
+    /// cell holds a value (the definition behind [`AngularGrid::validity_mask`]).
+    pub fn is_valid_cell(&self, ith: usize, itd: usize, ipd: usize) -> bool {
+        self.bin_centre(ith, itd, ipd).is_above_horizon()
+    }
+
+    /// [`AngularGrid::is_valid_cell`] of the bin with flat index `flat`.
+    fn is_valid_flat(&self, flat: usize) -> bool {
+        self.bin_centre_flat(flat).is_above_horizon()
     }
 
     /// Validity mask over flat indices: true where both directions of the bin centre are above
     /// the horizon. Cells outside the mask hold no measurement and never enter statistics.
     pub fn validity_mask(&self) -> Vec<bool> {
-        (0..self.len())
-            .map(|f| self.bin_centre_flat(f).is_above_horizon())
-            .collect()
+        (0..self.len()).map(|f| self.is_valid_flat(f)).collect()
     }
 }
 
@@ -619,6 +658,57 @@ mod tests {
         assert!(
             close(w_first, 0.5, 1e-9) && close(w_last, 0.5, 1e-9),
             "{st:?}"
+        );
+    }
+
+    /// Near the horizon the stencil reads valid cells only, with weights summing to 1; away
+    /// from it (and wherever all eight corners are valid) it is the plain multilinear stencil.
+    #[test]
+    fn stencils_skip_cells_below_the_horizon() {
+        let g = AngularGrid::new(12, 10, 16).unwrap();
+        let mask = g.validity_mask();
+        let (mut partial, mut plain) = (0, 0);
+        for i in 0..40 {
+            for j in 0..40 {
+                for k in 0..9 {
+                    let hd = HalfDiff {
+                        theta_h: i as f64 / 39.0 * FRAC_PI_2,
+                        theta_d: j as f64 / 39.0 * FRAC_PI_2,
+                        phi_d: k as f64 / 9.0 * PI,
+                    };
+                    let st = g.interpolation_stencil(&hd);
+                    let total: f64 = st.iter().map(|(_, w)| w).sum();
+                    let reads_invalid = st.iter().any(|&(a, w)| w > 0.0 && !mask[a]);
+                    assert!(!reads_invalid, "{hd:?}: {st:?}");
+                    assert!(
+                        total == 0.0 || (total - 1.0).abs() < 1e-12,
+                        "{hd:?}: {total}"
+                    );
+                    // The plain multilinear weights, for comparison.
+                    let c = g.continuous_coords(&hd);
+                    let all_valid = st.iter().all(|&(a, _)| mask[a]);
+                    if all_valid {
+                        plain += 1;
+                        let th = c[0].clamp(0.0, 11.0);
+                        let w_h1 = th - th.floor();
+                        let w: f64 = st
+                            .iter()
+                            .filter(|&&(a, _)| g.unindex(a).0 == (th as usize + 1).min(11))
+                            .map(|(_, w)| w)
+                            .sum();
+                        if th < 11.0 {
+                            assert!((w - w_h1).abs() < 1e-12, "{hd:?}: {st:?}");
+                        }
+                    } else if total > 0.0 {
+                        partial += 1;
+                    }
+                }
+            }
+        }
+        // Both kinds of lookup occur in the sweep.
+        assert!(
+            partial > 100 && plain > 1000,
+            "partial {partial}, plain {plain}"
         );
     }
 

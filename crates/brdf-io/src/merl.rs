@@ -475,19 +475,42 @@ mod tests {
     }
 
     /// Values on another grid reach MERL's grid through the lookup interpolation: a constant
-    /// stays constant above the horizon, and every MERL cell equals the coarse grid's
+    /// (in the valid cells, 0 in the others, as stored) stays constant above the horizon
+    /// wherever a valid coarse cell is near, and every MERL cell equals the coarse grid's
     /// interpolation at its bin centre.
     #[test]
     fn values_on_another_grid_are_interpolated_onto_merls_grid() {
         let coarse = AngularGrid::new(4, 5, 6).unwrap();
+        let coarse_mask = coarse.validity_mask();
         let constant: Vec<f32> = (0..3 * coarse.len())
-            .map(|i| [0.5, 1.0, 2.0][i % 3])
+            .map(|i| {
+                if coarse_mask[i / 3] {
+                    [0.5, 1.0, 2.0][i % 3]
+                } else {
+                    0.0
+                }
+            })
             .collect();
         let m = MerlBrdf::on_merl_grid(coarse, &constant).unwrap();
         let merl = AngularGrid::MERL;
         assert_eq!(m.grid(), &merl);
+        let mut grazing_constant = 0;
         for flat in (0..merl.len()).step_by(101) {
-            let want = if merl.bin_centre_flat(flat).is_above_horizon() {
+            let hd = merl.bin_centre_flat(flat);
+            let near_valid = coarse
+                .interpolation_stencil(&hd)
+                .iter()
+                .any(|&(_, w)| w > 0.0);
+            let want = if hd.is_above_horizon() && near_valid {
+                // Cells next to invalid coarse cells read the constant too (the stencil skips
+                // the stored 0s).
+                if coarse
+                    .interpolation_stencil(&hd)
+                    .iter()
+                    .any(|&(a, _)| !coarse_mask[a])
+                {
+                    grazing_constant += 1;
+                }
                 [0.5, 1.0, 2.0]
             } else {
                 [0.0; 3]
@@ -496,6 +519,7 @@ mod tests {
                 assert!((m.value(c, flat) - w).abs() < 1e-6, "{flat} {c}");
             }
         }
+        assert!(grazing_constant > 100, "{grazing_constant}");
         let varied: Vec<f32> = (0..3 * coarse.len())
             .map(|i| (i * 37 % 101) as f32 / 10.0)
             .collect();

@@ -423,6 +423,45 @@ fn material_sampling_interpolates_on_the_grid() {
     assert_eq!(out, [0.0; 3]);
 }
 
+/// A material that is 1/pi (a white Lambertian) in every valid cell samples as 1/pi right
+/// down to the horizon: the lookup does not interpolate towards the 0 stored in the cells below
+/// it (it read up to ~70 % low within a degree of the horizon before).
+#[test]
+fn grazing_lookups_read_valid_cells_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("white.sbrdf");
+    let info = info(16, 16, 32, Channels::Rgb);
+    let mask = info.grid.validity_mask();
+    let value = std::f32::consts::FRAC_1_PI;
+    let row: Vec<f32> = (0..info.d())
+        .map(|d| if mask[d / 3] { value } else { 0.0 })
+        .collect();
+    write_materials(&path, &info, &[row], StoreOptions::default(), 4096).unwrap();
+    let m = StoreMaterial::open(&path, "mat0").unwrap();
+    let mut out = [0f64; 3];
+    let mut checked = 0;
+    for i in 0..=40 {
+        // Light from 80..89.9 degrees, viewer at 0..89.9 degrees, several azimuths.
+        let ti = (80.0 + i as f64 * 0.2475f64).to_radians();
+        for j in 0..=30 {
+            let to = (j as f64 * 2.997f64).to_radians();
+            for phi in [0.0f64, 0.7, 1.6, 2.5, 3.1] {
+                let wi = [ti.sin(), 0.0, ti.cos()];
+                let wo = [to.sin() * phi.cos(), to.sin() * phi.sin(), to.cos()];
+                m.eval(wi, wo, &mut out).unwrap();
+                // 0 only when no cell around the pair holds a value.
+                if out[0] != 0.0 {
+                    checked += 1;
+                    for o in out {
+                        assert!((o - f64::from(value)).abs() < 1e-6, "{ti} {to} {phi}: {o}");
+                    }
+                }
+            }
+        }
+    }
+    assert!(checked > 5000, "{checked}");
+}
+
 #[test]
 fn stored_material_at_chosen_wavelengths_interpolates_between_stored_ones() {
     // Stored channels 400, 500, 600 nm holding 1, 3, 7 (+ cell index): 450 nm is 2, 525 nm is
