@@ -162,9 +162,18 @@ impl GpRegression {
     }
 
     /// Predictive variance `s^2 + mu + j - k_s^T K^-1 k_s` at one test point (clamped at 0;
-    /// `j` = the factorisation jitter, usually 0).
+    /// `j` = the factorisation jitter, usually 0): that of a new noisy observation at `x*`
+    /// (the smooth `k_s`), what [`GpRegression::variance_batch`] shades maps with.
     pub fn variance(&self, x_star: &[f64]) -> Result<f64> {
-        let k = self.cross_covariance(x_star, Predictor::Smooth)?;
+        self.variance_of(x_star, Predictor::Smooth)
+    }
+
+    /// Predictive variance `s^2 + mu + j - k*^T K^-1 k*` with the `k*` of `predictor`: for
+    /// [`Predictor::Smooth`] it is [`GpRegression::variance`]; for [`Predictor::Exact`] it is the
+    /// same away from the training points and 0 at one (`k* = K e_i`: the exact predictor
+    /// returns the training material itself), DESIGN.md section 4 with the paper's `k*`.
+    pub fn variance_of(&self, x_star: &[f64], predictor: Predictor) -> Result<f64> {
+        let k = self.cross_covariance(x_star, predictor)?;
         let mut m = Mat::from_fn(k.len(), 1, |i, _| k[i]);
         self.solve_seq(m.as_mut(), false);
         let q: f64 = (0..k.len()).map(|i| m[(i, 0)] * m[(i, 0)]).sum();

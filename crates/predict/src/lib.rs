@@ -22,7 +22,7 @@ pub mod materialize;
 pub mod predictor;
 
 pub use error::{Error, Result};
-pub use materialize::{MaterializeReport, OutputFormat};
+pub use materialize::{MaterializeReport, NegativeCount, OutputFormat};
 pub use predictor::{
     ChannelSelection, PredictedMaterial, Predictor, PredictorKind, kernel_params,
     transformed_store_path, weights_to_coefficients,

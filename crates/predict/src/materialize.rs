@@ -55,6 +55,33 @@ pub struct MaterializeReport {
     pub bytes: u64,
     /// Wall-clock seconds.
     pub seconds: f64,
+    /// Predicted values below 0 (before any format clamps them: a MERL file stores 0). The GP
+    /// mean is not constrained to be non-negative: under `log` it reaches down to `-offset`,
+    /// under `raw` anywhere.
+    pub negatives: usize,
+    /// The smallest predicted value (0 when none is negative).
+    pub min_value: f64,
+}
+
+/// Counts negative values and tracks the minimum of a stream of predicted values.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NegativeCount {
+    /// Values below 0 so far.
+    pub negatives: usize,
+    /// The smallest value so far, or 0.
+    pub min_value: f64,
+}
+
+impl NegativeCount {
+    /// Adds a block of values.
+    pub fn add(&mut self, values: &[f32]) {
+        for &v in values {
+            if v < 0.0 {
+                self.negatives += 1;
+                self.min_value = self.min_value.min(f64::from(v));
+            }
+        }
+    }
 }
 
 impl PredictedMaterial {
@@ -151,10 +178,17 @@ impl PredictedMaterial {
         let total = self.output_len();
         let grid = *self.predictor().grid();
         let mut values = total;
+        let mut count = NegativeCount::default();
         match format {
             OutputFormat::Npy => {
                 let mut w = NpyWriter::create(path, NpyDtype::F32, &[1, total])?;
-                self.stream_values(|_, v| Ok(w.write_f32(v)?), progress)?;
+                self.stream_values(
+                    |_, v| {
+                        count.add(v);
+                        Ok(w.write_f32(v)?)
+                    },
+                    progress,
+                )?;
                 w.finish()?;
             }
             OutputFormat::Sbrdf => {
@@ -170,7 +204,13 @@ impl PredictedMaterial {
                     self.predictor().store().path().display()
                 );
                 w.declare_materials(&[(self.label(), source.as_str())])?;
-                self.stream_values(|r, v| Ok(w.write_block(r, v)?), progress)?;
+                self.stream_values(
+                    |r, v| {
+                        count.add(v);
+                        Ok(w.write_block(r, v)?)
+                    },
+                    progress,
+                )?;
                 w.finish()?;
             }
             OutputFormat::Merl => {
@@ -187,6 +227,7 @@ impl PredictedMaterial {
                 let mut all = Vec::with_capacity(total);
                 self.stream_values(
                     |_, v| {
+                        count.add(v);
                         all.extend_from_slice(v);
                         Ok(())
                     },
@@ -209,6 +250,8 @@ impl PredictedMaterial {
             values,
             bytes,
             seconds: start.elapsed().as_secs_f64(),
+            negatives: count.negatives,
+            min_value: count.min_value,
         })
     }
 }

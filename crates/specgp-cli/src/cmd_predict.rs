@@ -132,6 +132,12 @@ pub fn open_model_source(
 pub fn with_existing_sidecar(pred: Predictor) -> anyhow::Result<Predictor> {
     let side = pred.transformed_store_path();
     if pred.transform() != gplvm::Transform::Raw && side.is_file() {
+        // Said once, on stderr: the sidecar's f32 transformed values move results by ~1e-6
+        // relative, so an output that changes after `predict --sidecar` has a visible cause.
+        eprintln!(
+            "reading the sidecar {} (transformed values in f32: ~1e-6 relative)",
+            side.display()
+        );
         return pred
             .with_transformed_store(&side)
             .with_context(|| format!("opening the sidecar {}", side.display()));
@@ -176,10 +182,10 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
         (Some(at), _) => {
             let x = parse_point(at)?;
             if args.variance {
-                let v = pred.variance(&x)?;
+                let v = pred.variance_of(&x, kind)?;
                 println!(
-                    "variance {v:e} (model units: centred transformed data / sqrt(data_scale)); \
-                     {:e} per transformed value (std {:e}, transform {})",
+                    "variance {v:e} of the {kind} predictor (model units: centred transformed \
+                     data / sqrt(data_scale)); {:e} per transformed value (std {:e}, transform {})",
                     v * pred.model().data_scale,
                     (v * pred.model().data_scale).sqrt(),
                     pred.transform()
@@ -225,6 +231,19 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
         report.bytes,
         report.seconds
     );
+    if report.negatives > 0 {
+        eprintln!(
+            "warning: {} predicted values are negative (min {:e} 1/sr): the GP mean is not \
+             constrained to be non-negative{}",
+            report.negatives,
+            report.min_value,
+            if report.format == predict::OutputFormat::Merl {
+                "; the MERL file stores 0 there"
+            } else {
+                ""
+            }
+        );
+    }
     Ok(())
 }
 
@@ -244,8 +263,10 @@ fn write_spectral_merl(
     let mut rgb = Vec::with_capacity(3 * grid.len());
     let mut cell = vec![0.0f64; nc];
     let mut filled = 0;
+    let mut count = predict::NegativeCount::default();
     material.stream_values(
         |_, values| {
+            count.add(values);
             for v in values {
                 cell[filled] = f64::from(*v);
                 filled += 1;
@@ -268,6 +289,8 @@ fn write_spectral_merl(
         values: merl.values().len(),
         bytes: std::fs::metadata(out)?.len(),
         seconds: start.elapsed().as_secs_f64(),
+        negatives: count.negatives,
+        min_value: count.min_value,
     })
 }
 
