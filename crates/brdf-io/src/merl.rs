@@ -8,6 +8,9 @@
 //! 1.66/1500) for R, G, B ([`MERL_SCALE`]). Negative stored values mark invalid (unmeasured or
 //! below-horizon) samples.
 //!
+//! A "full" file of resolution 90, 90, 360 ([`FULL_PHI_D_RESOLUTION`]: phi_d over [0, 2 pi))
+//! is folded onto MERL's grid by reciprocity when read.
+//!
 //! [`read_merl`] keeps the values exactly as stored (negative markers included, times the
 //! scale) and refuses NaN and infinite numbers, as [`MerlBrdf::new`] does (so [`write_merl`] never
 //! writes them); the conversions to dataset order treat negatives as 0 and count them in the
@@ -300,7 +303,44 @@ pub fn parse_merl(bytes: &[u8], path: impl AsRef<Path>) -> Result<MerlBrdf> {
         }
         values.push(stored * MERL_SCALE[i / n]);
     }
+    if (grid.n_theta_h, grid.n_theta_d, grid.n_phi_d) == FULL_PHI_D_RESOLUTION {
+        return Ok(fold_full_phi_d(grid, &values));
+    }
     Ok(MerlBrdf { grid, values })
+}
+
+/// The resolution of "full" MERL files, whose 360 phi_d bins span [0, 2 pi) instead of MERL's
+/// [0, pi): the layout of the Neural-BRDF tools' `convert_to_fullmerl` and of some renderers'
+/// readers. MERL's `BRDFRead.cpp` rejects such a file; read as MERL's layout, every phi_d would
+/// land in the wrong bin (40.5 degrees in the 81-degree cell).
+pub const FULL_PHI_D_RESOLUTION: (usize, usize, usize) = (90, 90, 360);
+
+/// MERL's 90 x 90 x 180 BRDF from a full file's values (`grid` = 90 x 90 x 360, phi_d over
+/// [0, 2 pi)): bins k and k + 180 hold phi_d and phi_d + pi, the same pair with wi and wo
+/// swapped, so each MERL cell gets their reciprocal mean (the one valid value when the other
+/// is a negative marker; a negative marker when both are).
+fn fold_full_phi_d(grid: AngularGrid, values: &[f64]) -> MerlBrdf {
+    let merl = AngularGrid::MERL;
+    let (n_full, n) = (grid.len(), merl.len());
+    let half = grid.n_phi_d / 2;
+    let mut out = Vec::with_capacity(3 * n);
+    for c in 0..3 {
+        for flat in 0..n {
+            let (ith, itd, ipd) = merl.unindex(flat);
+            let at = |k: usize| values[c * n_full + grid.index(ith, itd, k)];
+            let (a, b) = (at(ipd), at(ipd + half));
+            out.push(match (a >= 0.0, b >= 0.0) {
+                (true, true) => 0.5 * (a + b),
+                (true, false) => a,
+                (false, true) => b,
+                (false, false) => a.max(b),
+            });
+        }
+    }
+    MerlBrdf {
+        grid: merl,
+        values: out,
+    }
 }
 
 /// The stored number whose read-back (`stored * scale`) equals `value` when such a number exists
@@ -563,6 +603,71 @@ mod tests {
         // And the file bytes round-trip as well.
         write_merl(&p, &back).unwrap();
         assert_eq!(std::fs::read(&p).unwrap(), bytes);
+    }
+
+    /// A full 90 x 90 x 360 file (phi_d over [0, 2 pi)) reads as MERL's grid: each cell is the
+    /// reciprocal mean of bins k and k + 180, a lookup at phi_d = 40.5 degrees reads the 40.5
+    /// degree cell (not the 81-degree one, as reading it with MERL's layout did), and negative
+    /// markers drop out of the mean.
+    #[test]
+    fn full_phi_d_files_are_folded_onto_merls_grid() {
+        let full = AngularGrid::new(90, 90, 360).unwrap();
+        let stored = |c: usize, ith: usize, itd: usize, k: usize| -> f64 {
+            // Smooth in the angles, different in the two halves, one negative marker.
+            if (c, ith, itd, k) == (1, 10, 20, 200) {
+                return -1.0;
+            }
+            (1 + c) as f64
+                + ith as f64 * 0.01
+                + itd as f64 * 0.001
+                + (k % 180) as f64 * 1e-4
+                + if k >= 180 { 0.5 } else { 0.0 }
+        };
+        let mut bytes = Vec::with_capacity(12 + 24 * full.len());
+        for d in [90i32, 90, 360] {
+            bytes.extend_from_slice(&d.to_le_bytes());
+        }
+        for c in 0..3 {
+            for flat in 0..full.len() {
+                let (i, j, k) = full.unindex(flat);
+                bytes.extend_from_slice(&stored(c, i, j, k).to_le_bytes());
+            }
+        }
+        let brdf = parse_merl(&bytes, "full.binary").unwrap();
+        assert_eq!(brdf.grid(), &AngularGrid::MERL);
+        let merl = AngularGrid::MERL;
+        for (c, i, j, k) in [
+            (0, 3, 4, 5),
+            (2, 89, 0, 179),
+            (1, 45, 45, 90),
+            (1, 10, 20, 20),
+        ] {
+            let want = if (c, i, j, k) == (1, 10, 20, 20) {
+                stored(c, i, j, k)
+            } else {
+                0.5 * (stored(c, i, j, k) + stored(c, i, j, k + 180))
+            } * MERL_SCALE[c];
+            let got = brdf.value(c, merl.index(i, j, k));
+            assert!(
+                (got - want).abs() <= 1e-15 * want,
+                "{c} {i} {j} {k}: {got} vs {want}"
+            );
+        }
+        // In-plane-free pair at phi_d = 40.5 degrees reads bin 40 of MERL's grid.
+        let hd = HalfDiff {
+            theta_h: merl.bin_centre(30, 30, 0).theta_h,
+            theta_d: merl.bin_centre(30, 30, 0).theta_d,
+            phi_d: 40.5f64.to_radians(),
+        };
+        let (wi, wo) = hd.to_dirs();
+        let mut out = [0.0; 3];
+        brdf.eval(wi, wo, &mut out).unwrap();
+        let want = 0.5 * (stored(0, 30, 30, 40) + stored(0, 30, 30, 220)) * MERL_SCALE[0];
+        assert!(
+            (out[0] - want).abs() <= 1e-12 * want,
+            "{} vs {want}",
+            out[0]
+        );
     }
 
     /// NaN and +-infinity are refused with the file and the first bad index; finite negative
