@@ -23,7 +23,7 @@ use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 use crate::grid::{AngularGrid, Channels, Vec3};
-use crate::source::{BrdfSource, ImportReport, ResampleOptions, resample_cells};
+use crate::source::{BrdfSource, ImportReport, PairWeights, ResampleOptions, resample_cells};
 
 /// Number of weights per network (6*21 + 21 + 21*21 + 21 + 21*3 + 3).
 pub const WEIGHTS_PER_NETWORK: usize = 675;
@@ -217,10 +217,11 @@ impl Nbrdf {
         grid: &AngularGrid,
         options: NbrdfOptions,
     ) -> Result<(Vec<f32>, ImportReport)> {
-        let (values, report) = resample_cells(grid, 3, options, |wi, wo, out| {
-            out.copy_from_slice(&self.eval(wi, wo));
-            Ok(())
-        })?;
+        let (values, report) =
+            resample_cells(grid, 3, options, PairWeights::Equal, |wi, wo, out| {
+                out.copy_from_slice(&self.eval(wi, wo));
+                Ok(())
+            })?;
         tracing::info!(material = %self.name, %grid, "resampled Neural-BRDF: {report}");
         Ok((values, report))
     }

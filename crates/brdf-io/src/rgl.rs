@@ -24,7 +24,7 @@ use std::path::{Path, PathBuf};
 use crate::error::{Error, Result};
 use crate::grid::{AngularGrid, ChannelSelection, Channels, Vec3};
 use crate::source::{
-    BrdfSource, ImportReport, ResampleOptions, resample_cells, resample_cells_into,
+    BrdfSource, ImportReport, PairWeights, ResampleOptions, resample_cells, resample_cells_into,
 };
 use crate::tensor::{DType, TensorFile};
 
@@ -577,9 +577,13 @@ impl RglBsdf {
     ) -> Result<(Vec<f32>, ImportReport)> {
         let sel = ChannelSelection::new(&self.path, &self.native, channels)?;
         let n = sel.taps.len();
-        let (values, report) = resample_cells(grid, n, options, |wi, wo, out| {
-            self.eval_selection(&sel, wi, wo, out)
-        })?;
+        let (values, report) = resample_cells(
+            grid,
+            n,
+            options,
+            PairWeights::CosOutgoingSquared,
+            |wi, wo, out| self.eval_selection(&sel, wi, wo, out),
+        )?;
         tracing::info!(file = %self.path.display(), %grid, "resampled RGL BSDF: {report}");
         Ok((values, report))
     }
@@ -606,6 +610,7 @@ impl RglBsdf {
             out,
             sel.taps.len(),
             options,
+            PairWeights::CosOutgoingSquared,
             |wi, wo, o| self.eval_selection(&sel, wi, wo, o),
         )
     }

@@ -208,10 +208,13 @@ impl ImportReport {
     }
 
     /// Records the two orders `a = f(wi, wo)`, `b = f(wo, wi)` of one value, with the weight
-    /// `cos_weight = cos theta_i cos theta_o` of its directions, and returns their mean (to
-    /// pass to [`ImportReport::record`]); non-finite pairs are not measured.
-    pub fn record_pair(&mut self, a: f64, b: f64, cos_weight: f64) -> f64 {
+    /// `cos_weight = cos theta_i cos theta_o` of its directions, and returns the value to store,
+    /// `weight_a a + (1 - weight_a) b` (to pass to [`ImportReport::record`]; `weight_a` = 1/2:
+    /// the plain mean); non-finite pairs are not measured. The report measures the plain mean
+    /// and half difference.
+    pub fn record_pair(&mut self, a: f64, b: f64, cos_weight: f64, weight_a: f64) -> f64 {
         let (mean, half_diff) = (0.5 * (a + b), 0.5 * (a - b));
+        let stored = weight_a * a + (1.0 - weight_a) * b;
         if mean.is_finite() && half_diff.is_finite() {
             self.reciprocal_sq += cos_weight * mean * mean;
             self.non_reciprocal_sq += cos_weight * half_diff * half_diff;
@@ -224,7 +227,7 @@ impl ImportReport {
                 self.non_reciprocal_hist[bin] += 1;
             }
         }
-        mean
+        stored
     }
 
     /// The median over values of the relative non-reciprocal part `|a - b| / (|a| + |b|)`
@@ -316,14 +319,30 @@ pub(crate) fn resample_cells<F>(
     grid: &crate::grid::AngularGrid,
     n_channels: usize,
     options: ResampleOptions,
+    weights: PairWeights,
     eval: F,
 ) -> Result<(Vec<f32>, ImportReport)>
 where
     F: Fn(Vec3, Vec3, &mut [f64]) -> Result<()> + Sync,
 {
     let mut out = vec![0f32; grid.len() * n_channels];
-    let report = resample_cells_into(grid, 0, &mut out, n_channels, options, eval)?;
+    let report = resample_cells_into(grid, 0, &mut out, n_channels, options, weights, eval)?;
     Ok((out, report))
+}
+
+/// How the reciprocal mean of [`ResampleOptions::reciprocal`] weighs the two orders.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum PairWeights {
+    /// `(f(wi, wo) + f(wo, wi)) / 2` (sources evaluated directly as f: Neural-BRDF networks).
+    Equal,
+    /// Inverse-variance weights for sources whose f is a tabulated `f cos(theta_o)` divided by
+    /// `cos(theta_o)` (RGL files, as Mitsuba returns them): the table's error is about the
+    /// same everywhere, so an order's error grows like `1 / cos(theta_o)` and its weight is
+    /// `cos^2(theta_o)`: `(c_o^2 f(wi, wo) + c_i^2 f(wo, wi)) / (c_o^2 + c_i^2)`. Where one
+    /// direction is grazing, the order that divides by its tiny cosine (whose values near the
+    /// horizon are 2-10x the other's: bright specks along the terminator of imported
+    /// spheres) hardly counts. Still symmetric in the two directions, so still reciprocal.
+    CosOutgoingSquared,
 }
 
 /// As [`resample_cells`] for the block of cells `first_cell..first_cell + out.len() / n_channels`,
@@ -334,6 +353,7 @@ pub(crate) fn resample_cells_into<F>(
     out: &mut [f32],
     n_channels: usize,
     options: ResampleOptions,
+    weights: PairWeights,
     eval: F,
 ) -> Result<ImportReport>
 where
@@ -372,8 +392,15 @@ where
                 eval(wi, wo, &mut buf)?;
                 if options.reciprocal {
                     eval(wo, wi, &mut swapped)?;
+                    let weight_a = match weights {
+                        PairWeights::Equal => 0.5,
+                        PairWeights::CosOutgoingSquared => {
+                            let (co2, ci2) = (wo[2] * wo[2], wi[2] * wi[2]);
+                            co2 / (co2 + ci2)
+                        }
+                    };
                     for (a, &b) in buf.iter_mut().zip(&swapped) {
-                        *a = report.record_pair(*a, b, wi[2] * wo[2]);
+                        *a = report.record_pair(*a, b, wi[2] * wo[2], weight_a);
                     }
                 }
                 for (o, &v) in cell.iter_mut().zip(&buf) {
@@ -417,6 +444,45 @@ mod tests {
         assert!(ok.ensure_finite("net").is_ok());
     }
 
+    /// A source like an RGL file: a table of `f cos(theta_o)` whose error does not vanish at
+    /// the horizon (here a constant 0.01 added to a white Lambertian's `cos / pi`), divided by
+    /// `cos(theta_o)`. The plain reciprocal mean stores the order that divides by a grazing
+    /// cosine too (values up to ~1/(2 cos) above 1/pi); the inverse-variance weights keep every
+    /// cell with one direction above 10 degrees of elevation within 0.08 of 1/pi.
+    #[test]
+    fn cosine_weighted_reciprocal_mean_tames_grazing_divisions() {
+        let grid = crate::grid::AngularGrid::new(16, 16, 32).unwrap();
+        let eval = |_wi: Vec3, wo: Vec3, out: &mut [f64]| {
+            out[0] = (wo[2] * std::f64::consts::FRAC_1_PI + 0.01) / wo[2];
+            Ok(())
+        };
+        let options = ResampleOptions::default();
+        let (plain, _) = resample_cells(&grid, 1, options, PairWeights::Equal, eval).unwrap();
+        let (weighted, _) =
+            resample_cells(&grid, 1, options, PairWeights::CosOutgoingSquared, eval).unwrap();
+        let (mut worst_plain, mut worst_weighted) = (0.0f64, 0.0f64);
+        for a in 0..grid.len() {
+            let (wi, wo) = grid.bin_centre_flat(a).to_dirs();
+            if wi[2] <= 0.0 || wo[2] <= 0.0 || wi[2].max(wo[2]) < 10f64.to_radians().sin() {
+                continue;
+            }
+            worst_plain = worst_plain.max(f64::from(plain[a]) - std::f64::consts::FRAC_1_PI);
+            worst_weighted =
+                worst_weighted.max(f64::from(weighted[a]) - std::f64::consts::FRAC_1_PI);
+        }
+        assert!(worst_weighted < 0.08, "{worst_weighted}");
+        assert!(worst_plain > 0.3, "{worst_plain}");
+        // Both are reciprocal: a symmetric source is stored as it is by either.
+        let sym = |wi: Vec3, wo: Vec3, out: &mut [f64]| {
+            out[0] = 1.0 + wi[2] * wo[2];
+            Ok(())
+        };
+        let (a, _) = resample_cells(&grid, 1, options, PairWeights::Equal, sym).unwrap();
+        let (b, _) =
+            resample_cells(&grid, 1, options, PairWeights::CosOutgoingSquared, sym).unwrap();
+        assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() <= 1e-6 * y));
+    }
+
     /// A source that is not reciprocal (its value depends on which direction is incident):
     /// reciprocal resampling stores the mean of both orders and measures the removed part;
     /// one-order resampling stores f of the bin centre's own pair.
@@ -434,8 +500,9 @@ mod tests {
             reciprocal: false,
             ..both
         };
-        let (mean, report) = resample_cells(&grid, 2, both, eval).unwrap();
-        let (plain, plain_report) = resample_cells(&grid, 2, one, eval).unwrap();
+        let (mean, report) = resample_cells(&grid, 2, both, PairWeights::Equal, eval).unwrap();
+        let (plain, plain_report) =
+            resample_cells(&grid, 2, one, PairWeights::Equal, eval).unwrap();
         let (mut diff_sq, mut mean_sq, mut differs) = (0.0, 0.0, 0);
         let mut rel = Vec::new();
         for a in 0..grid.len() {
@@ -487,8 +554,8 @@ mod tests {
             out[0] = 1.0 + wi[2] * wo[2];
             Ok(())
         };
-        let (a, ra) = resample_cells(&grid, 1, both, sym).unwrap();
-        let (b, _) = resample_cells(&grid, 1, one, sym).unwrap();
+        let (a, ra) = resample_cells(&grid, 1, both, PairWeights::Equal, sym).unwrap();
+        let (b, _) = resample_cells(&grid, 1, one, PairWeights::Equal, sym).unwrap();
         assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() <= 1e-6 * y));
         assert!(ra.non_reciprocity().unwrap() < 1e-12);
     }

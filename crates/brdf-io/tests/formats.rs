@@ -99,13 +99,15 @@ fn rgl_resample_is_symmetric_under_reciprocity_and_zero_below_horizon() {
         if *ok {
             assert!(cell.iter().all(|v| *v > 0.0), "cell {a}: {cell:?}");
             // Same value as the mean of direct evaluations at the bin centre, both orders
-            // (measured files are not exactly reciprocal).
+            // (measured files are not exactly reciprocal), each weighted by the square of the
+            // cosine it divides by (f = table / cos(theta_o); the inverse-variance mean).
             let (wi, wo) = grid.bin_centre_flat(a).to_dirs();
             let (mut out, mut swapped) = ([0.0; 3], [0.0; 3]);
             bsdf.eval(wi, wo, &mut out).unwrap();
             bsdf.eval(wo, wi, &mut swapped).unwrap();
+            let (co2, ci2) = (wo[2] * wo[2], wi[2] * wi[2]);
             for c in 0..3 {
-                let m = 0.5 * (out[c] + swapped[c]);
+                let m = (co2 * out[c] + ci2 * swapped[c]) / (co2 + ci2);
                 assert!((f64::from(cell[c]) - m).abs() <= 1e-6 * m.abs().max(1e-6));
             }
         } else {
