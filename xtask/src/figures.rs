@@ -127,8 +127,9 @@ pub fn render_figures(
         .map_err(|e| err(&sheet_path, e))?;
     files.push((
         "sheet.png".to_string(),
-        "Top: measured spheres; bottom: the smooth GP prediction at each material's own latent \
-         point, with the mean CIE Delta E 2000 over the sphere."
+        "Top: the dataset's materials as stored (measured, synthetic or network-approximated, \
+         as the data section says); bottom: the smooth GP prediction at each material's own \
+         latent point, with the mean CIE Delta E 2000 over the sphere."
             .to_string(),
     ));
 

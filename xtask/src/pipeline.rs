@@ -176,6 +176,9 @@ pub struct Results {
     pub description: String,
     /// Config file.
     pub config_file: String,
+    /// The output directory the run published to, as given.
+    #[serde(default)]
+    pub out_dir: String,
     /// The config as parsed.
     pub config: crate::config::PipelineParams,
     /// Stages in order.
@@ -292,15 +295,16 @@ pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
     ensure_inputs_survive(config, out)?;
     let stage =
         brdf_io::output::StagingDir::create(out).map_err(|e| Error::stage("output", out, e))?;
-    let results = run_in(config, stage.path())?;
+    let results = run_in(config, stage.path(), out)?;
     stage
         .publish(is_pipeline_output)
         .map_err(|e| Error::stage("output", out, e))?;
     Ok(results)
 }
 
-/// The stages of [`run`], writing into `out`.
-fn run_in(config: &PipelineConfig, out: &Path) -> Result<Results> {
+/// The stages of [`run`], writing into `out` (the staging directory; `published` is where the
+/// files will be).
+fn run_in(config: &PipelineConfig, out: &Path, published: &Path) -> Result<Results> {
     let total = Instant::now();
     let mut stages = Vec::new();
 
@@ -400,10 +404,10 @@ fn run_in(config: &PipelineConfig, out: &Path) -> Result<Results> {
 
     // Evaluate.
     let t = Instant::now();
-    let evaluation = Some(crate::stages::run_evaluate(
-        &pred,
-        config.params.evaluate.loo,
-    )?);
+    let mut evaluation = crate::stages::run_evaluate(&pred, config.params.evaluate.loo)?;
+    // The store beside the published results, not the staging path (deleted after publishing).
+    evaluation.dataset = "data.sbrdf".into();
+    let evaluation = Some(evaluation);
     stages.push(StageStatus {
         name: "evaluate".into(),
         status: "done".into(),
@@ -434,6 +438,7 @@ fn run_in(config: &PipelineConfig, out: &Path) -> Result<Results> {
         name: config.params.name.clone(),
         description: config.params.description.clone(),
         config_file: config.path.display().to_string(),
+        out_dir: published.display().to_string(),
         config: config.params.clone(),
         stages,
         data,

@@ -38,9 +38,9 @@ pub fn markdown(r: &Results) -> String {
     }
     let _ = writeln!(
         s,
-        "Config `{}`; regenerate with `cargo xtask pipeline {}`. Every number below is also in \
-         `results.json`. Total run time {:.1} s.\n",
-        r.config_file, r.config_file, r.total_seconds
+        "Config `{}`; regenerate with `cargo xtask pipeline {} --out {}`. Every number below is \
+         also in `results.json`. Total run time {:.1} s.\n",
+        r.config_file, r.config_file, r.out_dir, r.total_seconds
     );
 
     let _ = writeln!(
@@ -78,8 +78,15 @@ pub fn markdown(r: &Results) -> String {
     if d.kind != "synth" {
         let _ = writeln!(
             s,
-            "| import: outliers / negatives clamped | {} / {} |",
-            d.import_outliers, d.import_negatives_clamped
+            "| import: outliers / negatives clamped | {} / {}{} |",
+            d.import_outliers,
+            d.import_negatives_clamped,
+            if d.import_negatives_clamped > 0 {
+                " (values below 0, stored as 0: RGB tables of out-of-gamut colours dip below \
+                 zero; see docs/CONVENTIONS.md)"
+            } else {
+                ""
+            }
         );
     }
     let _ = writeln!(s, "| seconds | {:.2} |", d.seconds);
@@ -118,7 +125,8 @@ pub fn markdown(r: &Results) -> String {
     );
     let _ = writeln!(
         s,
-        "| seconds (Gram pass + optimisation = stage) | {:.2} + {:.2} = {:.2} |",
+        "| seconds: Gram pass, optimisation, whole stage (with the PCA start and the model file) \
+         | {:.2}, {:.2}, {:.2} |",
         f.gram_seconds, f.optimize_seconds, f.seconds
     );
 
@@ -275,10 +283,16 @@ fn figures(s: &mut String, r: &Results) {
     };
     let _ = writeln!(
         s,
-        "\n## Figures\n\nSpheres under a directional light and a dim uniform environment, D65, \
-         spectral -> CIE XYZ -> sRGB ({:.2} s per sphere). Mean CIE Delta E 2000 between the \
-         measured spheres and the smooth GP reconstructions in the sheet: **{:.2}**.\n",
-        f.seconds_per_sphere, f.mean_delta_e
+        "\n## Figures\n\nSpheres under a directional light and a dim uniform environment, {} \
+         ({:.2} s per sphere). Mean CIE Delta E 2000 between the dataset's spheres (its stored \
+         values) and the smooth GP reconstructions in the sheet: **{:.2}**.\n",
+        if r.data.channels == ["R", "G", "B"] {
+            "RGB values taken as linear sRGB"
+        } else {
+            "D65, spectral -> CIE XYZ -> sRGB"
+        },
+        f.seconds_per_sphere,
+        f.mean_delta_e
     );
     for (file, caption) in &f.files {
         let _ = writeln!(s, "![{file}]({file})\n\n*{caption}*\n");

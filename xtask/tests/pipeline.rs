@@ -57,6 +57,16 @@ fn quick_pipeline_report_matches_the_model_and_data() {
     // Evaluation: every error finite and non-negative; the exact predictor reproduces the
     // training materials (the paper's ~0 reconstruction error).
     let eval = &json["evaluation"];
+    // Paths name the published files, not the staging directory (deleted after publishing).
+    assert_eq!(eval["dataset"].as_str().unwrap(), "data.sbrdf");
+    let report = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
+    let regenerate = format!(
+        "regenerate with `cargo xtask pipeline {} --out {}`",
+        config.path.display(),
+        dir.path().display()
+    );
+    assert!(report.contains(&regenerate), "{report}");
+    assert!(!text.contains(".tmp/") && !report.contains(".tmp/"));
     let recon = eval["reconstruction"].as_array().unwrap();
     assert_eq!(recon.len(), n);
     let finite = |v: &serde_json::Value| {
