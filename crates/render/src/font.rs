@@ -188,7 +188,8 @@ pub fn fit(text: &str, width: usize, scale: usize) -> String {
 }
 
 /// `text` broken into lines of at most `width` pixels at `scale`, at most `max_lines` of them:
-/// breaks go after `_`, `,`, `-` or a space where possible (a word longer than a line is cut),
+/// breaks go after `_`, `,`, a space or a hyphen (not a minus sign: a `-` before a digit or
+/// `.`) where possible (a word longer than a line is cut),
 /// and a last line that cannot hold the rest is cut like [`fit`].
 pub fn wrap(text: &str, width: usize, scale: usize, max_lines: usize) -> Vec<String> {
     let (max, max_lines) = (chars_in(width, scale).max(1), max_lines.max(1));
@@ -201,9 +202,17 @@ pub fn wrap(text: &str, width: usize, scale: usize, max_lines: usize) -> Vec<Str
             rest.min(max)
         } else {
             // The last break character within the line, else a hard cut.
+            // A `-` before a digit or `.` is a minus sign, which stays with its number.
+            let breaks_after = |i: usize| match chars[i] {
+                '_' | ',' | ' ' => true,
+                '-' => !chars
+                    .get(i + 1)
+                    .is_some_and(|c| c.is_ascii_digit() || *c == '.'),
+                _ => false,
+            };
             (1..=max)
                 .rev()
-                .find(|&k| matches!(chars[start + k - 1], '_' | ',' | '-' | ' '))
+                .find(|&k| breaks_after(start + k - 1))
                 .unwrap_or(max)
         };
         let line: String = chars[start..start + take].iter().collect();
@@ -232,6 +241,16 @@ mod tests {
         assert_eq!(
             wrap("abcdefghij", text_width("abcd", 1), 1, 2),
             ["abcd", "efgh"]
+        );
+        // A minus sign stays with its number ("0.66, 0.01, -" then "0.06" read as positive).
+        let w = text_width("(0.66, 0.01, -0", 1);
+        assert_eq!(
+            wrap("(0.66, 0.01, -0.06)", w, 1, 3),
+            ["(0.66, 0.01,", "-0.06)"]
+        );
+        assert_eq!(
+            wrap("grease-covered", text_width("grease-cov", 1), 1, 2),
+            ["grease-", "covered"]
         );
         for line in wrap("carpaint_metallic_blue,0.12,-0.5", 60, 1, 9) {
             assert!(text_width(&line, 1) <= 60, "{line}");
