@@ -507,7 +507,8 @@ impl ChannelSelection {
             (Channels::Rgb, Channels::Spectral(_)) => {
                 return Err(Error::InvalidArgument {
                     reason: format!(
-                        "{}: RGB data has no wavelengths; ask for RGB channels",
+                        "{}: RGB data has no wavelengths; leave out --wavelengths (its R, G, B \
+                         channels are read as they are)",
                         path.display()
                     ),
                 });

@@ -225,6 +225,14 @@ pub fn fit_gram(g: MatRef<'_, f64>, d: usize, config: &FitConfig) -> Result<Fit>
     let (s, data_scale) = scaled_centred_gram(g, d, p.data_scaling)?;
     let n = s.nrows();
     let q = p.latent_dim;
+    if q >= n {
+        tracing::warn!(
+            "latent dimension q = {q} for N = {n} materials: centred data span at most N - 1 = \
+             {} dimensions, so the PCA start leaves {} of them at 0 (a smaller q fits the same)",
+            n.saturating_sub(1),
+            q + 1 - n
+        );
+    }
     let pca = Pca::from_centred_gram(s.as_ref(), q)?;
     let objective = GplvmObjective::new(s, d)?.with_prior(p.prior);
     let template = template_params(config)?;

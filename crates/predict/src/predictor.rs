@@ -386,8 +386,15 @@ impl Predictor {
             .position(|m| m.name == name)
             .ok_or_else(|| Error::InvalidArgument {
                 reason: format!(
-                    "no material {name:?} in model {}",
-                    self.inner.model_path.display()
+                    "no material {name:?} in model {} (it holds: {})",
+                    self.inner.model_path.display(),
+                    self.inner
+                        .model
+                        .materials
+                        .iter()
+                        .map(|m| m.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
                 ),
             })
     }
@@ -397,8 +404,12 @@ impl Predictor {
             return Err(Error::InvalidPoint {
                 point: x.to_vec(),
                 reason: format!(
-                    "the model's latent space has {} dimensions",
-                    self.latent_dim()
+                    "the latent space of model {} has {} dimensions: give all {} coordinates, \
+                     e.g. {}",
+                    self.inner.model_path.display(),
+                    self.latent_dim(),
+                    self.latent_dim(),
+                    vec!["0"; self.latent_dim()].join(",")
                 ),
             });
         }

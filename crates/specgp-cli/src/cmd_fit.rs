@@ -19,35 +19,35 @@ pub struct FitArgs {
     /// Fit configuration (TOML, e.g. `configs/fit/paper.toml`); flags below override it.
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Latent dimension q.
+    /// Latent dimension q [default: 5, or the --config file's].
     #[arg(long)]
     latent_dim: Option<usize>,
-    /// Optimiser: hooke-jeeves (the paper) or lbfgs.
+    /// Optimiser: hooke-jeeves (the paper) or lbfgs [default: lbfgs].
     #[arg(long)]
     optimizer: Option<OptimizerKind>,
-    /// RBF length-scale l.
+    /// RBF length-scale l [default: 1].
     #[arg(long)]
     lengthscale: Option<f64>,
-    /// Noise mu.
+    /// Noise mu [default: 0.0001].
     #[arg(long)]
     noise: Option<f64>,
     /// Learn amplitude, length-scale and noise with the latent points.
     #[arg(long)]
     learn_hyperparameters: bool,
-    /// Data transform: raw, log or log:OFFSET.
+    /// Data transform: raw, log or log:OFFSET [default: log, i.e. log:0.01].
     #[arg(long)]
     transform: Option<String>,
-    /// Extra optimisations from perturbed starts.
+    /// Extra optimisations from perturbed starts [default: 0].
     #[arg(long)]
     restarts: Option<usize>,
-    /// Seed of the restart perturbations.
+    /// Seed of the restart perturbations [default: 0].
     #[arg(long)]
     seed: Option<u64>,
     /// Cap on L-BFGS iterations (`max_iterations`; a fit that reaches it is not converged and
-    /// says so).
+    /// says so) [default: 2000].
     #[arg(long)]
     max_iterations: Option<u64>,
-    /// Cap on Hooke-Jeeves objective evaluations (`max_evaluations`).
+    /// Cap on Hooke-Jeeves objective evaluations (`max_evaluations`) [default: 200000].
     #[arg(long)]
     max_evaluations: Option<usize>,
 }
@@ -170,4 +170,52 @@ pub fn latent(args: &LatentArgs) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[derive(clap::Parser)]
+    struct Wrapper {
+        #[command(flatten)]
+        fit: FitArgs,
+    }
+
+    /// The defaults the help text states are `FitParams::default()`'s (the flags are optional so
+    /// that a --config file can set them, so clap cannot show them itself).
+    #[test]
+    fn help_states_the_real_defaults() {
+        let cmd = Wrapper::command();
+        let help = |name: &str| -> String {
+            cmd.get_arguments()
+                .find(|a| a.get_id() == name)
+                .and_then(|a| a.get_help())
+                .map(|h| h.to_string())
+                .unwrap()
+        };
+        let d = FitParams::default();
+        let want = [
+            ("latent_dim", format!("[default: {},", d.latent_dim)),
+            ("optimizer", format!("[default: {}]", d.optimizer)),
+            ("lengthscale", format!("[default: {}]", d.lengthscale)),
+            ("noise", format!("[default: {}]", d.noise)),
+            ("transform", format!("[default: {},", d.transform)),
+            ("restarts", format!("[default: {}]", d.restarts)),
+            ("seed", format!("[default: {}]", d.seed)),
+            ("max_iterations", format!("[default: {}]", d.max_iterations)),
+            (
+                "max_evaluations",
+                format!("[default: {}]", d.max_evaluations),
+            ),
+        ];
+        for (name, text) in want {
+            assert!(
+                help(name).contains(&text),
+                "{name}: {} lacks {text}",
+                help(name)
+            );
+        }
+    }
 }

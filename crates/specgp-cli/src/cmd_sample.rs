@@ -68,9 +68,34 @@ pub fn open_source(
             }
             Ok(Box::new(brdf_io::merl::read_merl(path)?))
         }
+        Some("sbrdf") => {
+            let names = brdf_io::Store::open(path)
+                .map(|s| {
+                    s.header()
+                        .materials
+                        .iter()
+                        .map(|m| m.name.clone())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                })
+                .unwrap_or_default();
+            bail!(
+                "SOURCE {spec:?} is a dataset store: name one of its materials as \
+                 {spec}:MATERIAL{}",
+                if names.is_empty() {
+                    String::new()
+                } else {
+                    format!(" (it holds: {names})")
+                }
+            )
+        }
+        Some("toml") => bail!(
+            "SOURCE {spec:?} is a model: name a latent point as {spec}@X1,...,Xq (all q \
+             coordinates; `specgp latent {spec}` lists the materials' points)"
+        ),
         _ => bail!(
             "unknown SOURCE {spec:?}: expected an RGL .bsdf file, a MERL .binary file, \
-             DATA.sbrdf:MATERIAL or MODEL.toml@X,Y"
+             DATA.sbrdf:MATERIAL or MODEL.toml@X1,...,Xq"
         ),
     }
 }

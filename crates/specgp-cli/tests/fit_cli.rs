@@ -761,3 +761,38 @@ fn fits_stopped_at_their_cap_are_reported() {
     let stop = Model::load(&d.join("f.toml")).unwrap().fit.stop_reason;
     assert!(!stop.starts_with("reached"), "{stop}");
 }
+
+/// Natural mistakes get messages that say how to fix them: a store or a model named without
+/// a material or a point, a point with too few coordinates, an unknown material in --lerp.
+#[test]
+fn source_mistakes_say_how_to_fix_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    synth_small(d, "400:700:100");
+    specgp(
+        &["fit", "data.sbrdf", "--latent-dim", "3", "--out", "m.toml"],
+        d,
+    );
+    let e = specgp_fails(&["render", "data.sbrdf", "--out", "x.png"], d);
+    assert!(
+        e.contains("data.sbrdf:MATERIAL") && e.contains("metal_gold"),
+        "{e}"
+    );
+    let e = specgp_fails(&["render", "m.toml", "--out", "x.png"], d);
+    assert!(e.contains("m.toml@X1,...,Xq"), "{e}");
+    let e = specgp_fails(&["render", "m.toml@0.1,0.2", "--out", "x.png"], d);
+    assert!(e.contains("give all 3 coordinates, e.g. 0,0,0"), "{e}");
+    let e = specgp_fails(
+        &[
+            "predict",
+            "m.toml",
+            "--lerp",
+            "gold,paper_white,0.5",
+            "--out",
+            "x.npy",
+        ],
+        d,
+    );
+    assert!(e.contains("it holds: ") && e.contains("metal_gold"), "{e}");
+    assert!(!d.join("x.png").exists() && !d.join("x.npy").exists());
+}
