@@ -13,8 +13,8 @@ use crate::cmd_sample::open_source;
 #[derive(Debug, Clone, clap::Args)]
 pub struct RenderArgs {
     /// The BRDF: an RGL `.bsdf` file, a MERL `.binary` file, `DATA.sbrdf:MATERIAL` or
-    /// `MODEL.toml@X,Y` (a predicted material, rendered lazily: only the cells the picture
-    /// touches are predicted), as for `sample`.
+    /// `MODEL.toml@X1,...,Xq` (all q latent coordinates: a predicted material, rendered
+    /// lazily: only the cells the picture touches are predicted), as for `sample`.
     pub source: String,
     /// Output PNG (8-bit sRGB with alpha).
     #[arg(long)]
@@ -26,7 +26,8 @@ pub struct RenderArgs {
     /// right towards up.
     #[arg(long, default_value = "45,135")]
     pub light: String,
-    /// Illuminant of spectral sources: D65, D50 or A (white-balanced to D65).
+    /// Illuminant of spectral sources: D65, D50 or A. Colours are white-balanced to D65 (Bradford),
+    /// as a camera would: a white material looks white under each; coloured ones shift.
     #[arg(long, default_value = "D65")]
     pub illuminant: String,
     /// Exposure in stops (colours multiplied by 2^EV).

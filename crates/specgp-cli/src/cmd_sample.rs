@@ -20,7 +20,7 @@ use brdf_io::{BrdfSource, Channels, Vec3};
 #[derive(Debug, clap::Args)]
 pub struct SampleArgs {
     /// The BRDF: an RGL `.bsdf` file, a MERL `.binary` file, `DATA.sbrdf:MATERIAL` or
-    /// `MODEL.toml@X,Y` (lazy GP prediction).
+    /// `MODEL.toml@X1,...,Xq` (lazy GP prediction at a latent point, all q coordinates).
     pub source: String,
     /// CSV of direction pairs, one `wi_x,wi_y,wi_z,wo_x,wo_y,wo_z` row each (local frame,
     /// z = normal; a header line is allowed).

@@ -97,11 +97,16 @@ fn init_tracing(verbosity: u8) {
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level));
     // Colours only on a terminal: redirected logs stay plain text.
     let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
-    tracing_subscriber::fmt()
+    let fmt = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
-        .with_ansi(ansi)
-        .init();
+        .with_ansi(ansi);
+    if verbosity == 0 {
+        // Without -v only warnings show: "WARN message", no timestamp or module path.
+        fmt.without_time().with_target(false).init();
+    } else {
+        fmt.init();
+    }
 }
 
 fn run(cli: Cli) -> anyhow::Result<()> {
