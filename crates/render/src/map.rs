@@ -1,6 +1,6 @@
 //! The latent map (the paper's Figs. 4.1 and 4.3): every material as a labelled dot in the
 //! first two latent axes over the predictive variance, and optionally a grid of sphere
-//! thumbnails of predicted materials across the same extent.
+//! thumbnails of predicted materials across the points' bounding box (marked on the map).
 
 use brdf_io::BrdfSource;
 use rayon::prelude::*;
@@ -65,7 +65,7 @@ pub fn variance_caption(transform: &str, q: usize) -> String {
         3 => ", SLICE X3 = 0".to_owned(),
         _ => format!(", SLICE X3..X{q} = 0"),
     };
-    format!("VARIANCE PER TRANSFORMED VALUE, {transform}{slice}")
+    format!("SHADING: PREDICTIVE STD PER TRANSFORMED VALUE, {transform}{slice}")
 }
 
 /// Makes a source for a latent point (e.g. a lazily predicted material).
@@ -91,12 +91,32 @@ pub fn extent(points: &[LabelledPoint]) -> [f64; 4] {
     [x0, x1, y0, y1]
 }
 
-/// Draws the map: variance shading (white = low, deep blue = high, scaled to the largest
-/// sampled variance), training materials as red dots and predictions as blue rings (see
+/// The region the thumbnails cover: the points' bounding box, widened to at least 0.25 along
+/// an axis where they (nearly) coincide, as (x0, x1, y0, y1).
+pub fn thumbnail_box(points: &[LabelledPoint]) -> [f64; 4] {
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for (_, p) in points {
+        x0 = x0.min(p[0]);
+        x1 = x1.max(p[0]);
+        y0 = y0.min(p[1]);
+        y1 = y1.max(p[1]);
+    }
+    let widen = |a: f64, b: f64| {
+        let pad = (0.25 - (b - a)).max(0.0) / 2.0;
+        (a - pad, b + pad)
+    };
+    let ((x0, x1), (y0, y1)) = (widen(x0, x1), widen(y0, y1));
+    [x0, x1, y0, y1]
+}
+
+/// Draws the map: shading by the predictive standard deviation (the square root of `variance`:
+/// white = 0, deep blue = the largest sampled; a linear variance scale drew a standard
+/// deviation of half the largest, a factor of ~2 in log units, nearly white), training materials as red dots and predictions as blue rings (see
 /// [`MapOptions::predicted_points`]) with labels, axis ranges, a colour bar, an optional
 /// caption; with
 /// `opts.thumbnails > 0` and `source_at`, a panel of spheres of the predicted materials on a
-/// regular grid over the same extent to the right.
+/// regular grid over the points' bounding box ([`thumbnail_box`], outlined on the map) to the
+/// right.
 pub fn latent_map(
     points: &[LabelledPoint],
     variance: &(dyn Fn([f64; 2]) -> Result<f64> + Sync),
@@ -177,7 +197,7 @@ pub fn latent_map(
             img.set(
                 (margin + px) as i64,
                 (margin + py) as i64,
-                shade(val / vmax),
+                shade((val.max(0.0) / vmax).sqrt()),
             );
         }
     }
@@ -209,7 +229,7 @@ pub fn latent_map(
     img.text(
         l,
         8,
-        "LATENT SPACE, SHADED BY PREDICTIVE VARIANCE",
+        "LATENT SPACE, SHADED BY PREDICTIVE STANDARD DEVIATION",
         1,
         black,
     );
@@ -223,7 +243,7 @@ pub fn latent_map(
         img.fill_rect(l + 160 + i, bar_y, 1, 8, shade(i as f64 / 119.0));
     }
     img.text(l + 130, bar_y, "0", 1, black);
-    img.text(l + 290, bar_y, &format!("{vmax:.3}"), 1, black);
+    img.text(l + 290, bar_y, &format!("{:.3}", vmax.sqrt()), 1, black);
     // Dots and labels: each label beside its dot where there is room, else on a ring further
     // out with a leader line; none covers another label or a dot.
     let dots: Vec<(f64, f64)> = points.iter().map(|(_, p)| to_px(*p)).collect();
@@ -260,18 +280,31 @@ pub fn latent_map(
         img.blend_rect(b.x0, b.y0, bw, bh, [1.0; 3], 0.6);
         img.text(spot.x, spot.y, name, 1, black);
     }
-    // Thumbnails.
+    // Thumbnails over the points' bounding box (drawn on the map), not the whole square plot:
+    // the square's empty margins are far from every material, where the GP's extrapolation
+    // shows colours no material has (a walkthrough took them for the model's predictions).
     if let (Some(f), true) = (source_at, panel > 0) {
         let g = opts.thumbnails;
         let ts = opts.sphere.size;
         let ox = (margin + size + margin) as i64;
+        let [bx0, bx1, by0, by1] = thumbnail_box(points);
+        // Outlined 6 px outside the box, so the line passes no dot at the box's edge.
+        let (px0, py0) = to_px([bx0, by1]);
+        let (px1, py1) = to_px([bx1, by0]);
+        let (px0, py0, px1, py1) = (px0 - 6.0, py0 - 6.0, px1 + 6.0, py1 + 6.0);
+        let grey = [0.35; 3];
+        let (w, h) = ((px1 - px0).max(1.0) as usize, (py1 - py0).max(1.0) as usize);
+        img.fill_rect(px0 as i64, py0 as i64, w, 1, grey);
+        img.fill_rect(px0 as i64, py1 as i64, w + 1, 1, grey);
+        img.fill_rect(px0 as i64, py0 as i64, 1, h, grey);
+        img.fill_rect(px1 as i64, py0 as i64, 1, h, grey);
         let cells: Vec<(usize, usize)> = (0..g * g).map(|k| (k % g, k / g)).collect();
         let thumbs: Vec<Image> = cells
             .iter()
             .map(|&(i, j)| {
                 let p = [
-                    x0 + (x1 - x0) * (i as f64 + 0.5) / g as f64,
-                    y1 - (y1 - y0) * (j as f64 + 0.5) / g as f64,
+                    bx0 + (bx1 - bx0) * (i as f64 + 0.5) / g as f64,
+                    by1 - (by1 - by0) * (j as f64 + 0.5) / g as f64,
                 ];
                 render_sphere(f(p)?.as_ref(), &opts.sphere)
             })
@@ -281,7 +314,7 @@ pub fn latent_map(
         for ((i, j), th) in cells.iter().zip(&thumbs) {
             img.blit(th, ox + (i * ts) as i64, (margin + j * ts) as i64);
         }
-        let title = font::fit("PREDICTED MATERIALS (SAME EXTENT)", g * ts, 1);
+        let title = font::fit("PREDICTED MATERIALS OVER THE GREY BOX", g * ts, 1);
         img.text(ox, 8, &title, 1, black);
     }
     Ok(img)
@@ -441,11 +474,11 @@ mod tests {
     fn captions_name_the_units_and_the_slice() {
         assert_eq!(
             variance_caption("raw", 2),
-            "VARIANCE PER TRANSFORMED VALUE, raw"
+            "SHADING: PREDICTIVE STD PER TRANSFORMED VALUE, raw"
         );
         assert_eq!(
             variance_caption("raw", 3),
-            "VARIANCE PER TRANSFORMED VALUE, raw, SLICE X3 = 0"
+            "SHADING: PREDICTIVE STD PER TRANSFORMED VALUE, raw, SLICE X3 = 0"
         );
         assert!(variance_caption("log(offset=0.01)", 5).ends_with(", SLICE X3..X5 = 0"));
     }

@@ -171,12 +171,22 @@ fn path_comparison_and_map_draw() {
         .filter(|&(x, y)| map.get(x, y)[0] < 0.5)
         .count();
     assert!(caption_ink > 50, "{caption_ink}");
-    // The right panel has red-ish and white-ish spheres.
+    // The right panel covers the points' bounding box, x in [-1, 1]: its columns sit at
+    // x = -2/3, 0, 2/3, i.e. 1/6, 1/2 and 5/6 of the way to red: nearly white on the left,
+    // red on the right.
+    assert_eq!(render::map::thumbnail_box(&points), [-1.0, 1.0, 0.0, 0.5]);
     let row = 40 + 24 + 12;
     let left = map.get(40 + 160 + 40 + 12, row);
     let right = map.get(40 + 160 + 40 + 2 * 24 + 12, row);
     assert!(
-        right[0] > 2.0 * right[2] && (left[0] - left[2]).abs() < 0.1 * left[0],
+        right[0] > 2.0 * right[2] && (left[0] - left[2]).abs() < 0.2 * left[0],
         "{left:?} {right:?}"
     );
+    // The box is outlined in grey on the map, 6 px outside the points.
+    let (bx, by) = (
+        40.0 + (-1.0 - x0) / (x1 - x0) * 160.0 - 6.0,
+        40.0 + (y1 - 0.25) / (y1 - y0) * 160.0,
+    );
+    let edge = map.get(bx as usize, by as usize);
+    assert!(edge.iter().all(|c| (c - 0.35).abs() < 1e-9), "{edge:?}");
 }
