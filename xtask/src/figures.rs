@@ -20,6 +20,8 @@ pub struct SphereDeltaE {
     pub name: String,
     /// Mean CIE Delta E 2000 over the pixels covered by both spheres.
     pub mean_delta_e: f64,
+    /// The same for the GP's prediction of the material held out (leave-one-out), when run.
+    pub held_out_delta_e: Option<f64>,
 }
 
 /// What the render stage drew.
@@ -27,7 +29,8 @@ pub struct SphereDeltaE {
 pub struct Figures {
     /// Figure files (relative to the output directory) and captions.
     pub files: Vec<(String, String)>,
-    /// Per material in the sheet: Delta E of the smooth reconstruction.
+    /// Per material in the sheet: Delta E of the smooth reconstruction (and of the held-out
+    /// prediction, with leave-one-out results).
     pub delta_e: Vec<SphereDeltaE>,
     /// Mean of `delta_e`.
     pub mean_delta_e: f64,
@@ -69,6 +72,7 @@ fn err(path: &Path, e: impl std::fmt::Display) -> Error {
 pub fn render_figures(
     pred: &Predictor,
     predictions: &[PredictionRow],
+    evaluation: Option<&predict::evaluate::Evaluation>,
     size: usize,
     sheet_materials: usize,
     out: &Path,
@@ -84,13 +88,18 @@ pub fn render_figures(
     let mut spheres = 0usize;
     let start = Instant::now();
 
-    // Sheet: measured (top) against the smooth GP reconstruction (bottom).
+    // Sheet: the stored material (top) against the smooth GP reconstruction (middle) and,
+    // with leave-one-out results, the GP's prediction of it from the other materials (bottom:
+    // a reconstruction at a material's own point is nearly guaranteed, a held-out one is not).
     let k = sheet_materials.min(n).max(1);
     let picks: Vec<usize> = (0..k).map(|j| j * n / k).collect();
     let cell = size + 8;
     // Names of up to three lines (long ones wrap at '_').
     let label_h = 3 * LINE_H + 3;
-    let mut sheet = Image::new(k * cell + 4, 2 * (cell + label_h) + 4, BG);
+    let loo = evaluation.and_then(|e| e.loo.as_ref());
+    let rows = if loo.is_some() { 3 } else { 2 };
+    let mut sheet = Image::new(k * cell + 4, rows * (cell + label_h) + 4, BG);
+    let mut held_out_delta_e = Vec::new();
     let mut delta_e = Vec::new();
     let sheet_path = out.join("sheet.png");
     for (col, &i) in picks.iter().enumerate() {
@@ -120,17 +129,56 @@ pub fn render_figures(
         delta_e.push(SphereDeltaE {
             name: name.clone(),
             mean_delta_e: de,
+            held_out_delta_e: None,
         });
+        if let Some(row) = loo.and_then(|rows| rows.iter().find(|r| &r.name == name)) {
+            let held = pred
+                .from_coefficients(row.gp_coefficients.clone(), format!("loo-{name}"))
+                .map_err(|e| err(&sheet_path, e))?;
+            let c = render_sphere(&held, &opts).map_err(|e| err(&sheet_path, e))?;
+            spheres += 1;
+            let de = mean_delta_e(&a, &c);
+            let y3 = 4 + 2 * (cell + label_h);
+            sheet.blit(&c, x as i64, y3 as i64);
+            label(
+                &mut sheet,
+                x,
+                y3 + size + 2,
+                size,
+                &format!("dE {de:.2}"),
+                1,
+            );
+            held_out_delta_e.push(de);
+            if let Some(last) = delta_e.last_mut() {
+                last.held_out_delta_e = Some(de);
+            }
+        }
     }
     sheet
         .save_png(&sheet_path)
         .map_err(|e| err(&sheet_path, e))?;
+    let held_out_caption = if held_out_delta_e.is_empty() {
+        String::new()
+    } else {
+        format!(
+            "; bottom: the GP's prediction of each material held out (leave-one-out: refit \
+             without it, placed at its best latent point), mean Delta E {:.2}",
+            held_out_delta_e.iter().sum::<f64>() / held_out_delta_e.len() as f64
+        )
+    };
     files.push((
         "sheet.png".to_string(),
-        "Top: the dataset's materials as stored (measured, synthetic or network-approximated, \
-         as the data section says); bottom: the smooth GP prediction at each material's own \
-         latent point, with the mean CIE Delta E 2000 over the sphere."
-            .to_string(),
+        format!(
+            "Top: the dataset's materials as stored (measured, synthetic or network-approximated, \
+             as the data section says); {}: the smooth GP prediction at each material's own \
+             latent point (a reconstruction), with the mean CIE Delta E 2000 over the \
+             sphere{held_out_caption}.",
+            if held_out_delta_e.is_empty() {
+                "bottom"
+            } else {
+                "middle"
+            }
+        ),
     ));
 
     // Predictions.

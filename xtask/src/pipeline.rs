@@ -421,6 +421,7 @@ fn run_in(config: &PipelineConfig, out: &Path, published: &Path) -> Result<Resul
         Some(crate::figures::render_figures(
             &pred,
             &predictions,
+            evaluation.as_ref(),
             r.size as usize,
             r.sheet_materials,
             out,

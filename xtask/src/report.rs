@@ -300,10 +300,14 @@ fn figures(s: &mut String, r: &Results) {
     if !f.delta_e.is_empty() {
         let _ = writeln!(
             s,
-            "| material | Delta E 2000 (smooth reconstruction) |\n|---|---:|"
+            "| material | Delta E 2000 (smooth reconstruction) | Delta E 2000 (held out) |\n\
+             |---|---:|---:|"
         );
         for d in &f.delta_e {
-            let _ = writeln!(s, "| {} | {:.3} |", d.name, d.mean_delta_e);
+            let held = d
+                .held_out_delta_e
+                .map_or_else(|| "-".to_owned(), |v| format!("{v:.3}"));
+            let _ = writeln!(s, "| {} | {:.3} | {held} |", d.name, d.mean_delta_e);
         }
     }
 }

@@ -575,6 +575,11 @@ pub struct LooRow {
     pub gp_point: Vec<f64>,
     /// Per method, in [`Method::ALL`] order.
     pub methods: Vec<LooEntry>,
+    /// The GP's prediction of the held-out material as coefficients over all N materials
+    /// (0 at the held-out one; [`crate::Predictor::from_coefficients`] makes it a material).
+    /// Not serialised (N x N numbers).
+    #[serde(skip)]
+    pub gp_coefficients: Vec<f64>,
 }
 
 /// Mean and median of one column of errors.
@@ -772,6 +777,12 @@ pub fn evaluate(
                         detail: m.detail.clone(),
                     })
                     .collect(),
+                gp_coefficients: l
+                    .methods
+                    .iter()
+                    .find(|m| m.method == Method::Gp)
+                    .map(|m| m.coefficients.clone())
+                    .unwrap_or_default(),
             })
             .collect::<Vec<_>>()
     });
