@@ -180,7 +180,11 @@ fn predictions(s: &mut String, r: &Results) {
         "\n## Predictions\n\nA prediction is N coefficients over the measured materials \
          (computed in `weights us`); a lazy lookup of one angular cell, all channels, costs N \
          multiply-adds per value (`lookup us`, mean over up to 4096 cells). Materialising writes \
-         all D values.\n"
+         all D values. A midpoint `mid(A, B)` is the latent point halfway between two materials, \
+         not a blend of them: its material is whatever the GP predicts there, which can look \
+         like neither (`specgp predict --lerp A,B,0.5` is the blend). The variance is per \
+         transformed value: under `log`, in squared log units, so a variance of 0.5 (standard \
+         deviation 0.7) means the BRDF is uncertain by a factor of about 2.\n"
     );
     let _ = writeln!(
         s,
