@@ -43,7 +43,7 @@ enum Command {
     Synth(cmd_synth::SynthArgs),
     /// Fit a GPLVM latent space to a dataset store and write the model (TOML).
     Fit(cmd_fit::FitArgs),
-    /// Show the latent coordinates and log-likelihood of a model.
+    /// Show the latent coordinates and log-likelihood of a model (as the fit recorded them; `info MODEL` checks the dataset is still there).
     Latent(cmd_fit::LatentArgs),
     /// Render a sphere preview of a BRDF source (spectral -> sRGB PNG).
     Render(cmd_render::RenderArgs),
