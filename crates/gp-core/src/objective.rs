@@ -598,29 +598,33 @@ impl<'a> FlatGplvm<'a> {
         }
         let (n, q) = (self.obj.n(), self.q);
         let x = Mat::from_fn(n, q, |i, j| theta[i * q + j]);
-        let mut lt = self.template.to_log_vec();
+        // Fixed hyperparameters are the template's values themselves (not exp(log v), which
+        // recorded a fixed mu = 1e-4 as 1.0000000000000009e-4).
         let k = self.template.length_scale().len();
         let mut p = n * q;
-        if self.learn.signal_variance {
-            lt[0] = theta[p];
+        let signal_variance = if self.learn.signal_variance {
             p += 1;
-        }
-        if self.learn.length_scale {
-            lt[1..1 + k].copy_from_slice(&theta[p..p + k]);
+            theta[p - 1].exp()
+        } else {
+            self.template.signal_variance()
+        };
+        let length_scale = if self.learn.length_scale {
+            let ls: Vec<f64> = theta[p..p + k].iter().map(|v| v.exp()).collect();
             p += k;
-        }
+            match self.template.length_scale() {
+                LengthScale::Isotropic(_) => LengthScale::Isotropic(ls[0]),
+                LengthScale::Ard(_) => LengthScale::Ard(ls),
+            }
+        } else {
+            self.template.length_scale().clone()
+        };
         // (With a floor of 0 this is exactly the former `exp(log mu)`.)
         let noise = if self.learn.noise {
             self.noise_floor + theta[p].exp()
         } else {
-            lt[k + 1].exp()
+            self.template.noise()
         };
-        let ls: Vec<f64> = lt[1..1 + k].iter().map(|v| v.exp()).collect();
-        let length_scale = match self.template.length_scale() {
-            LengthScale::Isotropic(_) => LengthScale::Isotropic(ls[0]),
-            LengthScale::Ard(_) => LengthScale::Ard(ls),
-        };
-        let params = KernelParams::new(lt[0].exp(), length_scale, noise)?;
+        let params = KernelParams::new(signal_variance, length_scale, noise)?;
         Ok((x, params))
     }
 

@@ -690,6 +690,23 @@ fn partial_learn_masks_pack_and_differentiate() {
                     pick(learn.length_scale, o, t)
                 ));
             }
+            // Fixed values are the template's bits (not exp(log v): the paper's mu = 1e-4 came
+            // back as 1.0000000000000009e-4).
+            let paper = KernelParams::isotropic(1.0, 1.0, 1e-4).unwrap();
+            let fixed = obj.flat(q, paper.clone(), Learn::NONE).unwrap();
+            let (_, back) = fixed
+                .unpack(&fixed.pack(x.as_ref(), &paper).unwrap())
+                .unwrap();
+            assert_eq!(back.noise(), 1e-4);
+            if !learn.noise {
+                assert_eq!(p2.noise().to_bits(), template.noise().to_bits());
+            }
+            if !learn.signal_variance {
+                assert_eq!(p2.signal_variance(), template.signal_variance());
+            }
+            if !learn.length_scale {
+                assert_eq!(p2.length_scale(), template.length_scale());
+            }
             // Flat gradient against central differences of the flat objective.
             let (v, g) = flat
                 .neg_log_likelihood_and_gradient(&theta, Par::Seq)
