@@ -23,4 +23,5 @@ pub use map::{MapOptions, latent_map};
 pub use sheet::{ComparisonSheet, comparison_sheet, path_comparison, sphere_rows};
 pub use sphere::{
     EnvMode, EnvTableSpec, PlaneOptions, SphereOptions, clear_plans, render_plane, render_sphere,
+    studio_radiance,
 };

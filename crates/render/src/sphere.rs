@@ -74,6 +74,11 @@ pub const ENV_CAP_DEGREES: [f64; 3] = [2.0, 7.0, 25.0];
 /// Environment directions per pixel.
 pub const ENV_SAMPLES: usize = ENV_COSINE + ENV_CAP * ENV_CAP_DEGREES.len();
 
+/// Cosine-weighted directions per pixel of the studio environment ([`EnvMode::Studio`]).
+pub const STUDIO_COSINE: usize = 48;
+/// Directions per cone around the mirror direction of the studio environment.
+pub const STUDIO_CAP: usize = 24;
+
 /// View angles (nodes) of the pre-integrated environment table.
 pub const ENV_TABLE_NODES: usize = 32;
 /// The last node's view angle (degrees from the normal); steeper views use its value.
@@ -128,6 +133,28 @@ pub enum EnvMode {
     Table(EnvTableSpec),
     /// The [`ENV_SAMPLES`]-direction quadrature evaluated at every pixel (any BRDF).
     PerPixel,
+    /// A studio environment instead of the uniform one, integrated per pixel like
+    /// [`EnvMode::PerPixel`] with a denser quadrature ([`STUDIO_COSINE`], [`STUDIO_CAP`]): a bright sky above the horizon (radiance rising towards the
+    /// zenith) over a dark floor, `env_radiance` x [`studio_radiance`] of the world direction's
+    /// height (camera frame, y up). Glossy and metallic materials then show what they reflect:
+    /// a horizon across a chrome sphere, a sheen on a metal; under the uniform environment a
+    /// mirror looks like black plastic.
+    Studio,
+}
+
+/// Relative radiance of the studio environment ([`EnvMode::Studio`]) in a direction of height
+/// `y` (the up component of a unit direction): 0.25 on the floor, a horizon softened over
+/// |y| < 0.03, then 3 rising linearly to 8 at the zenith. A white diffuser facing up receives
+/// ~5.7 pi (sky) and facing down 0.25 pi (floor), per unit `env_radiance`.
+pub fn studio_radiance(y: f64) -> f64 {
+    const FLOOR: f64 = 0.25;
+    const HORIZON: f64 = 3.0;
+    const ZENITH: f64 = 8.0;
+    const SOFT: f64 = 0.03;
+    let sky = HORIZON + (ZENITH - HORIZON) * y.max(0.0);
+    let t = ((y + SOFT) / (2.0 * SOFT)).clamp(0.0, 1.0);
+    let t = t * t * (3.0 - 2.0 * t);
+    FLOOR + t * (sky - FLOOR)
 }
 
 impl Default for EnvMode {
@@ -419,6 +446,8 @@ pub struct Shader<'a> {
     env: (f64, EnvQuadrature),
     /// The pre-integrated environment (table mode, non-zero environment).
     table: Option<EnvTable>,
+    /// Whether the environment is the studio one ([`EnvMode::Studio`]).
+    studio: bool,
     scale: f64,
     /// For grid sources ([`BrdfSource::grid`]): each touched cell's linear sRGB (the colour
     /// projection is linear, so interpolating projected cells equals projecting interpolated
@@ -436,7 +465,16 @@ impl<'a> Shader<'a> {
         let n_channels = channels.len();
         let (weights, needed) = colour_weights(&channels, opts.illuminant)?;
         let lights = vec![(opts.light_dir(), opts.light_irradiance)];
-        let env = (opts.env_radiance, EnvQuadrature::default());
+        // The studio sky varies across a glossy lobe: a denser quadrature keeps its reflection
+        // free of the sparse one's ring-shaped bands.
+        let env = (
+            opts.env_radiance,
+            if opts.env_mode == EnvMode::Studio {
+                EnvQuadrature::with_counts(STUDIO_COSINE, STUDIO_CAP)
+            } else {
+                EnvQuadrature::default()
+            },
+        );
         let mut shader = Self {
             source,
             weights,
@@ -445,6 +483,7 @@ impl<'a> Shader<'a> {
             lights,
             env,
             table: None,
+            studio: opts.env_mode == EnvMode::Studio,
             scale: 2f64.powf(opts.exposure),
             cells: source
                 .grid()
@@ -523,8 +562,15 @@ impl<'a> Shader<'a> {
             let mut err = Ok(());
             self.env.1.for_each(wo, |wi, w| {
                 if err.is_ok() {
+                    let radiance = if self.studio {
+                        // Height of the direction in the camera frame (y up).
+                        let y = t[1] * wi[0] + b[1] * wi[1] + n[1] * wi[2];
+                        self.env.0 * studio_radiance(y)
+                    } else {
+                        self.env.0
+                    };
                     match self.rgb_of(wi, wo, f) {
-                        Ok(rgb) => (0..3).for_each(|c| acc[c] += w * self.env.0 * rgb[c]),
+                        Ok(rgb) => (0..3).for_each(|c| acc[c] += w * radiance * rgb[c]),
                         Err(e) => err = Err(e),
                     }
                 }
@@ -996,6 +1042,42 @@ mod tests {
             out.fill(v);
             Ok(())
         }
+    }
+
+    /// The studio environment: a white diffuser (no light) is brighter at the top, where its
+    /// normal sees the sky, than at the bottom; a near-mirror lobe shows a sharp horizon
+    /// across the sphere's middle (upper half reflects the sky, lower half the floor), which
+    /// the uniform environment cannot show at all.
+    #[test]
+    fn studio_environment_shows_a_horizon_on_glossy_spheres() {
+        assert!((studio_radiance(-1.0) - 0.25).abs() < 1e-12);
+        assert!((studio_radiance(1.0) - 8.0).abs() < 1e-12);
+        assert!((studio_radiance(0.0) - 0.5 * (0.25 + 3.0)).abs() < 1e-12);
+        let opts = |env_mode| SphereOptions {
+            size: 64,
+            light_irradiance: 0.0,
+            env_mode,
+            ..SphereOptions::default()
+        };
+        let lum = |img: &Image, x: usize, y: usize| {
+            let p = img.get(x, y);
+            p[0] + p[1] + p[2]
+        };
+        let white = Lambert(Channels::Rgb, 1.0);
+        let img = render_sphere(&white, &opts(EnvMode::Studio)).unwrap();
+        assert!(
+            lum(&img, 32, 8) > 3.0 * lum(&img, 32, 56),
+            "diffuser top vs bottom"
+        );
+        // A sharp lobe: the rows just above and below the centre (orthographic view: the
+        // mirror direction there points just above or below the horizon).
+        let mirror = Glossy(0.0, 1.0, 20000.0);
+        let img = render_sphere(&mirror, &opts(EnvMode::Studio)).unwrap();
+        let (above, below) = (lum(&img, 32, 28), lum(&img, 32, 36));
+        assert!(above > 5.0 * below, "above {above} below {below}");
+        let uniform = render_sphere(&mirror, &opts(EnvMode::PerPixel)).unwrap();
+        let (ua, ub) = (lum(&uniform, 32, 28), lum(&uniform, 32, 36));
+        assert!((ua - ub).abs() < 0.1 * ua.max(ub), "uniform: {ua} {ub}");
     }
 
     /// Hides a source's grid, so the shader takes the generic path (one `eval` per lookup).

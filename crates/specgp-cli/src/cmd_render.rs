@@ -44,9 +44,11 @@ pub struct RenderArgs {
     /// direction at its centre (0..89).
     #[arg(long, default_value_t = 78.0)]
     pub view: f64,
-    /// How the uniform environment is integrated: `table` (pre-integrated over the view angle
-    /// once per render; isotropic BRDFs, i.e. every specgp source), `fast` (a coarser table:
-    /// fewer lookups, less accurate on glossy lobes) or `per-pixel` (20 directions per pixel).
+    /// The environment: the dim uniform one integrated as `table` (pre-integrated over the
+    /// view angle once per render; isotropic BRDFs, i.e. every specgp source), `fast` (a
+    /// coarser table: fewer lookups, less accurate on glossy lobes) or `per-pixel` (20
+    /// directions per pixel); or `studio`, a bright sky over a dark floor (per pixel, slower),
+    /// in which metals and mirrors show a horizon instead of looking like black plastic.
     #[arg(long, default_value = "table")]
     pub env: String,
 }
@@ -78,7 +80,8 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
         "table" => render::EnvMode::default(),
         "fast" => render::EnvMode::Table(render::EnvTableSpec::FAST),
         "per-pixel" => render::EnvMode::PerPixel,
-        e => bail!("--env {e:?}: expected `table`, `fast` or `per-pixel`"),
+        "studio" => render::EnvMode::Studio,
+        e => bail!("--env {e:?}: expected `table`, `fast`, `per-pixel` or `studio`"),
     };
     let plane = match args.shape.as_str() {
         "sphere" => None,
