@@ -152,6 +152,17 @@ pub(crate) fn check_finite_slice(s: &[f64], what: &'static str) -> Result<()> {
     }
 }
 
+/// The largest absolute entry of `m` (0 when empty).
+fn max_abs(m: faer::MatRef<'_, f64>) -> f64 {
+    let mut amax = 0.0f64;
+    for j in 0..m.ncols() {
+        for i in 0..m.nrows() {
+            amax = amax.max(m[(i, j)].abs());
+        }
+    }
+    amax
+}
+
 /// Checks the necessary conditions of positive semidefiniteness that cost `O(n^2)` on a
 /// symmetric `m`: no diagonal entry below `-tol` and no 2 x 2 principal minor
 /// `(m_ii + tol)(m_jj + tol) - m_ij^2` below zero, `tol = sqrt(eps) max|m|`. (A full test, a
@@ -160,13 +171,7 @@ pub(crate) fn check_finite_slice(s: &[f64], what: &'static str) -> Result<()> {
 /// which this function cannot see.)
 pub(crate) fn check_psd_minors(m: faer::MatRef<'_, f64>, what: &'static str) -> Result<()> {
     let n = m.nrows();
-    let mut amax = 0.0f64;
-    for j in 0..n {
-        for i in 0..n {
-            amax = amax.max(m[(i, j)].abs());
-        }
-    }
-    let tol = f64::EPSILON.sqrt() * amax;
+    let tol = f64::EPSILON.sqrt() * max_abs(m);
     for i in 0..n {
         if m[(i, i)] < -tol {
             return Err(GpError::NotPositiveSemidefinite {
@@ -203,13 +208,7 @@ pub(crate) fn check_symmetric(m: faer::MatRef<'_, f64>, what: &'static str) -> R
             got: m.ncols(),
         });
     }
-    let mut amax = 0.0f64;
-    for j in 0..n {
-        for i in 0..n {
-            amax = amax.max(m[(i, j)].abs());
-        }
-    }
-    let tol = f64::EPSILON.sqrt() * amax;
+    let tol = f64::EPSILON.sqrt() * max_abs(m);
     for j in 0..n {
         for i in (j + 1)..n {
             let diff = (m[(i, j)] - m[(j, i)]).abs();

@@ -74,13 +74,7 @@ pub type SourceAt<'a> = dyn Fn([f64; 2]) -> Result<Box<dyn BrdfSource + 'a>> + S
 /// The plot extent: the points' bounding box padded by 15 % (at least 0.5), widened to a square
 /// (equal scales on both axes), as (x0, x1, y0, y1).
 pub fn extent(points: &[LabelledPoint]) -> [f64; 4] {
-    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-    for (_, p) in points {
-        x0 = x0.min(p[0]);
-        x1 = x1.max(p[0]);
-        y0 = y0.min(p[1]);
-        y1 = y1.max(p[1]);
-    }
+    let [x0, x1, y0, y1] = bounding_box(points);
     let pad = |a: f64, b: f64| ((b - a) * 0.15).max(0.5);
     let (px, py) = (pad(x0, x1), pad(y0, y1));
     let (mut x0, mut x1, mut y0, mut y1) = (x0 - px, x1 + px, y0 - py, y1 + py);
@@ -91,9 +85,8 @@ pub fn extent(points: &[LabelledPoint]) -> [f64; 4] {
     [x0, x1, y0, y1]
 }
 
-/// The region the thumbnails cover: the points' bounding box, widened to at least 0.25 along
-/// an axis where they (nearly) coincide, as (x0, x1, y0, y1).
-pub fn thumbnail_box(points: &[LabelledPoint]) -> [f64; 4] {
+/// The points' bounding box as (x0, x1, y0, y1).
+fn bounding_box(points: &[LabelledPoint]) -> [f64; 4] {
     let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
     for (_, p) in points {
         x0 = x0.min(p[0]);
@@ -101,6 +94,13 @@ pub fn thumbnail_box(points: &[LabelledPoint]) -> [f64; 4] {
         y0 = y0.min(p[1]);
         y1 = y1.max(p[1]);
     }
+    [x0, x1, y0, y1]
+}
+
+/// The region the thumbnails cover: the points' bounding box, widened to at least 0.25 along
+/// an axis where they (nearly) coincide, as (x0, x1, y0, y1).
+pub fn thumbnail_box(points: &[LabelledPoint]) -> [f64; 4] {
+    let [x0, x1, y0, y1] = bounding_box(points);
     let widen = |a: f64, b: f64| {
         let pad = (0.25 - (b - a)).max(0.0) / 2.0;
         (a - pad, b + pad)
