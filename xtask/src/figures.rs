@@ -214,7 +214,7 @@ pub fn render_figures(
         ));
     }
 
-    // Latent map (render crate): materials and predictions over the predictive variance, in the
+    // Latent map (render crate): materials and predictions over the predictive std, in the
     // first two latent axes (other coordinates 0, the prior mean).
     if model.latent_dim >= 2 {
         let path = out.join("latent.png");
@@ -249,9 +249,10 @@ pub fn render_figures(
         files.push((
             "latent.png".to_string(),
             "The training materials (red dots) and the predicted points (blue rings) in the first \
-             two latent coordinates (equal scales), over the GP's predictive variance per \
-             transformed value (the units of the predictions table; for q > 2, the slice through \
-             0 of the other coordinates)."
+             two latent coordinates (equal scales), shaded by the GP's predictive standard \
+             deviation per transformed value (the square root of the predictions table's \
+             variance; for q > 2, on the slice through 0 of the other coordinates, so points off \
+             that slice can sit in a lighter or darker area than their own variance says)."
                 .to_string(),
         ));
     }

@@ -95,8 +95,22 @@ fn quick_pipeline_report_matches_the_model_and_data() {
     // Predictions: the configured point and midpoint, materialised with the right size.
     let preds = json["predictions"].as_array().unwrap();
     assert_eq!(preds.len(), 2);
+    let pred = predict::Predictor::open(&dir.path().join("model.toml")).unwrap();
     for p in preds {
         assert!(finite(&p["variance"]) > 0.0 || p["label"] != "point 1");
+        // The variance is that of the predictor the row used, per transformed value.
+        let kind = match p["predictor"].as_str().unwrap() {
+            "exact" => predict::PredictorKind::Exact,
+            _ => predict::PredictorKind::Smooth,
+        };
+        let x: Vec<f64> = p["point"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        let want = pred.variance_of(&x, kind).unwrap() * pred.model().data_scale;
+        assert_eq!(p["variance"].as_f64().unwrap(), want, "{p}");
         let file = dir.path().join(p["file"].as_str().unwrap());
         let bytes = std::fs::metadata(&file).unwrap().len();
         assert_eq!(bytes, p["file_bytes"].as_u64().unwrap());

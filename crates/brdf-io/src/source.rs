@@ -72,7 +72,9 @@ pub struct ResampleOptions {
     pub outlier_threshold: f64,
     /// Clamp outliers to the threshold (otherwise they are stored as computed).
     pub clamp_outliers: bool,
-    /// Store the reciprocal mean `(f(wi, wo) + f(wo, wi)) / 2` of each bin centre (default).
+    /// Store the reciprocal mean `(f(wi, wo) + f(wo, wi)) / 2` of each bin centre (default;
+    /// RGL files weight the two orders by the square of the cosine each divides by, see
+    /// `PairWeights::CosOutgoingSquared`).
     ///
     /// The grid folds phi_d into [0, pi) by reciprocity, so every lookup of a pair and of its
     /// swapped pair reads the same cell. Measured RGL files and Neural-BRDF networks are not
@@ -232,7 +234,8 @@ impl ImportReport {
 
     /// The median over values of the relative non-reciprocal part `|a - b| / (|a| + |b|)`
     /// (unweighted; from [`ImportReport::non_reciprocal_hist`], so to within a factor
-    /// `10^(1/16)`, ~15 %: the bin's geometric centre); `None` when nothing was measured.
+    /// `10^(1/16)`, ~15 %: the bin's geometric centre; in the first bin, which also holds
+    /// everything below 1e-4, only "below 1.33e-4" is known); `None` when nothing was measured.
     pub fn non_reciprocity_median(&self) -> Option<f64> {
         let total: u64 = self.non_reciprocal_hist.iter().sum();
         if total == 0 {
@@ -297,8 +300,14 @@ impl std::fmt::Display for ImportReport {
         match (self.non_reciprocity(), self.non_reciprocity_median()) {
             (Some(r), Some(m)) => write!(
                 f,
-                ", non-reciprocal part: median {:.2} %, RMS {:.2} % (cosine-weighted)",
-                100.0 * m,
+                ", non-reciprocal part: median {} of values, RMS {:.2} % (cosine-weighted)",
+                // The first bin (centre 1.15e-4) also holds everything below 1e-4, exact
+                // zeros too: only an upper bound is known there.
+                if m < 1.3e-4 {
+                    "< 0.013 %".to_owned()
+                } else {
+                    format!("{:.2} %", 100.0 * m)
+                },
                 100.0 * r
             ),
             (Some(r), None) => write!(

@@ -157,12 +157,14 @@ pub fn hooke_jeeves(
 
     let mut at_limit = false;
     let stop_reason = loop {
-        if step < s.min_step {
-            break format!("step {step:.3e} below {:.1e}", s.min_step);
-        }
+        // The cap first: a sweep it cut short shrank the step without a real failure, so a
+        // step below min_step then is not convergence.
         if evaluations.get() as usize >= s.max_evaluations {
             at_limit = true;
             break format!("reached {} evaluations", s.max_evaluations);
+        }
+        if step < s.min_step {
+            break format!("step {step:.3e} below {:.1e}", s.min_step);
         }
         iterations += 1;
         let (mut x, mut value) = explore(&mut eval, &base, base_value, step);
@@ -458,9 +460,13 @@ pub fn lbfgs(
             return Some(reason);
         }
         if *after || pairs.is_empty() {
+            let again = if *after {
+                ", again after dropping the Hessian model,"
+            } else {
+                ", from steepest descent,"
+            };
             return Some(format!(
-                "{reason}, again after dropping the Hessian model, with |gradient| {gnorm:.2e} \
-                 (not converged)"
+                "{reason}{again} with |gradient| {gnorm:.2e} (not converged)"
             ));
         }
         pairs.clear();
@@ -677,6 +683,16 @@ mod tests {
         };
         let m = hooke_jeeves(|x| x.iter().map(|v| v * v).sum(), &[1.0; 40], &s).unwrap();
         assert!(m.at_limit && m.evaluations == 101, "{m:?}");
+        // A sweep cut short by the cap that shrinks the step below min_step is still a stop
+        // at the cap, not convergence.
+        let s = HookeJeevesSettings {
+            initial_step: 0.1,
+            step_reduction: 0.5,
+            min_step: 0.06,
+            max_evaluations: 3,
+        };
+        let m = hooke_jeeves(|x| x.iter().map(|v| v * v).sum(), &[0.0, 0.0], &s).unwrap();
+        assert!(m.at_limit && m.evaluations == 3, "{m:?}");
         let m = hooke_jeeves(|x| x[0] * x[0], &[0.3], &HookeJeevesSettings::default()).unwrap();
         assert!(!m.at_limit, "{m:?}");
     }

@@ -451,7 +451,8 @@ impl Predictor {
         Ok(self.inner.gp.variance_of(x, kind.into())?)
     }
 
-    /// Predictive variance of one transformed value (the units of `transform.forward(f)`).
+    /// Predictive variance of one transformed value (the units of `transform.forward(f)`), of
+    /// the smooth predictor ([`variance`](Self::variance)).
     pub fn variance_transformed(&self, x: &[f64]) -> Result<f64> {
         Ok(self.variance(x)? * self.inner.model.data_scale)
     }

@@ -112,8 +112,9 @@ struct NbrdfArgs {
     #[arg(long)]
     clamp: bool,
     /// Store f(wi, wo) of each bin centre's own direction pair instead of the reciprocal mean
-    /// of both orders, (f(wi, wo) + f(wo, wi)) / 2 (half the evaluations; the source's
-    /// non-reciprocal part then shows as a seam along the plane of incidence in renders).
+    /// of both orders ((f(wi, wo) + f(wo, wi)) / 2; for RGL files weighted by the square of
+    /// the cosine each order divides by) (half the evaluations; the source's non-reciprocal
+    /// part then shows as a seam along the plane of incidence in renders).
     #[arg(long)]
     no_reciprocal: bool,
     #[command(flatten)]
@@ -131,8 +132,9 @@ struct RglArgs {
     #[arg(long)]
     wavelengths: Option<String>,
     /// Store f(wi, wo) of each bin centre's own direction pair instead of the reciprocal mean
-    /// of both orders, (f(wi, wo) + f(wo, wi)) / 2 (half the evaluations; the source's
-    /// non-reciprocal part then shows as a seam along the plane of incidence in renders).
+    /// of both orders ((f(wi, wo) + f(wo, wi)) / 2; for RGL files weighted by the square of
+    /// the cosine each order divides by) (half the evaluations; the source's non-reciprocal
+    /// part then shows as a seam along the plane of incidence in renders).
     #[arg(long)]
     no_reciprocal: bool,
     #[command(flatten)]

@@ -233,14 +233,24 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
     );
     if report.negatives > 0 {
         eprintln!(
-            "warning: {} predicted values are negative (min {:e} 1/sr): the GP mean is not \
-             constrained to be non-negative{}",
+            "warning: {} {} values are negative (min {:e} 1/sr): {}",
             report.negatives,
-            report.min_value,
-            if report.format == predict::OutputFormat::Merl {
-                "; the MERL file stores 0 there"
+            if spectral_merl {
+                "linear sRGB"
             } else {
-                ""
+                "predicted"
+            },
+            report.min_value,
+            match (report.format == predict::OutputFormat::Merl, spectral_merl) {
+                (true, true) => {
+                    "negative predicted spectra or out-of-gamut colours; the MERL file stores 0 \
+                     there"
+                }
+                (true, false) => {
+                    "the GP mean is not constrained to be non-negative; the MERL file stores 0 \
+                     there"
+                }
+                _ => "the GP mean is not constrained to be non-negative",
             }
         );
     }
@@ -263,10 +273,8 @@ fn write_spectral_merl(
     let mut rgb = Vec::with_capacity(3 * grid.len());
     let mut cell = vec![0.0f64; nc];
     let mut filled = 0;
-    let mut count = predict::NegativeCount::default();
     material.stream_values(
         |_, values| {
-            count.add(values);
             for v in values {
                 cell[filled] = f64::from(*v);
                 filled += 1;
@@ -281,6 +289,10 @@ fn write_spectral_merl(
         },
         |done, _| pb.set_position(done as u64),
     )?;
+    // What the MERL file clamps to 0: negative linear sRGB, from negative predicted spectra or
+    // from out-of-gamut colours of positive ones.
+    let mut count = predict::NegativeCount::default();
+    count.add(&rgb);
     let merl = brdf_io::merl::MerlBrdf::on_merl_grid(grid, &rgb)?;
     brdf_io::merl::write_merl(out, &merl)?;
     Ok(predict::MaterializeReport {
