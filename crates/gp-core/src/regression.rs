@@ -15,8 +15,9 @@
 //! - [`Predictor::Smooth`]: `k*_i = k_rbf(x_i, x*)` (no delta term), the usual noise-free
 //!   posterior mean, continuous in `x*` but shrunk towards `m` at training points.
 //!
-//! The variance always uses the smooth `k_s` (the predictive variance of a noisy observation at
-//! `x*`); it is clamped at 0 against rounding. The jitter counts as noise everywhere (the
+//! [`GpRegression::variance`] uses the smooth `k_s` (the predictive variance of a noisy
+//! observation at `x*`); [`GpRegression::variance_of`] the `k*` of a given predictor (the
+//! exact one's is 0 at a training point). Both are clamped at 0 against rounding. The jitter counts as noise everywhere (the
 //! factor is of `K + j I`): in the exact predictor's delta term and in the variance's prior
 //! `s^2 + mu + j`, so a jittered model's variance is that of the model it factors.
 
