@@ -123,7 +123,7 @@ pub fn render_figures(
             x,
             y2 + size + 2,
             size,
-            &format!("dE {de:.2}"),
+            &format!("rec dE {de:.2}"),
             1,
         );
         delta_e.push(SphereDeltaE {
@@ -145,7 +145,7 @@ pub fn render_figures(
                 x,
                 y3 + size + 2,
                 size,
-                &format!("dE {de:.2}"),
+                &format!("loo dE {de:.2}"),
                 1,
             );
             held_out_delta_e.push(de);
@@ -161,8 +161,8 @@ pub fn render_figures(
         String::new()
     } else {
         format!(
-            "; bottom: the GP's prediction of each material held out (leave-one-out: refit \
-             without it, placed at its best latent point), mean Delta E {:.2}",
+            "; bottom (`loo`): the GP's prediction of each material held out (leave-one-out: \
+             refit without it, placed at its best latent point), mean Delta E {:.2}",
             held_out_delta_e.iter().sum::<f64>() / held_out_delta_e.len() as f64
         )
     };
@@ -170,8 +170,8 @@ pub fn render_figures(
         "sheet.png".to_string(),
         format!(
             "Top: the dataset's materials as stored (measured, synthetic or network-approximated, \
-             as the data section says); {}: the smooth GP prediction at each material's own \
-             latent point (a reconstruction), with the mean CIE Delta E 2000 over the \
+             as the data section says); {} (`rec`): the smooth GP prediction at each material's \
+             own latent point (a reconstruction), with the mean CIE Delta E 2000 over the \
              sphere{held_out_caption}.",
             if held_out_delta_e.is_empty() {
                 "bottom"

@@ -289,7 +289,7 @@ fn figures(s: &mut String, r: &Results) {
         s,
         "\n## Figures\n\nSpheres under a directional light and a dim uniform environment, {} \
          ({:.2} s per sphere). Mean CIE Delta E 2000 between the dataset's spheres (its stored \
-         values) and the smooth GP reconstructions in the sheet: **{:.2}**.\n",
+         values) and the smooth GP reconstructions in the sheet: **{:.3}**.\n",
         if r.data.channels == ["R", "G", "B"] {
             "RGB values taken as linear sRGB"
         } else {

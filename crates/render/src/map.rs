@@ -244,6 +244,20 @@ pub fn latent_map(
     }
     img.text(l + 130, bar_y, "0", 1, black);
     img.text(l + 290, bar_y, &format!("{:.3}", vmax.sqrt()), 1, black);
+    // The thumbnails' region, outlined 6 px outside the points' box (so the line passes no dot
+    // at the box's edge), drawn before the labels so that none is struck through.
+    if source_at.is_some() && panel > 0 {
+        let [bx0, bx1, by0, by1] = thumbnail_box(points);
+        let (px0, py0) = to_px([bx0, by1]);
+        let (px1, py1) = to_px([bx1, by0]);
+        let (px0, py0, px1, py1) = (px0 - 6.0, py0 - 6.0, px1 + 6.0, py1 + 6.0);
+        let grey = [0.35; 3];
+        let (w, h) = ((px1 - px0).max(1.0) as usize, (py1 - py0).max(1.0) as usize);
+        img.fill_rect(px0 as i64, py0 as i64, w, 1, grey);
+        img.fill_rect(px0 as i64, py1 as i64, w + 1, 1, grey);
+        img.fill_rect(px0 as i64, py0 as i64, 1, h, grey);
+        img.fill_rect(px1 as i64, py0 as i64, 1, h, grey);
+    }
     // Dots and labels: each label beside its dot where there is room, else on a ring further
     // out with a leader line; none covers another label or a dot.
     let dots: Vec<(f64, f64)> = points.iter().map(|(_, p)| to_px(*p)).collect();
@@ -288,16 +302,6 @@ pub fn latent_map(
         let ts = opts.sphere.size;
         let ox = (margin + size + margin) as i64;
         let [bx0, bx1, by0, by1] = thumbnail_box(points);
-        // Outlined 6 px outside the box, so the line passes no dot at the box's edge.
-        let (px0, py0) = to_px([bx0, by1]);
-        let (px1, py1) = to_px([bx1, by0]);
-        let (px0, py0, px1, py1) = (px0 - 6.0, py0 - 6.0, px1 + 6.0, py1 + 6.0);
-        let grey = [0.35; 3];
-        let (w, h) = ((px1 - px0).max(1.0) as usize, (py1 - py0).max(1.0) as usize);
-        img.fill_rect(px0 as i64, py0 as i64, w, 1, grey);
-        img.fill_rect(px0 as i64, py1 as i64, w + 1, 1, grey);
-        img.fill_rect(px0 as i64, py0 as i64, 1, h, grey);
-        img.fill_rect(px1 as i64, py0 as i64, 1, h, grey);
         let cells: Vec<(usize, usize)> = (0..g * g).map(|k| (k % g, k / g)).collect();
         let thumbs: Vec<Image> = cells
             .iter()
@@ -314,7 +318,12 @@ pub fn latent_map(
         for ((i, j), th) in cells.iter().zip(&thumbs) {
             img.blit(th, ox + (i * ts) as i64, (margin + j * ts) as i64);
         }
-        let title = font::fit("PREDICTED MATERIALS OVER THE GREY BOX", g * ts, 1);
+        let title = if opts.caption.contains("SLICE") {
+            "PREDICTED MATERIALS OVER THE GREY BOX, ON THE SLICE"
+        } else {
+            "PREDICTED MATERIALS OVER THE GREY BOX"
+        };
+        let title = font::fit(title, g * ts, 1);
         img.text(ox, 8, &title, 1, black);
     }
     Ok(img)

@@ -134,7 +134,7 @@ pub enum EnvMode {
     /// The [`ENV_SAMPLES`]-direction quadrature evaluated at every pixel (any BRDF).
     PerPixel,
     /// A studio environment instead of the uniform one, integrated per pixel like
-    /// [`EnvMode::PerPixel`] with a denser quadrature ([`STUDIO_COSINE`], [`STUDIO_CAP`]): a bright sky above the horizon (radiance rising towards the
+    /// [`EnvMode::PerPixel`] with a denser quadrature ([`STUDIO_COSINE`], [`STUDIO_CAP`]): a sky above the horizon (radiance rising towards the
     /// zenith) over a dark floor, `env_radiance` x [`studio_radiance`] of the world direction's
     /// height (camera frame, y up). Glossy and metallic materials then show what they reflect:
     /// a horizon across a chrome sphere, a sheen on a metal; under the uniform environment a
@@ -143,14 +143,17 @@ pub enum EnvMode {
 }
 
 /// Relative radiance of the studio environment ([`EnvMode::Studio`]) in a direction of height
-/// `y` (the up component of a unit direction): 0.25 on the floor, a horizon softened over
-/// |y| < 0.03, then 3 rising linearly to 8 at the zenith. A white diffuser facing up receives
-/// ~5.7 pi (sky) and facing down 0.25 pi (floor), per unit `env_radiance`.
+/// `y` (the up component of a unit direction): 0.15 on the floor, a horizon softened over
+/// |y| < 0.08 (about 5 degrees: sharp on a mirror, without the steps that a harder edge leaves
+/// on glossy lobes as the fixed quadrature directions cross it), then 1.5 rising linearly to
+/// 3 at the zenith. A white diffuser facing up receives ~2.3 pi (sky) and facing down 0.15 pi
+/// (floor), per unit `env_radiance`: with the default light, its brightest point stays near
+/// 1 (linear), below clipping at exposure 0.
 pub fn studio_radiance(y: f64) -> f64 {
-    const FLOOR: f64 = 0.25;
-    const HORIZON: f64 = 3.0;
-    const ZENITH: f64 = 8.0;
-    const SOFT: f64 = 0.03;
+    const FLOOR: f64 = 0.15;
+    const HORIZON: f64 = 1.5;
+    const ZENITH: f64 = 3.0;
+    const SOFT: f64 = 0.08;
     let sky = HORIZON + (ZENITH - HORIZON) * y.max(0.0);
     let t = ((y + SOFT) / (2.0 * SOFT)).clamp(0.0, 1.0);
     let t = t * t * (3.0 - 2.0 * t);
@@ -1050,9 +1053,9 @@ mod tests {
     /// the uniform environment cannot show at all.
     #[test]
     fn studio_environment_shows_a_horizon_on_glossy_spheres() {
-        assert!((studio_radiance(-1.0) - 0.25).abs() < 1e-12);
-        assert!((studio_radiance(1.0) - 8.0).abs() < 1e-12);
-        assert!((studio_radiance(0.0) - 0.5 * (0.25 + 3.0)).abs() < 1e-12);
+        assert!((studio_radiance(-1.0) - 0.15).abs() < 1e-12);
+        assert!((studio_radiance(1.0) - 3.0).abs() < 1e-12);
+        assert!((studio_radiance(0.0) - 0.5 * (0.15 + 1.5)).abs() < 1e-12);
         let opts = |env_mode| SphereOptions {
             size: 64,
             light_irradiance: 0.0,

@@ -47,7 +47,7 @@ enum Command {
     Latent(cmd_fit::LatentArgs),
     /// Render a sphere preview of a BRDF source (spectral -> sRGB PNG).
     Render(cmd_render::RenderArgs),
-    /// Draw the latent space: materials labelled, predictive variance shaded, thumbnails.
+    /// Draw the latent space: materials labelled, shaded by the predictive standard deviation, thumbnails.
     Map(cmd_render::MapArgs),
     /// Materialise a predicted material (GP at a latent point, or linear interpolation).
     Predict(cmd_predict::PredictArgs),
