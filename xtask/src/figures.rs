@@ -233,8 +233,7 @@ pub fn render_figures(
             let mut x = vec![0.0; q];
             x[0] = p[0];
             x[1] = p[1];
-            pred.variance(&x)
-                .map(|v| v * model.data_scale)
+            pred.variance_transformed(&x, PredictorKind::Smooth)
                 .map_err(|e| render::Error::InvalidArgument {
                     reason: e.to_string(),
                 })

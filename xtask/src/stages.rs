@@ -107,7 +107,7 @@ pub fn predict_points(
         let m = pred.predict(&x, k).map_err(err)?;
         let weights_us = t.elapsed().as_secs_f64() * 1e6;
         // The variance of the predictor used (the exact one's is 0 at a training point).
-        let variance = pred.variance_of(&x, k).map_err(err)? * pred.model().data_scale;
+        let variance = pred.variance_transformed(&x, k).map_err(err)?;
         let (lookup_us, lookup_mean) = time_lookups(&m, 4096)?;
         let (file, file_bytes, materialize_seconds) = if config.predict.materialize {
             let name = format!("prediction-{}.npy", i + 1);

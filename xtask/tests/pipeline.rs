@@ -109,7 +109,7 @@ fn quick_pipeline_report_matches_the_model_and_data() {
             .iter()
             .map(|v| v.as_f64().unwrap())
             .collect();
-        let want = pred.variance_of(&x, kind).unwrap() * pred.model().data_scale;
+        let want = pred.variance_transformed(&x, kind).unwrap();
         assert_eq!(p["variance"].as_f64().unwrap(), want, "{p}");
         let file = dir.path().join(p["file"].as_str().unwrap());
         let bytes = std::fs::metadata(&file).unwrap().len();

@@ -451,10 +451,10 @@ impl Predictor {
         Ok(self.inner.gp.variance_of(x, kind.into())?)
     }
 
-    /// Predictive variance of one transformed value (the units of `transform.forward(f)`), of
-    /// the smooth predictor ([`variance`](Self::variance)).
-    pub fn variance_transformed(&self, x: &[f64]) -> Result<f64> {
-        Ok(self.variance(x)? * self.inner.model.data_scale)
+    /// Predictive variance of one transformed value (the units of `transform.forward(f)`) of
+    /// the predictor `kind`: [`variance_of`](Self::variance_of) times `data_scale`.
+    pub fn variance_transformed(&self, x: &[f64], kind: PredictorKind) -> Result<f64> {
+        Ok(self.variance_of(x, kind)? * self.inner.model.data_scale)
     }
 
     /// The GP prediction at latent point `x`.

@@ -139,7 +139,8 @@ fn posterior_mean_and_variance_equal_a_dense_reference() {
     );
     assert!(var > 0.0 && var < s2 + mu);
     assert_eq!(
-        pred.variance_transformed(&x).unwrap(),
+        pred.variance_transformed(&x, PredictorKind::Smooth)
+            .unwrap(),
         var * model.data_scale
     );
     // Away from the training points both predictors' variances agree; at training point 2

@@ -246,8 +246,8 @@ pub fn latent_map(
     img.text(l + 290, bar_y, &format!("{:.3}", vmax.sqrt()), 1, black);
     // The thumbnails' region, outlined 6 px outside the points' box (so the line passes no dot
     // at the box's edge), drawn before the labels so that none is struck through.
-    if source_at.is_some() && panel > 0 {
-        let [bx0, bx1, by0, by1] = thumbnail_box(points);
+    let thumbs_box = (source_at.is_some() && panel > 0).then(|| thumbnail_box(points));
+    if let Some([bx0, bx1, by0, by1]) = thumbs_box {
         let (px0, py0) = to_px([bx0, by1]);
         let (px1, py1) = to_px([bx1, by0]);
         let (px0, py0, px1, py1) = (px0 - 6.0, py0 - 6.0, px1 + 6.0, py1 + 6.0);
@@ -297,11 +297,10 @@ pub fn latent_map(
     // Thumbnails over the points' bounding box (drawn on the map), not the whole square plot:
     // the square's empty margins are far from every material, where the GP's extrapolation
     // shows colours no material has (a walkthrough took them for the model's predictions).
-    if let (Some(f), true) = (source_at, panel > 0) {
+    if let (Some(f), Some([bx0, bx1, by0, by1])) = (source_at, thumbs_box) {
         let g = opts.thumbnails;
         let ts = opts.sphere.size;
         let ox = (margin + size + margin) as i64;
-        let [bx0, bx1, by0, by1] = thumbnail_box(points);
         let cells: Vec<(usize, usize)> = (0..g * g).map(|k| (k % g, k / g)).collect();
         let thumbs: Vec<Image> = cells
             .iter()
