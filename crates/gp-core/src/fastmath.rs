@@ -112,6 +112,79 @@ pub fn dot<T: Copy + Into<f64>>(a: &[f64], b: &[T]) -> f64 {
     (part[0] + part[1]) + (part[2] + part[3]) + rest
 }
 
+/// [`dot`] in explicit 4-lane AVX2 vectors, with `dot`'s arithmetic exactly (lane k sums the
+/// products of elements 4j + k, multiply then add; lanes and remainder combined as there), so
+/// the result has the same bits. The compiler's own vectorisation of `dot` uses 2-lane halves
+/// and shuffles; this is one 4-lane chain (~2.5x faster on a 255-value dot).
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA. `a` and `b` must have the same length (checked in debug
+/// builds; in release builds the longer one's extra elements are ignored).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline]
+pub unsafe fn dot_avx2<T: Lanes>(a: &[f64], b: &[T]) -> f64 {
+    use std::arch::x86_64::{_mm256_add_pd, _mm256_loadu_pd, _mm256_mul_pd, _mm256_setzero_pd};
+    debug_assert_eq!(
+        a.len(),
+        b.len(),
+        "fastmath::dot_avx2 of slices of different lengths"
+    );
+    let n = a.len().min(b.len());
+    let n4 = n / 4 * 4;
+    let rest: f64 = a[n4..n]
+        .iter()
+        .zip(&b[n4..n])
+        .map(|(x, y)| x * (*y).into())
+        .sum();
+    let mut acc = _mm256_setzero_pd();
+    let mut j = 0;
+    while j < n4 {
+        // SAFETY: j + 4 <= n4 <= n <= both lengths, so both 4-value loads are in bounds; AVX2
+        // is available (this function's contract).
+        let (x, y) = unsafe {
+            (
+                _mm256_loadu_pd(a.as_ptr().add(j)),
+                T::load4(b.as_ptr().add(j)),
+            )
+        };
+        acc = _mm256_add_pd(acc, _mm256_mul_pd(x, y));
+        j += 4;
+    }
+    // SAFETY: a __m256d is 4 f64.
+    let p: [f64; 4] = unsafe { std::mem::transmute(acc) };
+    (p[0] + p[1]) + (p[2] + p[3]) + rest
+}
+
+/// Value types [`dot_avx2`] reads as f64 lanes (f64 itself, and f32 widened exactly).
+pub trait Lanes: Copy + Into<f64> {
+    /// The 4 values at `ptr`, widened to f64.
+    ///
+    /// # Safety
+    /// `ptr` must be valid for reading 4 values, and the CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    unsafe fn load4(ptr: *const Self) -> std::arch::x86_64::__m256d;
+}
+
+impl Lanes for f32 {
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn load4(ptr: *const Self) -> std::arch::x86_64::__m256d {
+        use std::arch::x86_64::{_mm_loadu_ps, _mm256_cvtps_pd};
+        // SAFETY: the caller guarantees 4 readable values and AVX2.
+        unsafe { _mm256_cvtps_pd(_mm_loadu_ps(ptr)) }
+    }
+}
+
+impl Lanes for f64 {
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn load4(ptr: *const Self) -> std::arch::x86_64::__m256d {
+        // SAFETY: the caller guarantees 4 readable values and AVX2.
+        unsafe { std::arch::x86_64::_mm256_loadu_pd(ptr) }
+    }
+}
+
 /// `v = s e^(-v / 2)` in place (RBF values from squared scaled distances), 4 lanes wide with
 /// AVX2 + FMA when the CPU has them (selected at run time), the same arithmetic otherwise.
 pub fn rbf_from_sq_dist_in_place(values: &mut [f64], s: f64) {
@@ -167,6 +240,40 @@ mod tests {
         rbf_from_sq_dist_in_place(&mut v, 2.0);
         for (a, b) in v.iter().zip(&want) {
             assert!((a - b).abs() <= 1e-15 * b.max(f64::MIN_POSITIVE) || *b < 1e-300);
+        }
+    }
+
+    /// The AVX2 dot product has `dot`'s bits for f64 and f32 values, at every length (all
+    /// remainders) and with values of mixed signs and magnitudes (where the order of additions
+    /// shows).
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn avx2_dot_has_the_portable_dots_bits() {
+        if !(std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("fma"))
+        {
+            return;
+        }
+        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            let u = (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+            u * 10f64.powi((state % 13) as i32 - 6)
+        };
+        for len in 0..70 {
+            let a: Vec<f64> = (0..len).map(|_| next()).collect();
+            let b: Vec<f64> = (0..len).map(|_| next()).collect();
+            let b32: Vec<f32> = b.iter().map(|&v| v as f32).collect();
+            // SAFETY: AVX2 and FMA were detected above.
+            let (fast, fast32) = unsafe { (dot_avx2(&a, &b), dot_avx2(&a, &b32)) };
+            assert_eq!(fast.to_bits(), dot(&a, &b).to_bits(), "f64, length {len}");
+            assert_eq!(
+                fast32.to_bits(),
+                dot(&a, &b32).to_bits(),
+                "f32, length {len}"
+            );
         }
     }
 }

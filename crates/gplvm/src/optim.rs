@@ -249,7 +249,10 @@ unsafe fn two_loop_avx512(
     alpha: &mut [f64],
     dir: &mut [f64],
 ) {
-    two_loop_body(pairs, grad, gnorm, alpha, dir);
+    // SAFETY: AVX-512F implies AVX2 and FMA, `dot_avx2`'s requirement.
+    two_loop_with(pairs, grad, gnorm, alpha, dir, |a, b| unsafe {
+        gp_core::fastmath::dot_avx2(a, b)
+    });
 }
 
 /// [`two_loop`] compiled for AVX2 + FMA.
@@ -265,11 +268,27 @@ unsafe fn two_loop_avx2(
     alpha: &mut [f64],
     dir: &mut [f64],
 ) {
-    two_loop_body(pairs, grad, gnorm, alpha, dir);
+    // SAFETY: AVX2 and FMA are available (this function's contract), `dot_avx2`'s requirement.
+    two_loop_with(pairs, grad, gnorm, alpha, dir, |a, b| unsafe {
+        gp_core::fastmath::dot_avx2(a, b)
+    });
 }
 
-#[inline(always)]
+/// The portable two-loop recursion.
 fn two_loop_body(pairs: &Pairs, grad: &[f64], gnorm: f64, alpha: &mut [f64], dir: &mut [f64]) {
+    two_loop_with(pairs, grad, gnorm, alpha, dir, dot);
+}
+
+/// The two-loop recursion with a given dot product (every one must have [`dot`]'s bits).
+#[inline(always)]
+fn two_loop_with(
+    pairs: &Pairs,
+    grad: &[f64],
+    gnorm: f64,
+    alpha: &mut [f64],
+    dir: &mut [f64],
+    dot: impl Fn(&[f64], &[f64]) -> f64,
+) {
     dir.copy_from_slice(grad);
     for (k, (s, y, rho)) in pairs.iter().enumerate().rev() {
         alpha[k] = rho * dot(s, dir);

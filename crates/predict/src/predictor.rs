@@ -12,6 +12,7 @@ pub use brdf_io::ChannelSelection;
 use brdf_io::store::Store;
 use brdf_io::{AngularGrid, BrdfSource, Channels, HalfDiff, Vec3};
 use faer::Par;
+use gp_core::fastmath::Lanes;
 use gp_core::{GpRegression, KernelParams, LengthScale};
 use gplvm::{Model, Transform};
 
@@ -757,75 +758,19 @@ fn row_dots<T: Lanes>(c: &[f64], rows: &[T], out: &mut [f64]) {
     row_dots_body(c, rows, out);
 }
 
-/// [`row_dots`] with AVX2: each dot product in explicit 4-lane vectors, the arithmetic of
-/// [`gp_core::fastmath::dot`] exactly (lane k sums the products of elements 4j + k, multiply
-/// then add; the lanes and the remainder combined as there), so results are bit-identical to
-/// [`row_dots_body`]. (The compiler's own vectorisation of `dot` for f32 rows used 2-lane
-/// halves and shuffles.)
+/// [`row_dots`] with AVX2: each dot product by [`gp_core::fastmath::dot_avx2`] (explicit
+/// 4-lane vectors, the arithmetic of [`gp_core::fastmath::dot`] exactly), so results are
+/// bit-identical to [`row_dots_body`].
 ///
 /// # Safety
 /// The CPU must support AVX2 and FMA.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn row_dots_avx2<T: Lanes>(c: &[f64], rows: &[T], out: &mut [f64]) {
-    use std::arch::x86_64::{
-        _mm256_add_pd, _mm256_loadu_pd, _mm256_mul_pd, _mm256_setzero_pd, _mm256_storeu_pd,
-    };
-    let n = c.len();
-    let n4 = n / 4 * 4;
-    for (o, row) in out.iter_mut().zip(rows.chunks_exact(n)) {
-        let rest: f64 = c[n4..]
-            .iter()
-            .zip(&row[n4..])
-            .map(|(x, y)| x * (*y).into())
-            .sum();
-        let mut acc = _mm256_setzero_pd();
-        let mut j = 0;
-        while j < n4 {
-            // SAFETY: j + 4 <= n4 <= n = c.len() = row.len(), so both 4-value loads are in
-            // bounds; AVX2 is available (this function's contract).
-            let (w, y) = unsafe {
-                (
-                    _mm256_loadu_pd(c.as_ptr().add(j)),
-                    T::load4(row.as_ptr().add(j)),
-                )
-            };
-            acc = _mm256_add_pd(acc, _mm256_mul_pd(w, y));
-            j += 4;
-        }
-        let mut p = [0.0f64; 4];
-        // SAFETY: `p` holds 4 f64.
-        unsafe { _mm256_storeu_pd(p.as_mut_ptr(), acc) };
-        *o = (p[0] + p[1]) + (p[2] + p[3]) + rest;
-    }
-}
-
-/// Stored value types that load 4 consecutive values as 4 f64 lanes.
-trait Lanes: Copy + Into<f64> {
-    /// The 4 values at `ptr`, widened to f64.
-    ///
-    /// # Safety
-    /// `ptr` must be valid for reading 4 values, and the CPU must support AVX2.
-    #[cfg(target_arch = "x86_64")]
-    unsafe fn load4(ptr: *const Self) -> std::arch::x86_64::__m256d;
-}
-
-impl Lanes for f32 {
-    #[cfg(target_arch = "x86_64")]
-    #[inline(always)]
-    unsafe fn load4(ptr: *const Self) -> std::arch::x86_64::__m256d {
-        use std::arch::x86_64::{_mm_loadu_ps, _mm256_cvtps_pd};
-        // SAFETY: the caller guarantees 4 readable values and AVX2.
-        unsafe { _mm256_cvtps_pd(_mm_loadu_ps(ptr)) }
-    }
-}
-
-impl Lanes for f64 {
-    #[cfg(target_arch = "x86_64")]
-    #[inline(always)]
-    unsafe fn load4(ptr: *const Self) -> std::arch::x86_64::__m256d {
-        // SAFETY: the caller guarantees 4 readable values and AVX2.
-        unsafe { std::arch::x86_64::_mm256_loadu_pd(ptr) }
+    for (o, row) in out.iter_mut().zip(rows.chunks_exact(c.len())) {
+        // SAFETY: AVX2 and FMA are available (this function's contract); `row` has c.len()
+        // values.
+        *o = unsafe { gp_core::fastmath::dot_avx2(c, row) };
     }
 }
 
