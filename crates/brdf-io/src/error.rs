@@ -83,12 +83,17 @@ pub enum Error {
         reason: String,
     },
     /// A material name that the dataset store does not hold.
-    #[error("{path}: no material named {name:?} (the store holds: {available})")]
+    #[error(
+        "{path}: no material named {name:?}{} (the store holds: {available})",
+        did_you_mean(.closest)
+    )]
     UnknownMaterial {
         /// The store concerned.
         path: PathBuf,
         /// The name asked for.
         name: String,
+        /// The held name most like it ([`closest_name`]), if any is close.
+        closest: Option<String>,
         /// The names it holds, comma-separated.
         available: String,
     },
@@ -163,5 +168,79 @@ impl Error {
             path: path.into(),
             error: source,
         }
+    }
+}
+
+/// `"; did you mean \"NAME\"?"` for a close name, else nothing.
+pub fn did_you_mean(closest: &Option<String>) -> String {
+    closest
+        .as_ref()
+        .map_or_else(String::new, |c| format!("; did you mean {c:?}?"))
+}
+
+/// The candidate most like `name`, for "did you mean" hints: one equal to it but for case,
+/// else the only one containing it (or contained in it; none when several do), else the most
+/// similar by Jaro-Winkler similarity if that is at least 0.8. `None` when nothing is close.
+pub fn closest_name<'a>(name: &str, candidates: &[&'a str]) -> Option<&'a str> {
+    let lower = name.to_lowercase();
+    if let Some(c) = candidates.iter().find(|c| c.to_lowercase() == lower) {
+        return Some(c);
+    }
+    let containing: Vec<&&str> = candidates
+        .iter()
+        .filter(|c| {
+            let c = c.to_lowercase();
+            !lower.is_empty() && (c.contains(&lower) || lower.contains(&c))
+        })
+        .collect();
+    match containing.as_slice() {
+        [one] => return Some(one),
+        [] => {}
+        // A part of several names ("metal") is ambiguous: no guess.
+        _ => return None,
+    }
+    candidates
+        .iter()
+        .map(|c| (c, strsim::jaro_winkler(&lower, &c.to_lowercase())))
+        .filter(|(_, s)| *s >= 0.8)
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(c, _)| *c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn closest_names_catch_typos_case_and_parts_but_not_strangers() {
+        let names = [
+            "metal_gold",
+            "metal_copper",
+            "metal_chromium",
+            "paper_white",
+            "acrylic_felt_white",
+        ];
+        assert_eq!(closest_name("metal_gol", &names), Some("metal_gold"));
+        assert_eq!(closest_name("Metal_Gold", &names), Some("metal_gold"));
+        assert_eq!(closest_name("gold", &names), Some("metal_gold"));
+        assert_eq!(closest_name("metal_coper", &names), Some("metal_copper"));
+        assert_eq!(closest_name("papr_white", &names), Some("paper_white"));
+        // "white" is in two names and "metal" in three: no unique part, and no close whole.
+        assert_eq!(closest_name("white", &names), None);
+        assert_eq!(closest_name("metal", &names), None);
+        assert_eq!(closest_name("xyz", &names), None);
+        assert_eq!(closest_name("", &names), None);
+        assert_eq!(closest_name("gold", &[]), None);
+        let e = Error::UnknownMaterial {
+            path: "d.sbrdf".into(),
+            name: "metal_gol".into(),
+            closest: Some("metal_gold".into()),
+            available: names.join(", "),
+        };
+        assert!(
+            e.to_string()
+                .starts_with("d.sbrdf: no material named \"metal_gol\"; did you mean \"metal_gold\"? (the store holds: metal_gold,"),
+            "{e}"
+        );
     }
 }

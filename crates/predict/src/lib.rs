@@ -24,6 +24,6 @@ pub mod predictor;
 pub use error::{Error, Result};
 pub use materialize::{MaterializeReport, NegativeCount, OutputFormat};
 pub use predictor::{
-    ChannelSelection, PredictedMaterial, Predictor, PredictorKind, kernel_params,
+    ChannelSelection, PointSupport, PredictedMaterial, Predictor, PredictorKind, kernel_params,
     transformed_store_path, weights_to_coefficients,
 };

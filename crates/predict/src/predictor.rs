@@ -18,6 +18,31 @@ use gplvm::{Model, Transform};
 
 use crate::error::{Error, Result};
 
+/// How well the training materials support a prediction at a latent point
+/// ([`Predictor::support`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PointSupport {
+    /// The training material nearest to the point.
+    pub nearest: String,
+    /// Its distance in length-scales (each axis divided by its length-scale).
+    pub distance: f64,
+    /// The smooth predictor's variance at the point over the prior variance `s^2 + mu`: near 0
+    /// at a training material, near 1 far from all of them, where the prediction is close to
+    /// the data mean.
+    pub variance_fraction: f64,
+}
+
+impl PointSupport {
+    /// Above this variance fraction a point counts as far from every material (the materials
+    /// explain less than a tenth of the prior variance there).
+    pub const FAR: f64 = 0.9;
+
+    /// Whether the point is far from every material ([`PointSupport::FAR`]).
+    pub fn is_far(&self) -> bool {
+        self.variance_fraction > Self::FAR
+    }
+}
+
 /// Which GP posterior mean is used (DESIGN.md section 4).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -385,18 +410,23 @@ impl Predictor {
             .materials
             .iter()
             .position(|m| m.name == name)
-            .ok_or_else(|| Error::InvalidArgument {
-                reason: format!(
-                    "no material {name:?} in model {} (it holds: {})",
-                    self.inner.model_path.display(),
-                    self.inner
-                        .model
-                        .materials
-                        .iter()
-                        .map(|m| m.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
+            .ok_or_else(|| {
+                let names: Vec<&str> = self
+                    .inner
+                    .model
+                    .materials
+                    .iter()
+                    .map(|m| m.name.as_str())
+                    .collect();
+                let closest = brdf_io::error::closest_name(name, &names).map(str::to_owned);
+                Error::InvalidArgument {
+                    reason: format!(
+                        "no material {name:?} in model {}{} (it holds: {})",
+                        self.inner.model_path.display(),
+                        brdf_io::error::did_you_mean(&closest),
+                        names.join(", ")
+                    ),
+                }
             })
     }
 
@@ -456,6 +486,46 @@ impl Predictor {
     /// the predictor `kind`: [`variance_of`](Self::variance_of) times `data_scale`.
     pub fn variance_transformed(&self, x: &[f64], kind: PredictorKind) -> Result<f64> {
         Ok(self.variance_of(x, kind)? * self.inner.model.data_scale)
+    }
+
+    /// How well the training materials support a prediction at `x`: the nearest material, its
+    /// distance in length-scales, and the share of the prior variance left at `x`.
+    pub fn support(&self, x: &[f64]) -> Result<PointSupport> {
+        self.check_point(x)?;
+        let h = &self.inner.model.hyperparameters;
+        let axis = |j: usize| {
+            h.length_scale
+                .get(j)
+                .or(h.length_scale.first())
+                .copied()
+                .unwrap_or(1.0)
+        };
+        let (nearest, distance) = self
+            .inner
+            .model
+            .materials
+            .iter()
+            .map(|m| {
+                let d2: f64 = m
+                    .coords
+                    .iter()
+                    .zip(x)
+                    .enumerate()
+                    .map(|(j, (a, b))| ((a - b) / axis(j)).powi(2))
+                    .sum();
+                (m.name.as_str(), d2.sqrt())
+            })
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .ok_or_else(|| Error::InvalidPoint {
+                point: x.to_vec(),
+                reason: "the model has no materials".into(),
+            })?;
+        let prior = h.signal_variance + h.noise;
+        Ok(PointSupport {
+            nearest: nearest.to_string(),
+            distance,
+            variance_fraction: self.variance(x)? / prior,
+        })
     }
 
     /// The GP prediction at latent point `x`.

@@ -160,6 +160,31 @@ fn posterior_mean_and_variance_equal_a_dense_reference() {
         "{smooth} vs {smooth_ref} (mu {mu})"
     );
 
+    // Support: at a training material it is that material, 0 away, with the smooth variance's
+    // share of the prior; far away the prior variance is all that is left.
+    let at2 = pred.support(&x2).unwrap();
+    assert_eq!(at2.nearest, model.materials[2].name);
+    assert_eq!(at2.distance, 0.0);
+    assert_eq!(at2.variance_fraction, smooth / (s2 + mu));
+    assert!(!at2.is_far());
+    let between = pred.support(&x).unwrap();
+    let d2 = |i: usize| {
+        row(i)
+            .iter()
+            .zip(&x)
+            .map(|(a, b)| ((a - b) / l).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    };
+    let nearest = (0..n).min_by(|&a, &b| d2(a).total_cmp(&d2(b))).unwrap();
+    assert_eq!(between.nearest, model.materials[nearest].name);
+    assert!(rel(between.distance, d2(nearest)) < 1e-12);
+    assert_eq!(between.variance_fraction, var / (s2 + mu));
+    let far: Vec<f64> = row(0).iter().map(|v| v + 10.0 * l).collect();
+    let far = pred.support(&far).unwrap();
+    assert!(far.is_far() && far.variance_fraction > 0.999, "{far:?}");
+    assert!(far.distance > 5.0, "{far:?}");
+
     // Posterior mean y* = m + sum w_i (y_i - m) in the transformed space, then the inverse.
     let material = pred.predict(&x, PredictorKind::Smooth).unwrap();
     let store = Store::open(&f.store).unwrap();

@@ -119,12 +119,32 @@ pub fn open_model_source(
     Some((|| {
         let x = parse_point(point)?;
         let pred = Predictor::open(Path::new(model)).with_context(|| format!("opening {model}"))?;
+        warn_if_far(&pred, &x)?;
         let mut m = with_existing_sidecar(pred)?.predict(&x, PredictorKind::Exact)?;
         if let Some(w) = wavelengths {
             m = m.with_wavelengths(w)?;
         }
         Ok(m)
     })())
+}
+
+/// Warns when latent point `x` is far from every training material: the GP's prediction
+/// there is close to the data mean, whatever the coordinates (a typo such as 9 for 0.9 would
+/// otherwise pass silently).
+pub fn warn_if_far(pred: &Predictor, x: &[f64]) -> anyhow::Result<()> {
+    let s = pred.support(x)?;
+    if s.is_far() {
+        tracing::warn!(
+            "latent point {} is far from every material (nearest: {}, {:.1} length-scales \
+             away; {:.0} % of the prior variance is left there): the prediction is close to the \
+             mean of the data",
+            x.iter().map(f64::to_string).collect::<Vec<_>>().join(","),
+            s.nearest,
+            s.distance,
+            100.0 * s.variance_fraction.min(1.0)
+        );
+    }
+    Ok(())
 }
 
 /// `pred` reading the forward-transformed sidecar store next to its dataset when one exists
@@ -181,6 +201,7 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
     let mut material = match (&args.at, &args.lerp) {
         (Some(at), _) => {
             let x = parse_point(at)?;
+            warn_if_far(&pred, &x)?;
             if args.variance {
                 let v = pred.variance_of(&x, kind)?;
                 println!(

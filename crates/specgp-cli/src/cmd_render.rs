@@ -41,9 +41,9 @@ pub struct RenderArgs {
     #[arg(long, default_value = "sphere")]
     pub shape: String,
     /// With `--shape plane`: angle in degrees between the sample's normal and the view
-    /// direction at its centre (0..89).
-    #[arg(long, default_value_t = 78.0)]
-    pub view: f64,
+    /// direction at its centre (0..89; default 78).
+    #[arg(long)]
+    pub view: Option<f64>,
     /// The environment: the dim uniform one integrated as `table` (pre-integrated over the
     /// view angle once per render; isotropic BRDFs, i.e. every specgp source), `fast` (a
     /// coarser table: fewer lookups, less accurate on glossy lobes) or `per-pixel` (20
@@ -84,9 +84,14 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
         e => bail!("--env {e:?}: expected `table`, `fast`, `per-pixel` or `studio`"),
     };
     let plane = match args.shape.as_str() {
-        "sphere" => None,
+        "sphere" => {
+            if let Some(v) = args.view {
+                bail!("--view {v} applies to --shape plane (a sphere shows every view angle)");
+            }
+            None
+        }
         "plane" => Some(render::PlaneOptions {
-            view: args.view,
+            view: args.view.unwrap_or(render::PlaneOptions::default().view),
             ..render::PlaneOptions::default()
         }),
         s => bail!("--shape {s:?}: expected `sphere` or `plane`"),
@@ -177,13 +182,13 @@ pub struct MapArgs {
     #[arg(long)]
     pub thumbnails: bool,
     /// Thumbnails per axis (with --thumbnails; 1..=64, a panel of at most 16384 pixels).
-    #[arg(long, default_value_t = 6, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=64))]
+    #[arg(long, default_value_t = 6, requires = "thumbnails", value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=64))]
     pub grid: usize,
     /// Side of the plot area in pixels (64..=16384).
     #[arg(long, default_value_t = 640, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(64..=16384))]
     pub size: usize,
-    /// Thumbnail sphere size in pixels (8..=1024).
-    #[arg(long, default_value_t = 64, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(8..=1024))]
+    /// Thumbnail sphere size in pixels (with --thumbnails; 8..=1024).
+    #[arg(long, default_value_t = 64, requires = "thumbnails", value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(8..=1024))]
     pub thumbnail_size: usize,
     /// The dataset store, when it moved since fitting (default: the path in the model).
     #[arg(long)]
@@ -311,7 +316,7 @@ mod tests {
             exposure: 0.0,
             background: "0.5".into(),
             shape: "sphere".into(),
-            view: 78.0,
+            view: None,
             env: "table".into(),
         };
         render(&args).unwrap();
@@ -328,7 +333,8 @@ mod tests {
         // The grazing-view plane: a yellow band across the middle, background above and below.
         let plane = RenderArgs {
             shape: "plane".into(),
-            ..args
+            view: Some(78.0),
+            ..args.clone()
         };
         render(&plane).unwrap();
         let (_, _, px) = render::image::read_png_rgba8(&out).unwrap();
@@ -357,7 +363,7 @@ mod tests {
             (
                 "view",
                 RenderArgs {
-                    view: 90.0,
+                    view: Some(90.0),
                     ..plane.clone()
                 },
             ),
@@ -368,8 +374,27 @@ mod tests {
                     ..plane.clone()
                 },
             ),
+            (
+                "view of a sphere",
+                RenderArgs {
+                    view: Some(60.0),
+                    ..args.clone()
+                },
+            ),
         ] {
             assert!(render(&bad).is_err(), "bad {field} accepted");
         }
+        // An output directory that does not exist is refused before rendering, by name.
+        let missing = dir.path().join("no-such-dir").join("s.png");
+        let e = render(&RenderArgs {
+            out: missing,
+            ..args
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("no-such-dir does not exist") && !e.contains(".s.png."),
+            "{e}"
+        );
     }
 }

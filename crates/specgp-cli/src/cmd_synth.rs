@@ -35,6 +35,7 @@ pub struct SynthArgs {
 /// Runs `specgp synth`.
 pub fn synth(args: &SynthArgs) -> anyhow::Result<()> {
     crate::paths::ensure_extension(&args.out, "sbrdf", "a dataset store")?;
+    crate::paths::ensure_output_directory(&args.out)?;
     let channels = Channels::parse_wavelengths(&args.wavelengths)?;
     let materials = preset(args.seed);
     let start = Instant::now();

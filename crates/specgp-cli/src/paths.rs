@@ -33,6 +33,32 @@ pub fn ensure_extension(out: &Path, ext: &str, what: &str) -> anyhow::Result<()>
     Ok(())
 }
 
+/// Refuses an output whose directory does not exist, before any work is done (the atomic
+/// write would otherwise fail at the end, after the rendering or fitting, naming its
+/// temporary file). `-` (standard output) always passes.
+pub fn ensure_output_directory(out: &Path) -> anyhow::Result<()> {
+    if out == Path::new(brdf_io::output::STDOUT) {
+        return Ok(());
+    }
+    let dir = match out.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => return Ok(()),
+    };
+    if !dir.is_dir() {
+        let why = if dir.exists() {
+            "is not a directory"
+        } else {
+            "does not exist (create it first)"
+        };
+        bail!(
+            "{}: cannot write the output: its directory {} {why}",
+            out.display(),
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
 /// `path` made absolute with symbolic links resolved as far as it exists (the output may not
 /// exist yet: its directory is resolved and the file name appended).
 fn resolved(path: &Path) -> Option<PathBuf> {
@@ -52,11 +78,13 @@ fn resolved(path: &Path) -> Option<PathBuf> {
 /// points at itself). A model file (`.toml`) brings the files it reads along: its dataset store
 /// and that store's forward-transformed sidecar ([`model_data_files`]). Paths are compared
 /// after resolving symbolic links; inputs given that do not exist are ignored (their own error
-/// comes later). `-` (standard output) is never an input.
+/// comes later). `-` (standard output) is never an input. Checks
+/// [`ensure_output_directory`] first.
 pub fn ensure_output_is_not_an_input(out: &Path, inputs: &[&Path]) -> anyhow::Result<()> {
     if out == Path::new(brdf_io::output::STDOUT) {
         return Ok(());
     }
+    ensure_output_directory(out)?;
     let Some(o) = resolved(out) else {
         return Ok(());
     };

@@ -787,12 +787,70 @@ fn source_mistakes_say_how_to_fix_them() {
             "predict",
             "m.toml",
             "--lerp",
-            "gold,paper_white,0.5",
+            "metal_gol,paper_white,0.5",
             "--out",
             "x.npy",
         ],
         d,
     );
     assert!(e.contains("it holds: ") && e.contains("metal_gold"), "{e}");
+    assert!(e.contains("did you mean \"metal_gold\"?"), "{e}");
+    let e = specgp_fails(&["render", "data.sbrdf:metal_gol", "--out", "x.png"], d);
+    assert!(e.contains("did you mean \"metal_gold\"?"), "{e}");
+    // Options that would be ignored are refused.
+    let e = specgp_fails(&["map", "m.toml", "--grid", "3", "--out", "x.png"], d);
+    assert!(e.contains("--thumbnails"), "{e}");
+    let e = specgp_fails(
+        &[
+            "render",
+            "data.sbrdf:metal_gold",
+            "--view",
+            "60",
+            "--out",
+            "x.png",
+        ],
+        d,
+    );
+    assert!(e.contains("--view 60 applies to --shape plane"), "{e}");
     assert!(!d.join("x.png").exists() && !d.join("x.npy").exists());
+    // A latent point far from every material renders, with a warning saying so; a point
+    // between materials does not warn.
+    let far = run(
+        &[
+            "render",
+            "m.toml@40,40,40",
+            "--size",
+            "16",
+            "--out",
+            "far.png",
+        ],
+        d,
+    );
+    let err = String::from_utf8_lossy(&far.stderr);
+    assert!(far.status.success(), "{err}");
+    assert!(
+        err.contains("latent point 40,40,40 is far from every material")
+            && err.contains("close to the mean of the data"),
+        "{err}"
+    );
+    let model = Model::load(&d.join("m.toml")).unwrap();
+    let a = &model.materials[0].coords;
+    let dist = |c: &Vec<f64>| -> f64 { c.iter().zip(a).map(|(u, v)| (u - v).powi(2)).sum() };
+    let neighbour = model.materials[1..]
+        .iter()
+        .map(|m| &m.coords)
+        .min_by(|u, v| dist(u).total_cmp(&dist(v)))
+        .unwrap();
+    let mid: Vec<String> = a
+        .iter()
+        .zip(neighbour)
+        .map(|(u, v)| format!("{}", 0.5 * (u + v)))
+        .collect();
+    let at = format!("m.toml@{}", mid.join(","));
+    let near = run(&["render", &at, "--size", "16", "--out", "near.png"], d);
+    let err = String::from_utf8_lossy(&near.stderr);
+    assert!(
+        near.status.success() && !err.contains("far from every"),
+        "{err}"
+    );
 }

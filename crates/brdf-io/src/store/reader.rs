@@ -276,10 +276,14 @@ impl Store {
             .materials
             .iter()
             .position(|m| m.name == name)
-            .ok_or_else(|| Error::UnknownMaterial {
-                path: self.path.clone(),
-                name: name.to_owned(),
-                available: self.names().join(", "),
+            .ok_or_else(|| {
+                let names = self.names();
+                Error::UnknownMaterial {
+                    path: self.path.clone(),
+                    name: name.to_owned(),
+                    closest: crate::error::closest_name(name, &names).map(str::to_owned),
+                    available: names.join(", "),
+                }
             })
     }
 
