@@ -165,7 +165,7 @@ pub fn latent_map(
         0
     };
     let width = margin + size + margin + panel;
-    let height = margin + size + margin + 20;
+    let height = margin + size + margin + 32;
     let mut img = Image::new(width, height, [1.0; 3]);
     // Variance on a coarse grid.
     let m = opts.variance_samples;
@@ -219,13 +219,49 @@ pub fn latent_map(
     img.fill_rect(l, b, size + 2, 1, black);
     img.fill_rect(l, t, 1, size + 2, black);
     img.fill_rect(r, t, 1, size + 2, black);
-    img.text(l, b + 6, &format!("{x0:.2}"), 1, black);
-    let s = format!("{x1:.2}");
-    img.text(r - font::text_width(&s, 1) as i64, b + 6, &s, 1, black);
-    img.text(l + (size / 2) as i64 - 12, b + 6, "X1", 1, black);
-    img.text(2, t, &format!("{y1:.2}"), 1, black);
-    img.text(2, b - 7, &format!("{y0:.2}"), 1, black);
-    img.text(2, t + (size / 2) as i64, "X2", 1, black);
+    // Ticks at round coordinates (so a point can be read off the map, e.g. for
+    // `render MODEL.toml@X1,X2,...`), with faint grid lines across the plot.
+    let (xt, yt) = (nice_ticks(x0, x1, 5), nice_ticks(y0, y1, 5));
+    let mut x_labels = Vec::new();
+    for (v, label) in &xt {
+        let px = to_px([*v, y0]).0.round() as i64;
+        img.blend_rect(px, t + 1, 1, size, [0.0; 3], 0.12);
+        img.fill_rect(px, b + 1, 1, 4, black);
+        let w = font::text_width(label, 1) as i64;
+        img.text(px - w / 2, b + 7, label, 1, black);
+        x_labels.push((px - w / 2, px + w / 2));
+    }
+    let mut y_labels = Vec::new();
+    for (v, label) in &yt {
+        let py = to_px([x0, *v]).1.round() as i64;
+        img.blend_rect(l + 1, py, size, 1, [0.0; 3], 0.12);
+        img.fill_rect(l - 4, py, 4, 1, black);
+        let w = font::text_width(label, 1) as i64;
+        img.text(l - 6 - w, py - 3, label, 1, black);
+        y_labels.push(py);
+    }
+    // Axis names midway between tick labels (or beside them when one sits at the middle).
+    let mid_x = l + (size / 2) as i64;
+    let x_name = if x_labels
+        .iter()
+        .any(|&(a, z)| a - 14 < mid_x && mid_x < z + 4)
+    {
+        x_labels
+            .iter()
+            .map(|&(_, z)| z + 6)
+            .find(|&z| z > mid_x)
+            .unwrap_or(mid_x)
+    } else {
+        mid_x - 6
+    };
+    img.text(x_name, b + 18, "X1", 1, black);
+    let mid_y = t + (size / 2) as i64;
+    let y_name = if y_labels.iter().any(|&y| (y - mid_y).abs() < 10) {
+        mid_y + 12
+    } else {
+        mid_y - 3
+    };
+    img.text(2, y_name, "X2", 1, black);
     img.text(
         l,
         8,
@@ -238,7 +274,7 @@ pub fn latent_map(
         img.text(l, 20, &caption, 1, [0.3; 3]);
     }
     // Colour bar.
-    let bar_y = b + 20;
+    let bar_y = b + 34;
     for i in 0..120 {
         img.fill_rect(l + 160 + i, bar_y, 1, 8, shade(i as f64 / 119.0));
     }
@@ -326,6 +362,36 @@ pub fn latent_map(
         img.text(ox, 8, &title, 1, black);
     }
     Ok(img)
+}
+
+/// Round tick values in `[lo, hi]`: multiples of 1, 2 or 5 times a power of ten, the smallest
+/// such step that gives at most 1.5 `target` ticks, each with its label (as many decimals as
+/// the step needs; "0" for zero).
+pub fn nice_ticks(lo: f64, hi: f64, target: usize) -> Vec<(f64, String)> {
+    if !(lo.is_finite() && hi.is_finite() && hi > lo) {
+        return Vec::new();
+    }
+    let raw = (hi - lo) / target.max(1) as f64;
+    let power = 10f64.powf(raw.log10().floor());
+    let step = [1.0, 2.0, 5.0, 10.0]
+        .iter()
+        .map(|m| m * power)
+        .find(|s| (hi - lo) / s <= 1.5 * target.max(1) as f64)
+        .unwrap_or(10.0 * power);
+    let decimals = (-step.log10().floor()).max(0.0) as usize;
+    let first = (lo / step).ceil() as i64;
+    let last = (hi / step).floor() as i64;
+    (first..=last)
+        .map(|k| {
+            let v = k as f64 * step;
+            let label = if k == 0 {
+                "0".to_owned()
+            } else {
+                format!("{v:.decimals$}")
+            };
+            (v, label)
+        })
+        .collect()
 }
 
 /// A pixel rectangle `[x0, x1) x [y0, y1)`.
@@ -477,6 +543,31 @@ fn place_labels(dots: &[(f64, f64)], widths: &[usize], bounds: Rect) -> Vec<Labe
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ticks_are_round_and_inside_the_range() {
+        let labels = |t: Vec<(f64, String)>| t.into_iter().map(|(_, l)| l).collect::<Vec<_>>();
+        assert_eq!(
+            labels(nice_ticks(-1.82, 1.78, 5)),
+            ["-1.5", "-1.0", "-0.5", "0", "0.5", "1.0", "1.5"]
+        );
+        assert_eq!(
+            labels(nice_ticks(0.0, 10.0, 5)),
+            ["0", "2", "4", "6", "8", "10"]
+        );
+        assert_eq!(
+            labels(nice_ticks(-0.031, 0.029, 5)),
+            ["-0.03", "-0.02", "-0.01", "0", "0.01", "0.02"]
+        );
+        assert_eq!(labels(nice_ticks(120.0, 480.0, 4)), ["200", "300", "400"]);
+        for (lo, hi) in [(-3.7, 2.2), (0.001, 0.0093), (-250.0, 9.0), (5.0, 5.4)] {
+            let t = nice_ticks(lo, hi, 5);
+            assert!((2..=10).contains(&t.len()), "{lo}..{hi}: {t:?}");
+            assert!(t.iter().all(|(v, _)| *v >= lo - 1e-12 && *v <= hi + 1e-12));
+        }
+        assert!(nice_ticks(1.0, 1.0, 5).is_empty());
+        assert!(nice_ticks(f64::NAN, 1.0, 5).is_empty());
+    }
 
     #[test]
     fn captions_name_the_units_and_the_slice() {

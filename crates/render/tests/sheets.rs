@@ -189,4 +189,20 @@ fn path_comparison_and_map_draw() {
     );
     let edge = map.get(bx as usize, by as usize);
     assert!(edge.iter().all(|c| (c - 0.35).abs() < 1e-9), "{edge:?}");
+    // Ticks at round coordinates: a black mark under the frame at x = 0 and left of it at
+    // y = 0, none halfway between two ticks.
+    let ticks = render::map::nice_ticks(x0, x1, 5);
+    assert!(
+        ticks.iter().any(|(v, l)| *v == 0.0 && l == "0"),
+        "{ticks:?}"
+    );
+    let (tx, ty) = (
+        (40.0 + (0.0 - x0) / (x1 - x0) * 160.0).round() as usize,
+        (40.0 + (y1 - 0.0) / (y1 - y0) * 160.0).round() as usize,
+    );
+    assert_eq!(map.get(tx, 40 + 160 + 2), [0.0; 3]);
+    assert_eq!(map.get(40 - 3, ty), [0.0; 3]);
+    let step = ticks[1].0 - ticks[0].0;
+    let between = (40.0 + (0.5 * step - x0) / (x1 - x0) * 160.0).round() as usize;
+    assert_eq!(map.get(between, 40 + 160 + 2), [1.0; 3]);
 }
