@@ -112,7 +112,7 @@ pub fn predict_points(
         let (file, file_bytes, materialize_seconds) = if config.predict.materialize {
             let name = format!("prediction-{}.npy", i + 1);
             let r = m.materialize(&out.join(&name), |_, _| {}).map_err(err)?;
-            (Some(name), r.bytes, r.seconds)
+            (Some(name), r.bytes.unwrap_or(0), r.seconds)
         } else {
             (None, 0, 0.0)
         };

@@ -19,7 +19,7 @@ pub enum Error {
         error: std::io::Error,
     },
     /// A grid or channel specification that cannot be used.
-    #[error("invalid grid: {reason}")]
+    #[error("invalid grid or channels: {reason}")]
     InvalidGrid {
         /// What is wrong with it.
         reason: String,

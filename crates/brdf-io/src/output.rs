@@ -85,6 +85,18 @@ fn stdout_file() -> std::io::Result<File> {
     }
 }
 
+/// Size in bytes of what the output `path` holds now: the file, or for [`STDOUT`] the regular
+/// file standard output is redirected to. `None` when that is not a regular file (a pipe, a
+/// terminal) or cannot be read.
+pub fn output_len(path: &Path) -> Option<u64> {
+    let meta = if path == Path::new(STDOUT) {
+        stdout_file().and_then(|f| f.metadata())
+    } else {
+        std::fs::metadata(path)
+    };
+    meta.ok().filter(|m| m.is_file()).map(|m| m.len())
+}
+
 /// Whether `file` was opened for appending (Linux: `/proc/self/fdinfo`; elsewhere assumed not).
 fn is_append_mode(file: &File) -> bool {
     #[cfg(target_os = "linux")]

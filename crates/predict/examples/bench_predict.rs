@@ -109,7 +109,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
              ({} values, {} bytes): ratio {:.2} (rayon threads {})",
             store.file_bytes() as f64 / read_s / 1e6,
             report.values,
-            report.bytes,
+            report.bytes.unwrap_or(0),
             pred_s / read_s,
             rayon::current_num_threads()
         );

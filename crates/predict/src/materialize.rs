@@ -28,8 +28,12 @@ pub enum OutputFormat {
 }
 
 impl OutputFormat {
-    /// The format of `path` from its extension (`.sbrdf`, `.npy`, `.binary`).
+    /// The format of `path` from its extension (`.sbrdf`, `.npy`, `.binary`); standard output
+    /// ([`brdf_io::output::STDOUT`], `-`) takes `.npy`.
     pub fn from_path(path: &Path) -> Result<Self> {
+        if path == Path::new(brdf_io::output::STDOUT) {
+            return Ok(Self::Npy);
+        }
         match path.extension().and_then(|e| e.to_str()) {
             Some("sbrdf") => Ok(Self::Sbrdf),
             Some("npy") => Ok(Self::Npy),
@@ -51,8 +55,8 @@ pub struct MaterializeReport {
     pub format: OutputFormat,
     /// Values written (cells x output channels; MERL files: on MERL's grid).
     pub values: usize,
-    /// Size of the file in bytes.
-    pub bytes: u64,
+    /// Size of the file in bytes (`None` when unknown: standard output into a pipe).
+    pub bytes: Option<u64>,
     /// Wall-clock seconds.
     pub seconds: f64,
     /// Predicted values below 0 (before any format clamps them: a MERL file stores 0). The GP
@@ -238,12 +242,7 @@ impl PredictedMaterial {
                 values = merl.values().len();
             }
         }
-        let bytes = std::fs::metadata(path)
-            .map_err(|e| Error::Output {
-                path: path.to_owned(),
-                reason: e.to_string(),
-            })?
-            .len();
+        let bytes = brdf_io::output::output_len(path);
         Ok(MaterializeReport {
             path: path.to_owned(),
             format,

@@ -29,7 +29,8 @@ pub struct PredictArgs {
     #[arg(long)]
     pub lerp: Option<String>,
     /// Output file: `.sbrdf` (one material), `.npy` (1 x D f32) or `.binary` (MERL RGB;
-    /// spectral data are converted to linear sRGB under D65).
+    /// spectral data are converted to linear sRGB under D65); `-` writes `.npy` to standard
+    /// output (redirected to a file).
     #[arg(long)]
     pub out: PathBuf,
     /// Wavelengths START:END:STEP or a comma list in nm (linear interpolation between stored
@@ -245,11 +246,13 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
     .with_context(|| format!("writing {}", args.out.display()))?;
     pb.finish_and_clear();
     eprintln!(
-        "wrote {}: {} ({} values, {} bytes, {:.2} s)",
+        "wrote {}: {} ({} values, {}, {:.2} s)",
         report.path.display(),
         material.label(),
         report.values,
-        report.bytes,
+        report
+            .bytes
+            .map_or_else(|| "size unknown".to_owned(), |b| format!("{b} bytes")),
         report.seconds
     );
     if report.negatives > 0 {
@@ -320,7 +323,7 @@ fn write_spectral_merl(
         path: out.to_owned(),
         format: predict::OutputFormat::Merl,
         values: merl.values().len(),
-        bytes: std::fs::metadata(out)?.len(),
+        bytes: brdf_io::output::output_len(out),
         seconds: start.elapsed().as_secs_f64(),
         negatives: count.negatives,
         min_value: count.min_value,

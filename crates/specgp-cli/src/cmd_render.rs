@@ -13,8 +13,9 @@ use crate::cmd_sample::open_source;
 #[derive(Debug, Clone, clap::Args)]
 pub struct RenderArgs {
     /// The BRDF: an RGL `.bsdf` file, a MERL `.binary` file, `DATA.sbrdf:MATERIAL` or
-    /// `MODEL.toml@X1,...,Xq` (all q latent coordinates: a predicted material, rendered
-    /// lazily: only the cells the picture touches are predicted), as for `sample`.
+    /// `MODEL.toml@X1,...,Xq` (all q latent coordinates: a predicted material, by the exact
+    /// predictor, rendered lazily: only the cells the picture touches are predicted), as for
+    /// `sample`.
     pub source: String,
     /// Output PNG (8-bit sRGB with alpha).
     #[arg(long)]

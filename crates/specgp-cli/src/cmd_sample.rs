@@ -20,7 +20,8 @@ use brdf_io::{BrdfSource, Channels, Vec3};
 #[derive(Debug, clap::Args)]
 pub struct SampleArgs {
     /// The BRDF: an RGL `.bsdf` file, a MERL `.binary` file, `DATA.sbrdf:MATERIAL` or
-    /// `MODEL.toml@X1,...,Xq` (lazy GP prediction at a latent point, all q coordinates).
+    /// `MODEL.toml@X1,...,Xq` (lazy GP prediction at a latent point, all q coordinates; the
+    /// exact predictor, which returns a training material at its own point).
     pub source: String,
     /// CSV of direction pairs, one `wi_x,wi_y,wi_z,wo_x,wo_y,wo_z` row each (local frame,
     /// z = normal; a header line is allowed).

@@ -71,9 +71,10 @@ pub fn synth(args: &SynthArgs) -> anyhow::Result<()> {
     )
     .context("synth")?;
     pb.finish_and_clear();
-    let bytes = std::fs::metadata(&args.out).map(|m| m.len()).unwrap_or(0);
+    let bytes = brdf_io::output::output_len(&args.out)
+        .map_or_else(|| "size unknown".to_owned(), |b| format!("{b} bytes"));
     eprintln!(
-        "wrote {}: {} materials, grid {}, {} channels, D = {}, {} bytes, {:.1} s",
+        "wrote {}: {} materials, grid {}, {} channels, D = {}, {}, {:.1} s",
         args.out.display(),
         header.n_materials(),
         args.grid,

@@ -515,6 +515,24 @@ fn dash_outputs_write_into_redirected_standard_output() {
         d,
     );
     assert_eq!(read(d.join("p2.npy")).unwrap().shape[0], 2);
+    // `predict --out -` writes the .npy a file output holds, and says its size.
+    specgp(
+        &[
+            "predict",
+            "m.toml",
+            "--at",
+            "0.1,0.2,0,0,0",
+            "--out",
+            "q.npy",
+        ],
+        d,
+    );
+    let predict = r#""$SPECGP" predict m.toml --at 0.1,0.2,0,0,0 --out -"#;
+    assert!(shell(&format!("{predict} > q2.npy 2> perr.txt"), d).success());
+    let q = std::fs::read(d.join("q.npy")).unwrap();
+    assert_eq!(std::fs::read(d.join("q2.npy")).unwrap(), q);
+    let perr = std::fs::read_to_string(d.join("perr.txt")).unwrap();
+    assert!(perr.contains(&format!("{} bytes", q.len())), "{perr}");
     let json = specgp(&["evaluate", "m.toml", "--json", "-"], d);
     let v: serde_json::Value = serde_json::from_str(&json).expect("standard output is the JSON");
     assert_eq!(v["n_materials"], 51, "{json}");
