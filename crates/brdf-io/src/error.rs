@@ -74,6 +74,21 @@ pub enum Error {
         /// The offending value.
         value: f32,
     },
+    /// A NaN or infinite value read from a store (lookups do not re-hash the payload).
+    #[error(
+        "{path}: material {material:?} holds a non-finite value {value} at index {index} (a \
+         damaged store? `specgp info` verifies its checksum)"
+    )]
+    DamagedValue {
+        /// The store read.
+        path: PathBuf,
+        /// Name of the material.
+        material: String,
+        /// Flat dimension index (angular_index * n_channels + channel).
+        index: usize,
+        /// The value read.
+        value: f32,
+    },
     /// A store writer or reader used inconsistently (wrong lengths, ranges, order, names).
     #[error("{path}: {reason}")]
     StoreUsage {

@@ -85,6 +85,26 @@ fn stdout_file() -> std::io::Result<File> {
     }
 }
 
+/// The part of an output's file name that its temporary file's name repeats: the whole name,
+/// or its first 200 bytes (at a character boundary) for a long one, so that the temporary
+/// name (`.NAME.XXXXXX.tmp`, 13 bytes more) stays within the usual 255-byte limit whenever the
+/// output's own name does.
+fn temp_stem(name: &str) -> &str {
+    let mut end = name.len().min(200);
+    while !name.is_char_boundary(end) {
+        end -= 1;
+    }
+    &name[..end]
+}
+
+/// Checks that a file can be created in directory `dir` (by creating and dropping an unnamed
+/// temporary file there), so that a command can refuse an unwritable output before its work.
+pub fn check_writable_dir(dir: &Path) -> Result<()> {
+    tempfile::tempfile_in(dir)
+        .map(drop)
+        .map_err(|e| Error::io(dir, e))
+}
+
 /// Size in bytes of what the output `path` holds now: the file, or for [`STDOUT`] the regular
 /// file standard output is redirected to. `None` when that is not a regular file (a pipe, a
 /// terminal) or cannot be read.
@@ -165,7 +185,7 @@ impl AtomicOutput {
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
-        let prefix = format!(".{name}.");
+        let prefix = format!(".{}.", temp_stem(&name));
         let mut builder = tempfile::Builder::new();
         builder.prefix(&prefix).suffix(".tmp");
         // `open(2)` applies the umask to this mode: 0666 & !umask, as `File::create`.
@@ -359,7 +379,7 @@ impl StagingDir {
             .file_name()
             .map_or("out".into(), |n| n.to_string_lossy().into_owned());
         let dir = tempfile::Builder::new()
-            .prefix(&format!(".{name}."))
+            .prefix(&format!(".{}.", temp_stem(&name)))
             .suffix(".tmp")
             .tempdir_in(dest)
             .map_err(|e| Error::io(dest, e))?;
@@ -558,6 +578,24 @@ mod tests {
         assert_eq!(std::fs::read(&p).unwrap(), b"z\n");
         let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
         assert_eq!(names.len(), 1);
+    }
+
+    /// A name near the file system's 255-byte limit is writable: its temporary file's name
+    /// repeats only part of it (it used to fail with "File name too long").
+    #[test]
+    fn long_names_are_writable() {
+        let dir = tempfile::tempdir().unwrap();
+        let name = format!("{}é.png", "a".repeat(247));
+        assert_eq!(name.len(), 253);
+        let p = dir.path().join(&name);
+        write_file_atomic(&p, b"png").unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"png");
+        assert_eq!(temp_stem(&name).len(), 200);
+        assert_eq!(temp_stem("a.npy"), "a.npy");
+        // Byte 200 falls inside a two-byte character: the stem stops before it.
+        let accents = format!("a{}", "é".repeat(150));
+        assert_eq!(temp_stem(&accents).len(), 199);
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     }
 
     #[test]

@@ -202,6 +202,14 @@ impl FitParams {
                 return bad(name, &v, "finite and > 0".into());
             }
         }
+        if self.min_step > self.initial_step {
+            // Hooke-Jeeves would stop before its first move and write the PCA start.
+            return bad(
+                "min_step",
+                &self.min_step,
+                format!("at most initial_step ({})", self.initial_step),
+            );
+        }
         if self.max_iterations == 0 {
             return bad("max_iterations", &0, ">= 1".into());
         }
@@ -296,6 +304,15 @@ mod tests {
             ..Default::default()
         };
         assert!(p.check().is_ok());
+        let p = FitParams {
+            min_step: 10.0,
+            ..Default::default()
+        };
+        let err = p.check().unwrap_err().to_string();
+        assert!(
+            err.contains("min_step = 10: must be at most initial_step (0.1)"),
+            "{err}"
+        );
         for (min_noise, learn) in [(-1.0, false), (f64::NAN, false), (1e-4, true)] {
             let p = FitParams {
                 min_noise,

@@ -237,6 +237,17 @@ impl Model {
             .transform
             .check()
             .map_err(|e| err(format!("transform: {e}")))?;
+        // The recorded configuration names the transform the fit used: an edit of one without
+        // the other would make every prediction silently wrong.
+        match model.config.transform.parse::<Transform>() {
+            Ok(t) if t == model.transform => {}
+            _ => {
+                return Err(err(format!(
+                    "transform {} disagrees with the fit configuration's transform = {:?}",
+                    model.transform, model.config.transform
+                )));
+            }
+        }
         if !(model.data_scale.is_finite() && model.data_scale > 0.0) {
             return Err(err(format!(
                 "data_scale must be finite and > 0, got {}",

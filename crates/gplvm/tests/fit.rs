@@ -421,6 +421,12 @@ fn bad_model_files_are_clear_errors() {
             "latent_dim = 2\nlatent_dims = 3",
             "unknown field",
         ),
+        (
+            "transform edited without the configuration",
+            "kind = \"log\"\noffset = 0.01",
+            "kind = \"raw\"",
+            "disagrees with the fit configuration",
+        ),
     ] {
         assert!(
             text.contains(from),

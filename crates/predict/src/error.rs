@@ -14,10 +14,10 @@ pub enum Error {
     #[error(
         "model {model}: {}",
         if *given {
-            format!("the dataset {} given for it does not exist", dataset.display())
+            format!("the dataset {} given for it is not a file", dataset.display())
         } else {
             format!(
-                "its dataset {} does not exist (moved or deleted?); pass the store's new path \
+                "its dataset {} is not a file (moved or deleted?); pass the store's new path \
                  explicitly",
                 dataset.display()
             )
@@ -40,6 +40,18 @@ pub enum Error {
         dataset: PathBuf,
         /// What differs (checksum, grid, channels, materials, D).
         what: String,
+    },
+    /// A NaN or infinite value where a finite one is needed: a damaged dataset store or
+    /// sidecar (lookups do not re-hash the payload), or an overflowing prediction.
+    #[error(
+        "{what} is {value} (a damaged dataset store or sidecar? `specgp info STORE` verifies a \
+         store's checksum)"
+    )]
+    NonFiniteValue {
+        /// Which value (material or prediction, index).
+        what: String,
+        /// The value.
+        value: f64,
     },
     /// A latent point that cannot be used (NaN, wrong dimension).
     #[error("invalid latent point {point:?}: {reason}")]

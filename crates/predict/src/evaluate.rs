@@ -508,6 +508,33 @@ pub fn brdf_space_rmse(
             (a, t, c)
         },
     )?;
+    if let Some(r) = sums.0.iter().position(|s| !s.is_finite()) {
+        // The error path only: find the stored value to blame, if one is not finite.
+        let mut first_bad: Option<(usize, usize, f32)> = None;
+        store.for_each_chunk(|range, block| {
+            if first_bad.is_none()
+                && let Some(k) = block.iter().position(|v| !v.is_finite())
+            {
+                first_bad = Some((range.start + k / n, k % n, block[k]));
+            }
+        })?;
+        return Err(match first_bad {
+            Some((d, material, value)) => Error::Store(brdf_io::Error::DamagedValue {
+                path: store.path().to_owned(),
+                material: store.names()[material].to_owned(),
+                index: d,
+                value,
+            }),
+            None => Error::NonFiniteValue {
+                what: format!(
+                    "the squared BRDF-space error of material {:?} in {}",
+                    store.names()[targets[r]],
+                    store.path().display()
+                ),
+                value: sums.0[r],
+            },
+        });
+    }
     let n_angles = store.grid().len() as f64;
     Ok(sums.0.into_iter().map(|s| (s / n_angles).sqrt()).collect())
 }

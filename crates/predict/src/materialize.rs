@@ -148,6 +148,7 @@ impl PredictedMaterial {
                 }
                 if !out_buf.is_empty() {
                     let r = out_next..out_next + out_buf.len();
+                    self.check_finite(&out_buf, r.start)?;
                     out_next = r.end;
                     sink(r, &out_buf)?;
                 }

@@ -18,6 +18,17 @@ use gplvm::{Model, Transform};
 
 use crate::error::{Error, Result};
 
+/// `v` as written by `{}` (the shortest form that reads back the same), or in exponent form
+/// when that is long (beyond 1e6 or below 1e-4 in magnitude): labels hold latent points and
+/// factors, and `1e308` should not become 309 digits.
+fn short_number(v: f64) -> String {
+    if v != 0.0 && !(1e-4..1e6).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
 /// How well the training materials support a prediction at a latent point
 /// ([`Predictor::support`]).
 #[derive(Debug, Clone, PartialEq)]
@@ -450,6 +461,15 @@ impl Predictor {
                 reason: "coordinates must be finite".into(),
             });
         }
+        if let Some(v) = x.iter().find(|v| v.abs() > gplvm::model::MAX_COORDINATE) {
+            return Err(Error::InvalidPoint {
+                point: x.to_vec(),
+                reason: format!(
+                    "coordinate {v:e} is beyond +-{:e} (the bound of model files)",
+                    gplvm::model::MAX_COORDINATE
+                ),
+            });
+        }
         Ok(())
     }
 
@@ -534,7 +554,7 @@ impl Predictor {
         let label = format!(
             "gp-{kind}@{}",
             x.iter()
-                .map(|v| format!("{v}"))
+                .map(|v| short_number(*v))
                 .collect::<Vec<_>>()
                 .join(",")
         );
@@ -554,7 +574,7 @@ impl Predictor {
         let mut c = vec![0.0; self.inner.n];
         c[i] += a;
         c[j] += 1.0 - a;
-        self.from_coefficients(c, format!("lerp({name1},{name2},{a})"))
+        self.from_coefficients(c, format!("lerp({name1},{name2},{})", short_number(a)))
     }
 
     /// A training material itself (coefficient vector `e_i`).
@@ -669,6 +689,7 @@ impl PredictedMaterial {
             store.values_at(d, raw)?;
             let mut v = [0.0];
             self.combine_block(raw, transformed, wide, &mut v);
+            self.check_finite(&v, d)?;
             Ok(v[0])
         })
     }
@@ -695,8 +716,25 @@ impl PredictedMaterial {
             debug_assert_eq!(block.len(), span * n);
             self.combine_block(block, transformed, wide, vals);
             sel.apply(vals, first, out);
-            Ok(())
+            self.check_finite(out, a * out.len())
         })
+    }
+
+    /// An error naming the first non-finite value of `values` (the output values from flat
+    /// output index `first`), if any: stored NaN or infinity, or an overflowing prediction,
+    /// must not pass silently into pictures and files.
+    pub(crate) fn check_finite<T: Copy + Into<f64>>(
+        &self,
+        values: &[T],
+        first: usize,
+    ) -> Result<()> {
+        match values.iter().position(|v| !(*v).into().is_finite()) {
+            None => Ok(()),
+            Some(k) => Err(Error::NonFiniteValue {
+                what: format!("value {} of the prediction {}", first + k, self.label),
+                value: values[k].into(),
+            }),
+        }
     }
 
     /// A hint that [`PredictedMaterial::eval_cell`] of cell `a` follows soon: starts fetching

@@ -631,7 +631,7 @@ fn bad_inputs_give_clear_errors() {
         .unwrap_err()
         .to_string();
     assert!(
-        msg.contains("nope.sbrdf given for it does not exist") && !msg.contains("pass the"),
+        msg.contains("nope.sbrdf given for it is not a file") && !msg.contains("pass the"),
         "{msg}"
     );
 
@@ -725,4 +725,66 @@ fn the_transformed_sidecar_store_gives_the_same_predictions() {
     // A sidecar of another dataset is refused.
     let e = pred.with_transformed_store(&f.store).unwrap_err();
     assert!(e.to_string().contains("forward-transformed"), "{e}");
+}
+
+/// A NaN in the stored values (a damaged payload: lookups do not re-hash it) is an error
+/// naming the store or the prediction, in lookups of stored and predicted materials, in
+/// materialised `.npy` files and in BRDF-space errors; never a NaN passed on silently.
+#[test]
+fn damaged_stored_values_are_errors_not_nans() {
+    let f = fixture(6, "log");
+    let store = Store::open(&f.store).unwrap();
+    let (n, nc) = (store.n_materials(), store.channels().len());
+    let mask = store.validity_mask().to_vec();
+    let d = (0..store.d()).find(|d| mask[d / nc]).unwrap() + 3 * nc;
+    assert!(mask[d / nc]);
+    let damaged = f.store.with_file_name("damaged.sbrdf");
+    let mut bytes = std::fs::read(&f.store).unwrap();
+    // Uncompressed f32 payload from byte 4096, index-major: value (d, material 2).
+    let at = 4096 + (d * n + 2) * 4;
+    bytes[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+    std::fs::write(&damaged, bytes).unwrap();
+    let store = Arc::new(Store::open(&damaged).unwrap());
+    let name = store.names()[2].to_owned();
+    let stored = brdf_io::store::StoreMaterial::new(store.clone(), &name).unwrap();
+    let mut out = vec![0.0; nc];
+    let e = stored.eval_cell(d / nc, &mut out).unwrap_err().to_string();
+    assert!(
+        e.contains("damaged.sbrdf") && e.contains(&format!("{name:?}")) && e.contains("NaN"),
+        "{e}"
+    );
+    stored.eval_cell(d / nc + 1, &mut out).unwrap();
+    assert!(out.iter().all(|v| v.is_finite()));
+
+    let pred = Predictor::open_with_dataset(&f.model, Some(&damaged)).unwrap();
+    let m = pred.predict(&[0.1, -0.2], PredictorKind::Exact).unwrap();
+    let e = m.eval_cell(d / nc, &mut out).unwrap_err();
+    assert!(matches!(e, Error::NonFiniteValue { .. }), "{e}");
+    assert!(e.to_string().contains("damaged"), "{e}");
+    assert!(m.value_at(d).is_err());
+    let npy = f.store.with_file_name("p.npy");
+    let e = m.materialize(&npy, |_, _| {}).unwrap_err().to_string();
+    assert!(e.contains("is NaN"), "{e}");
+    assert!(!npy.exists());
+    let model = pred.model().clone();
+    // Material 0's reconstruction from itself meets the NaN too (0 x NaN in the product over
+    // all materials): either way the error names the stored value.
+    for target in [0, 2] {
+        let coef = Mat::<f64>::from_fn(1, n, |_, j| if j == target { 1.0 } else { 0.0 });
+        let e = predict::evaluate::brdf_space_rmse(
+            &store,
+            model.transform,
+            &[target],
+            coef.as_ref(),
+            &|_, _| {},
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("damaged.sbrdf")
+                && e.contains(&format!("{name:?}"))
+                && e.contains(&format!("index {d}")),
+            "{e}"
+        );
+    }
 }

@@ -11,13 +11,9 @@ pub enum Error {
         /// What is wrong.
         reason: String,
     },
-    /// A BRDF source failed to evaluate.
-    #[error("evaluating the BRDF source: {source}")]
-    Source {
-        /// The source's error.
-        #[from]
-        source: brdf_io::Error,
-    },
+    /// A BRDF source failed to evaluate (its own message: it names the file and the problem).
+    #[error(transparent)]
+    Source(#[from] brdf_io::Error),
     /// A picture could not be written.
     #[error("writing {path}: {reason}")]
     Write {

@@ -11,7 +11,7 @@ use crate::image::Image;
 use crate::sphere::{SphereOptions, render_sphere};
 
 /// Largest side of a map's plot area and of its thumbnail panel, in pixels (as a sphere's).
-pub const MAX_MAP_PIXELS: usize = 16384;
+pub const MAX_MAP_PIXELS: usize = 8192;
 /// Most thumbnails per axis of a map's panel.
 pub const MAX_THUMBNAILS: usize = 64;
 

@@ -209,8 +209,12 @@ impl Default for SphereOptions {
 impl SphereOptions {
     fn check(&self) -> Result<()> {
         let bad = |reason: String| Err(Error::InvalidArgument { reason });
-        if self.size == 0 || self.size > 16384 {
-            return bad(format!("size {} is not in 1..=16384", self.size));
+        if self.size == 0 || self.size > crate::map::MAX_MAP_PIXELS {
+            return bad(format!(
+                "size {} is not in 1..={} (an image of 32 bytes a pixel while it is drawn)",
+                self.size,
+                crate::map::MAX_MAP_PIXELS
+            ));
         }
         let (t, p) = self.light;
         if !t.is_finite() || !p.is_finite() || !(0.0..=180.0).contains(&t) {

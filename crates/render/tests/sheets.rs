@@ -138,7 +138,7 @@ fn path_comparison_and_map_draw() {
         let err = latent_map(&points, &var, Some(&src), &bad)
             .unwrap_err()
             .to_string();
-        assert!(err.contains("16384"), "{err}");
+        assert!(err.contains("8192"), "{err}");
     }
     let map = latent_map(&points, &var, Some(&src), &mopts).unwrap();
     keep(&map, "map.png");

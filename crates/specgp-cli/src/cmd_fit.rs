@@ -64,6 +64,14 @@ pub fn fit(args: &FitArgs) -> anyhow::Result<()> {
     )?;
     // `info` and the SOURCE syntax `MODEL.toml@X,Y` recognise models by their extension.
     crate::paths::ensure_extension(&args.out, "toml", "a model file")?;
+    // The model records the dataset's path as TOML text: say so now, not after the fit.
+    if args.data.to_str().is_none() {
+        anyhow::bail!(
+            "{}: the dataset path is not valid UTF-8, and the model file records it as text \
+             (rename the store or link it under a UTF-8 name)",
+            args.data.display()
+        );
+    }
     let mut params = match &args.config {
         Some(path) => FitParams::from_toml_file(path)?,
         None => FitParams::default(),

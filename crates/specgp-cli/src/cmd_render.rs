@@ -20,7 +20,7 @@ pub struct RenderArgs {
     /// Output PNG (8-bit sRGB with alpha).
     #[arg(long)]
     pub out: PathBuf,
-    /// Image width and height in pixels.
+    /// Image width and height in pixels (1..=8192).
     #[arg(long, default_value_t = 256)]
     pub size: usize,
     /// Direction of the light THETA,PHI in degrees: THETA from the view axis, PHI from the
@@ -182,11 +182,11 @@ pub struct MapArgs {
     /// Add a panel of rendered spheres of predicted materials across the latent space.
     #[arg(long)]
     pub thumbnails: bool,
-    /// Thumbnails per axis (with --thumbnails; 1..=64, a panel of at most 16384 pixels).
+    /// Thumbnails per axis (with --thumbnails; 1..=64, a panel of at most 8192 pixels).
     #[arg(long, default_value_t = 6, requires = "thumbnails", value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=64))]
     pub grid: usize,
-    /// Side of the plot area in pixels (64..=16384).
-    #[arg(long, default_value_t = 640, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(64..=16384))]
+    /// Side of the plot area in pixels (64..=8192).
+    #[arg(long, default_value_t = 640, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(64..=8192))]
     pub size: usize,
     /// Thumbnail sphere size in pixels (with --thumbnails; 8..=1024).
     #[arg(long, default_value_t = 64, requires = "thumbnails", value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(8..=1024))]
@@ -385,6 +385,14 @@ mod tests {
         ] {
             assert!(render(&bad).is_err(), "bad {field} accepted");
         }
+        // An output that is a directory is refused before rendering.
+        let e = render(&RenderArgs {
+            out: dir.path().to_owned(),
+            ..args.clone()
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("it is a directory"), "{e}");
         // An output directory that does not exist is refused before rendering, by name.
         let missing = dir.path().join("no-such-dir").join("s.png");
         let e = render(&RenderArgs {

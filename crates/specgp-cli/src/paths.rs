@@ -33,16 +33,22 @@ pub fn ensure_extension(out: &Path, ext: &str, what: &str) -> anyhow::Result<()>
     Ok(())
 }
 
-/// Refuses an output whose directory does not exist, before any work is done (the atomic
-/// write would otherwise fail at the end, after the rendering or fitting, naming its
-/// temporary file). `-` (standard output) always passes.
+/// Refuses, before any work is done, an output that is a directory or whose directory does
+/// not exist or cannot be written (the atomic write would otherwise fail at the end, after the
+/// rendering or fitting, naming its temporary file). `-` (standard output) always passes.
 pub fn ensure_output_directory(out: &Path) -> anyhow::Result<()> {
     if out == Path::new(brdf_io::output::STDOUT) {
         return Ok(());
     }
+    if out.is_dir() {
+        bail!(
+            "{}: cannot write the output: it is a directory",
+            out.display()
+        );
+    }
     let dir = match out.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
-        _ => return Ok(()),
+        _ => Path::new("."),
     };
     if !dir.is_dir() {
         let why = if dir.exists() {
@@ -55,6 +61,9 @@ pub fn ensure_output_directory(out: &Path) -> anyhow::Result<()> {
             out.display(),
             dir.display()
         );
+    }
+    if let Err(e) = brdf_io::output::check_writable_dir(dir) {
+        bail!("{}: cannot write the output: {e}", out.display());
     }
     Ok(())
 }

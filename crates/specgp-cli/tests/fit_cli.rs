@@ -206,6 +206,26 @@ fn fit_errors_name_the_file() {
         err.contains("zero.toml") && err.contains("latent_dim = 0: must be in 1..=64"),
         "{err}"
     );
+    // A dataset path the model file cannot record (not UTF-8) is refused before the fit.
+    #[cfg(unix)]
+    {
+        use std::os::unix::ffi::OsStrExt;
+        let bad = std::ffi::OsStr::from_bytes(b"bad\xff.sbrdf");
+        std::fs::write(dir.path().join(bad), b"not read").unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_specgp"))
+            .arg("fit")
+            .arg(bad)
+            .args(["--out", "m.toml"])
+            .current_dir(dir.path())
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && err.contains("not valid UTF-8"),
+            "{err}"
+        );
+        assert!(!dir.path().join("m.toml").exists());
+    }
 }
 
 /// RGBA pixels of an 8-bit PNG.

@@ -735,10 +735,11 @@ fn validate_header(h: &StoreHeader, path: &Path) -> Result<()> {
     let d = g.len().checked_mul(h.channels.len());
     if d != Some(h.d) {
         return bad(format!(
-            "header D = {} but grid {} x {} channels gives {d:?}",
+            "header D = {} but grid {} x {} channels gives {}",
             h.d,
             g,
-            h.channels.len()
+            h.channels.len(),
+            d.map_or_else(|| "more than fits in memory".into(), |d| d.to_string())
         ));
     }
     if let Channels::Spectral(w) = &h.channels {

@@ -111,6 +111,15 @@ impl StoreMaterial {
             }
             self.store
                 .material_row(self.index, a * nc + first..a * nc + last + 1, &mut vals)?;
+            // Lookups do not re-hash the payload: a damaged value must not pass silently.
+            if let Some(k) = vals.iter().position(|v| !v.is_finite()) {
+                return Err(Error::DamagedValue {
+                    path: self.store.path().to_owned(),
+                    material: self.store.names()[self.index].to_owned(),
+                    index: a * nc + first + k,
+                    value: vals[k],
+                });
+            }
             for (s, v) in sum.iter_mut().zip(&vals) {
                 *s += w * f64::from(*v);
             }
