@@ -153,15 +153,28 @@ pub fn warn_if_far(pred: &Predictor, x: &[f64]) -> anyhow::Result<()> {
 pub fn with_existing_sidecar(pred: Predictor) -> anyhow::Result<Predictor> {
     let side = pred.transformed_store_path();
     if pred.transform() != gplvm::Transform::Raw && side.is_file() {
-        // Said once, on stderr: the sidecar's f32 transformed values move results by ~1e-6
-        // relative, so an output that changes after `predict --sidecar` has a visible cause.
-        eprintln!(
-            "reading the sidecar {} (transformed values in f32: ~1e-6 relative)",
-            side.display()
-        );
-        return pred
-            .with_transformed_store(&side)
-            .with_context(|| format!("opening the sidecar {}", side.display()));
+        // A damaged or stale sidecar is not worth failing for: the dataset store has the same
+        // values (`predict --sidecar` rebuilds it).
+        return Ok(match pred.with_transformed_store(&side) {
+            Ok(p) => {
+                // Said once, on stderr: the sidecar's f32 transformed values move results by
+                // ~1e-6 relative, so an output that changes after `predict --sidecar` has a
+                // visible cause.
+                eprintln!(
+                    "reading the sidecar {} (transformed values in f32: ~1e-6 relative)",
+                    side.display()
+                );
+                p
+            }
+            Err(e) => {
+                tracing::warn!(
+                    "the sidecar {} is unusable ({e}); reading the dataset store instead \
+                     (`specgp predict --sidecar` rebuilds it)",
+                    side.display()
+                );
+                pred
+            }
+        });
     }
     Ok(pred)
 }

@@ -313,17 +313,38 @@ fn lazy_renders_of_model_points_read_an_existing_sidecar() {
             .chunks(4)
             .any(|p| p[3] == 255 && p[0].max(p[1]).max(p[2]) > 20)
     );
-    // Proof the sidecar is read: a damaged one is an error naming it, for both commands ...
+    // Proof the sidecar is read: a damaged one is named in a warning, for both commands,
+    // which then read the dataset store (the pictures without a sidecar, exactly) ...
     std::fs::write(d.join(&sidecar[0]), b"not a store").unwrap();
-    let e = specgp_fails(&["render", point, "--out", "x.png"], d);
-    assert!(e.contains(&sidecar[0]), "{e}");
-    let e = specgp_fails(&["map", "m.toml", "--thumbnails", "--out", "y.png"], d);
-    assert!(e.contains(&sidecar[0]), "{e}");
-    // ... and `predict --sidecar` rebuilds it, after which both work again.
+    for args in [
+        &[
+            "render",
+            point,
+            "--size",
+            "40",
+            "--out",
+            "sphere-damaged.png",
+        ][..],
+        &["map", "m.toml", "--thumbnails", "--out", "y.png"],
+    ] {
+        let out = run(args, d);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            out.status.success() && err.contains(&sidecar[0]) && err.contains("unusable"),
+            "{args:?}: {err}"
+        );
+    }
+    assert_eq!(png_rgba(&d.join("sphere-damaged.png")), before.0);
+    // ... and `predict --sidecar` rebuilds it, after which both read it again.
     let out = run(&predict_with_sidecar, d);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success() && err.contains("rebuilding"), "{err}");
-    specgp(&["render", point, "--out", "x.png"], d);
+    let out = run(&["render", point, "--out", "x.png"], d);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() && err.contains("reading the sidecar") && !err.contains("unusable"),
+        "{err}"
+    );
 }
 
 #[test]
