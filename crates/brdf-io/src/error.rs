@@ -18,6 +18,23 @@ pub enum Error {
         /// The underlying error.
         error: std::io::Error,
     },
+    /// An output that its file system cannot hold (checked before writing it).
+    #[error(
+        "{path}: {what} needs about {needed} bytes ({:.1} GB), but its file system has {available} \
+         bytes ({:.1} GB) free",
+        *needed as f64 / 1e9,
+        *available as f64 / 1e9
+    )]
+    NoSpace {
+        /// The output.
+        path: PathBuf,
+        /// What is being written.
+        what: String,
+        /// Bytes it needs (an estimate).
+        needed: u64,
+        /// Bytes free for this user.
+        available: u64,
+    },
     /// A grid or channel specification that cannot be used.
     #[error("invalid grid or channels: {reason}")]
     InvalidGrid {

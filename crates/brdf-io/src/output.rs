@@ -97,6 +97,43 @@ fn temp_stem(name: &str) -> &str {
     &name[..end]
 }
 
+/// Bytes free for this user on the file system holding `dir` (`None` where unknown).
+pub fn available_space(dir: &Path) -> Option<u64> {
+    #[cfg(unix)]
+    {
+        rustix::fs::statvfs(dir)
+            .ok()
+            .map(|s| s.f_bavail.saturating_mul(s.f_frsize))
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = dir;
+        None
+    }
+}
+
+/// Refuses, before writing, an output of about `bytes` bytes that the file system holding
+/// `path` has no room for (a file it replaces counts as free: the new one is written beside it
+/// first, so it does not). Standard output and unknown free space pass.
+pub fn ensure_space(path: &Path, bytes: u64, what: &str) -> Result<()> {
+    if path == Path::new(STDOUT) {
+        return Ok(());
+    }
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    match available_space(dir) {
+        Some(available) if available < bytes => Err(Error::NoSpace {
+            path: path.to_owned(),
+            what: what.to_owned(),
+            needed: bytes,
+            available,
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// Checks that a file can be created in directory `dir` (by creating and dropping an unnamed
 /// temporary file there), so that a command can refuse an unwritable output before its work.
 pub fn check_writable_dir(dir: &Path) -> Result<()> {

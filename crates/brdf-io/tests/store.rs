@@ -957,3 +957,44 @@ proptest! {
         }
     }
 }
+
+/// The size announced before writing an uncompressed store (what `synth` and `import` check
+/// against the free space) is the file's size, up to its JSON header's padding; compressed
+/// stores have no size before writing; an output its file system cannot hold is refused.
+#[test]
+fn uncompressed_size_is_known_before_writing() {
+    let d = dir();
+    let info = info(8, 8, 16, Channels::Rgb);
+    let rows: Vec<Vec<f32>> = (0..5).map(|s| material(&info, s)).collect();
+    for dtype in [Dtype::F32, Dtype::F16] {
+        for chunk_len in [None, Some(100)] {
+            let options = StoreOptions {
+                dtype,
+                chunk_len,
+                ..StoreOptions::default()
+            };
+            let path = d.path().join("s.sbrdf");
+            write_materials(&path, &info, &rows, options.clone(), 1000).unwrap();
+            let actual = std::fs::metadata(&path).unwrap().len();
+            let announced = options.uncompressed_bytes(5, info.d()).unwrap();
+            let values = (5 * info.d() * dtype.size()) as u64;
+            assert!(
+                announced >= values && announced.abs_diff(actual) <= 4096 + actual / 100,
+                "{dtype:?} {chunk_len:?}: announced {announced}, wrote {actual}"
+            );
+        }
+    }
+    let zstd = StoreOptions {
+        compression: Compression::Zstd { level: 3 },
+        ..StoreOptions::default()
+    };
+    assert_eq!(zstd.uncompressed_bytes(5, info.d()), None);
+    let out = d.path().join("huge.sbrdf");
+    let e = brdf_io::output::ensure_space(&out, u64::MAX, "the store").unwrap_err();
+    assert!(
+        matches!(e, Error::NoSpace { .. }) && e.to_string().contains("huge.sbrdf"),
+        "{e}"
+    );
+    brdf_io::output::ensure_space(&out, 1, "the store").unwrap();
+    brdf_io::output::ensure_space(Path::new("-"), u64::MAX, "the store").unwrap();
+}

@@ -183,6 +183,12 @@ fn import_each(
     count: usize,
     mut load: impl FnMut(usize) -> anyhow::Result<(String, String, Vec<f32>, ImportReport)>,
 ) -> anyhow::Result<()> {
+    if let Some(bytes) = store
+        .options()
+        .uncompressed_bytes(count, store.grid.len() * channels.len())
+    {
+        brdf_io::output::ensure_space(&store.out, bytes, "the dataset store")?;
+    }
     let info = StoreInfo {
         grid: store.grid,
         channels,

@@ -53,6 +53,11 @@ pub fn synth(args: &SynthArgs) -> anyhow::Result<()> {
             .map_or(Compression::None, |level| Compression::Zstd { level }),
         ..StoreOptions::default()
     };
+    if let Some(bytes) =
+        options.uncompressed_bytes(materials.len(), args.grid.len() * channels.len())
+    {
+        brdf_io::output::ensure_space(&args.out, bytes, "the dataset store")?;
+    }
     tracing::info!(
         grid = %args.grid,
         channels = channels.len(),

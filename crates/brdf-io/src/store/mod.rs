@@ -221,6 +221,20 @@ impl Default for StoreOptions {
 }
 
 impl StoreOptions {
+    /// The size of a store of `n_materials` x `d` values written with these options, when it
+    /// is known before writing (uncompressed: values, header and chunk table); `None` with
+    /// compression.
+    pub fn uncompressed_bytes(&self, n_materials: usize, d: usize) -> Option<u64> {
+        if self.compression != Compression::None {
+            return None;
+        }
+        let values = (n_materials as u64)
+            .saturating_mul(d as u64)
+            .saturating_mul(self.dtype.size() as u64);
+        let chunks = d.div_ceil(self.effective_chunk_len(n_materials, d).max(1)) as u64;
+        Some(values.saturating_add(PAYLOAD_OFFSET + 8 * (chunks + 1)))
+    }
+
     /// The chunk length used for `n` materials.
     pub fn effective_chunk_len(&self, n_materials: usize, d: usize) -> usize {
         let len = self.chunk_len.unwrap_or_else(|| {
