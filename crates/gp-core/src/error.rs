@@ -4,8 +4,16 @@
 /// of these variants instead, naming the quantity at fault.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum GpError {
-    /// A hyperparameter is non-positive or non-finite.
-    #[error("invalid hyperparameter {name} = {value}: must be finite and > 0")]
+    /// A hyperparameter is non-positive or non-finite (or a length-scale whose square or
+    /// inverse square is not a normal f64).
+    #[error(
+        "invalid hyperparameter {name} = {value:e}: must be finite and > 0{}",
+        if name.starts_with("length_scale") {
+            " (length-scales between 1e-150 and 1e150: the kernel divides by their square)"
+        } else {
+            ""
+        }
+    )]
     InvalidHyperparameter {
         /// Which hyperparameter (`signal_variance`, `length_scale[j]`, `noise`, ...).
         name: String,

@@ -73,10 +73,13 @@ pub struct KernelParamsUnchecked {
 }
 
 impl KernelParamsUnchecked {
-    /// Validates: every value finite and strictly positive, ARD non-empty.
+    /// Validates: every value finite and strictly positive, length-scales in 1e-150..=1e150,
+    /// ARD non-empty.
     pub fn check(self) -> Result<KernelParams> {
         let bad = |name: String, value: f64| GpError::InvalidHyperparameter { name, value };
         let ok = |v: f64| v.is_finite() && v > 0.0;
+        // The kernel divides squared distances by l^2: both l^2 and 1/l^2 must be normal.
+        let ok_l = |l: f64| ok(l) && (1e-150..=1e150).contains(&l);
         if !ok(self.signal_variance) {
             return Err(bad("signal_variance".into(), self.signal_variance));
         }
@@ -85,7 +88,7 @@ impl KernelParamsUnchecked {
         }
         match &self.length_scale {
             LengthScale::Isotropic(l) => {
-                if !ok(*l) {
+                if !ok_l(*l) {
                     return Err(bad("length_scale".into(), *l));
                 }
             }
@@ -95,7 +98,7 @@ impl KernelParamsUnchecked {
                         what: "ARD length-scale",
                     });
                 }
-                if let Some(j) = v.iter().position(|&l| !ok(l)) {
+                if let Some(j) = v.iter().position(|&l| !ok_l(l)) {
                     return Err(bad(format!("length_scale[{j}]"), v[j]));
                 }
             }

@@ -594,9 +594,14 @@ fn weights_jacobian_matches_finite_differences() {
             assert!((kj[(i, j)] - jac[(i, j)]).abs() <= 1e-10 * (1.0 + fd.abs()));
         }
     }
-    // Overflowing scaled coordinates are an error, not NaN weights.
-    let tiny = KernelParams::isotropic(1.0, 1e-300, 1e-4).unwrap();
-    let big = Mat::from_fn(3, 1, |i, _| 1e10 * (i as f64 + 1.0));
+    // Overflowing scaled coordinates are an error, not NaN weights; a length-scale whose
+    // inverse square overflows is refused up front.
+    assert!(matches!(
+        KernelParams::isotropic(1.0, 1e-300, 1e-4),
+        Err(GpError::InvalidHyperparameter { .. })
+    ));
+    let tiny = KernelParams::isotropic(1.0, 1e-150, 1e-4).unwrap();
+    let big = Mat::from_fn(3, 1, |i, _| 1e160 * (i as f64 + 1.0));
     assert!(matches!(
         GpRegression::new(big.as_ref(), tiny, Par::Seq),
         Err(GpError::NonFiniteResult { .. })

@@ -109,6 +109,7 @@ pub fn parse_dirs(text: &str, path: &Path) -> anyhow::Result<Vec<(Vec3, Vec3)>> 
     let mut pairs = Vec::new();
     let mut header: Option<(usize, &str)> = None;
     let mut first = true;
+    let (mut not_unit, mut not_unit_count) = (None, 0usize);
     for (k, line) in text.lines().enumerate() {
         let line = line.trim();
         if line.is_empty() || line.starts_with('#') {
@@ -172,7 +173,22 @@ pub fn parse_dirs(text: &str, path: &Path) -> anyhow::Result<Vec<(Vec3, Vec3)>> 
         ) else {
             bail!("{}: zero-length direction in {line:?}", where_());
         };
+        let off_unit = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>().sqrt() - 1.0).abs() > 1e-3;
+        if off_unit(&nums[..3]) || off_unit(&nums[3..]) {
+            not_unit.get_or_insert(k + 1);
+            not_unit_count += 1;
+        }
         pairs.push((wi, wo));
+    }
+    if let Some(line) = not_unit {
+        // The format asks for unit vectors; a scaled one is read as its direction, which is
+        // what a user meant unless the file is in another convention (e.g. angles).
+        tracing::warn!(
+            "{}: {not_unit_count} of {} direction pairs are not unit vectors (the first at line \
+             {line}); each is read as its direction",
+            path.display(),
+            pairs.len()
+        );
     }
     if pairs.is_empty() {
         match header {

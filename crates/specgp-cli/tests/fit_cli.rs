@@ -418,6 +418,40 @@ fn sample_writes_csv_to_stdout_with_a_dash() {
     // The same values as through a file.
     specgp(&args("v.csv", &[]), d);
     assert_eq!(std::fs::read_to_string(d.join("v.csv")).unwrap(), stdout);
+    // Scaled vectors are read as their directions (the same values), with a warning.
+    std::fs::write(d.join("long.csv"), "0,0,2,0,0,1\n1.2,0,1.6,0,0,3\n").unwrap();
+    let out = run(
+        &[
+            "sample",
+            "data.sbrdf:paper_white",
+            "--dirs",
+            "long.csv",
+            "--out",
+            "-",
+        ],
+        d,
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    let scaled = String::from_utf8(out.stdout).unwrap();
+    let near = |a: &str, b: &str| {
+        a.split(',')
+            .zip(b.split(','))
+            .all(|(x, y)| (x.parse::<f64>().unwrap() - y.parse::<f64>().unwrap()).abs() < 1e-9)
+    };
+    assert!(
+        scaled
+            .lines()
+            .zip(stdout.lines())
+            .skip(1)
+            .all(|(a, b)| near(a, b)),
+        "{scaled} vs {stdout}"
+    );
+    assert!(
+        err.contains("long.csv: 2 of 2 direction pairs are not unit vectors (the first at line 1)"),
+        "{err}"
+    );
+    assert!(!String::from_utf8_lossy(&run(&args("-", &[]), d).stderr).contains("unit vectors"));
     // At chosen wavelengths: linear interpolation between the stored ones.
     let chosen = specgp(&args("-", &["--wavelengths", "450,700"]), d);
     let lines: Vec<&str> = chosen.lines().collect();
