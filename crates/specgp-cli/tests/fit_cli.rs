@@ -23,13 +23,15 @@ fn run(args: &[&str], dir: &Path) -> std::process::Output {
 
 /// Runs `specgp args` in `dir`, which must succeed: its stdout.
 fn specgp(args: &[&str], dir: &Path) -> String {
+    specgp_outputs(args, dir).0
+}
+
+/// Runs `specgp args` in `dir`, which must succeed: its stdout and stderr (warnings, reports).
+fn specgp_outputs(args: &[&str], dir: &Path) -> (String, String) {
     let out = run(args, dir);
-    assert!(
-        out.status.success(),
-        "specgp {args:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout).unwrap()
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "specgp {args:?} failed: {err}");
+    (String::from_utf8(out.stdout).unwrap(), err)
 }
 
 /// Runs `specgp args` in `dir`, which must fail: its stderr.
@@ -327,22 +329,19 @@ fn lazy_renders_of_model_points_read_an_existing_sidecar() {
         ][..],
         &["map", "m.toml", "--thumbnails", "--out", "y.png"],
     ] {
-        let out = run(args, d);
-        let err = String::from_utf8_lossy(&out.stderr);
+        let (_, err) = specgp_outputs(args, d);
         assert!(
-            out.status.success() && err.contains(&sidecar[0]) && err.contains("unusable"),
+            err.contains(&sidecar[0]) && err.contains("unusable"),
             "{args:?}: {err}"
         );
     }
     assert_eq!(png_rgba(&d.join("sphere-damaged.png")), before.0);
     // ... and `predict --sidecar` rebuilds it, after which both read it again.
-    let out = run(&predict_with_sidecar, d);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success() && err.contains("rebuilding"), "{err}");
-    let out = run(&["render", point, "--out", "x.png"], d);
-    let err = String::from_utf8_lossy(&out.stderr);
+    let (_, err) = specgp_outputs(&predict_with_sidecar, d);
+    assert!(err.contains("rebuilding"), "{err}");
+    let (_, err) = specgp_outputs(&["render", point, "--out", "x.png"], d);
     assert!(
-        out.status.success() && err.contains("reading the sidecar") && !err.contains("unusable"),
+        err.contains("reading the sidecar") && !err.contains("unusable"),
         "{err}"
     );
 }
@@ -420,7 +419,7 @@ fn sample_writes_csv_to_stdout_with_a_dash() {
     assert_eq!(std::fs::read_to_string(d.join("v.csv")).unwrap(), stdout);
     // Scaled vectors are read as their directions (the same values), with a warning.
     std::fs::write(d.join("long.csv"), "0,0,2,0,0,1\n1.2,0,1.6,0,0,3\n").unwrap();
-    let out = run(
+    let (scaled, err) = specgp_outputs(
         &[
             "sample",
             "data.sbrdf:paper_white",
@@ -431,9 +430,6 @@ fn sample_writes_csv_to_stdout_with_a_dash() {
         ],
         d,
     );
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
-    let scaled = String::from_utf8(out.stdout).unwrap();
     let near = |a: &str, b: &str| {
         a.split(',')
             .zip(b.split(','))
@@ -451,7 +447,11 @@ fn sample_writes_csv_to_stdout_with_a_dash() {
         err.contains("long.csv: 2 of 2 direction pairs are not unit vectors (the first at line 1)"),
         "{err}"
     );
-    assert!(!String::from_utf8_lossy(&run(&args("-", &[]), d).stderr).contains("unit vectors"));
+    assert!(
+        !specgp_outputs(&args("-", &[]), d)
+            .1
+            .contains("unit vectors")
+    );
     // At chosen wavelengths: linear interpolation between the stored ones.
     let chosen = specgp(&args("-", &["--wavelengths", "450,700"]), d);
     let lines: Vec<&str> = chosen.lines().collect();
@@ -747,16 +747,10 @@ fn merl_output_of_a_coarse_model_is_on_merls_grid() {
         &["fit", "data.sbrdf", "--out", "m.toml", "--latent-dim", "2"],
         d,
     );
-    let out = run(
+    let (_, said) = specgp_outputs(
         &["predict", "m.toml", "--at", "0,0", "--out", "x.binary"],
         d,
     );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let said = String::from_utf8_lossy(&out.stderr);
     assert!(
         said.contains(&format!("{} values", 3 * 90 * 90 * 180)),
         "{said}"
@@ -815,7 +809,7 @@ fn fits_stopped_at_their_cap_are_reported() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     synth_small(d, "400:700:50");
-    let capped = run(
+    let (_, said) = specgp_outputs(
         &[
             "fit",
             "data.sbrdf",
@@ -826,8 +820,6 @@ fn fits_stopped_at_their_cap_are_reported() {
         ],
         d,
     );
-    assert!(capped.status.success());
-    let said = String::from_utf8_lossy(&capped.stderr);
     assert!(
         said.contains("stopped at its cap (reached 5 iterations)")
             && said.contains("raise max_iterations"),
@@ -837,7 +829,7 @@ fn fits_stopped_at_their_cap_are_reported() {
         Model::load(&d.join("c.toml")).unwrap().fit.stop_reason,
         "reached 5 iterations"
     );
-    let free = run(
+    let (_, said) = specgp_outputs(
         &[
             "fit",
             "data.sbrdf",
@@ -848,8 +840,6 @@ fn fits_stopped_at_their_cap_are_reported() {
         ],
         d,
     );
-    assert!(free.status.success());
-    let said = String::from_utf8_lossy(&free.stderr);
     assert!(!said.contains("stopped at its cap"), "{said}");
     let stop = Model::load(&d.join("f.toml")).unwrap().fit.stop_reason;
     assert!(!stop.starts_with("reached"), "{stop}");
@@ -908,7 +898,7 @@ fn source_mistakes_say_how_to_fix_them() {
     assert!(!d.join("x.png").exists() && !d.join("x.npy").exists());
     // A latent point far from every material renders, with a warning saying so; a point
     // between materials does not warn.
-    let far = run(
+    let (_, err) = specgp_outputs(
         &[
             "render",
             "m.toml@40,40,40",
@@ -919,8 +909,6 @@ fn source_mistakes_say_how_to_fix_them() {
         ],
         d,
     );
-    let err = String::from_utf8_lossy(&far.stderr);
-    assert!(far.status.success(), "{err}");
     assert!(
         err.contains("latent point 40,40,40 is far from every material")
             && err.contains("close to the mean of the data"),
@@ -940,10 +928,6 @@ fn source_mistakes_say_how_to_fix_them() {
         .map(|(u, v)| format!("{}", 0.5 * (u + v)))
         .collect();
     let at = format!("m.toml@{}", mid.join(","));
-    let near = run(&["render", &at, "--size", "16", "--out", "near.png"], d);
-    let err = String::from_utf8_lossy(&near.stderr);
-    assert!(
-        near.status.success() && !err.contains("far from every"),
-        "{err}"
-    );
+    let (_, err) = specgp_outputs(&["render", &at, "--size", "16", "--out", "near.png"], d);
+    assert!(!err.contains("far from every"), "{err}");
 }
