@@ -113,8 +113,8 @@ pub fn available_space(dir: &Path) -> Option<u64> {
 }
 
 /// Refuses, before writing, an output of about `bytes` bytes that the file system holding
-/// `path` has no room for (a file it replaces counts as free: the new one is written beside it
-/// first, so it does not). Standard output and unknown free space pass.
+/// `path` has no room for. A file the output replaces does not count as free space: the new
+/// one is written beside it before the rename. Standard output and unknown free space pass.
 pub fn ensure_space(path: &Path, bytes: u64, what: &str) -> Result<()> {
     if path == Path::new(STDOUT) {
         return Ok(());
