@@ -159,8 +159,15 @@ pub fn latent_map(
     let [x0, x1, y0, y1] = extent(points);
     let size = opts.size;
     let margin = 40usize;
+    let panel_title = if opts.caption.contains("SLICE") {
+        "PREDICTED MATERIALS OVER THE GREY BOX, ON THE SLICE"
+    } else {
+        "PREDICTED MATERIALS OVER THE GREY BOX"
+    };
+    // The panel is as wide as its spheres, or as its title where that is wider (small
+    // thumbnails used to cut the title to a word).
     let panel = if opts.thumbnails > 0 && source_at.is_some() {
-        opts.thumbnails * opts.sphere.size + margin
+        (opts.thumbnails * opts.sphere.size).max(font::text_width(panel_title, 1)) + margin
     } else {
         0
     };
@@ -353,13 +360,7 @@ pub fn latent_map(
         for ((i, j), th) in cells.iter().zip(&thumbs) {
             img.blit(th, ox + (i * ts) as i64, (margin + j * ts) as i64);
         }
-        let title = if opts.caption.contains("SLICE") {
-            "PREDICTED MATERIALS OVER THE GREY BOX, ON THE SLICE"
-        } else {
-            "PREDICTED MATERIALS OVER THE GREY BOX"
-        };
-        let title = font::fit(title, g * ts, 1);
-        img.text(ox, 8, &title, 1, black);
+        img.text(ox, 8, panel_title, 1, black);
     }
     Ok(img)
 }

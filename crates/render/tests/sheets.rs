@@ -142,7 +142,18 @@ fn path_comparison_and_map_draw() {
     }
     let map = latent_map(&points, &var, Some(&src), &mopts).unwrap();
     keep(&map, "map.png");
-    assert_eq!(map.width, 40 + 160 + 40 + 3 * 24 + 40);
+    // The panel is as wide as its title (wider than 3 spheres of 24 px), not cut to a word.
+    let title = "PREDICTED MATERIALS OVER THE GREY BOX, ON THE SLICE";
+    let title_w = render::font::text_width(title, 1);
+    assert!(title_w > 3 * 24);
+    assert_eq!(map.width, 40 + 160 + 40 + title_w + 40);
+    let title_ink = (0..title_w)
+        .filter(|&x| (8..15).any(|y| map.get(40 + 160 + 40 + x, y)[0] < 0.5))
+        .count();
+    assert!(
+        title_ink > title_w / 2,
+        "{title_ink} of {title_w} columns inked"
+    );
     // Near a point the variance is low (light background), far away high (darker).
     let [x0, x1, y0, y1] = render::map::extent(&points);
     let px = |p: [f64; 2]| {
