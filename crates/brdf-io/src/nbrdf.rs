@@ -79,10 +79,14 @@ impl NbrdfSet {
             return Err(Error::Format {
                 path: names_path.to_path_buf(),
                 reason: format!(
-                    "{} names for {} networks in {}",
+                    "{} names for {} networks in {}{}",
                     names.len(),
                     arr.shape[0],
-                    path.display()
+                    path.display(),
+                    match text.lines().filter(|l| l.trim().is_empty()).count() {
+                        0 => String::new(),
+                        blank => format!(" ({blank} blank lines not counted)"),
+                    }
                 ),
             });
         }
@@ -266,6 +270,37 @@ fn network_input(wi: Vec3, wo: Vec3) -> Option<[f64; 6]> {
 mod tests {
     use super::*;
     use crate::grid::HalfDiff;
+
+    /// A names file with a different count says so, and says when blank lines (skipped) made
+    /// the difference.
+    #[test]
+    fn name_count_mismatch_mentions_skipped_blank_lines() {
+        let dir = tempfile::tempdir().unwrap();
+        let weights = dir.path().join("w.npy");
+        let mut w = crate::npy::NpyWriter::create(
+            &weights,
+            crate::npy::NpyDtype::F32,
+            &[2, WEIGHTS_PER_NETWORK],
+        )
+        .unwrap();
+        w.write_f32(&vec![0.0; 2 * WEIGHTS_PER_NETWORK]).unwrap();
+        w.finish().unwrap();
+        let names = dir.path().join("n.txt");
+        for (text, blank) in [("a\n\n", true), ("a\n", false)] {
+            std::fs::write(&names, text).unwrap();
+            let e = NbrdfSet::open(&weights, &names).unwrap_err().to_string();
+            assert!(
+                e.contains("n.txt") && e.contains("1 names for 2 networks"),
+                "{e}"
+            );
+            assert_eq!(e.contains("(1 blank lines not counted)"), blank, "{e}");
+        }
+        std::fs::write(&names, "a\n\nb\n").unwrap();
+        assert_eq!(
+            NbrdfSet::open(&weights, &names).unwrap().names(),
+            ["a", "b"]
+        );
+    }
 
     #[test]
     fn input_matches_rusinkiewicz_angles() {
