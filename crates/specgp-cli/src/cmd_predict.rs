@@ -107,11 +107,12 @@ fn bar(len: u64, what: &str) -> ProgressBar {
     pb
 }
 
-/// Opens `MODEL.toml@X,Y` (exact predictor) as a lazy predicted material, or `None` when `spec`
-/// does not have that form.
+/// Opens `MODEL.toml@X,Y` (by the predictor `kind`) as a lazy predicted material, or `None`
+/// when `spec` does not have that form.
 pub fn open_model_source(
     spec: &str,
     wavelengths: Option<&Channels>,
+    kind: PredictorKind,
 ) -> Option<anyhow::Result<PredictedMaterial>> {
     let (model, point) = spec.rsplit_once('@')?;
     if !model.ends_with(".toml") {
@@ -121,7 +122,7 @@ pub fn open_model_source(
         let x = parse_point(point)?;
         let pred = Predictor::open(Path::new(model)).with_context(|| format!("opening {model}"))?;
         warn_if_far(&pred, &x)?;
-        let mut m = with_existing_sidecar(pred)?.predict(&x, PredictorKind::Exact)?;
+        let mut m = with_existing_sidecar(pred)?.predict(&x, kind)?;
         if let Some(w) = wavelengths {
             m = m.with_wavelengths(w)?;
         }
@@ -207,11 +208,7 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
             }
         };
     }
-    let kind = if args.smooth {
-        PredictorKind::Smooth
-    } else {
-        PredictorKind::Exact
-    };
+    let kind = crate::cmd_sample::predictor_kind(args.smooth);
     let mut material = match (&args.at, &args.lerp) {
         (Some(at), _) => {
             let x = parse_point(at)?;
@@ -437,9 +434,9 @@ mod tests {
         assert_eq!(parse_point("0.5,-1e-3").unwrap(), vec![0.5, -1e-3]);
         let e = parse_point("0.5,x").unwrap_err().to_string();
         assert!(e.contains("\"x\" is not a number"), "{e}");
-        assert!(open_model_source("data.sbrdf:felt", None).is_none());
-        assert!(open_model_source("file.bsdf", None).is_none());
-        let e = open_model_source("/nonexistent/m.toml@0,0", None)
+        assert!(open_model_source("data.sbrdf:felt", None, PredictorKind::Exact).is_none());
+        assert!(open_model_source("file.bsdf", None, PredictorKind::Exact).is_none());
+        let e = open_model_source("/nonexistent/m.toml@0,0", None, PredictorKind::Exact)
             .unwrap()
             .unwrap_err();
         assert!(format!("{e:#}").contains("/nonexistent/m.toml"), "{e:#}");

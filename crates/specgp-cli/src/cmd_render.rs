@@ -14,8 +14,8 @@ use crate::cmd_sample::open_source;
 pub struct RenderArgs {
     /// The BRDF: an RGL `.bsdf` file, a MERL `.binary` file, `DATA.sbrdf:MATERIAL` or
     /// `MODEL.toml@X1,...,Xq` (all q latent coordinates: a predicted material, by the exact
-    /// predictor, rendered lazily: only the cells the picture touches are predicted), as for
-    /// `sample`.
+    /// predictor unless --smooth, rendered lazily: only the cells the picture touches are
+    /// predicted), as for `sample`.
     pub source: String,
     /// Output PNG (8-bit sRGB with alpha).
     #[arg(long)]
@@ -52,6 +52,10 @@ pub struct RenderArgs {
     /// in which metals and mirrors show a horizon instead of looking like black plastic.
     #[arg(long, default_value = "table")]
     pub env: String,
+    /// With a model point: the smooth predictor (the noise-free posterior mean, continuous in
+    /// the latent point) instead of the exact one.
+    #[arg(long)]
+    pub smooth: bool,
 }
 
 /// Parses `THETA,PHI` (degrees).
@@ -106,7 +110,11 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
         ..SphereOptions::default()
     };
     let start = std::time::Instant::now();
-    let source = open_render_source(&args.source, opts.illuminant)?;
+    let source = open_render_source(
+        &args.source,
+        opts.illuminant,
+        crate::cmd_sample::predictor_kind(args.smooth),
+    )?;
     let img = match &plane {
         None => render::render_sphere(source.as_ref(), &opts),
         Some(p) => render::render_plane(source.as_ref(), &opts, p),
@@ -121,20 +129,21 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
 pub fn open_render_source(
     spec: &str,
     illuminant: Illuminant,
+    kind: predict::PredictorKind,
 ) -> anyhow::Result<Box<dyn brdf_io::BrdfSource>> {
     // Ask the source only for the wavelengths the observer needs, where it can select them
     // (spectral .bsdf files, stored materials, model points); others return all their channels.
-    if let Some(m) = crate::cmd_predict::open_model_source(spec, None) {
+    if let Some(m) = crate::cmd_predict::open_model_source(spec, None, kind) {
         let mut m = m?;
         if let Some(w) = render::colour::needed_wavelengths(m.channels(), illuminant)? {
             m = m.with_wavelengths(&w)?;
         }
         return Ok(Box::new(m));
     }
-    let mut source = open_source(spec, None)?;
+    let mut source = open_source(spec, None, kind)?;
     let needed = render::colour::needed_wavelengths(&source.channels(), illuminant)?;
     if let Some(sub) = needed {
-        match open_source(spec, Some(&sub)) {
+        match open_source(spec, Some(&sub), kind) {
             Ok(s) => {
                 tracing::info!(
                     wavelengths = sub.len(),
@@ -319,6 +328,7 @@ mod tests {
             shape: "sphere".into(),
             view: None,
             env: "table".into(),
+            smooth: false,
         };
         render(&args).unwrap();
         let (w, h, px) = render::image::read_png_rgba8(&out).unwrap();

@@ -15,13 +15,14 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use brdf_io::{BrdfSource, Channels, Vec3};
+use predict::PredictorKind;
 
 /// Arguments of `specgp sample`.
 #[derive(Debug, clap::Args)]
 pub struct SampleArgs {
     /// The BRDF: an RGL `.bsdf` file, a MERL `.binary` file, `DATA.sbrdf:MATERIAL` or
     /// `MODEL.toml@X1,...,Xq` (lazy GP prediction at a latent point, all q coordinates; the
-    /// exact predictor, which returns a training material at its own point).
+    /// exact predictor, which returns a training material at its own point, unless --smooth).
     pub source: String,
     /// CSV of direction pairs, one `wi_x,wi_y,wi_z,wo_x,wo_y,wo_z` row each (local frame,
     /// z = normal; a header line is allowed).
@@ -36,15 +37,33 @@ pub struct SampleArgs {
     /// Not for MERL files.
     #[arg(long)]
     pub wavelengths: Option<String>,
+    /// With a model point: the smooth predictor (the noise-free posterior mean, continuous in
+    /// the latent point) instead of the exact one.
+    #[arg(long)]
+    pub smooth: bool,
 }
 
-/// Opens the BRDF named by a SOURCE argument, evaluated at `wavelengths` when given.
+/// The predictor a `--smooth` flag names.
+pub fn predictor_kind(smooth: bool) -> PredictorKind {
+    if smooth {
+        PredictorKind::Smooth
+    } else {
+        PredictorKind::Exact
+    }
+}
+
+/// Opens the BRDF named by a SOURCE argument, evaluated at `wavelengths` when given; a model
+/// point by the predictor `kind` (the smooth one is refused for other sources).
 pub fn open_source(
     spec: &str,
     wavelengths: Option<&Channels>,
+    kind: PredictorKind,
 ) -> anyhow::Result<Box<dyn BrdfSource>> {
-    if let Some(m) = crate::cmd_predict::open_model_source(spec, wavelengths) {
+    if let Some(m) = crate::cmd_predict::open_model_source(spec, wavelengths, kind) {
         return Ok(Box::new(m?));
+    }
+    if kind == PredictorKind::Smooth {
+        bail!("--smooth applies to a model point (MODEL.toml@X1,...,Xq), not to {spec:?}");
     }
     if let Some((path, name)) = brdf_io::store::parse_store_spec(spec) {
         let mut m = brdf_io::store::StoreMaterial::open(&path, &name)
@@ -229,7 +248,11 @@ pub fn sample(args: &SampleArgs) -> anyhow::Result<()> {
         .as_deref()
         .map(Channels::parse_wavelengths)
         .transpose()?;
-    let source = open_source(&args.source, wavelengths.as_ref())?;
+    let source = open_source(
+        &args.source,
+        wavelengths.as_ref(),
+        predictor_kind(args.smooth),
+    )?;
     let text = std::fs::read_to_string(&args.dirs)
         .with_context(|| format!("reading {}", args.dirs.display()))?;
     let pairs = parse_dirs(&text, &args.dirs)?;
@@ -289,7 +312,7 @@ mod tests {
         let Some(file) = shared_data::path("rgl-rgb/paper_white_rgb.bsdf") else {
             return;
         };
-        let src = open_source(file.to_str().unwrap(), None).unwrap();
+        let src = open_source(file.to_str().unwrap(), None, PredictorKind::Exact).unwrap();
         let pairs = vec![
             ([0.0, 0.0, 1.0], [0.6, 0.0, 0.8]),
             ([0.0, 0.0, 1.0], [0.0, 0.6, -0.8]),
@@ -306,8 +329,9 @@ mod tests {
         let e = open_source(
             file.to_str().unwrap(),
             Some(&Channels::spectral(vec![500.0]).unwrap()),
+            PredictorKind::Exact,
         );
         assert!(e.is_err());
-        assert!(open_source("x.png", None).is_err());
+        assert!(open_source("x.png", None, PredictorKind::Exact).is_err());
     }
 }

@@ -930,4 +930,56 @@ fn source_mistakes_say_how_to_fix_them() {
     let at = format!("m.toml@{}", mid.join(","));
     let (_, err) = specgp_outputs(&["render", &at, "--size", "16", "--out", "near.png"], d);
     assert!(!err.contains("far from every"), "{err}");
+    // At a training material's own point the exact predictor returns that material, the
+    // smooth one (`--smooth`) a slightly smoothed version; `--smooth` needs a model point.
+    let own = model.materials[0]
+        .coords
+        .iter()
+        .map(|v| format!("{v}"))
+        .collect::<Vec<_>>()
+        .join(",");
+    let name = model.materials[0].name.clone();
+    std::fs::write(
+        d.join("dirs.csv"),
+        "0,0.6,0.8,0,-0.6,0.8\n0.3,0,0.954,0,0,1\n",
+    )
+    .unwrap();
+    let sample = |src: &str, extra: &[&str]| {
+        let mut args = vec!["sample", src, "--dirs", "dirs.csv", "--out", "-"];
+        args.extend_from_slice(extra);
+        let text = specgp(&args, d);
+        text.lines()
+            .skip(1)
+            .flat_map(|l| {
+                l.split(',')
+                    .map(|v| v.parse::<f64>().unwrap())
+                    .collect::<Vec<_>>()
+            })
+            .collect::<Vec<_>>()
+    };
+    let stored = sample(&format!("data.sbrdf:{name}"), &[]);
+    let exact = sample(&format!("m.toml@{own}"), &[]);
+    let smooth = sample(&format!("m.toml@{own}"), &["--smooth"]);
+    let rel = |a: &[f64], b: &[f64]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs() / y.abs().max(1e-12))
+            .fold(0.0, f64::max)
+    };
+    assert!(rel(&exact, &stored) < 1e-5, "{exact:?} vs {stored:?}");
+    let moved = rel(&smooth, &stored);
+    assert!(moved > 1e-7 && moved < 0.5, "smooth moved by {moved}");
+    let e = specgp_fails(
+        &[
+            "sample",
+            &format!("data.sbrdf:{name}"),
+            "--dirs",
+            "dirs.csv",
+            "--smooth",
+            "--out",
+            "-",
+        ],
+        d,
+    );
+    assert!(e.contains("--smooth applies to a model point"), "{e}");
 }
