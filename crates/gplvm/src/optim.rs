@@ -212,9 +212,11 @@ fn axpy(a: f64, x: &[f64], y: &mut [f64]) {
 type Pairs = std::collections::VecDeque<(Vec<f64>, Vec<f64>, f64)>;
 
 /// The L-BFGS two-loop recursion: `dir = -H grad` with the initial Hessian scaled by s'y / y'y
-/// of the newest pair (1 / |grad| without pairs). Compiled for AVX2 + FMA when the CPU has them
-/// (selected at run time): with a memory of 100 and N q = 255 it is 100 k multiply-adds per
-/// step, a tenth of the GPLVM objective.
+/// of the newest pair (1 / |grad| without pairs). Compiled for AVX2 + FMA or AVX-512 when the
+/// CPU has them (selected at run time), its dot products by [`gp_core::fastmath::dot_avx2`]:
+/// with a memory of 100 and N q = 255 it is 100 k multiply-adds per step, and its dot
+/// products' single addition chains (fixed by the bits) made it ~25 % of a default fit's time
+/// in a profile (BENCHMARKS.md "gplvm", session 10).
 fn two_loop(pairs: &Pairs, grad: &[f64], gnorm: f64, alpha: &mut [f64], dir: &mut [f64]) {
     #[cfg(target_arch = "x86_64")]
     {
