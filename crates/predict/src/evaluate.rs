@@ -138,6 +138,90 @@ fn embed(n: usize, idx: &[usize], c: &[f64]) -> Vec<f64> {
     full
 }
 
+/// Squared error of the linear predictor `sum_j c_j y_j` against a material `y_h` that is not
+/// one of the rows, from Gram quantities: `G_hh - 2 c^T g_h + c^T G c` with `g = G` (N x N) of
+/// the rows, `g_h[j] = y_j . y_h` and `g_hh = |y_h|^2` (clamped at 0; its rounding is ~1e-16
+/// `g_hh`, see [`sq_error`]).
+pub fn sq_error_external(g: MatRef<'_, f64>, g_h: &[f64], g_hh: f64, c: &[f64]) -> f64 {
+    sq_error_expanded(g, g_h, g_hh, c).max(0.0)
+}
+
+/// [`sq_error_external`] before the clamp (the latent search minimises this).
+fn sq_error_expanded(g: MatRef<'_, f64>, g_h: &[f64], g_hh: f64, c: &[f64]) -> f64 {
+    let n = g.nrows();
+    let mut e = g_hh;
+    for i in 0..n {
+        let mut gi = 0.0;
+        for j in 0..n {
+            gi += g[(i, j)] * c[j];
+        }
+        e += c[i] * (gi - 2.0 * g_h[i]);
+    }
+    e
+}
+
+/// The latent point where the smooth posterior mean of `gp` best reconstructs a material `y_h`
+/// it was not trained on, and that point's squared error in the transformed space, from Gram
+/// quantities only (`g`, `g_h`, `g_hh` as in [`sq_error_external`]; `points` are `gp`'s
+/// training points, in `g`'s order).
+///
+/// Multi-start: the `starts` training points with the smallest error, each refined by
+/// Hooke-Jeeves with steps relative to the spread of the points.
+pub fn best_latent_point(
+    gp: &GpRegression,
+    points: &[Vec<f64>],
+    g: MatRef<'_, f64>,
+    g_h: &[f64],
+    g_hh: f64,
+    starts: usize,
+) -> Result<(Vec<f64>, f64)> {
+    let n = points.len();
+    if n == 0 || g.nrows() != n || g.ncols() != n || g_h.len() != n {
+        return Err(Error::InvalidArgument {
+            reason: format!(
+                "best_latent_point: {n} points, a {}x{} Gram matrix and {} cross products",
+                g.nrows(),
+                g.ncols(),
+                g_h.len()
+            ),
+        });
+    }
+    let q = points[0].len();
+    let objective = |x: &[f64]| -> f64 {
+        gp.weights(x, gp_core::Predictor::Smooth)
+            .map(|w| sq_error_expanded(g, g_h, g_hh, &weights_to_coefficients(&w)))
+            .unwrap_or(f64::INFINITY)
+    };
+    let mut scored: Vec<(f64, usize)> = points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| (objective(p), i))
+        .collect();
+    scored.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let spread = {
+        let mut s = 0.0;
+        for k in 0..q {
+            let m = points.iter().map(|p| p[k]).sum::<f64>() / n as f64;
+            s += points.iter().map(|p| (p[k] - m).powi(2)).sum::<f64>() / n as f64;
+        }
+        (s / q.max(1) as f64).sqrt().max(1e-6)
+    };
+    let settings = HookeJeevesSettings {
+        initial_step: 0.1 * spread,
+        step_reduction: 0.5,
+        min_step: 1e-5 * spread,
+        max_evaluations: 1500,
+    };
+    let mut best = (scored[0].0, points[scored[0].1].clone());
+    for &(_, i) in scored.iter().take(starts.max(1)) {
+        let m = hooke_jeeves(&objective, &points[i], &settings)?;
+        if m.value < best.0 {
+            best = (m.value, m.x);
+        }
+    }
+    Ok((best.1, best.0.max(0.0)))
+}
+
 /// Leave-one-out for material `h` from the uncentred Gram matrix `g` (N x N) of data with
 /// `d_eff` informative values per material, refitting with `config` (q = its latent dim).
 ///
@@ -184,55 +268,10 @@ pub fn leave_one_out(
     let gp = GpRegression::new(fit.x.as_ref(), fit.params.clone(), Par::Seq)?;
     let q = fit.x.ncols();
     let g_h: Vec<f64> = others.iter().map(|&j| g[(h, j)]).collect();
-    let g_hh = g[(h, h)];
-    let err_sub = |c: &[f64]| -> f64 {
-        let mut e = g_hh;
-        for i in 0..n1 {
-            let mut gi = 0.0;
-            for j in 0..n1 {
-                gi += g_oo[(i, j)] * c[j];
-            }
-            e += c[i] * (gi - 2.0 * g_h[i]);
-        }
-        e
-    };
-    let objective = |x: &[f64]| -> f64 {
-        gp.weights(x, gp_core::Predictor::Smooth)
-            .map(|w| err_sub(&weights_to_coefficients(&w)))
-            .unwrap_or(f64::INFINITY)
-    };
-    // Multi-start from the training points with the smallest error.
     let points: Vec<Vec<f64>> = (0..n1)
         .map(|i| (0..q).map(|k| fit.x[(i, k)]).collect())
         .collect();
-    let mut scored: Vec<(f64, usize)> = points
-        .iter()
-        .enumerate()
-        .map(|(i, p)| (objective(p), i))
-        .collect();
-    scored.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let spread = {
-        let mut s = 0.0;
-        for k in 0..q {
-            let m = points.iter().map(|p| p[k]).sum::<f64>() / n1 as f64;
-            s += points.iter().map(|p| (p[k] - m).powi(2)).sum::<f64>() / n1 as f64;
-        }
-        (s / q as f64).sqrt().max(1e-6)
-    };
-    let settings = HookeJeevesSettings {
-        initial_step: 0.1 * spread,
-        step_reduction: 0.5,
-        min_step: 1e-5 * spread,
-        max_evaluations: 1500,
-    };
-    let mut best = (scored[0].0, points[scored[0].1].clone());
-    for &(_, i) in scored.iter().take(starts.max(1)) {
-        let m = hooke_jeeves(&objective, &points[i], &settings)?;
-        if m.value < best.0 {
-            best = (m.value, m.x);
-        }
-    }
-    let gp_point = best.1;
+    let (gp_point, _) = best_latent_point(&gp, &points, g_oo.as_ref(), &g_h, g[(h, h)], starts)?;
     let c_gp = weights_to_coefficients(&gp.weights(&gp_point, gp_core::Predictor::Smooth)?);
     let c_gp = embed(n, &others, &c_gp);
 
@@ -455,6 +494,39 @@ pub fn brdf_space_rmse(
             ),
         });
     }
+    let target_value = |r: usize, _d: usize, row: &[f32]| row[targets[r]];
+    let target_name = |r: usize| format!("material {:?}", store.names()[targets[r]]);
+    let sums = rmse_pass(
+        store,
+        transform,
+        coef,
+        &target_value,
+        &target_name,
+        false,
+        progress,
+    )?;
+    let n_angles = store.grid().len() as f64;
+    Ok(sums
+        .into_iter()
+        .map(|(s, _)| (s / n_angles).sqrt())
+        .collect())
+}
+
+/// The squared-error sums behind the Eq. 22 RMSEs of the `M` linear predictors in `coef`
+/// (`M x N`) over `store`'s valid cells: per row, in BRDF space and (with `model_space`, else
+/// 0) in the transformed space. `target(r, d, row)` is row `r`'s target value at index `d`
+/// (`row`: the N stored values there); `target_name(r)` names it in errors.
+pub(crate) fn rmse_pass(
+    store: &Store,
+    transform: Transform,
+    coef: MatRef<'_, f64>,
+    target: &(dyn Fn(usize, usize, &[f32]) -> f32 + Sync),
+    target_name: &dyn Fn(usize) -> String,
+    model_space: bool,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Vec<(f64, f64)>> {
+    let n = store.n_materials();
+    let m = coef.nrows();
     let nc = store.channels().len();
     let mask = store.validity_mask();
     let forward = |f: f64| transform.forward(f);
@@ -462,7 +534,13 @@ pub fn brdf_space_rmse(
     let done = AtomicUsize::new(0);
     let total = store.n_chunks();
     let sums = store.par_fold_chunks(
-        || (vec![0.0f64; m], Vec::<f64>::new(), Vec::<usize>::new()),
+        || {
+            (
+                vec![(0.0f64, 0.0f64); m],
+                Vec::<f64>::new(),
+                Vec::<usize>::new(),
+            )
+        },
         |(acc, t, cols), range, block| {
             // Valid columns only: below-horizon cells are 0 in every material and prediction.
             cols.clear();
@@ -495,8 +573,13 @@ pub fn brdf_space_rmse(
                 for (k, &j) in cols.iter().enumerate() {
                     let row = &block[j * n..(j + 1) * n];
                     for (r, a) in acc.iter_mut().enumerate() {
-                        let diff = f64::from(row[targets[r]]) - inverse(p[(r, k)]);
-                        *a += diff * diff;
+                        let f = f64::from(target(r, range.start + j, row));
+                        let diff = f - inverse(p[(r, k)]);
+                        a.0 += diff * diff;
+                        if model_space {
+                            let diff = forward(f) - p[(r, k)];
+                            a.1 += diff * diff;
+                        }
                     }
                 }
             }
@@ -504,39 +587,58 @@ pub fn brdf_space_rmse(
             progress(k, total);
         },
         |(mut a, t, c), (b, _, _)| {
-            a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+            a.iter_mut().zip(b).for_each(|(x, y)| {
+                x.0 += y.0;
+                x.1 += y.1;
+            });
             (a, t, c)
         },
     )?;
-    if let Some(r) = sums.0.iter().position(|s| !s.is_finite()) {
-        // The error path only: find the stored value to blame, if one is not finite.
-        let mut first_bad: Option<(usize, usize, f32)> = None;
-        store.for_each_chunk(|range, block| {
-            if first_bad.is_none()
-                && let Some(k) = block.iter().position(|v| !v.is_finite())
-            {
-                first_bad = Some((range.start + k / n, k % n, block[k]));
-            }
-        })?;
-        return Err(match first_bad {
-            Some((d, material, value)) => Error::Store(brdf_io::Error::DamagedValue {
-                path: store.path().to_owned(),
-                material: store.names()[material].to_owned(),
-                index: d,
-                value,
-            }),
+    if let Some(r) = sums
+        .0
+        .iter()
+        .position(|s| !(s.0.is_finite() && s.1.is_finite()))
+    {
+        // The error path only: blame a stored value, if one is not finite.
+        return Err(match damaged_value(store)? {
+            Some(e) => e,
             None => Error::NonFiniteValue {
                 what: format!(
-                    "the squared BRDF-space error of material {:?} in {}",
-                    store.names()[targets[r]],
+                    "the squared BRDF-space error of {} in {}",
+                    target_name(r),
                     store.path().display()
                 ),
-                value: sums.0[r],
+                value: if sums.0[r].0.is_finite() {
+                    sums.0[r].1
+                } else {
+                    sums.0[r].0
+                },
             },
         });
     }
-    let n_angles = store.grid().len() as f64;
-    Ok(sums.0.into_iter().map(|s| (s / n_angles).sqrt()).collect())
+    Ok(sums.0)
+}
+
+/// The error naming the first NaN or infinite value stored in `store`, if it holds one (an
+/// error path: a second pass over the data).
+pub(crate) fn damaged_value(store: &Store) -> Result<Option<Error>> {
+    let n = store.n_materials();
+    let mut first_bad: Option<(usize, usize, f32)> = None;
+    store.for_each_chunk(|range, block| {
+        if first_bad.is_none()
+            && let Some(k) = block.iter().position(|v| !v.is_finite())
+        {
+            first_bad = Some((range.start + k / n, k % n, block[k]));
+        }
+    })?;
+    Ok(first_bad.map(|(d, material, value)| {
+        Error::Store(brdf_io::Error::DamagedValue {
+            path: store.path().to_owned(),
+            material: store.names()[material].to_owned(),
+            index: d,
+            value,
+        })
+    }))
 }
 
 /// Options of [`evaluate`].

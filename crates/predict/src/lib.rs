@@ -15,9 +15,12 @@
 //! - [`evaluate`]: the paper's Eq. 22 reconstruction error, leave-one-out with refits from the
 //!   Gram matrix, and baselines (nearest material, linear interpolation, PCA), with BRDF-space
 //!   errors of every method from one streaming pass.
+//! - [`locate`]: where a material outside the training set sits in the latent space (the
+//!   inverse of prediction), from one pass for its cross products with the training rows.
 
 pub mod error;
 pub mod evaluate;
+pub mod locate;
 pub mod materialize;
 pub mod predictor;
 

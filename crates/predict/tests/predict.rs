@@ -788,3 +788,195 @@ fn damaged_stored_values_are_errors_not_nans() {
         );
     }
 }
+
+/// The D values of material `name` of the store at `path`.
+fn material_values(path: &Path, name: &str) -> Vec<f32> {
+    let store = Store::open(path).unwrap();
+    let m = store.material_index(name).unwrap();
+    let mut v = vec![0f32; store.d()];
+    store.material_row(m, 0..store.d(), &mut v).unwrap();
+    v
+}
+
+#[test]
+fn locating_a_new_material_agrees_with_direct_measurements() {
+    use predict::locate::{Target, cross_products, gram_sq_error, locate};
+    let f = fixture(6, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    // A preset material between two of the fixture's picks: not in the training set.
+    let presets = brdf_synth::preset(0);
+    let step = presets.len() / 6;
+    let new = presets[step / 2].clone();
+    let new_store = f.store.with_file_name("new.sbrdf");
+    brdf_synth::write_store(
+        &new_store,
+        std::slice::from_ref(&new),
+        grid(),
+        &channels(),
+        StoreOptions::default(),
+        7,
+        |_| {},
+    )
+    .unwrap();
+    let new_name = Store::open(&new_store).unwrap().names()[0].to_owned();
+    assert!(
+        pred.material_index(&new_name).is_err(),
+        "{new_name} is a training material"
+    );
+    let training_name = pred.model().materials[3].name.clone();
+    let targets = vec![
+        Target {
+            name: new_name.clone(),
+            values: material_values(&new_store, &new_name),
+        },
+        Target {
+            name: training_name.clone(),
+            values: material_values(&f.store, &training_name),
+        },
+    ];
+    let located = locate(&pred, &targets, 3, &|_, _| {}).unwrap();
+    assert_eq!(located.len(), 2);
+
+    // Cross products against a scalar recomputation from the stored values.
+    let store = pred.store();
+    let (n, nc) = (store.n_materials(), store.channels().len());
+    let mask = store.validity_mask().to_vec();
+    let t = pred.transform();
+    let (cross, norms) = cross_products(&pred, &targets, &|_, _| {}).unwrap();
+    let mut row = vec![0f32; n];
+    let (mut want, mut want_norm) = (vec![0.0; n], 0.0);
+    for d in (0..store.d()).filter(|d| mask[d / nc]) {
+        store.values_at(d, &mut row).unwrap();
+        let y = t.forward(f64::from(targets[0].values[d]));
+        want_norm += y * y;
+        for i in 0..n {
+            want[i] += y * t.forward(f64::from(row[i]));
+        }
+    }
+    assert!(rel(norms[0], want_norm) < 1e-12, "{} {want_norm}", norms[0]);
+    for i in 0..n {
+        assert!(
+            rel(cross[i], want[i]) < 1e-12,
+            "{i}: {} {}",
+            cross[i],
+            want[i]
+        );
+    }
+    // The training material's cross products are its row of the model's Gram matrix.
+    let g = pred.model().gram_matrix();
+    for i in 0..n {
+        assert!(
+            rel(cross[n + i], g[(3, i)]) < 1e-12,
+            "{i}: {} {}",
+            cross[n + i],
+            g[(3, i)]
+        );
+    }
+
+    let n_angles = pred.grid().len() as f64;
+    let loc = &located[0];
+    // The prediction at the located point, looked up value by value, against the target.
+    let m = pred.predict(&loc.point, PredictorKind::Exact).unwrap();
+    let (mut brdf_sq, mut model_sq) = (0.0, 0.0);
+    for d in (0..store.d()).filter(|d| mask[d / nc]) {
+        let (f_new, f_pred) = (f64::from(targets[0].values[d]), m.value_at(d).unwrap());
+        brdf_sq += (f_new - f_pred).powi(2);
+        model_sq += (t.forward(f_new) - t.forward(f_pred)).powi(2);
+    }
+    assert!(
+        rel(loc.brdf_rmse, (brdf_sq / n_angles).sqrt()) < 1e-9,
+        "{loc:?}"
+    );
+    assert!(
+        rel(loc.model_rmse, (model_sq / n_angles).sqrt()) < 1e-9,
+        "{loc:?}"
+    );
+    // The Gram formula the search minimises gives the same error as the direct pass.
+    let gram_rmse =
+        (gram_sq_error(&pred, &cross[..n], norms[0], &loc.coefficients) / n_angles).sqrt();
+    assert!(
+        rel(loc.model_rmse, gram_rmse) < 1e-6,
+        "{} {gram_rmse}",
+        loc.model_rmse
+    );
+    // No training point's smooth prediction does better, and the search beats the nearest
+    // material or comes close to it.
+    for mat in &pred.model().materials {
+        let c = pred
+            .coefficients(&mat.coords, PredictorKind::Smooth)
+            .unwrap();
+        let e = (gram_sq_error(&pred, &cross[..n], norms[0], &c) / n_angles).sqrt();
+        assert!(
+            loc.model_rmse <= e * (1.0 + 1e-9),
+            "{} at {}: {e}",
+            loc.model_rmse,
+            mat.name
+        );
+    }
+    let nearest = pred.material_index(&loc.nearest).unwrap();
+    let c = (0..n)
+        .map(|j| if j == nearest { 1.0 } else { 0.0 })
+        .collect::<Vec<_>>();
+    let e = (gram_sq_error(&pred, &cross[..n], norms[0], &c) / n_angles).sqrt();
+    assert!(
+        rel(loc.nearest_model_rmse, e) < 1e-6,
+        "{} {e}",
+        loc.nearest_model_rmse
+    );
+    assert!(
+        loc.model_rmse <= loc.nearest_model_rmse * (1.0 + 1e-9),
+        "{loc:?}"
+    );
+    assert!(
+        loc.variance_fraction > 0.0 && loc.variance_fraction < 1.0,
+        "{loc:?}"
+    );
+
+    // A training material is found at its own point, where the exact predictor returns it.
+    let own = &located[1];
+    assert_eq!(own.nearest, training_name);
+    assert!(
+        own.nearest_brdf_rmse < 1e-12 && own.nearest_model_rmse == 0.0,
+        "{own:?}"
+    );
+    assert_eq!(own.point, pred.model().materials[3].coords, "{own:?}");
+    assert!(own.brdf_rmse < 1e-9 && own.model_rmse < 1e-9, "{own:?}");
+    assert_eq!(
+        (own.nearest_in_latent.as_str(), own.distance),
+        (training_name.as_str(), 0.0)
+    );
+}
+
+#[test]
+fn locate_refuses_targets_it_cannot_compare() {
+    use predict::locate::{Target, locate};
+    let f = fixture(6, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    let d = pred.store().d();
+    let e = locate(&pred, &[], 3, &|_, _| {}).unwrap_err().to_string();
+    assert!(e.contains("no target"), "{e}");
+    let short = Target {
+        name: "short".into(),
+        values: vec![0.1; d - 1],
+    };
+    let e = locate(&pred, &[short], 3, &|_, _| {})
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("\"short\"") && e.contains(&format!("D = {d}")),
+        "{e}"
+    );
+    let mut values = vec![0.1f32; d];
+    values[17] = f32::INFINITY;
+    let bad = Target {
+        name: "bad".into(),
+        values,
+    };
+    let e = locate(&pred, &[bad], 3, &|_, _| {})
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("value 17 of target \"bad\"") && e.contains("inf"),
+        "{e}"
+    );
+}

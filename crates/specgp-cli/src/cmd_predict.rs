@@ -96,7 +96,8 @@ pub fn parse_point(s: &str) -> anyhow::Result<Vec<f64>> {
         .collect()
 }
 
-fn bar(len: u64, what: &str) -> ProgressBar {
+/// A progress bar on standard error: `what`, elapsed time, position and what is left.
+pub(crate) fn bar(len: u64, what: &str) -> ProgressBar {
     let pb = ProgressBar::new(len);
     pb.set_style(
         ProgressStyle::with_template(&format!(

@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 
 mod cmd_data;
 mod cmd_fit;
+mod cmd_locate;
 mod cmd_predict;
 mod cmd_render;
 mod cmd_sample;
@@ -53,6 +54,8 @@ enum Command {
     Predict(cmd_predict::PredictArgs),
     /// Reconstruction and leave-one-out errors of a model (GP and baselines).
     Evaluate(cmd_predict::EvaluateArgs),
+    /// Find where materials outside the training set sit in the latent space (the inverse of predict).
+    Locate(cmd_locate::LocateArgs),
 }
 
 /// Arguments of `specgp grid`.
@@ -134,6 +137,7 @@ fn run_command(command: Command) -> anyhow::Result<()> {
         Command::Map(args) => cmd_render::map(&args),
         Command::Predict(args) => cmd_predict::predict(&args),
         Command::Evaluate(args) => cmd_predict::evaluate(&args),
+        Command::Locate(args) => cmd_locate::locate_command(&args),
         Command::Import(args) => cmd_data::import(&args),
         Command::Info(args) => cmd_data::info(&args),
         Command::Export(args) => cmd_data::export(&args),

@@ -983,3 +983,135 @@ fn source_mistakes_say_how_to_fix_them() {
     );
     assert!(e.contains("--smooth applies to a model point"), "{e}");
 }
+
+#[test]
+fn locate_places_real_files_and_store_materials_and_explains_mismatches() {
+    let Some(rgl) = shared_data::path("rgl-rgb") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let file = |stem: &str| rgl.join(format!("{stem}_rgb.bsdf")).display().to_string();
+    let training = [
+        "cc_ibiza_sunset",
+        "cc_iris_purple_gem",
+        "cg_sunflower",
+        "colodur_napoli_4f",
+        "paper_white",
+        "vch_golden_yellow",
+    ];
+    let mut import = vec!["import".to_owned(), "rgl".to_owned()];
+    import.extend(training.iter().map(|s| file(s)));
+    import.extend(["--grid", "8,8,16", "--out", "train.sbrdf"].map(String::from));
+    specgp(&import.iter().map(String::as_str).collect::<Vec<_>>(), d);
+    specgp(
+        &["fit", "train.sbrdf", "--out", "m.toml", "--latent-dim", "2"],
+        d,
+    );
+    let new = file("satin_rosaline");
+    specgp(
+        &[
+            "import",
+            "rgl",
+            &new,
+            "--grid",
+            "8,8,16",
+            "--out",
+            "new.sbrdf",
+        ],
+        d,
+    );
+
+    // The file itself and its imported copy are located at the same point with the same
+    // errors (locate resamples as `import` does by default); a training material is found at
+    // its own point, where the exact predictor returns it.
+    let (table, _) = specgp_outputs(&["locate", "m.toml", &new, "--json", "a.json"], d);
+    assert!(table.contains("satin_rosaline_rgb"), "{table}");
+    specgp(
+        &[
+            "locate",
+            "m.toml",
+            "new.sbrdf:satin_rosaline_rgb",
+            "train.sbrdf:paper_white_rgb",
+            "--json",
+            "b.json",
+        ],
+        d,
+    );
+    let read = |p: &str| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(d.join(p)).unwrap()).unwrap()
+    };
+    let (a, b) = (read("a.json"), read("b.json"));
+    assert_eq!(a["latent_dim"], 2);
+    assert_eq!(a["n_angles"], 8 * 8 * 16);
+    let (la, lb) = (&a["locations"][0], &b["locations"][0]);
+    assert_eq!(la["name"], "satin_rosaline_rgb");
+    for key in [
+        "point",
+        "brdf_rmse",
+        "model_rmse",
+        "nearest",
+        "nearest_brdf_rmse",
+    ] {
+        assert_eq!(la[key], lb[key], "{key}: {la} vs {lb}");
+    }
+    let brdf = la["brdf_rmse"].as_f64().unwrap();
+    let nearest = la["nearest_model_rmse"].as_f64().unwrap();
+    assert!(
+        brdf > 0.0 && la["model_rmse"].as_f64().unwrap() <= nearest,
+        "{la}"
+    );
+    assert!(
+        training.iter().any(|t| la["nearest"] == format!("{t}_rgb")),
+        "{la}"
+    );
+    let own = &b["locations"][1];
+    let model = Model::load(&d.join("m.toml")).unwrap();
+    let coords = &model
+        .materials
+        .iter()
+        .find(|m| m.name == "paper_white_rgb")
+        .unwrap()
+        .coords;
+    let point: Vec<f64> = own["point"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert_eq!(&point, coords, "{own}");
+    assert!(own["brdf_rmse"].as_f64().unwrap() < 1e-9, "{own}");
+    assert_eq!(own["nearest"], "paper_white_rgb");
+
+    // Targets on another grid or with other channels say how to import them.
+    specgp(
+        &[
+            "import",
+            "rgl",
+            &new,
+            "--grid",
+            "4,4,8",
+            "--out",
+            "coarse.sbrdf",
+        ],
+        d,
+    );
+    let e = specgp_fails(&["locate", "m.toml", "coarse.sbrdf"], d);
+    assert!(
+        e.contains("coarse.sbrdf") && e.contains("grid 4,4,8") && e.contains("--grid 8,8,16"),
+        "{e}"
+    );
+    synth_small(d, "400:700:100");
+    let e = specgp_fails(&["locate", "m.toml", "data.sbrdf:spectralon"], d);
+    assert!(
+        e.contains("channels 400:700:100") && e.contains("R,G,B"),
+        "{e}"
+    );
+    let e = specgp_fails(&["locate", "m.toml", "picture.png"], d);
+    assert!(e.contains("unknown TARGET") && e.contains(".bsdf"), "{e}");
+    let e = specgp_fails(&["locate", "m.toml", "new.sbrdf:satin"], d);
+    assert!(e.contains("satin_rosaline_rgb"), "{e}");
+    let e = specgp_fails(&["locate", "m.toml", &new, "--json", "m.toml"], d);
+    assert!(e.contains("m.toml"), "{e}");
+    assert!(Model::load(&d.join("m.toml")).is_ok());
+}

@@ -1,0 +1,269 @@
+//! Where a material that is not in the training set sits in a model's latent space.
+//!
+//! The inverse of prediction: given a new material on the model's grid and channels (a newly
+//! measured file, another store's material), find the latent point whose GP prediction
+//! reconstructs it best. As in leave-one-out ([`crate::evaluate`]), the transformed-space error
+//! of any linear predictor follows from Gram quantities: the model's N x N Gram matrix and the
+//! new material's N cross products with the training rows, `g_h[i] = y_i . y_h`, plus `|y_h|^2`.
+//! One streaming pass over the training store computes those for every target at once; the
+//! latent search then costs no data access ([`crate::evaluate::best_latent_point`]), and a
+//! second pass measures the located prediction's errors directly, in BRDF and in transformed
+//! space (Eq. 22 normalisation).
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use faer::Mat;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::error::{Error, Result};
+use crate::evaluate::{best_latent_point, damaged_value, rmse_pass, sq_error_external};
+use crate::predictor::{Predictor, PredictorKind};
+
+/// A material to locate: a name and its D values on the model's grid and channels, in dataset
+/// order (`angular_index * channels + channel`, as a store holds them; 0 below the horizon).
+#[derive(Debug, Clone)]
+pub struct Target {
+    /// What the material is called in reports.
+    pub name: String,
+    /// Its D values (BRDF f in 1/sr).
+    pub values: Vec<f32>,
+}
+
+/// Where [`locate`] placed one target, and how well the prediction there reconstructs it.
+#[derive(Debug, Clone, Serialize)]
+pub struct Location {
+    /// The target's name.
+    pub name: String,
+    /// The latent point whose GP prediction reconstructs the target best (searched with the
+    /// smooth predictor, which is continuous; a training material's own point when the
+    /// exact predictor there, that material, does better).
+    pub point: Vec<f64>,
+    /// Eq. 22 RMSE of the exact predictor's prediction at the point (the default of
+    /// `render` and `predict`) against the target, BRDF space (1/sr).
+    pub brdf_rmse: f64,
+    /// The same in the model's transformed space.
+    pub model_rmse: f64,
+    /// The training material closest to the target (smallest transformed-space error).
+    pub nearest: String,
+    /// Eq. 22 RMSE of that material against the target, BRDF space.
+    pub nearest_brdf_rmse: f64,
+    /// The same in the transformed space.
+    pub nearest_model_rmse: f64,
+    /// The training material nearest to the point in the latent space.
+    pub nearest_in_latent: String,
+    /// Its distance to the point in length-scales.
+    pub distance: f64,
+    /// The smooth predictor's variance at the point over the prior variance (near 1: far from
+    /// every material, see [`crate::PointSupport`]).
+    pub variance_fraction: f64,
+    /// The prediction's coefficients over the N training materials (transformed space; not
+    /// serialised).
+    #[serde(skip)]
+    pub coefficients: Vec<f64>,
+}
+
+/// Locates every target in the latent space of `pred`'s model: one pass over the training
+/// store for the cross products, a multi-start latent search per target (`starts` starting
+/// points, the training points that reconstruct it best; the smooth predictor's error in the
+/// transformed space), and one pass for the errors of the exact predictor at the point found
+/// (equal to the smooth one's away from training points), which is never worse than the
+/// closest training material.
+/// `progress(done, total)` counts the chunks of both passes.
+///
+/// Errors: no targets, a target whose length is not the store's D or that holds a NaN or an
+/// infinity (named), a damaged store.
+pub fn locate(
+    pred: &Predictor,
+    targets: &[Target],
+    starts: usize,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Vec<Location>> {
+    let store = pred.store();
+    let d = store.d();
+    if targets.is_empty() {
+        return Err(Error::InvalidArgument {
+            reason: "nothing to locate: no target materials".into(),
+        });
+    }
+    for t in targets {
+        if t.values.len() != d {
+            return Err(Error::InvalidArgument {
+                reason: format!(
+                    "target {:?} has {} values; the model's grid and channels have D = {d}",
+                    t.name,
+                    t.values.len()
+                ),
+            });
+        }
+        if let Some(k) = t.values.iter().position(|v| !v.is_finite()) {
+            return Err(Error::NonFiniteValue {
+                what: format!("value {k} of target {:?}", t.name),
+                value: f64::from(t.values[k]),
+            });
+        }
+    }
+    let total = 2 * store.n_chunks();
+    let first_pass = |k: usize, _: usize| progress(k, total);
+    let (cross, norms) = cross_products(pred, targets, &first_pass)?;
+
+    let model = pred.model();
+    let g = model.gram_matrix();
+    let n = pred.n_materials();
+    let points: Vec<Vec<f64>> = model.materials.iter().map(|m| m.coords.clone()).collect();
+    let placed: Vec<(Vec<f64>, Vec<f64>, usize)> = (0..targets.len())
+        .into_par_iter()
+        .map(|r| {
+            let g_h = &cross[r * n..(r + 1) * n];
+            let (point, _) =
+                best_latent_point(pred.gp(), &points, g.as_ref(), g_h, norms[r], starts)?;
+            let nearest = (0..n)
+                .min_by(|&a, &b| {
+                    let ea = g[(a, a)] - 2.0 * g_h[a];
+                    let eb = g[(b, b)] - 2.0 * g_h[b];
+                    ea.total_cmp(&eb)
+                })
+                .unwrap_or(0);
+            // Report the exact predictor (what `render` and `predict` use at a point), and
+            // take the closest material's own point when that material beats the search
+            // (the exact predictor returns it there).
+            let c = pred.coefficients(&point, PredictorKind::Exact)?;
+            let e_point = sq_error_external(g.as_ref(), g_h, norms[r], &c);
+            let c_near = pred.coefficients(&points[nearest], PredictorKind::Exact)?;
+            let e_near = sq_error_external(g.as_ref(), g_h, norms[r], &c_near);
+            let (point, c) = if e_near < e_point {
+                (points[nearest].clone(), c_near)
+            } else {
+                (point, c)
+            };
+            Ok((point, c, nearest))
+        })
+        .collect::<Result<_>>()?;
+
+    // Rows 2r and 2r + 1: the located prediction and the nearest material, against target r.
+    let coef = Mat::from_fn(2 * targets.len(), n, |row, j| {
+        let (_, c, nearest) = &placed[row / 2];
+        if row % 2 == 0 {
+            c[j]
+        } else if j == *nearest {
+            1.0
+        } else {
+            0.0
+        }
+    });
+    let target_value = |row: usize, d: usize, _: &[f32]| targets[row / 2].values[d];
+    let target_name = |row: usize| format!("target {:?}", targets[row / 2].name);
+    let second_pass = |k: usize, _: usize| progress(store.n_chunks() + k, total);
+    let sums = rmse_pass(
+        store,
+        pred.transform(),
+        coef.as_ref(),
+        &target_value,
+        &target_name,
+        true,
+        &second_pass,
+    )?;
+    let n_angles = store.grid().len() as f64;
+    let rmse = |s: f64| (s / n_angles).sqrt();
+    targets
+        .iter()
+        .zip(placed)
+        .enumerate()
+        .map(|(r, (t, (point, coefficients, nearest)))| {
+            let support = pred.support(&point)?;
+            Ok(Location {
+                name: t.name.clone(),
+                brdf_rmse: rmse(sums[2 * r].0),
+                model_rmse: rmse(sums[2 * r].1),
+                nearest: model.materials[nearest].name.clone(),
+                nearest_brdf_rmse: rmse(sums[2 * r + 1].0),
+                nearest_model_rmse: rmse(sums[2 * r + 1].1),
+                nearest_in_latent: support.nearest,
+                distance: support.distance,
+                variance_fraction: support.variance_fraction,
+                point,
+                coefficients,
+            })
+        })
+        .collect()
+}
+
+/// The transformed-space Gram quantities of each target against the training materials, over
+/// the valid cells, in one parallel pass over `pred`'s store (f64 arithmetic, the model's
+/// transform, deterministic): the cross products `g_h` (target-major, `targets x N`) and the
+/// squared norms `|y_h|^2`.
+pub fn cross_products(
+    pred: &Predictor,
+    targets: &[Target],
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<(Vec<f64>, Vec<f64>)> {
+    let store = pred.store();
+    let transform = pred.transform();
+    let n = store.n_materials();
+    let m = targets.len();
+    let nc = store.channels().len();
+    let mask = store.validity_mask();
+    let done = AtomicUsize::new(0);
+    let total = store.n_chunks();
+    let (cross, norms, _) = store.par_fold_chunks(
+        || (vec![0.0f64; m * n], vec![0.0f64; m], Vec::<f64>::new()),
+        |(cross, norms, t), range, block| {
+            // One cell's channels are contiguous indices: transform their N-value rows at once.
+            let first_cell = range.start / nc;
+            let last_cell = (range.end - 1) / nc;
+            for (cell, _) in mask[..=last_cell]
+                .iter()
+                .enumerate()
+                .skip(first_cell)
+                .filter(|(_, valid)| **valid)
+            {
+                let lo = (cell * nc).max(range.start);
+                let hi = ((cell + 1) * nc).min(range.end);
+                let rows = &block[(lo - range.start) * n..(hi - range.start) * n];
+                t.resize(rows.len(), 0.0);
+                transform.forward_batch(rows, t);
+                for (k, d) in (lo..hi).enumerate() {
+                    let ty = &t[k * n..(k + 1) * n];
+                    for (r, target) in targets.iter().enumerate() {
+                        let y = transform.forward(f64::from(target.values[d]));
+                        norms[r] += y * y;
+                        for (acc, v) in cross[r * n..(r + 1) * n].iter_mut().zip(ty) {
+                            *acc += y * v;
+                        }
+                    }
+                }
+            }
+            progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
+        },
+        |(mut a, mut b, t), (c, e, _)| {
+            a.iter_mut().zip(c).for_each(|(x, y)| *x += y);
+            b.iter_mut().zip(e).for_each(|(x, y)| *x += y);
+            (a, b, t)
+        },
+    )?;
+    if let Some(k) = cross.iter().chain(&norms).position(|v| !v.is_finite()) {
+        return Err(match damaged_value(store)? {
+            Some(e) => e,
+            None => Error::NonFiniteValue {
+                what: format!(
+                    "a cross product of the targets with {} (entry {k})",
+                    store.path().display()
+                ),
+                value: cross
+                    .iter()
+                    .chain(&norms)
+                    .nth(k)
+                    .copied()
+                    .unwrap_or(f64::NAN),
+            },
+        });
+    }
+    Ok((cross, norms))
+}
+
+/// The transformed-space squared error of `coefficients` against a target from its Gram
+/// quantities (`g_h`, `g_hh` as [`cross_products`] returns them): what the latent search
+/// minimises, for checking a [`Location`] against the direct measurement.
+pub fn gram_sq_error(pred: &Predictor, g_h: &[f64], g_hh: f64, coefficients: &[f64]) -> f64 {
+    sq_error_external(pred.model().gram_matrix().as_ref(), g_h, g_hh, coefficients)
+}
