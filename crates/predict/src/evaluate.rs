@@ -17,7 +17,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use brdf_io::store::Store;
-use faer::{Mat, MatRef, Par, Side};
+use faer::{Mat, MatMut, MatRef, Par, Side};
 use gp_core::{GpRegression, all_but, centre_gram, subset_gram};
 use gp_core::{GplvmObjective, KernelParams};
 use gplvm::optim::{HookeJeevesSettings, hooke_jeeves};
@@ -512,6 +512,42 @@ pub fn brdf_space_rmse(
         .collect())
 }
 
+/// The valid columns `cols` (ascending, relative to the chunk) of an index-major chunk
+/// `block` (`n` values per column), transformed as the Gram pass does (`forward_batch`,
+/// vectorised, one run of consecutive columns at a time) into `t` (column-major, `n` x
+/// `cols.len()`).
+pub(crate) fn forward_columns(
+    transform: Transform,
+    block: &[f32],
+    n: usize,
+    cols: &[usize],
+    t: &mut Vec<f64>,
+) {
+    t.clear();
+    t.resize(cols.len() * n, 0.0);
+    for (k, e) in column_runs(cols) {
+        let (a, b) = (cols[k], cols[e - 1] + 1);
+        transform.forward_batch(&block[a * n..b * n], &mut t[k * n..e * n]);
+    }
+}
+
+/// The maximal runs `(start, end)` of consecutive values in the ascending `cols` (positions
+/// into `cols`, end exclusive).
+pub(crate) fn column_runs(cols: &[usize]) -> impl Iterator<Item = (usize, usize)> + '_ {
+    let mut k = 0;
+    std::iter::from_fn(move || {
+        if k >= cols.len() {
+            return None;
+        }
+        let start = k;
+        k += 1;
+        while k < cols.len() && cols[k] == cols[k - 1] + 1 {
+            k += 1;
+        }
+        Some((start, k))
+    })
+}
+
 /// The squared-error sums behind the Eq. 22 RMSEs of the `M` linear predictors in `coef`
 /// (`M x N`) over `store`'s valid cells: per row, in BRDF space and (with `model_space`, else
 /// 0) in the transformed space. `target(r, d, row)` is row `r`'s target value at index `d`
@@ -529,19 +565,14 @@ pub(crate) fn rmse_pass(
     let m = coef.nrows();
     let nc = store.channels().len();
     let mask = store.validity_mask();
-    let forward = |f: f64| transform.forward(f);
-    let inverse = |y: f64| transform.inverse(y);
     let done = AtomicUsize::new(0);
     let total = store.n_chunks();
+    // Per worker: the sums, then scratch (valid columns, transformed values, predictions,
+    // target values and their transforms).
+    type Scratch = (Vec<usize>, Vec<f64>, Vec<f64>, Vec<f32>, Vec<f64>);
     let sums = store.par_fold_chunks(
-        || {
-            (
-                vec![(0.0f64, 0.0f64); m],
-                Vec::<f64>::new(),
-                Vec::<usize>::new(),
-            )
-        },
-        |(acc, t, cols), range, block| {
+        || (vec![(0.0f64, 0.0f64); m], Scratch::default()),
+        |(acc, (cols, t, p, ft, fy)), range, block| {
             // Valid columns only: below-horizon cells are 0 in every material and prediction.
             cols.clear();
             cols.extend(
@@ -550,48 +581,49 @@ pub(crate) fn rmse_pass(
                     .filter(|d| mask[d / nc])
                     .map(|d| d - range.start),
             );
-            t.clear();
-            for &j in cols.iter() {
-                t.extend(
-                    block[j * n..(j + 1) * n]
-                        .iter()
-                        .map(|v| forward(f64::from(*v))),
-                );
-            }
+            forward_columns(transform, block, n, cols, t);
             let len = cols.len();
             if len > 0 {
+                // Predictions and targets, column-major (rows x columns): entry i is row i % m.
                 let tm = MatRef::from_column_major_slice(t, n, len);
-                let mut p = Mat::<f64>::zeros(m, len);
+                p.clear();
+                p.resize(m * len, 0.0);
                 faer::linalg::matmul::matmul(
-                    p.as_mut(),
+                    MatMut::from_column_major_slice_mut(p, m, len),
                     faer::Accum::Replace,
                     coef,
                     tm,
                     1.0,
                     Par::Seq,
                 );
-                for (k, &j) in cols.iter().enumerate() {
+                ft.clear();
+                for &j in cols.iter() {
                     let row = &block[j * n..(j + 1) * n];
-                    for (r, a) in acc.iter_mut().enumerate() {
-                        let f = f64::from(target(r, range.start + j, row));
-                        let diff = f - inverse(p[(r, k)]);
-                        a.0 += diff * diff;
-                        if model_space {
-                            let diff = forward(f) - p[(r, k)];
-                            a.1 += diff * diff;
-                        }
+                    ft.extend((0..m).map(|r| target(r, range.start + j, row)));
+                }
+                if model_space {
+                    fy.clear();
+                    fy.resize(ft.len(), 0.0);
+                    transform.forward_batch(ft, fy);
+                    for (i, (y, q)) in fy.iter().zip(p.iter()).enumerate() {
+                        acc[i % m].1 += (y - q) * (y - q);
                     }
+                }
+                transform.inverse_in_place(p);
+                for (i, (f, q)) in ft.iter().zip(p.iter()).enumerate() {
+                    let diff = f64::from(*f) - q;
+                    acc[i % m].0 += diff * diff;
                 }
             }
             let k = done.fetch_add(1, Ordering::Relaxed) + 1;
             progress(k, total);
         },
-        |(mut a, t, c), (b, _, _)| {
+        |(mut a, scratch), (b, _)| {
             a.iter_mut().zip(b).for_each(|(x, y)| {
                 x.0 += y.0;
                 x.1 += y.1;
             });
-            (a, t, c)
+            (a, scratch)
         },
     )?;
     if let Some(r) = sums

@@ -12,12 +12,15 @@
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use faer::Mat;
+use faer::linalg::matmul::matmul;
+use faer::{Accum, Mat, MatRef, Par};
 use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::error::{Error, Result};
-use crate::evaluate::{best_latent_point, damaged_value, rmse_pass, sq_error_external};
+use crate::evaluate::{
+    best_latent_point, column_runs, damaged_value, forward_columns, rmse_pass, sq_error_external,
+};
 use crate::predictor::{Predictor, PredictorKind};
 
 /// A material to locate: a name and its D values on the model's grid and channels, in dataset
@@ -205,42 +208,63 @@ pub fn cross_products(
     let mask = store.validity_mask();
     let done = AtomicUsize::new(0);
     let total = store.n_chunks();
-    let (cross, norms, _) = store.par_fold_chunks(
-        || (vec![0.0f64; m * n], vec![0.0f64; m], Vec::<f64>::new()),
-        |(cross, norms, t), range, block| {
-            // One cell's channels are contiguous indices: transform their N-value rows at once.
-            let first_cell = range.start / nc;
-            let last_cell = (range.end - 1) / nc;
-            for (cell, _) in mask[..=last_cell]
-                .iter()
-                .enumerate()
-                .skip(first_cell)
-                .filter(|(_, valid)| **valid)
-            {
-                let lo = (cell * nc).max(range.start);
-                let hi = ((cell + 1) * nc).min(range.end);
-                let rows = &block[(lo - range.start) * n..(hi - range.start) * n];
-                t.resize(rows.len(), 0.0);
-                transform.forward_batch(rows, t);
-                for (k, d) in (lo..hi).enumerate() {
-                    let ty = &t[k * n..(k + 1) * n];
-                    for (r, target) in targets.iter().enumerate() {
-                        let y = transform.forward(f64::from(target.values[d]));
-                        norms[r] += y * y;
-                        for (acc, v) in cross[r * n..(r + 1) * n].iter_mut().zip(ty) {
-                            *acc += y * v;
-                        }
+    type Acc = (Mat<f64>, Vec<f64>, Vec<usize>, Vec<f64>, Vec<f64>);
+    let (cross, norms, ..) = store.par_fold_chunks(
+        || -> Acc {
+            (
+                Mat::zeros(m, n),
+                vec![0.0; m],
+                Vec::new(),
+                Vec::new(),
+                Vec::new(),
+            )
+        },
+        |(cross, norms, cols, t, u), range, block| {
+            // Valid columns only: below-horizon cells hold 0 and carry no data.
+            cols.clear();
+            cols.extend(
+                range
+                    .clone()
+                    .filter(|d| mask[d / nc])
+                    .map(|d| d - range.start),
+            );
+            let len = cols.len();
+            if len > 0 {
+                forward_columns(transform, block, n, cols, t);
+                // The targets' transformed values, row-major (targets x columns).
+                u.clear();
+                u.resize(m * len, 0.0);
+                for (r, target) in targets.iter().enumerate() {
+                    let row = &mut u[r * len..(r + 1) * len];
+                    for (k, e) in column_runs(cols) {
+                        let (a, b) = (range.start + cols[k], range.start + cols[e - 1] + 1);
+                        transform.forward_batch(&target.values[a..b], &mut row[k..e]);
                     }
+                    norms[r] += row.iter().map(|v| v * v).sum::<f64>();
                 }
+                let tm = MatRef::from_column_major_slice(t, n, len);
+                let um = MatRef::from_row_major_slice(u, m, len);
+                matmul(
+                    cross.as_mut(),
+                    Accum::Add,
+                    um,
+                    tm.transpose(),
+                    1.0,
+                    Par::Seq,
+                );
             }
             progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
         },
-        |(mut a, mut b, t), (c, e, _)| {
-            a.iter_mut().zip(c).for_each(|(x, y)| *x += y);
-            b.iter_mut().zip(e).for_each(|(x, y)| *x += y);
-            (a, b, t)
+        |(mut a, mut b, c, t, u), (x, y, ..)| {
+            a += &x;
+            b.iter_mut().zip(y).for_each(|(p, q)| *p += q);
+            (a, b, c, t, u)
         },
     )?;
+    let cross: Vec<f64> = (0..m)
+        .flat_map(|r| (0..n).map(move |i| (r, i)))
+        .map(|(r, i)| cross[(r, i)])
+        .collect();
     if let Some(k) = cross.iter().chain(&norms).position(|v| !v.is_finite()) {
         return Err(match damaged_value(store)? {
             Some(e) => e,

@@ -94,18 +94,25 @@ fn read_targets(pred: &Predictor, spec: &str) -> anyhow::Result<Vec<Target>> {
             ],
             None => (0..store.n_materials()).collect(),
         };
+        // One pass over the store for all of them.
+        let (n, d) = (store.n_materials(), store.d());
+        let mut values: Vec<Vec<f32>> = indices.iter().map(|_| vec![0f32; d]).collect();
+        store.for_each_chunk(|range, block| {
+            for (k, i) in range.enumerate() {
+                for (v, &m) in values.iter_mut().zip(&indices) {
+                    v[i] = block[k * n + m];
+                }
+            }
+        })?;
         let names = store.names();
-        return indices
+        return Ok(indices
             .into_iter()
-            .map(|m| {
-                let mut values = vec![0f32; store.d()];
-                store.material_row(m, 0..store.d(), &mut values)?;
-                Ok(Target {
-                    name: names[m].to_owned(),
-                    values,
-                })
+            .zip(values)
+            .map(|(m, values)| Target {
+                name: names[m].to_owned(),
+                values,
             })
-            .collect();
+            .collect());
     }
     let path = Path::new(spec);
     let name = path
