@@ -494,13 +494,17 @@ pub fn brdf_space_rmse(
             ),
         });
     }
-    let target_value = |r: usize, _d: usize, row: &[f32]| row[targets[r]];
+    let target_values = |_d: usize, row: &[f32], out: &mut [f32]| {
+        for (o, &t) in out.iter_mut().zip(targets) {
+            *o = row[t];
+        }
+    };
     let target_name = |r: usize| format!("material {:?}", store.names()[targets[r]]);
     let sums = rmse_pass(
         store,
         transform,
         coef,
-        &target_value,
+        &target_values,
         &target_name,
         false,
         progress,
@@ -548,15 +552,19 @@ pub(crate) fn column_runs(cols: &[usize]) -> impl Iterator<Item = (usize, usize)
     })
 }
 
+/// Writes the target values of an error pass's rows at one index: `(d, stored, out)`.
+pub(crate) type TargetValues<'a> = dyn Fn(usize, &[f32], &mut [f32]) + Sync + 'a;
+
 /// The squared-error sums behind the Eq. 22 RMSEs of the `M` linear predictors in `coef`
 /// (`M x N`) over `store`'s valid cells: per row, in BRDF space and (with `model_space`, else
-/// 0) in the transformed space. `target(r, d, row)` is row `r`'s target value at index `d`
-/// (`row`: the N stored values there); `target_name(r)` names it in errors.
+/// 0) in the transformed space. `target(d, row, out)` writes the M rows' target values at
+/// index `d` into `out` (`row`: the N stored values there); `target_name(r)` names row `r`'s
+/// target in errors.
 pub(crate) fn rmse_pass(
     store: &Store,
     transform: Transform,
     coef: MatRef<'_, f64>,
-    target: &(dyn Fn(usize, usize, &[f32]) -> f32 + Sync),
+    target: &TargetValues<'_>,
     target_name: &dyn Fn(usize) -> String,
     model_space: bool,
     progress: &(dyn Fn(usize, usize) + Sync),
@@ -597,9 +605,9 @@ pub(crate) fn rmse_pass(
                     Par::Seq,
                 );
                 ft.clear();
-                for &j in cols.iter() {
-                    let row = &block[j * n..(j + 1) * n];
-                    ft.extend((0..m).map(|r| target(r, range.start + j, row)));
+                ft.resize(m * len, 0.0);
+                for (&j, out) in cols.iter().zip(ft.chunks_exact_mut(m)) {
+                    target(range.start + j, &block[j * n..(j + 1) * n], out);
                 }
                 if model_space {
                     fy.clear();

@@ -154,14 +154,18 @@ pub fn locate(
             0.0
         }
     });
-    let target_value = |row: usize, d: usize, _: &[f32]| targets[row / 2].values[d];
+    let target_values = |d: usize, _: &[f32], out: &mut [f32]| {
+        for (pair, t) in out.chunks_exact_mut(2).zip(targets) {
+            pair.fill(t.values[d]);
+        }
+    };
     let target_name = |row: usize| format!("target {:?}", targets[row / 2].name);
     let second_pass = |k: usize, _: usize| progress(store.n_chunks() + k, total);
     let sums = rmse_pass(
         store,
         pred.transform(),
         coef.as_ref(),
-        &target_value,
+        &target_values,
         &target_name,
         true,
         &second_pass,
