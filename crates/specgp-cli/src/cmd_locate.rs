@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use brdf_io::{AngularGrid, Channels};
 use predict::Predictor;
-use predict::locate::{Target, locate};
+use predict::locate::{Location, Target, locate};
 
 /// Arguments of `specgp locate`.
 #[derive(Debug, clap::Args)]
@@ -149,6 +149,26 @@ fn read_targets(pred: &Predictor, spec: &str) -> anyhow::Result<Vec<Target>> {
     Ok(vec![Target { name, values }])
 }
 
+/// Reads the TARGET arguments `specs` and locates them in `pred`'s latent space (`starts`
+/// starting points each), with a progress bar.
+pub fn locate_targets(
+    pred: &Predictor,
+    specs: &[String],
+    starts: usize,
+) -> anyhow::Result<Vec<Location>> {
+    let mut targets = Vec::new();
+    for spec in specs {
+        targets.extend(read_targets(pred, spec)?);
+    }
+    let pb = crate::cmd_predict::bar(0, "locating");
+    let located = locate(pred, &targets, starts, &|done, total| {
+        pb.set_length(total as u64);
+        pb.set_position(done as u64);
+    })?;
+    pb.finish_and_clear();
+    Ok(located)
+}
+
 /// Runs `specgp locate`.
 pub fn locate_command(args: &LocateArgs) -> anyhow::Result<()> {
     let target_files: Vec<PathBuf> = args
@@ -163,16 +183,7 @@ pub fn locate_command(args: &LocateArgs) -> anyhow::Result<()> {
     }
     let pred = Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
         .with_context(|| format!("opening model {}", args.model.display()))?;
-    let mut targets = Vec::new();
-    for spec in &args.targets {
-        targets.extend(read_targets(&pred, spec)?);
-    }
-    let pb = crate::cmd_predict::bar(0, "locating");
-    let located = locate(&pred, &targets, args.starts, &|done, total| {
-        pb.set_length(total as u64);
-        pb.set_position(done as u64);
-    })?;
-    pb.finish_and_clear();
+    let located = locate_targets(&pred, &args.targets, args.starts)?;
 
     let json_to_stdout = args
         .json

@@ -203,13 +203,23 @@ pub struct MapArgs {
     /// The dataset store, when it moved since fitting (default: the path in the model).
     #[arg(long)]
     pub dataset: Option<PathBuf>,
+    /// Also mark where these materials outside the training set sit (as `specgp locate` finds
+    /// them; drawn as labelled rings): DATA.sbrdf, DATA.sbrdf:MATERIAL, .bsdf or .binary files.
+    #[arg(long, num_args = 1..)]
+    pub locate: Vec<String>,
 }
 
 /// Runs `specgp map`: latent points of the first two axes (other axes at 0 for the shading and
 /// thumbnails), predictive variance of the GP (`predict::Predictor::variance`), thumbnails of
 /// the exact predictor's materials (lazy, only the observer's wavelengths looked up).
 pub fn map(args: &MapArgs) -> anyhow::Result<()> {
-    let inputs = crate::paths::model_inputs(&args.model, args.dataset.as_deref());
+    let mut inputs = crate::paths::model_inputs(&args.model, args.dataset.as_deref());
+    let located_files: Vec<PathBuf> = args
+        .locate
+        .iter()
+        .map(|t| crate::paths::source_file(t))
+        .collect();
+    inputs.extend(located_files.iter().map(PathBuf::as_path));
     crate::paths::ensure_output_is_not_an_input(&args.out, &inputs)?;
     crate::paths::ensure_extension(&args.out, "png", "a PNG image")?;
     let start = std::time::Instant::now();
@@ -226,17 +236,40 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
         }
         x
     };
-    let points: Vec<(String, [f64; 2])> = model
+    let on_map = |x: &[f64]| [x[0], x.get(1).copied().unwrap_or(0.0)];
+    let mut points: Vec<(String, [f64; 2])> = model
         .materials
         .iter()
-        .map(|m| {
-            (
-                m.name.clone(),
-                [m.coords[0], m.coords.get(1).copied().unwrap_or(0.0)],
-            )
-        })
+        .map(|m| (m.name.clone(), on_map(&m.coords)))
         .collect();
+    let located = if args.locate.is_empty() {
+        Vec::new()
+    } else {
+        let pred = predict::Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
+            .with_context(|| format!("opening model {}", args.model.display()))?;
+        crate::cmd_locate::locate_targets(&pred, &args.locate, 3)?
+    };
+    for l in &located {
+        eprintln!(
+            "located {} at {} (Eq. 22 RMSE {:.4e} in BRDF space)",
+            l.name,
+            l.point
+                .iter()
+                .map(|v| v.to_string())
+                .collect::<Vec<_>>()
+                .join(","),
+            l.brdf_rmse
+        );
+        // A located variant of a training material keeps its name: say which is which.
+        let label = if model.materials.iter().any(|m| m.name == l.name) {
+            format!("{} (located)", l.name)
+        } else {
+            l.name.clone()
+        };
+        points.push((label, on_map(&l.point)));
+    }
     let opts = render::MapOptions {
+        predicted_points: located.len(),
         size: args.size,
         thumbnails: if args.thumbnails { args.grid } else { 0 },
         sphere: SphereOptions {

@@ -984,6 +984,17 @@ fn source_mistakes_say_how_to_fix_them() {
     assert!(e.contains("--smooth applies to a model point"), "{e}");
 }
 
+/// A JSON array of numbers as the CLI prints a latent point (`X1,X2,...`, shortest form).
+fn point_text(point: &serde_json::Value) -> String {
+    point
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap().to_string())
+        .collect::<Vec<_>>()
+        .join(",")
+}
+
 #[test]
 fn locate_places_real_files_and_store_materials_and_explains_mismatches() {
     let Some(rgl) = shared_data::path("rgl-rgb") else {
@@ -1082,6 +1093,16 @@ fn locate_places_real_files_and_store_materials_and_explains_mismatches() {
     assert_eq!(&point, coords, "{own}");
     assert!(own["brdf_rmse"].as_f64().unwrap() < 1e-9, "{own}");
     assert_eq!(own["nearest"], "paper_white_rgb");
+
+    // `map --locate` marks the same point.
+    let (_, log) = specgp_outputs(&["map", "m.toml", "--out", "map.png", "--locate", &new], d);
+    let shown = point_text(&la["point"]);
+    assert!(
+        log.contains(&format!("located satin_rosaline_rgb at {shown} ")),
+        "{log}\n{shown}"
+    );
+    let (w, h, _) = png_rgba(&d.join("map.png"));
+    assert!(w > 640 && h > 640);
 
     // Targets on another grid or with other channels say how to import them.
     specgp(
