@@ -5,6 +5,7 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
+use brdf_io::BrdfSource;
 use brdf_io::store::StoreMaterial;
 use predict::{Predictor, PredictorKind};
 use render::{Image, SphereOptions, delta_e_2000_rgb, render_sphere};
@@ -34,11 +35,21 @@ pub struct Figures {
     pub delta_e: Vec<SphereDeltaE>,
     /// Mean of `delta_e`.
     pub mean_delta_e: f64,
+    /// The comparison sheet's mean Delta E against the stored spheres, per column (`exact`,
+    /// `smooth`, `held out`), over its materials.
+    pub comparison_delta_e: Vec<(String, f64)>,
     /// Seconds per sphere (mean).
     pub seconds_per_sphere: f64,
 }
 
 const BG: [f64; 3] = [0.18, 0.18, 0.18];
+
+/// Top of the Delta E scale of the comparison sheet's heat maps.
+const COMPARISON_DE_MAX: f64 = 10.0;
+/// Spheres per path in the paths figure (t = 0, 1/6, ..., 1).
+const PATH_STEPS: usize = 7;
+/// At most this many pairs in the paths figure.
+const MAX_PATHS: usize = 3;
 const INK: [f64; 3] = [0.9, 0.9, 0.9];
 
 /// Mean Delta E 2000 between two renders over the pixels fully covered in both.
@@ -68,6 +79,11 @@ fn err(path: &Path, e: impl std::fmt::Display) -> Error {
     Error::stage("render", path, e)
 }
 
+/// The sources of `v` as trait objects (a row of a sphere sheet).
+fn as_sources<T: BrdfSource>(v: &[T]) -> Vec<&dyn BrdfSource> {
+    v.iter().map(|m| m as &dyn BrdfSource).collect()
+}
+
 /// Renders the figures of a pipeline run into `out`.
 pub fn render_figures(
     pred: &Predictor,
@@ -75,6 +91,7 @@ pub fn render_figures(
     evaluation: Option<&predict::evaluate::Evaluation>,
     size: usize,
     sheet_materials: usize,
+    pairs: &[[String; 2]],
     out: &Path,
 ) -> Result<Figures> {
     let opts = SphereOptions {
@@ -181,6 +198,166 @@ pub fn render_figures(
         ),
     ));
 
+    // Comparison sheet (render crate): per material, the stored sphere, the exact and smooth
+    // reconstructions at its latent point (and the held-out prediction), each with a CIEDE2000
+    // heat map against the stored one.
+    let comparison_path = out.join("comparison.png");
+    let e = |e: predict::Error| err(&comparison_path, e);
+    let mut kept: Vec<Vec<Box<dyn BrdfSource>>> = Vec::new();
+    for &i in &picks {
+        let x = &model.materials[i].coords;
+        let mut row: Vec<Box<dyn BrdfSource>> = vec![
+            Box::new(
+                StoreMaterial::by_index(store.clone(), i).map_err(|e| err(&comparison_path, e))?,
+            ),
+            Box::new(pred.predict(x, PredictorKind::Exact).map_err(e)?),
+            Box::new(pred.predict(x, PredictorKind::Smooth).map_err(e)?),
+        ];
+        let name = &model.materials[i].name;
+        if let Some(r) = loo.and_then(|rows| rows.iter().find(|r| &r.name == name)) {
+            let held = pred.from_coefficients(r.gp_coefficients.clone(), format!("loo-{name}"));
+            row.push(Box::new(held.map_err(e)?));
+        }
+        kept.push(row);
+    }
+    let mut columns = vec!["STORED", "EXACT", "SMOOTH"];
+    if loo.is_some() {
+        columns.push("HELD OUT");
+    }
+    let rows: Vec<render::sheet::SheetRow<'_>> = picks
+        .iter()
+        .zip(&kept)
+        .map(|(&i, row)| {
+            let name = model.materials[i].name.to_uppercase();
+            (name, row.iter().map(|b| b.as_ref()).collect())
+        })
+        .collect();
+    let comparison = render::comparison_sheet(&columns, &rows, &opts, COMPARISON_DE_MAX)
+        .map_err(|e| err(&comparison_path, e))?;
+    spheres += rows.iter().map(|(_, r)| r.len()).sum::<usize>();
+    comparison
+        .image
+        .save_png(&comparison_path)
+        .map_err(|e| err(&comparison_path, e))?;
+    let comparison_delta_e: Vec<(String, f64)> = (1..columns.len())
+        .map(|c| {
+            let v: Vec<f64> = comparison.mean_delta_e.iter().map(|r| r[c - 1]).collect();
+            (
+                columns[c].to_lowercase(),
+                v.iter().sum::<f64>() / v.len().max(1) as f64,
+            )
+        })
+        .collect();
+    let column_means: Vec<String> = comparison_delta_e
+        .iter()
+        .map(|(c, v)| format!("{c} {v:.2}"))
+        .collect();
+    files.push((
+        "comparison.png".to_string(),
+        format!(
+            "The same materials as stored, reconstructed by the exact predictor (which returns a \
+             training material as stored) and by the smooth one at their latent points{}, each \
+             with a map of CIE Delta E 2000 against the stored sphere (scale 0 to \
+             {COMPARISON_DE_MAX}). Mean Delta E per column: {}.",
+            if loo.is_some() {
+                ", and held out (leave-one-out)"
+            } else {
+                ""
+            },
+            column_means.join(", ")
+        ),
+    ));
+    drop(rows);
+    drop(kept);
+
+    // Paths (the paper's Fig. 4.4): along the straight latent line between two materials
+    // (exact predictor: the materials themselves at the ends) against linear interpolation of
+    // their values, in the model's transformed space (`predict --lerp`) and, for a log model,
+    // in BRDF values (the paper's blend of raw data).
+    if !pairs.is_empty() {
+        let path = out.join("paths.png");
+        let e = |e: predict::Error| err(&path, e);
+        let t: Vec<f64> = (0..PATH_STEPS)
+            .map(|k| k as f64 / (PATH_STEPS - 1) as f64)
+            .collect();
+        let captions: Vec<String> = t.iter().map(|v| format!("{v:.2}")).collect();
+        let mut blocks = Vec::new();
+        for [a, b] in pairs.iter().take(MAX_PATHS) {
+            let (ia, ib) = (
+                pred.material_index(a).map_err(e)?,
+                pred.material_index(b).map_err(e)?,
+            );
+            let (xa, xb) = (&model.materials[ia].coords, &model.materials[ib].coords);
+            let gp = t
+                .iter()
+                .map(|&s| {
+                    let x: Vec<f64> = xa.iter().zip(xb).map(|(p, q)| p + s * (q - p)).collect();
+                    pred.predict(&x, PredictorKind::Exact)
+                })
+                .collect::<predict::Result<Vec<_>>>()
+                .map_err(e)?;
+            let lerp = t
+                .iter()
+                .map(|&s| pred.lerp(a, b, 1.0 - s))
+                .collect::<predict::Result<Vec<_>>>()
+                .map_err(e)?;
+            let stored_a = StoreMaterial::by_index(store.clone(), ia).map_err(|e| err(&path, e))?;
+            let stored_b = StoreMaterial::by_index(store.clone(), ib).map_err(|e| err(&path, e))?;
+            let blends = t
+                .iter()
+                .map(|&s| brdf_io::Blend::new(&stored_a, &stored_b, 1.0 - s))
+                .collect::<brdf_io::Result<Vec<_>>>()
+                .map_err(|e| err(&path, e))?;
+            let mut rows = vec![("GP PATH".to_string(), as_sources(&gp))];
+            let raw = model.transform == gplvm::Transform::Raw;
+            rows.push((
+                if raw { "LINEAR" } else { "LINEAR, MODEL SPACE" }.to_string(),
+                as_sources(&lerp),
+            ));
+            if !raw {
+                rows.push(("LINEAR, BRDF VALUES".to_string(), as_sources(&blends)));
+            }
+            spheres += rows.iter().map(|(_, r)| r.len()).sum::<usize>();
+            let img = render::sphere_rows(&rows, &captions, &opts).map_err(|e| err(&path, e))?;
+            blocks.push((format!("{} TO {}", a.to_uppercase(), b.to_uppercase()), img));
+        }
+        let width = blocks.iter().map(|(_, i)| i.width).max().unwrap_or(0) + 8;
+        let height: usize = blocks
+            .iter()
+            .map(|(_, i)| i.height + LINE_H + 6)
+            .sum::<usize>()
+            + 4;
+        let mut img = Image::new(width, height, BG);
+        let mut y = 4usize;
+        for (title, block) in &blocks {
+            img.text(4, y as i64, title, 1, INK);
+            y += LINE_H + 2;
+            img.blit(block, 4, y as i64);
+            y += block.height + 4;
+        }
+        img.save_png(&path).map_err(|e| err(&path, e))?;
+        files.push((
+            "paths.png".to_string(),
+            format!(
+                "The paper's Fig. 4.4: from one material (t = 0) to another (t = 1) along the \
+                 straight line between their latent points (GP path, exact predictor){}; the \
+                 first {} pair(s) of the configured midpoints.",
+                if model.transform == gplvm::Transform::Raw {
+                    ", against the linear interpolation of their values (t y2 + (1 - t) y1)"
+                        .to_string()
+                } else {
+                    format!(
+                        ", against linear interpolation of their values in the model's transformed \
+                         space ({}, as `specgp predict --lerp`) and of their BRDF values (the \
+                         paper's blend)",
+                        model.transform
+                    )
+                },
+                blocks.len()
+            ),
+        ));
+    }
+
     // Predictions.
     if !predictions.is_empty() {
         let path = out.join("predictions.png");
@@ -265,6 +442,7 @@ pub fn render_figures(
         files,
         mean_delta_e: finite.iter().sum::<f64>() / finite.len().max(1) as f64,
         delta_e,
+        comparison_delta_e,
         seconds_per_sphere: start.elapsed().as_secs_f64() / spheres.max(1) as f64,
     })
 }

@@ -215,13 +215,15 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 /// Whether `name` is a file the pipeline writes into its output directory (an earlier run's
 /// copy that a new run does not produce is stale: it would describe other data).
 pub fn is_pipeline_output(name: &str) -> bool {
-    const FILES: [&str; 7] = [
+    const FILES: [&str; 9] = [
         "data.sbrdf",
         "model.toml",
         "report.md",
         "results.json",
         "latent.png",
         "sheet.png",
+        "comparison.png",
+        "paths.png",
         "predictions.png",
     ];
     FILES.contains(&name)
@@ -424,6 +426,7 @@ fn run_in(config: &PipelineConfig, out: &Path, published: &Path) -> Result<Resul
             evaluation.as_ref(),
             r.size as usize,
             r.sheet_materials,
+            &config.params.predict.midpoints,
             out,
         )?)
     } else {

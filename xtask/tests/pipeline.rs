@@ -143,6 +143,27 @@ fn quick_pipeline_report_matches_the_model_and_data() {
             file.display()
         );
     }
+    let names: Vec<&str> = json["figures"]["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f[0].as_str().unwrap())
+        .collect();
+    for want in [
+        "sheet.png",
+        "comparison.png",
+        "paths.png",
+        "predictions.png",
+    ] {
+        assert!(names.contains(&want), "{want} not in {names:?}");
+    }
+    // The exact predictor returns a training material as stored; the smooth one is close to
+    // it; a held-out prediction is further away.
+    let comparison: Vec<(String, f64)> =
+        serde_json::from_value(json["figures"]["comparison_delta_e"].clone()).unwrap();
+    let column = |c: &str| comparison.iter().find(|(k, _)| k == c).unwrap().1;
+    assert!(column("exact") < 0.01, "{comparison:?}");
+    assert!(column("smooth") < column("held out"), "{comparison:?}");
     let de = json["figures"]["delta_e"].as_array().unwrap();
     assert_eq!(de.len(), 2);
     for d in de {

@@ -22,5 +22,5 @@ pub mod tensor;
 
 pub use error::{Error, Result};
 pub use grid::{AngularGrid, ChannelSelection, Channels, HalfDiff, Vec3};
-pub use source::{BrdfSource, ImportReport};
+pub use source::{Blend, BrdfSource, ImportReport};
 pub use store::{Store, StoreInfo, StoreOptions, StoreWriter};

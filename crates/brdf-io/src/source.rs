@@ -44,6 +44,74 @@ pub trait BrdfSource: Sync {
     }
 }
 
+/// The linear blend `a f1 + (1 - a) f2` of two sources in BRDF values (the paper's linear
+/// interpolation between two measured materials). A grid source when both are on the same grid.
+pub struct Blend<'a> {
+    first: &'a dyn BrdfSource,
+    second: &'a dyn BrdfSource,
+    weight: f64,
+}
+
+impl<'a> Blend<'a> {
+    /// `weight` x `first` + (1 - `weight`) x `second`; the two must have the same channels and
+    /// `weight` must be finite.
+    pub fn new(first: &'a dyn BrdfSource, second: &'a dyn BrdfSource, weight: f64) -> Result<Self> {
+        if first.channels() != second.channels() {
+            return Err(Error::InvalidArgument {
+                reason: "a blend needs two sources with the same channels".into(),
+            });
+        }
+        if !weight.is_finite() {
+            return Err(Error::InvalidArgument {
+                reason: format!("blend weight {weight} is not finite"),
+            });
+        }
+        Ok(Self {
+            first,
+            second,
+            weight,
+        })
+    }
+
+    fn mix(&self, out: &mut [f64], other: &[f64]) {
+        for (o, v) in out.iter_mut().zip(other) {
+            *o = self.weight * *o + (1.0 - self.weight) * v;
+        }
+    }
+}
+
+impl BrdfSource for Blend<'_> {
+    fn channels(&self) -> Channels {
+        self.first.channels()
+    }
+
+    fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+        let mut other = vec![0.0; out.len()];
+        self.first.eval(wi, wo, out)?;
+        self.second.eval(wi, wo, &mut other)?;
+        self.mix(out, &other);
+        Ok(())
+    }
+
+    fn grid(&self) -> Option<AngularGrid> {
+        let g = self.first.grid()?;
+        (self.second.grid() == Some(g)).then_some(g)
+    }
+
+    fn eval_cell(&self, a: usize, out: &mut [f64]) -> Result<()> {
+        let mut other = vec![0.0; out.len()];
+        self.first.eval_cell(a, out)?;
+        self.second.eval_cell(a, &mut other)?;
+        self.mix(out, &other);
+        Ok(())
+    }
+
+    fn prefetch_cell(&self, a: usize) {
+        self.first.prefetch_cell(a);
+        self.second.prefetch_cell(a);
+    }
+}
+
 /// The argument check every [`BrdfSource::eval`] starts with: `out` must have one slot per
 /// channel (`channels`), else an [`Error::InvalidArgument`] saying so.
 pub fn check_output_len(out: &[f64], channels: usize) -> Result<()> {
@@ -567,5 +635,46 @@ mod tests {
         let (b, _) = resample_cells(&grid, 1, one, PairWeights::Equal, sym).unwrap();
         assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() <= 1e-6 * y));
         assert!(ra.non_reciprocity().unwrap() < 1e-12);
+    }
+
+    /// A grid source whose cell `a` holds `scale * (a + channel)`.
+    struct Ramp(AngularGrid, f64);
+
+    impl BrdfSource for Ramp {
+        fn channels(&self) -> Channels {
+            Channels::Rgb
+        }
+        fn eval(&self, wi: Vec3, _wo: Vec3, out: &mut [f64]) -> Result<()> {
+            for (c, o) in out.iter_mut().enumerate() {
+                *o = self.1 * (wi[2] + c as f64);
+            }
+            Ok(())
+        }
+        fn grid(&self) -> Option<AngularGrid> {
+            Some(self.0)
+        }
+        fn eval_cell(&self, a: usize, out: &mut [f64]) -> Result<()> {
+            for (c, o) in out.iter_mut().enumerate() {
+                *o = self.1 * (a + c) as f64;
+            }
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn blends_mix_values_and_keep_a_shared_grid() {
+        let g = AngularGrid::new(2, 2, 4).unwrap();
+        let (one, ten) = (Ramp(g, 1.0), Ramp(g, 10.0));
+        let b = Blend::new(&one, &ten, 0.25).unwrap();
+        assert_eq!(b.grid(), Some(g));
+        let mut out = [0.0; 3];
+        b.eval_cell(5, &mut out).unwrap();
+        // 0.25 (5 + c) + 0.75 x 10 (5 + c) = 7.75 (5 + c).
+        assert_eq!(out, [38.75, 46.5, 54.25]);
+        b.eval([0.0, 0.0, 0.5], [0.0, 0.0, 1.0], &mut out).unwrap();
+        assert_eq!(out, [3.875, 11.625, 19.375]);
+        let other_grid = Ramp(AngularGrid::new(2, 2, 8).unwrap(), 1.0);
+        assert_eq!(Blend::new(&one, &other_grid, 0.5).unwrap().grid(), None);
+        assert!(Blend::new(&one, &ten, f64::NAN).is_err());
     }
 }

@@ -77,13 +77,15 @@ pub struct ComparisonSheet {
 /// One row of a sheet: a label and its sources, one per column.
 pub type SheetRow<'a> = (String, Vec<&'a dyn BrdfSource>);
 
-/// Width of the label column of a sheet: the widest row label, at least 40 pixels.
+/// Width of the label column of a sheet: the widest row label (at least 40 pixels) and a gap
+/// before the first sphere (labels ran into it).
 fn label_width(rows: &[SheetRow<'_>]) -> usize {
     rows.iter()
         .map(|(l, _)| font::text_width(l, 1))
         .max()
         .unwrap_or(0)
         .max(40)
+        + PAD
 }
 
 /// Measured vs reconstructions: for every row, the spheres of all columns, then a CIEDE2000

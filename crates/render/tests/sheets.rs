@@ -80,7 +80,8 @@ fn path_comparison_and_map_draw() {
     let img = path_comparison(&path, &path, &t, &opts).unwrap();
     keep(&img, "path.png");
     // Along the path the spheres get redder: R / G at the sphere centres increases.
-    let label_w = render::font::text_width("GP PATH", 1).max(40);
+    // The label column: the label, at least 40 pixels, and an 8-pixel gap.
+    let label_w = render::font::text_width("GP PATH", 1).max(40) + 8;
     let redness: Vec<f64> = (0..3)
         .map(|c| {
             let p = img.get(label_w + 8 + c * (32 + 8) + 16, 8 + 16);
