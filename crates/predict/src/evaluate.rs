@@ -13,6 +13,7 @@
 //! Both spaces report the paper's Eq. 22 normalisation, `sqrt(sum_d (y_d - y*_d)^2 / (n_th n_td
 //! n_pd))`: the sum runs over all D values (cells x channels), divided by the angular count.
 
+use std::ops::Range;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
@@ -516,6 +517,18 @@ pub fn brdf_space_rmse(
         .collect())
 }
 
+/// The columns of a chunk covering the indices `range` whose cells are above the horizon
+/// (`mask` over cells, `nc` channels per cell), relative to the chunk, into `cols`.
+pub(crate) fn valid_columns(range: Range<usize>, mask: &[bool], nc: usize, cols: &mut Vec<usize>) {
+    cols.clear();
+    cols.extend(
+        range
+            .clone()
+            .filter(|d| mask[d / nc])
+            .map(|d| d - range.start),
+    );
+}
+
 /// The valid columns `cols` (ascending, relative to the chunk) of an index-major chunk
 /// `block` (`n` values per column), transformed as the Gram pass does (`forward_batch`,
 /// vectorised, one run of consecutive columns at a time) into `t` (column-major, `n` x
@@ -582,13 +595,7 @@ pub(crate) fn rmse_pass(
         || (vec![(0.0f64, 0.0f64); m], Scratch::default()),
         |(acc, (cols, t, p, ft, fy)), range, block| {
             // Valid columns only: below-horizon cells are 0 in every material and prediction.
-            cols.clear();
-            cols.extend(
-                range
-                    .clone()
-                    .filter(|d| mask[d / nc])
-                    .map(|d| d - range.start),
-            );
+            valid_columns(range.clone(), mask, nc, cols);
             forward_columns(transform, block, n, cols, t);
             let len = cols.len();
             if len > 0 {

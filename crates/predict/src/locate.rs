@@ -20,6 +20,7 @@ use serde::Serialize;
 use crate::error::{Error, Result};
 use crate::evaluate::{
     best_latent_point, column_runs, damaged_value, forward_columns, rmse_pass, sq_error_external,
+    valid_columns,
 };
 use crate::predictor::{Predictor, PredictorKind};
 
@@ -225,13 +226,7 @@ pub fn cross_products(
         },
         |(cross, norms, cols, t, u), range, block| {
             // Valid columns only: below-horizon cells hold 0 and carry no data.
-            cols.clear();
-            cols.extend(
-                range
-                    .clone()
-                    .filter(|d| mask[d / nc])
-                    .map(|d| d - range.start),
-            );
+            valid_columns(range.clone(), mask, nc, cols);
             let len = cols.len();
             if len > 0 {
                 forward_columns(transform, block, n, cols, t);

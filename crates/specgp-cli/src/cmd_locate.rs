@@ -185,15 +185,7 @@ pub fn locate_command(args: &LocateArgs) -> anyhow::Result<()> {
         .with_context(|| format!("opening model {}", args.model.display()))?;
     let located = locate_targets(&pred, &args.targets, args.starts)?;
 
-    let json_to_stdout = args
-        .json
-        .as_deref()
-        .is_some_and(|p| p == Path::new(brdf_io::output::STDOUT));
-    let mut table: Box<dyn Write> = if json_to_stdout {
-        Box::new(std::io::stderr())
-    } else {
-        Box::new(std::io::stdout())
-    };
+    let mut table = crate::cmd_predict::table_output(args.json.as_deref());
     writeln!(
         table,
         "{} target(s) in model {} (transform {}, q = {}). Eq. 22 RMSE against the target of \

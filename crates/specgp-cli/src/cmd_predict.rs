@@ -341,6 +341,16 @@ fn write_spectral_merl(
     })
 }
 
+/// Where a command's table goes: standard output, or standard error when its JSON (`json`)
+/// goes to standard output.
+pub(crate) fn table_output(json: Option<&Path>) -> Box<dyn std::io::Write> {
+    if json.is_some_and(|p| p == Path::new(brdf_io::output::STDOUT)) {
+        Box::new(std::io::stderr())
+    } else {
+        Box::new(std::io::stdout())
+    }
+}
+
 /// Runs `specgp evaluate`.
 pub fn evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
     if let Some(json) = &args.json {
@@ -378,15 +388,7 @@ pub fn evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
     };
     let ev = run_evaluation(&pred, &options, &progress)?;
     // The table goes to standard error when the JSON goes to standard output.
-    let json_to_stdout = args
-        .json
-        .as_deref()
-        .is_some_and(|p| p == Path::new(brdf_io::output::STDOUT));
-    let mut table: Box<dyn std::io::Write> = if json_to_stdout {
-        Box::new(std::io::stderr())
-    } else {
-        Box::new(std::io::stdout())
-    };
+    let mut table = table_output(args.json.as_deref());
     writeln!(
         table,
         "{} materials, transform {}, q = {}, Eq. 22 RMSE (divided by {} angular cells)",
