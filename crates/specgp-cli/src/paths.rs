@@ -113,7 +113,7 @@ pub fn ensure_output_is_not_an_input(out: &Path, inputs: &[&Path]) -> anyhow::Re
         if r.as_ref().is_some_and(|i| *i == o) {
             bail!(
                 "{}: the output is the input {}; writing it would replace the input (choose \
-                 another --out)",
+                 another output file)",
                 out.display(),
                 input.display()
             );
