@@ -18,7 +18,7 @@ pub enum Error {
         } else {
             format!(
                 "its dataset {} is not a file (moved or deleted?); pass the store's new path \
-                 explicitly",
+                 explicitly (`--dataset` on the command line)",
                 dataset.display()
             )
         }

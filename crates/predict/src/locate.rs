@@ -30,6 +30,8 @@ use crate::predictor::{Predictor, PredictorKind};
 pub struct Target {
     /// What the material is called in reports.
     pub name: String,
+    /// Where it comes from (a file or store), for reports and errors.
+    pub source: String,
     /// Its D values (BRDF f in 1/sr).
     pub values: Vec<f32>,
 }
@@ -39,6 +41,8 @@ pub struct Target {
 pub struct Location {
     /// The target's name.
     pub name: String,
+    /// Where the target comes from ([`Target::source`]).
+    pub source: String,
     /// The latent point whose GP prediction reconstructs the target best (searched with the
     /// smooth predictor, which is continuous; a training material's own point when the
     /// exact predictor there, that material, does better).
@@ -46,7 +50,8 @@ pub struct Location {
     /// Eq. 22 RMSE of the exact predictor's prediction at the point (the default of
     /// `render` and `predict`) against the target, BRDF space (1/sr).
     pub brdf_rmse: f64,
-    /// The same in the model's transformed space.
+    /// The same in the model's transformed space: the prediction's transformed values (before
+    /// the inverse transform) against the target's (what the search minimises).
     pub model_rmse: f64,
     /// The training material closest to the target (smallest transformed-space error).
     pub nearest: String,
@@ -94,15 +99,24 @@ pub fn locate(
         if t.values.len() != d {
             return Err(Error::InvalidArgument {
                 reason: format!(
-                    "target {:?} has {} values; the model's grid and channels have D = {d}",
+                    "target {:?} from {} has {} values; the model's grid and channels have D = \
+                     {d}",
                     t.name,
+                    t.source,
                     t.values.len()
                 ),
             });
         }
         if let Some(k) = t.values.iter().position(|v| !v.is_finite()) {
+            let nc = store.channels().len();
             return Err(Error::NonFiniteValue {
-                what: format!("value {k} of target {:?}", t.name),
+                what: format!(
+                    "value {k} (angular cell {}, channel {}) of target {:?} from {}",
+                    k / nc,
+                    k % nc,
+                    t.name,
+                    t.source
+                ),
                 value: f64::from(t.values[k]),
             });
         }
@@ -160,7 +174,10 @@ pub fn locate(
             pair.fill(t.values[d]);
         }
     };
-    let target_name = |row: usize| format!("target {:?}", targets[row / 2].name);
+    let target_name = |row: usize| {
+        let t = &targets[row / 2];
+        format!("target {:?} from {}", t.name, t.source)
+    };
     let second_pass = |k: usize, _: usize| progress(store.n_chunks() + k, total);
     let sums = rmse_pass(
         store,
@@ -181,6 +198,7 @@ pub fn locate(
             let support = pred.support(&point)?;
             Ok(Location {
                 name: t.name.clone(),
+                source: t.source.clone(),
                 brdf_rmse: rmse(sums[2 * r].0),
                 model_rmse: rmse(sums[2 * r].1),
                 nearest: model.materials[nearest].name.clone(),

@@ -174,14 +174,6 @@ impl Predictor {
             dataset: store.path().to_owned(),
             what,
         };
-        let h = store.header();
-        let checksum = h.checksum.to_string();
-        if checksum != model.dataset.checksum {
-            return Err(mismatch(format!(
-                "checksum differs (model {}, store {checksum}): the store was rewritten since the fit",
-                model.dataset.checksum
-            )));
-        }
         if store.grid().to_string() != model.dataset.grid {
             return Err(mismatch(format!(
                 "grid differs (model {}, store {})",
@@ -220,6 +212,15 @@ impl Predictor {
                     m.name
                 )));
             }
+        }
+        // Last: a store of another grid, channels or materials is named for what differs.
+        let checksum = store.header().checksum.to_string();
+        if checksum != model.dataset.checksum {
+            return Err(mismatch(format!(
+                "checksum differs (model {}, store {checksum}): the store was rewritten since the \
+                 fit, or is another store of the same grid and materials",
+                model.dataset.checksum
+            )));
         }
         if let Some(m) = model
             .materials

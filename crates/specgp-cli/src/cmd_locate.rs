@@ -9,6 +9,9 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
+use std::sync::Arc;
+
+use brdf_io::store::Store;
 use brdf_io::{AngularGrid, Channels};
 use predict::Predictor;
 use predict::locate::{Location, Target, locate};
@@ -53,74 +56,144 @@ fn channels_arg(channels: &Channels) -> String {
     }
 }
 
-/// How to import a file so that it matches the model, for error messages.
+/// How to make a store that matches the model, for error messages.
 fn import_hint(grid: &AngularGrid, channels: &Channels) -> String {
     match channels {
-        Channels::Rgb => format!("`specgp import ... --grid {grid}`"),
-        Channels::Spectral(_) => format!(
-            "`specgp import ... --grid {grid} --wavelengths {}`",
-            channels_arg(channels)
-        ),
+        Channels::Rgb => format!("`--grid {grid}`"),
+        Channels::Spectral(_) => {
+            format!("`--grid {grid} --wavelengths {}`", channels_arg(channels))
+        }
     }
 }
 
-/// The targets named by one TARGET argument, on `pred`'s grid and channels.
-fn read_targets(pred: &Predictor, spec: &str) -> anyhow::Result<Vec<Target>> {
+/// Targets are read and located this many at a time (memory: a target holds D values).
+const TARGET_BATCH: usize = 32;
+
+/// One material named by the TARGET arguments, before its values are read.
+enum Pending {
+    /// Material `index` of a target store (checked against the model, checksum verified).
+    Stored { store: Arc<Store>, index: usize },
+    /// An RGL `.bsdf` or MERL `.binary` file.
+    File(String),
+}
+
+/// The materials one TARGET argument names, checked against `pred`'s grid and channels.
+fn pending_targets(pred: &Predictor, spec: &str) -> anyhow::Result<Vec<Pending>> {
     let (grid, channels) = (pred.grid(), pred.channels());
     let (store_path, only) = match brdf_io::store::parse_store_spec(spec) {
         Some((path, name)) => (Some(path), Some(name)),
         None if spec.ends_with(".sbrdf") => (Some(PathBuf::from(spec)), None),
         None => (None, None),
     };
-    if let Some(path) = store_path {
-        let store =
-            brdf_io::Store::open(&path).with_context(|| format!("opening target {spec}"))?;
-        if store.grid() != grid || store.channels() != channels {
-            bail!(
-                "target {}: grid {} with channels {}, but the model's data are on grid {grid} \
-                 with channels {}; import the material with {}",
-                path.display(),
-                store.grid(),
-                channels_arg(store.channels()),
-                channels_arg(channels),
-                import_hint(grid, channels)
-            );
+    let Some(path) = store_path else {
+        let path = Path::new(spec);
+        match path.extension().and_then(|e| e.to_str()) {
+            Some("bsdf" | "binary") => {}
+            _ => bail!(
+                "unknown TARGET {spec:?}: expected DATA.sbrdf, DATA.sbrdf:MATERIAL, an RGL .bsdf \
+                 file or a MERL .binary file"
+            ),
         }
-        let indices: Vec<usize> = match &only {
-            Some(name) => vec![
-                store
-                    .material_index(name)
-                    .with_context(|| format!("target {spec}"))?,
-            ],
-            None => (0..store.n_materials()).collect(),
+        return Ok(vec![Pending::File(spec.to_owned())]);
+    };
+    let store = Store::open(&path).with_context(|| format!("opening target {spec}"))?;
+    if store.grid() != grid || store.channels() != channels {
+        bail!(
+            "target {}: grid {} with channels {}, but the model's data are on grid {grid} with \
+             channels {}; make the store with {} (`specgp import` or `specgp synth`)",
+            path.display(),
+            store.grid(),
+            channels_arg(store.channels()),
+            channels_arg(channels),
+            import_hint(grid, channels)
+        );
+    }
+    // Lookups do not re-hash a payload; a target is read whole, so verify it as `export` does.
+    store
+        .verify_checksum()
+        .with_context(|| format!("target {}", path.display()))?;
+    let indices: Vec<usize> = match &only {
+        Some(name) => vec![
+            store
+                .material_index(name)
+                .with_context(|| format!("target {spec}"))?,
+        ],
+        None => (0..store.n_materials()).collect(),
+    };
+    let store = Arc::new(store);
+    Ok(indices
+        .into_iter()
+        .map(|index| Pending::Stored {
+            store: store.clone(),
+            index,
+        })
+        .collect())
+}
+
+/// Reads the values of a batch of pending targets: the materials of one store in one pass
+/// over it, files resampled onto `pred`'s grid and channels as `import` does by default.
+fn read_targets(pred: &Predictor, batch: &[Pending]) -> anyhow::Result<Vec<Target>> {
+    let (grid, channels) = (pred.grid(), pred.channels());
+    let mut targets: Vec<Option<Target>> = batch.iter().map(|_| None).collect();
+    // Stored materials, one pass per store.
+    let mut done = vec![false; batch.len()];
+    for k in 0..batch.len() {
+        let Pending::Stored { store, .. } = &batch[k] else {
+            continue;
         };
-        // One pass over the store for all of them.
+        if done[k] {
+            continue;
+        }
+        let same: Vec<(usize, usize)> = batch
+            .iter()
+            .enumerate()
+            .filter_map(|(j, p)| match p {
+                Pending::Stored { store: s, index } if Arc::ptr_eq(s, store) => Some((j, *index)),
+                _ => None,
+            })
+            .collect();
         let (n, d) = (store.n_materials(), store.d());
-        let mut values: Vec<Vec<f32>> = indices.iter().map(|_| vec![0f32; d]).collect();
+        let mut values: Vec<Vec<f32>> = same.iter().map(|_| vec![0f32; d]).collect();
         store.for_each_chunk(|range, block| {
-            for (k, i) in range.enumerate() {
-                for (v, &m) in values.iter_mut().zip(&indices) {
-                    v[i] = block[k * n + m];
+            for (r, i) in range.enumerate() {
+                for (v, &(_, m)) in values.iter_mut().zip(&same) {
+                    v[i] = block[r * n + m];
                 }
             }
         })?;
         let names = store.names();
-        return Ok(indices
-            .into_iter()
-            .zip(values)
-            .map(|(m, values)| Target {
+        for ((j, m), values) in same.into_iter().zip(values) {
+            done[j] = true;
+            targets[j] = Some(Target {
                 name: names[m].to_owned(),
+                source: store.path().display().to_string(),
                 values,
-            })
-            .collect());
+            });
+        }
     }
-    let path = Path::new(spec);
-    let name = path
-        .file_stem()
-        .map_or_else(|| spec.to_owned(), |s| s.to_string_lossy().into_owned());
-    let values = match path.extension().and_then(|e| e.to_str()) {
-        Some("bsdf") => {
+    for (k, p) in batch.iter().enumerate() {
+        let Pending::File(spec) = p else {
+            continue;
+        };
+        let path = Path::new(spec);
+        let name = path
+            .file_stem()
+            .map_or_else(|| spec.clone(), |s| s.to_string_lossy().into_owned());
+        let (values, report) = if spec.ends_with(".bsdf") {
             let bsdf = brdf_io::rgl::RglBsdf::open(path)?;
+            let rgb_file = *bsdf.native_channels() == Channels::Rgb;
+            if rgb_file != (*channels == Channels::Rgb) {
+                bail!(
+                    "target {spec} is {}, but the model's data are {} (channels {})",
+                    if rgb_file {
+                        "an RGB file (R,G,B)"
+                    } else {
+                        "a spectral file"
+                    },
+                    if rgb_file { "spectral" } else { "RGB" },
+                    channels_arg(channels)
+                );
+            }
             let (values, report) = bsdf.resample(grid, channels).with_context(|| {
                 format!(
                     "target {spec}: resampling onto the model's grid {grid} and channels {}",
@@ -128,9 +201,8 @@ fn read_targets(pred: &Predictor, spec: &str) -> anyhow::Result<Vec<Target>> {
                 )
             })?;
             report.ensure_finite(spec)?;
-            values
-        }
-        Some("binary") => {
+            (values, report)
+        } else {
             if *channels != Channels::Rgb {
                 bail!(
                     "target {spec} is a MERL file (R,G,B), but the model's data are spectral \
@@ -138,33 +210,39 @@ fn read_targets(pred: &Predictor, spec: &str) -> anyhow::Result<Vec<Target>> {
                     channels_arg(channels)
                 );
             }
-            let brdf = brdf_io::merl::read_merl(path)?;
-            brdf.resample(grid, brdf_io::merl::Resampling::Average).0
-        }
-        _ => bail!(
-            "unknown TARGET {spec:?}: expected DATA.sbrdf, DATA.sbrdf:MATERIAL, an RGL .bsdf file \
-             or a MERL .binary file"
-        ),
-    };
-    Ok(vec![Target { name, values }])
+            brdf_io::merl::read_merl(path)?.resample(grid, brdf_io::merl::Resampling::Average)
+        };
+        eprintln!("resampled {spec}: {report}");
+        targets[k] = Some(Target {
+            name,
+            source: spec.clone(),
+            values,
+        });
+    }
+    Ok(targets.into_iter().flatten().collect())
 }
 
 /// Reads the TARGET arguments `specs` and locates them in `pred`'s latent space (`starts`
-/// starting points each), with a progress bar.
+/// starting points each), [`TARGET_BATCH`] at a time, with a progress bar.
 pub fn locate_targets(
     pred: &Predictor,
     specs: &[String],
     starts: usize,
 ) -> anyhow::Result<Vec<Location>> {
-    let mut targets = Vec::new();
+    let mut pending = Vec::new();
     for spec in specs {
-        targets.extend(read_targets(pred, spec)?);
+        pending.extend(pending_targets(pred, spec)?);
     }
     let pb = crate::cmd_predict::bar(0, "locating");
-    let located = locate(pred, &targets, starts, &|done, total| {
-        pb.set_length(total as u64);
-        pb.set_position(done as u64);
-    })?;
+    let batches = pending.len().div_ceil(TARGET_BATCH);
+    let mut located = Vec::with_capacity(pending.len());
+    for (b, batch) in pending.chunks(TARGET_BATCH).enumerate() {
+        let targets = read_targets(pred, batch)?;
+        located.extend(locate(pred, &targets, starts, &|done, total| {
+            pb.set_length((total * batches) as u64);
+            pb.set_position((b * total + done) as u64);
+        })?);
+    }
     pb.finish_and_clear();
     Ok(located)
 }

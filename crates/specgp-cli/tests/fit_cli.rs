@@ -1057,6 +1057,11 @@ fn locate_places_real_files_and_store_materials_and_explains_mismatches() {
     assert_eq!(a["n_angles"], 8 * 8 * 16);
     let (la, lb) = (&a["locations"][0], &b["locations"][0]);
     assert_eq!(la["name"], "satin_rosaline_rgb");
+    assert_eq!(la["source"], new.as_str());
+    assert!(
+        lb["source"].as_str().unwrap().ends_with("new.sbrdf"),
+        "{lb}"
+    );
     for key in [
         "point",
         "brdf_rmse",
@@ -1128,6 +1133,21 @@ fn locate_places_real_files_and_store_materials_and_explains_mismatches() {
         e.contains("channels 400:700:100") && e.contains("R,G,B"),
         "{e}"
     );
+    specgp(
+        &["fit", "data.sbrdf", "--out", "s.toml", "--latent-dim", "2"],
+        d,
+    );
+    let e = specgp_fails(&["locate", "s.toml", &new], d);
+    assert!(
+        e.contains("is an RGB file (R,G,B), but the model's data are spectral"),
+        "{e}"
+    );
+    // A damaged target store is refused (lookups do not re-hash; a target is read whole).
+    let mut bytes = std::fs::read(d.join("new.sbrdf")).unwrap();
+    bytes[5000] ^= 0x40;
+    std::fs::write(d.join("bad.sbrdf"), bytes).unwrap();
+    let e = specgp_fails(&["locate", "m.toml", "bad.sbrdf"], d);
+    assert!(e.contains("bad.sbrdf") && e.contains("checksum"), "{e}");
     let e = specgp_fails(&["locate", "m.toml", "picture.png"], d);
     assert!(e.contains("unknown TARGET") && e.contains(".bsdf"), "{e}");
     let e = specgp_fails(&["locate", "m.toml", "new.sbrdf:satin"], d);
