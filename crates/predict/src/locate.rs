@@ -12,6 +12,10 @@
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
+use std::path::Path;
+
+use brdf_io::store::Store;
+use brdf_io::{AngularGrid, Channels, ImportReport};
 use faer::linalg::matmul::matmul;
 use faer::{Accum, Mat, MatRef, Par};
 use rayon::prelude::*;
@@ -34,6 +38,107 @@ pub struct Target {
     pub source: String,
     /// Its D values (BRDF f in 1/sr).
     pub values: Vec<f32>,
+}
+
+impl Target {
+    /// Materials `indices` of `store`, read in one pass over it (for a store on the model's
+    /// grid and channels; a store's payload is not re-hashed here: verify it first).
+    pub fn from_store(store: &Store, indices: &[usize]) -> Result<Vec<Target>> {
+        let (n, d) = (store.n_materials(), store.d());
+        if let Some(&m) = indices.iter().find(|&&m| m >= n) {
+            return Err(Error::InvalidArgument {
+                reason: format!("material {m} of {} (it holds {n})", store.path().display()),
+            });
+        }
+        let mut values: Vec<Vec<f32>> = indices.iter().map(|_| vec![0f32; d]).collect();
+        store.for_each_chunk(|range, block| {
+            for (r, i) in range.enumerate() {
+                for (v, &m) in values.iter_mut().zip(indices) {
+                    v[i] = block[r * n + m];
+                }
+            }
+        })?;
+        let names = store.names();
+        Ok(indices
+            .iter()
+            .zip(values)
+            .map(|(&m, values)| Target {
+                name: names[m].to_owned(),
+                source: store.path().display().to_string(),
+                values,
+            })
+            .collect())
+    }
+
+    /// An RGL `.bsdf` or MERL `.binary` file resampled onto `grid` and `channels` as `specgp
+    /// import` does by default (reciprocal means; MERL cells averaged), named by its file stem,
+    /// and the resampling report. A file whose channels cannot give `channels` (RGB against
+    /// spectral) is an error saying so.
+    pub fn from_file(
+        path: &Path,
+        grid: &AngularGrid,
+        channels: &Channels,
+    ) -> Result<(Target, ImportReport)> {
+        let spec = path.display().to_string();
+        let name = path
+            .file_stem()
+            .map_or_else(|| spec.clone(), |s| s.to_string_lossy().into_owned());
+        let rgb_model = *channels == Channels::Rgb;
+        let mismatch = |file: &str| Error::InvalidArgument {
+            reason: format!(
+                "target {spec} is {file}, but the model's data are {}",
+                describe_channels(channels)
+            ),
+        };
+        let (values, report) = match path.extension().and_then(|e| e.to_str()) {
+            Some("bsdf") => {
+                let bsdf = brdf_io::rgl::RglBsdf::open(path)?;
+                let rgb_file = *bsdf.native_channels() == Channels::Rgb;
+                if rgb_file != rgb_model {
+                    return Err(mismatch(if rgb_file {
+                        "an RGB file (R,G,B)"
+                    } else {
+                        "a spectral file"
+                    }));
+                }
+                let (values, report) = bsdf.resample(grid, channels)?;
+                report.ensure_finite(&spec)?;
+                (values, report)
+            }
+            Some("binary") => {
+                if !rgb_model {
+                    return Err(mismatch("a MERL file (R,G,B)"));
+                }
+                brdf_io::merl::read_merl(path)?.resample(grid, brdf_io::merl::Resampling::Average)
+            }
+            _ => {
+                return Err(Error::InvalidArgument {
+                    reason: format!("target {spec}: expected an RGL .bsdf or a MERL .binary file"),
+                });
+            }
+        };
+        Ok((
+            Target {
+                name,
+                source: spec,
+                values,
+            },
+            report,
+        ))
+    }
+}
+
+/// Channels in words, for messages: `R,G,B` or `33 wavelengths 360-1000 nm`.
+pub fn describe_channels(channels: &Channels) -> String {
+    match channels {
+        Channels::Rgb => "RGB (R,G,B)".into(),
+        Channels::Spectral(w) => format!(
+            "spectral ({} wavelengths {}-{} nm)",
+            w.len(),
+            w.first().copied().unwrap_or(0.0),
+            w.last().copied().unwrap_or(0.0)
+        ),
+    }
 }
 
 /// Where [`locate`] placed one target, and how well the prediction there reconstructs it.

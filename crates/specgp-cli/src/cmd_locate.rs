@@ -131,93 +131,36 @@ fn pending_targets(pred: &Predictor, spec: &str) -> anyhow::Result<Vec<Pending>>
 }
 
 /// Reads the values of a batch of pending targets: the materials of one store in one pass
-/// over it, files resampled onto `pred`'s grid and channels as `import` does by default.
+/// over it ([`Target::from_store`]), files resampled onto `pred`'s grid and channels
+/// ([`Target::from_file`], its report printed).
 fn read_targets(pred: &Predictor, batch: &[Pending]) -> anyhow::Result<Vec<Target>> {
-    let (grid, channels) = (pred.grid(), pred.channels());
     let mut targets: Vec<Option<Target>> = batch.iter().map(|_| None).collect();
-    // Stored materials, one pass per store.
-    let mut done = vec![false; batch.len()];
-    for k in 0..batch.len() {
-        let Pending::Stored { store, .. } = &batch[k] else {
-            continue;
-        };
-        if done[k] {
-            continue;
-        }
-        let same: Vec<(usize, usize)> = batch
-            .iter()
-            .enumerate()
-            .filter_map(|(j, p)| match p {
-                Pending::Stored { store: s, index } if Arc::ptr_eq(s, store) => Some((j, *index)),
-                _ => None,
-            })
-            .collect();
-        let (n, d) = (store.n_materials(), store.d());
-        let mut values: Vec<Vec<f32>> = same.iter().map(|_| vec![0f32; d]).collect();
-        store.for_each_chunk(|range, block| {
-            for (r, i) in range.enumerate() {
-                for (v, &(_, m)) in values.iter_mut().zip(&same) {
-                    v[i] = block[r * n + m];
+    for (k, p) in batch.iter().enumerate() {
+        match p {
+            Pending::Stored { store, .. } if targets[k].is_none() => {
+                // Every material of this store in the batch, in one pass.
+                let same: Vec<(usize, usize)> = batch
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(j, p)| match p {
+                        Pending::Stored { store: s, index } if Arc::ptr_eq(s, store) => {
+                            Some((j, *index))
+                        }
+                        _ => None,
+                    })
+                    .collect();
+                let indices: Vec<usize> = same.iter().map(|&(_, m)| m).collect();
+                for ((j, _), t) in same.iter().zip(Target::from_store(store, &indices)?) {
+                    targets[*j] = Some(t);
                 }
             }
-        })?;
-        let names = store.names();
-        for ((j, m), values) in same.into_iter().zip(values) {
-            done[j] = true;
-            targets[j] = Some(Target {
-                name: names[m].to_owned(),
-                source: store.path().display().to_string(),
-                values,
-            });
+            Pending::Stored { .. } => {}
+            Pending::File(spec) => {
+                let (t, report) = Target::from_file(Path::new(spec), pred.grid(), pred.channels())?;
+                eprintln!("resampled {spec}: {report}");
+                targets[k] = Some(t);
+            }
         }
-    }
-    for (k, p) in batch.iter().enumerate() {
-        let Pending::File(spec) = p else {
-            continue;
-        };
-        let path = Path::new(spec);
-        let name = path
-            .file_stem()
-            .map_or_else(|| spec.clone(), |s| s.to_string_lossy().into_owned());
-        let (values, report) = if spec.ends_with(".bsdf") {
-            let bsdf = brdf_io::rgl::RglBsdf::open(path)?;
-            let rgb_file = *bsdf.native_channels() == Channels::Rgb;
-            if rgb_file != (*channels == Channels::Rgb) {
-                bail!(
-                    "target {spec} is {}, but the model's data are {} (channels {})",
-                    if rgb_file {
-                        "an RGB file (R,G,B)"
-                    } else {
-                        "a spectral file"
-                    },
-                    if rgb_file { "spectral" } else { "RGB" },
-                    channels_arg(channels)
-                );
-            }
-            let (values, report) = bsdf.resample(grid, channels).with_context(|| {
-                format!(
-                    "target {spec}: resampling onto the model's grid {grid} and channels {}",
-                    channels_arg(channels)
-                )
-            })?;
-            report.ensure_finite(spec)?;
-            (values, report)
-        } else {
-            if *channels != Channels::Rgb {
-                bail!(
-                    "target {spec} is a MERL file (R,G,B), but the model's data are spectral \
-                     (channels {})",
-                    channels_arg(channels)
-                );
-            }
-            brdf_io::merl::read_merl(path)?.resample(grid, brdf_io::merl::Resampling::Average)
-        };
-        eprintln!("resampled {spec}: {report}");
-        targets[k] = Some(Target {
-            name,
-            source: spec.clone(),
-            values,
-        });
     }
     Ok(targets.into_iter().flatten().collect())
 }
