@@ -37,6 +37,9 @@ pub struct PipelineParams {
     /// Figures.
     #[serde(default)]
     pub render: RenderParams,
+    /// Materials outside the training set to place in the latent space.
+    #[serde(default)]
+    pub locate: LocateParams,
 }
 
 /// The `[data]` table.
@@ -101,6 +104,32 @@ impl Default for EvaluateParams {
     fn default() -> Self {
         Self { loo: true }
     }
+}
+
+/// The `[locate]` table: measured files outside the training set, placed in the fitted latent
+/// space as `specgp locate` does (report section "Located materials").
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct LocateParams {
+    /// RGL `.bsdf` or MERL `.binary` files (relative to the project root).
+    #[serde(default)]
+    pub files: Vec<PathBuf>,
+    /// Starting points of the latent search per file (1..=1000).
+    #[serde(default = "default_starts")]
+    pub starts: usize,
+}
+
+impl Default for LocateParams {
+    fn default() -> Self {
+        Self {
+            files: Vec::new(),
+            starts: default_starts(),
+        }
+    }
+}
+
+fn default_starts() -> usize {
+    3
 }
 
 /// The `[render]` table.
@@ -234,6 +263,8 @@ pub struct PipelineConfig {
     pub fit_source: String,
     /// Prediction settings.
     pub predict: PredictConfig,
+    /// Files to locate (resolved against the project root).
+    pub locate: Vec<PathBuf>,
 }
 
 impl PipelineConfig {
@@ -452,6 +483,25 @@ impl PipelineParams {
                 self.render.sheet_materials
             )));
         }
+        let l = &self.locate;
+        if !(1..=1000).contains(&l.starts) {
+            return Err(bad(format!(
+                "locate.starts must be in 1..=1000, got {}",
+                l.starts
+            )));
+        }
+        if let Some(f) = l.files.iter().find(|f| {
+            !matches!(
+                f.extension().and_then(|e| e.to_str()),
+                Some("bsdf" | "binary")
+            )
+        }) {
+            return Err(bad(format!(
+                "locate.files: {} is not an RGL .bsdf or a MERL .binary file",
+                f.display()
+            )));
+        }
+        let locate = l.files.iter().map(|f| resolve(f)).collect();
         let predict = PredictConfig {
             points: p.points.clone(),
             midpoints: p.midpoints.clone(),
@@ -473,6 +523,7 @@ impl PipelineParams {
             fit,
             fit_source,
             predict,
+            locate,
             params: self,
         })
     }

@@ -195,6 +195,8 @@ pub struct Results {
     pub evaluation: Option<predict::evaluate::Evaluation>,
     /// Errors grouped by kind of material (synthetic data only: the preset's families).
     pub by_kind: Vec<KindRow>,
+    /// Measured files outside the training set placed in the latent space (locate stage).
+    pub located: Vec<predict::locate::Location>,
     /// Figures and rendered (Delta E) errors (render stage; `None` if not run).
     pub figures: Option<crate::figures::Figures>,
     /// Total wall-clock seconds.
@@ -237,7 +239,8 @@ pub fn is_pipeline_output(name: &str) -> bool {
             })
 }
 
-/// The files a run of `config` reads: the config itself, its fit config and its data files.
+/// The files a run of `config` reads: the config itself, its fit config, its data files and the
+/// files it locates.
 fn inputs(config: &PipelineConfig) -> Vec<PathBuf> {
     let mut v = vec![config.path.clone()];
     if let Some(f) = &config.params.fit_config {
@@ -253,6 +256,7 @@ fn inputs(config: &PipelineConfig) -> Vec<PathBuf> {
             v.extend(files.iter().cloned());
         }
     }
+    v.extend(config.locate.iter().cloned());
     v
 }
 
@@ -309,6 +313,14 @@ pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
 fn run_in(config: &PipelineConfig, out: &Path, published: &Path) -> Result<Results> {
     let total = Instant::now();
     let mut stages = Vec::new();
+
+    // The files to locate must be there before hours of work start.
+    if let Some(f) = config.locate.iter().find(|f| !f.is_file()) {
+        return Err(Error::Config {
+            path: config.path.clone(),
+            reason: format!("locate.files: {} is not a file", f.display()),
+        });
+    }
 
     // Data.
     let store_path = out.join("data.sbrdf");
@@ -416,6 +428,24 @@ fn run_in(config: &PipelineConfig, out: &Path, published: &Path) -> Result<Resul
         seconds: t.elapsed().as_secs_f64(),
     });
 
+    // Locate.
+    let t = Instant::now();
+    let located = if config.locate.is_empty() {
+        Vec::new()
+    } else {
+        crate::stages::locate_files(&pred, &config.locate, config.params.locate.starts)?
+    };
+    stages.push(StageStatus {
+        name: "locate".into(),
+        status: if located.is_empty() {
+            "skipped"
+        } else {
+            "done"
+        }
+        .into(),
+        seconds: t.elapsed().as_secs_f64(),
+    });
+
     // Render.
     let t = Instant::now();
     let r = &config.params.render;
@@ -453,6 +483,7 @@ fn run_in(config: &PipelineConfig, out: &Path, published: &Path) -> Result<Resul
             .as_ref()
             .map_or_else(Vec::new, |e| by_kind(config, e)),
         evaluation,
+        located,
         figures,
         total_seconds: total.elapsed().as_secs_f64(),
     };

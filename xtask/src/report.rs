@@ -151,6 +151,7 @@ pub fn markdown(r: &Results) -> String {
 
     predictions(&mut s, r);
     evaluation(&mut s, r);
+    located(&mut s, r);
     paper_table(&mut s, r);
     figures(&mut s, r);
 
@@ -169,6 +170,59 @@ pub fn markdown(r: &Results) -> String {
         );
     }
     s
+}
+
+fn located(s: &mut String, r: &Results) {
+    if r.located.is_empty() {
+        return;
+    }
+    let names: Vec<&str> = r.latent.iter().map(|l| l.name.as_str()).collect();
+    let _ = writeln!(
+        s,
+        "\n## Located materials\n\nMeasured files outside the training set, resampled onto the \
+         grid as the data were and placed where the GP reconstructs them best (`specgp locate`: \
+         the smooth predictor's transformed-space error, searched from the {} best training \
+         points; errors of the exact predictor there). Eq. 22 RMSE in BRDF space (1/sr) and in \
+         the transformed space; the closest training material is the one with the smallest \
+         transformed-space error; var frac is the share of the prior variance left at the \
+         point.\n",
+        r.config.locate.starts
+    );
+    let _ = writeln!(
+        s,
+        "| file | point | BRDF RMSE | model RMSE | closest material | its BRDF RMSE | its model \
+         RMSE | var frac |\n|---|---|---:|---:|---|---:|---:|---:|"
+    );
+    for l in &r.located {
+        let point: Vec<String> = l.point.iter().map(|v| format!("{v:.3}")).collect();
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {} | {} | {:.3} |",
+            l.name,
+            point.join(", "),
+            num(l.brdf_rmse),
+            num(l.model_rmse),
+            l.nearest,
+            num(l.nearest_brdf_rmse),
+            num(l.nearest_model_rmse),
+            l.variance_fraction
+        );
+    }
+    // Files named like a training material: is that material the closest one?
+    let named: Vec<_> = r
+        .located
+        .iter()
+        .filter(|l| names.contains(&l.name.as_str()))
+        .collect();
+    if !named.is_empty() {
+        let own = named.iter().filter(|l| l.nearest == l.name).count();
+        let _ = writeln!(
+            s,
+            "\n{own} of the {} files named like a training material have that material as the \
+             closest one.",
+            named.len()
+        );
+    }
 }
 
 fn predictions(s: &mut String, r: &Results) {

@@ -132,6 +132,31 @@ pub fn predict_points(
     Ok(rows)
 }
 
+/// Places the measured `files` (outside the training set) in the latent space (predict crate,
+/// as `specgp locate`): resampled onto the model's grid and channels as `import` does, then
+/// located with `starts` starting points each.
+pub fn locate_files(
+    pred: &Predictor,
+    files: &[std::path::PathBuf],
+    starts: usize,
+) -> Result<Vec<predict::locate::Location>> {
+    let mut targets = Vec::new();
+    for f in files {
+        let (t, report) = predict::locate::Target::from_file(f, pred.grid(), pred.channels())
+            .map_err(|e| Error::stage("locate", f, e))?;
+        tracing::info!(file = %f.display(), "resampled for locate: {report}");
+        targets.push(t);
+    }
+    let pb = bar(0, "locate");
+    let r = predict::locate::locate(pred, &targets, starts, &|done, total| {
+        pb.set_length(total as u64);
+        pb.set_position(done as u64);
+    })
+    .map_err(|e| Error::stage("locate", pred.model().dataset.path.clone(), e));
+    pb.finish_and_clear();
+    r
+}
+
 /// Reconstruction errors and, with `loo`, leave-one-out errors (predict crate).
 pub fn run_evaluate(pred: &Predictor, loo: bool) -> Result<Evaluation> {
     let n = pred.n_materials() as u64;

@@ -247,6 +247,14 @@ fn unknown_keys_and_bad_values_are_named() {
             base.replace("400:700:50", "300:700:100"),
             "data.wavelengths \"300:700:100\": ",
         ),
+        (
+            format!("{base}\n[locate]\nfiles = [\"a.png\"]\n"),
+            "locate.files: a.png is not an RGL .bsdf or a MERL .binary file",
+        ),
+        (
+            format!("{base}\n[locate]\nfiles = [\"a.bsdf\"]\nstarts = 0\n"),
+            "locate.starts",
+        ),
     ];
     for (i, (text, needle)) in cases.iter().enumerate() {
         let path = dir.path().join(format!("bad{i}.toml"));
@@ -325,4 +333,58 @@ fn runs_publish_their_outputs_together() {
         std::fs::read_to_string(&inside).unwrap(),
         std::fs::read_to_string(root.join("configs/quick.toml")).unwrap()
     );
+}
+
+/// Real measured RGL files located in the space fitted to others (`[locate]`): each lands where
+/// the GP reconstructs it at least as well as the closest training material, and the report
+/// says so. Skipped without the shared data.
+#[test]
+fn located_files_are_reported() {
+    let root = project_root();
+    let Some(rgl) = shared_data::path("rgl-rgb") else {
+        return;
+    };
+    let file = |s: &str| rgl.join(format!("{s}_rgb.bsdf")).display().to_string();
+    let list = |names: &[&str]| {
+        names
+            .iter()
+            .map(|n| format!("{:?}", file(n)))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("located.toml");
+    let text = format!(
+        "name = \"located\"\n[data]\nkind = \"rgl\"\ngrid = \"8,8,16\"\nfiles = [{}]\n\
+         [fit]\nlatent_dim = 2\n[render]\nenabled = false\n[evaluate]\nloo = false\n\
+         [locate]\nfiles = [{}]\nstarts = 2\n",
+        list(&[
+            "cc_ibiza_sunset",
+            "cg_sunflower",
+            "paper_white",
+            "vch_golden_yellow"
+        ]),
+        list(&["satin_rosaline", "colodur_napoli_4f"])
+    );
+    std::fs::write(&config, text).unwrap();
+    let config = PipelineConfig::load(&config, &root).unwrap();
+    let out = dir.path().join("out");
+    let results = xtask::run(&config, &out).unwrap();
+    assert_eq!(results.located.len(), 2);
+    for (l, stem) in results
+        .located
+        .iter()
+        .zip(["satin_rosaline", "colodur_napoli_4f"])
+    {
+        assert_eq!(l.name, format!("{stem}_rgb"));
+        assert_eq!(l.source, file(stem));
+        assert!(l.brdf_rmse.is_finite() && l.brdf_rmse > 0.0, "{l:?}");
+        assert!(l.model_rmse <= l.nearest_model_rmse * (1.0 + 1e-9), "{l:?}");
+        assert_eq!(l.point.len(), 2);
+    }
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("## Located materials"), "{report}");
+    assert!(report.contains("| satin_rosaline_rgb |"), "{report}");
+    let stage = results.stages.iter().find(|s| s.name == "locate").unwrap();
+    assert_eq!(stage.status, "done");
 }
