@@ -10,9 +10,8 @@
 //! second pass measures the located prediction's errors directly, in BRDF and in transformed
 //! space (Eq. 22 normalisation).
 
-use std::sync::atomic::{AtomicUsize, Ordering};
-
 use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use brdf_io::store::Store;
 use brdf_io::{AngularGrid, Channels, ImportReport};

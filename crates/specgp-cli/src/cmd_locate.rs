@@ -7,10 +7,9 @@
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
-
-use anyhow::{Context, bail};
 use std::sync::Arc;
 
+use anyhow::{Context, bail};
 use brdf_io::store::Store;
 use brdf_io::{AngularGrid, Channels};
 use predict::Predictor;
@@ -240,11 +239,7 @@ pub fn locate_command(args: &LocateArgs) -> anyhow::Result<()> {
             l.nearest_brdf_rmse,
             l.nearest_model_rmse,
             l.variance_fraction,
-            l.point
-                .iter()
-                .map(|v| v.to_string())
-                .collect::<Vec<_>>()
-                .join(",")
+            crate::cmd_predict::format_point(&l.point)
         )?;
     }
     table.flush()?;

@@ -85,6 +85,12 @@ pub struct EvaluateArgs {
     pub dataset: Option<PathBuf>,
 }
 
+/// A latent point as `X1,X2,...` in the shortest form that [`parse_point`] reads back exactly
+/// (for `MODEL.toml@X1,...` and `--at`).
+pub fn format_point(x: &[f64]) -> String {
+    x.iter().map(f64::to_string).collect::<Vec<_>>().join(",")
+}
+
 /// Parses a latent point `X,Y[,...]`.
 pub fn parse_point(s: &str) -> anyhow::Result<Vec<f64>> {
     s.split(',')
@@ -435,6 +441,8 @@ mod tests {
     #[test]
     fn parses_points_and_recognises_model_sources() {
         assert_eq!(parse_point("0.5,-1e-3").unwrap(), vec![0.5, -1e-3]);
+        let x = [0.1 + 0.2, -1e-300, 12345.678];
+        assert_eq!(parse_point(&format_point(&x)).unwrap(), x);
         let e = parse_point("0.5,x").unwrap_err().to_string();
         assert!(e.contains("\"x\" is not a number"), "{e}");
         assert!(open_model_source("data.sbrdf:felt", None, PredictorKind::Exact).is_none());

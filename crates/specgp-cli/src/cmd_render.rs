@@ -253,11 +253,7 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
         eprintln!(
             "located {} at {} (Eq. 22 RMSE {:.4e} in BRDF space)",
             l.name,
-            l.point
-                .iter()
-                .map(|v| v.to_string())
-                .collect::<Vec<_>>()
-                .join(","),
+            crate::cmd_predict::format_point(&l.point),
             l.brdf_rmse
         );
         // A located variant of a training material keeps its name: say which is which.
