@@ -1,5 +1,7 @@
-//! The render stage: sphere sheets (measured against GP reconstruction, with Delta E 2000),
-//! spheres of the predictions and the latent map, through the render crate.
+//! The render stage: sphere sheets (measured against GP reconstruction, with Delta E 2000), the
+//! comparison sheet (stored vs exact vs smooth vs held out, with Delta E heat maps), the paths
+//! figure (GP path against linear blends), spheres of the predictions and the latent map,
+//! through the render crate.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -43,6 +45,7 @@ pub struct Figures {
 }
 
 const BG: [f64; 3] = [0.18, 0.18, 0.18];
+const INK: [f64; 3] = [0.9, 0.9, 0.9];
 
 /// Top of the Delta E scale of the comparison sheet's heat maps.
 const COMPARISON_DE_MAX: f64 = 10.0;
@@ -50,7 +53,6 @@ const COMPARISON_DE_MAX: f64 = 10.0;
 const PATH_STEPS: usize = 7;
 /// At most this many pairs in the paths figure.
 const MAX_PATHS: usize = 3;
-const INK: [f64; 3] = [0.9, 0.9, 0.9];
 
 /// Mean Delta E 2000 between two renders over the pixels fully covered in both.
 pub fn mean_delta_e(a: &Image, b: &Image) -> f64 {
@@ -267,8 +269,6 @@ pub fn render_figures(
             column_means.join(", ")
         ),
     ));
-    drop(rows);
-    drop(kept);
 
     // Paths (the paper's Fig. 4.4): along the straight latent line between two materials
     // (exact predictor: the materials themselves at the ends) against linear interpolation of
