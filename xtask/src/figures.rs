@@ -91,11 +91,12 @@ pub fn render_figures(
     pred: &Predictor,
     predictions: &[PredictionRow],
     evaluation: Option<&predict::evaluate::Evaluation>,
-    size: usize,
-    sheet_materials: usize,
+    render: &crate::config::RenderParams,
     pairs: &[[String; 2]],
+    located: &[predict::locate::Location],
     out: &Path,
 ) -> Result<Figures> {
+    let (size, sheet_materials) = (render.size as usize, render.sheet_materials);
     let opts = SphereOptions {
         size,
         ..SphereOptions::default()
@@ -405,6 +406,11 @@ pub fn render_figures(
                     .iter()
                     .map(|p| (p.label.clone(), [p.point[0], p.point[1]])),
             )
+            .chain(
+                located
+                    .iter()
+                    .map(|l| (format!("{} (located)", l.name), [l.point[0], l.point[1]])),
+            )
             .collect();
         let variance = |p: [f64; 2]| -> render::Result<f64> {
             let mut x = vec![0.0; q];
@@ -417,15 +423,15 @@ pub fn render_figures(
         };
         let opts = render::MapOptions {
             caption: render::map::variance_caption(&model.transform.to_string(), q),
-            predicted_points: predictions.len(),
+            predicted_points: predictions.len() + located.len(),
             ..render::MapOptions::default()
         };
         let img = render::latent_map(&points, &variance, None, &opts).map_err(|e| err(&path, e))?;
         img.save_png(&path).map_err(|e| err(&path, e))?;
         files.push((
             "latent.png".to_string(),
-            "The training materials (red dots) and the predicted points (blue rings) in the first \
-             two latent coordinates (equal scales), shaded by the GP's predictive standard \
+            "The training materials (red dots) and the predicted points and located materials \
+             (blue rings) in the first two latent coordinates (equal scales), shaded by the GP's predictive standard \
              deviation per transformed value (the square root of the predictions table's \
              variance; for q > 2, on the slice through 0 of the other coordinates, so points off \
              that slice can sit in a lighter or darker area than their own variance says)."

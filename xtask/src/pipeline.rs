@@ -454,9 +454,9 @@ fn run_in(config: &PipelineConfig, out: &Path, published: &Path) -> Result<Resul
             &pred,
             &predictions,
             evaluation.as_ref(),
-            r.size as usize,
-            r.sheet_materials,
+            r,
             &config.params.predict.midpoints,
+            &located,
             out,
         )?)
     } else {
