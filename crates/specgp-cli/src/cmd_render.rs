@@ -242,12 +242,20 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
         .iter()
         .map(|m| (m.name.clone(), on_map(&m.coords)))
         .collect();
-    let located = if args.locate.is_empty() {
-        Vec::new()
+    // The model with its data, for thumbnails and located materials (once for both).
+    let pred = if args.thumbnails || !args.locate.is_empty() {
+        Some(
+            predict::Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
+                .with_context(|| format!("opening model {}", args.model.display()))?,
+        )
     } else {
-        let pred = predict::Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
-            .with_context(|| format!("opening model {}", args.model.display()))?;
-        crate::cmd_locate::locate_targets(&pred, &args.locate, 3)?
+        None
+    };
+    let located = match &pred {
+        Some(pred) if !args.locate.is_empty() => {
+            crate::cmd_locate::locate_targets(pred, &args.locate, 3)?
+        }
+        _ => Vec::new(),
     };
     for l in &located {
         eprintln!(
@@ -277,9 +285,7 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
     };
     // Variance per transformed value, as `predict --variance` and the reports give it.
     let scale = model.data_scale;
-    let img = if args.thumbnails {
-        let pred = predict::Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
-            .with_context(|| format!("opening model {}", args.model.display()))?;
+    let img = if let Some(pred) = pred.filter(|_| args.thumbnails) {
         // Thumbnails are lazy predictions: read an existing sidecar like `render` does.
         let pred = crate::cmd_predict::with_existing_sidecar(pred)?;
         let needed = render::colour::needed_wavelengths(pred.channels(), opts.sphere.illuminant)?;
