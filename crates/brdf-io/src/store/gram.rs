@@ -141,7 +141,7 @@ impl<'t, T: GramTransform + ?Sized> GramAccumulator<'t, T> {
                     let next = (d - range.start) * n;
                     let ahead =
                         &block[next.min(block.len())..(next + F64_BLOCK * n).min(block.len())];
-                    super::prefetch_lines(bytemuck::cast_slice(ahead), super::CacheLevel::L2);
+                    super::prefetch_lines(bytemuck::cast_slice(ahead));
                     self.flush();
                 }
             }

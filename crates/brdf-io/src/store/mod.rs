@@ -37,33 +37,21 @@ use serde::{Deserialize, Serialize};
 
 use crate::grid::{AngularGrid, Channels};
 
-/// Which cache a [`prefetch_lines`] hint fills.
-#[derive(Debug, Clone, Copy)]
-pub(crate) enum CacheLevel {
-    /// L1 and up: data read right away (a lazy lookup's next cell).
-    L1,
-    /// L2 and up: data read after the current work, which keeps L1 for itself (the Gram
-    /// pass's next block).
-    L2,
-}
-
-/// Asks the CPU to fetch the cache lines of `bytes` into `level` (x86-64; elsewhere nothing).
-/// A hint: it never faults and changes no value.
-pub(crate) fn prefetch_lines(bytes: &[u8], level: CacheLevel) {
+/// Asks the CPU to fetch the cache lines of `bytes` into L2 (x86-64 `prefetcht1`; elsewhere
+/// nothing). A hint: it never faults and changes no value. Both users read the data after the
+/// work at hand (the Gram pass's next block; a lazy lookup's next cell), which keeps L1 for
+/// itself: prefetching a lookup's next cell into L1 instead made fast-table renders 1.4x and
+/// default-table renders 1.6x slower (BENCHMARKS.md "render", session 11).
+pub(crate) fn prefetch_lines(bytes: &[u8]) {
     #[cfg(target_arch = "x86_64")]
     for line in bytes.chunks(64) {
-        use std::arch::x86_64::{_MM_HINT_T0, _MM_HINT_T1, _mm_prefetch};
+        use std::arch::x86_64::{_MM_HINT_T1, _mm_prefetch};
         // SAFETY: prefetching is a hint that never faults, the pointer is in bounds anyway,
         // and SSE is part of x86-64.
-        unsafe {
-            match level {
-                CacheLevel::L1 => _mm_prefetch::<_MM_HINT_T0>(line.as_ptr().cast()),
-                CacheLevel::L2 => _mm_prefetch::<_MM_HINT_T1>(line.as_ptr().cast()),
-            }
-        };
+        unsafe { _mm_prefetch::<_MM_HINT_T1>(line.as_ptr().cast()) };
     }
     #[cfg(not(target_arch = "x86_64"))]
-    let _ = (bytes, level);
+    let _ = bytes;
 }
 
 /// Magic bytes at the start of every `.sbrdf` file.

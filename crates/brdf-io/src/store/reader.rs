@@ -597,11 +597,11 @@ impl Store {
     }
 
     /// A hint that the values of `d_range` (all materials) are read soon: on an uncompressed
-    /// store opened with a memory map, asks the CPU to fetch their cache lines (x86-64); no
-    /// effect otherwise, or for a range outside the store.
+    /// store opened with a memory map, asks the CPU to fetch their cache lines into L2
+    /// (x86-64); no effect otherwise, or for a range outside the store.
     pub fn prefetch(&self, d_range: Range<usize>) {
         if let Some(bytes) = self.mapped_bytes(d_range) {
-            super::prefetch_lines(bytes, super::CacheLevel::L1);
+            super::prefetch_lines(bytes);
         }
     }
 
