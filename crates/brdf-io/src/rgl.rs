@@ -17,6 +17,9 @@
 //! Anisotropic files (more than two `phi_i` samples, Mitsuba's test) are rejected as not supported
 //! yet. Parameters outside the stored `theta_i` range are clamped like Mitsuba; a requested
 //! wavelength outside the stored range is an error.
+//!
+//! [`write_rgl`] writes any [`BrdfSource`] (a stored or predicted material) as an isotropic file
+//! that this evaluator, Mitsuba 3 and pbrt-v4 read (`rgl/write.rs`).
 
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
@@ -27,6 +30,12 @@ use crate::source::{
     BrdfSource, ImportReport, PairWeights, ResampleOptions, resample_cells, resample_cells_into,
 };
 use crate::tensor::{DType, TensorFile};
+
+mod write;
+
+pub use write::{
+    MAX_EVAL_THETA_DEG, NDF_FLOOR, RglWriteOptions, RglWriteSummary, rgl_fields, write_rgl,
+};
 
 /// Linear interpolation weights along one conditioning axis, as Mitsuba's
 /// `Distribution2D::interpolate_weights`: the interval `[v[i], v[i+1]]` with `v[i] < p`

@@ -28,9 +28,10 @@ pub struct PredictArgs {
     /// materials, in the model's transformed space.
     #[arg(long)]
     pub lerp: Option<String>,
-    /// Output file: `.sbrdf` (one material), `.npy` (1 x D f32) or `.binary` (MERL RGB;
-    /// spectral data are converted to linear sRGB under D65); `-` writes `.npy` to standard
-    /// output (redirected to a file).
+    /// Output file: `.sbrdf` (one material), `.npy` (1 x D f32), `.binary` (MERL RGB;
+    /// spectral data are converted to linear sRGB under D65) or `.bsdf` (an RGL file for
+    /// Mitsuba 3 and pbrt-v4, sampled from the lazy prediction; see `specgp convert`); `-`
+    /// writes `.npy` to standard output (redirected to a file).
     #[arg(long)]
     pub out: PathBuf,
     /// Wavelengths START:END:STEP or a comma list in nm (linear interpolation between stored
@@ -54,6 +55,8 @@ pub struct PredictArgs {
     /// `render MODEL@X,Y` and `map --thumbnails` use an existing sidecar automatically.
     #[arg(long)]
     pub sidecar: bool,
+    #[command(flatten)]
+    pub rgl: crate::cmd_convert::RglArgs,
 }
 
 /// Arguments of `specgp evaluate`.
@@ -249,6 +252,13 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
     };
     if let Some(spec) = &args.wavelengths {
         material = material.with_wavelengths(&Channels::parse_wavelengths(spec)?)?;
+    }
+    if args
+        .out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("bsdf"))
+    {
+        return crate::cmd_convert::write_bsdf(&material, material.label(), &args.out, &args.rgl);
     }
     let pb = bar(pred.store().n_chunks() as u64, "predict");
     let spectral_merl = args.out.extension().is_some_and(|e| e == "binary")

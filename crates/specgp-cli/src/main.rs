@@ -6,6 +6,7 @@
 use brdf_io::{AngularGrid, Channels};
 use clap::{Parser, Subcommand};
 
+mod cmd_convert;
 mod cmd_data;
 mod cmd_fit;
 mod cmd_locate;
@@ -40,6 +41,8 @@ enum Command {
     Export(cmd_data::ExportArgs),
     /// Evaluate a BRDF source (f in 1/sr) at the direction pairs of a CSV file.
     Sample(cmd_sample::SampleArgs),
+    /// Write a BRDF source as an RGL `.bsdf` file (Mitsuba 3 and pbrt-v4 `measured` material).
+    Convert(cmd_convert::ConvertArgs),
     /// Write the embedded default dataset: 51 synthetic spectral materials on a grid.
     Synth(cmd_synth::SynthArgs),
     /// Fit a GPLVM latent space to a dataset store and write the model (TOML).
@@ -142,6 +145,7 @@ fn run_command(command: Command) -> anyhow::Result<()> {
         Command::Info(args) => cmd_data::info(&args),
         Command::Export(args) => cmd_data::export(&args),
         Command::Sample(args) => cmd_sample::sample(&args),
+        Command::Convert(args) => cmd_convert::convert(&args),
         Command::Synth(args) => cmd_synth::synth(&args),
     }
 }

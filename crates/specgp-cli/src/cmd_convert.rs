@@ -1,0 +1,104 @@
+//! `specgp convert SOURCE --out FILE.bsdf`: any BRDF source (a stored or predicted material, a
+//! MERL or RGL file) as an isotropic RGL `.bsdf` file, which Mitsuba 3 and pbrt-v4 render
+//! (`measured` material); see `brdf_io::rgl::write_rgl`. `specgp predict --out FILE.bsdf`
+//! writes a prediction the same way.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use brdf_io::rgl::{RglWriteOptions, write_rgl};
+use brdf_io::{BrdfSource, Channels};
+
+/// Arguments of `specgp convert`.
+#[derive(Debug, clap::Args)]
+pub struct ConvertArgs {
+    /// The BRDF: an RGL `.bsdf` file, a MERL `.binary` file, `DATA.sbrdf:MATERIAL` or
+    /// `MODEL.toml@X1,...,Xq` (lazy GP prediction at a latent point; the exact predictor unless
+    /// --smooth).
+    pub source: String,
+    /// Output RGL file (`.bsdf`; spectral sources give `spectra` and `wavelengths`, RGB
+    /// sources an `rgb` table).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Wavelengths START:END:STEP or a comma list in nm, inside the stored range (spectral
+    /// sources; default: the stored ones).
+    #[arg(long)]
+    pub wavelengths: Option<String>,
+    /// With a model point: the smooth predictor instead of the exact one.
+    #[arg(long)]
+    pub smooth: bool,
+    #[command(flatten)]
+    pub rgl: RglArgs,
+}
+
+/// Resolution of a written RGL file (`convert`, and `predict --out FILE.bsdf`).
+#[derive(Debug, Clone, clap::Args)]
+pub struct RglArgs {
+    /// Incident elevations of a written `.bsdf` file (2..=1024; cosine-spaced, 0-90 degrees).
+    #[arg(long, default_value_t = RglWriteOptions::default().theta_samples)]
+    pub theta_samples: usize,
+    /// Side of a written `.bsdf` file's value tables (2..=1024; points of the warped square
+    /// per incident elevation).
+    #[arg(long, default_value_t = RglWriteOptions::default().resolution)]
+    pub resolution: usize,
+    /// Description stored in a written `.bsdf` file (default: the source).
+    #[arg(long)]
+    pub description: Option<String>,
+}
+
+/// Writes `source` (named `label`) as an RGL file at `out` and reports it on stderr.
+pub fn write_bsdf(
+    source: &dyn BrdfSource,
+    label: &str,
+    out: &Path,
+    args: &RglArgs,
+) -> anyhow::Result<()> {
+    let start = std::time::Instant::now();
+    let options = RglWriteOptions {
+        theta_samples: args.theta_samples,
+        resolution: args.resolution,
+        description: args.description.clone().unwrap_or_else(|| label.to_owned()),
+        ..RglWriteOptions::default()
+    };
+    let summary =
+        write_rgl(source, out, &options).with_context(|| format!("writing {}", out.display()))?;
+    let channels = match source.channels() {
+        Channels::Rgb => "R,G,B".to_owned(),
+        c => format!("{} wavelengths", c.len()),
+    };
+    eprintln!(
+        "wrote {}: {label} as an RGL BSDF ({} incident elevations, {r} x {r} values each, \
+         {channels}; {} bytes, {:.2} s)",
+        out.display(),
+        options.theta_samples,
+        brdf_io::output::output_len(out).map_or_else(|| "?".to_owned(), |b| b.to_string()),
+        start.elapsed().as_secs_f64(),
+        r = options.resolution,
+    );
+    if summary.negative_clamped > 0 {
+        eprintln!(
+            "warning: {} of {} values are negative (stored as 0: a renderer needs a \
+             non-negative BRDF)",
+            summary.negative_clamped, summary.values
+        );
+    }
+    Ok(())
+}
+
+/// Runs `specgp convert`.
+pub fn convert(args: &ConvertArgs) -> anyhow::Result<()> {
+    let source_path = crate::paths::source_file(&args.source);
+    crate::paths::ensure_output_is_not_an_input(&args.out, &[&source_path])?;
+    crate::paths::ensure_extension(&args.out, "bsdf", "an RGL tensor file")?;
+    let wavelengths = args
+        .wavelengths
+        .as_deref()
+        .map(Channels::parse_wavelengths)
+        .transpose()?;
+    let source = crate::cmd_sample::open_source(
+        &args.source,
+        wavelengths.as_ref(),
+        crate::cmd_sample::predictor_kind(args.smooth),
+    )?;
+    write_bsdf(source.as_ref(), &args.source, &args.out, &args.rgl)
+}
