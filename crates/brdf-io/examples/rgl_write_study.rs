@@ -1,9 +1,11 @@
 //! Accuracy and cost of writing stored materials as RGL `.bsdf` files, over the writer's
 //! resolution settings (BENCHMARKS.md "brdf-io", RGL writer).
 //!
-//! `cargo run --release -p brdf-io --example rgl_write_study -- DATA.sbrdf MATERIAL...`
+//! `cargo run --release -p brdf-io --example rgl_write_study -- SOURCE...` with SOURCE a stored
+//! material `DATA.sbrdf:MATERIAL` or an RGL file `FILE.bsdf` (re-encoded with specgp's own
+//! parameterisation).
 //!
-//! For each material and setting: the time to build the file's fields, its size, and the
+//! For each source and setting: the time to build the file's fields, its size, and the
 //! errors of the written file (read back with `RglBsdf`) against the stored material at 20,000
 //! seeded direction pairs (cosine-distributed, plus 2,000 near the mirror direction): relative
 //! RMS weighted by cos theta_i cos theta_o (what reaches a picture), and the median and 90th
@@ -14,7 +16,7 @@ use std::time::Instant;
 use brdf_io::rgl::{RglBsdf, RglWriteOptions, rgl_fields};
 use brdf_io::store::StoreMaterial;
 use brdf_io::tensor::TensorFile;
-use brdf_io::{Channels, Vec3};
+use brdf_io::{BrdfSource, Channels, Vec3};
 
 fn next(state: &mut u64) -> f64 {
     *state = state
@@ -48,40 +50,51 @@ fn pairs() -> Vec<(Vec3, Vec3)> {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let (store, materials) = args.split_first().ok_or("usage: DATA.sbrdf MATERIAL...")?;
+    if args.is_empty() {
+        return Err("usage: rgl_write_study DATA.sbrdf:MATERIAL|FILE.bsdf...".into());
+    }
     let visible = Channels::spectral(vec![450.0, 550.0, 650.0])?;
     let pairs = pairs();
-    let settings: Vec<(usize, usize, f64)> = vec![
-        (16, 32, 1e-3),
-        (16, 32, 1e-2),
-        (16, 32, 1e-4),
-        (32, 32, 1e-4),
-        (32, 32, 1e-5),
-        (32, 64, 1e-4),
-        (64, 32, 1e-4),
-        (64, 64, 1e-4),
+    let settings: Vec<(usize, usize, f64, usize)> = vec![
+        (32, 32, 0.02, 128),
+        (32, 32, 0.02, 256),
+        (32, 64, 0.02, 256),
+        (32, 32, 0.005, 128),
+        (32, 32, 0.1, 128),
+        (32, 32, 0.2, 128),
+        (32, 32, 0.4, 128),
+        (16, 32, 0.2, 128),
+        (32, 64, 0.2, 128),
+        (64, 64, 0.2, 128),
     ];
     println!(
-        "material | theta_i | table | NDF floor | build s | MB | cos-weighted rel RMS | median | p90"
+        "source | theta_i | table | warp | broad share | build s | MB | cos-weighted rel RMS | median | p90"
     );
-    for name in materials {
-        let source = StoreMaterial::open(store, name)?.with_wavelengths(&visible)?;
-        let nc = 3;
+    for name in &args {
+        let source: Box<dyn BrdfSource> = match brdf_io::store::parse_store_spec(name) {
+            Some((store, material)) => {
+                Box::new(StoreMaterial::open(store, &material)?.with_wavelengths(&visible)?)
+            }
+            None => Box::new(RglBsdf::open(name)?),
+        };
+        let nc = source.channels().len();
+        let label = name.rsplit('/').next().unwrap_or(name);
         let (mut f, mut g) = (vec![0.0; nc], vec![0.0; nc]);
         let reference: Vec<Vec<f64>> = pairs
             .iter()
             .map(|&(wi, wo)| source.eval(wi, wo, &mut g).map(|_| g.clone()))
             .collect::<Result<_, _>>()?;
         let peak = reference.iter().flatten().copied().fold(0.0, f64::max);
-        for &(theta_samples, resolution, ndf_floor) in &settings {
+        for &(theta_samples, resolution, broad_share, warp_resolution) in &settings {
             let options = RglWriteOptions {
                 theta_samples,
                 resolution,
-                ndf_floor,
+                broad_share,
+                warp_resolution,
                 ..RglWriteOptions::default()
             };
             let start = Instant::now();
-            let (fields, _) = rgl_fields(&source, &options)?;
+            let (fields, _) = rgl_fields(source.as_ref(), &options)?;
             let seconds = start.elapsed().as_secs_f64();
             let bytes = TensorFile::to_bytes(&fields)?;
             let bsdf = RglBsdf::from_tensor_file(&TensorFile::from_bytes(&bytes, "study.bsdf")?)?;
@@ -100,7 +113,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             rel.sort_by(f64::total_cmp);
             let q = |p: f64| rel[((rel.len() - 1) as f64 * p) as usize];
             println!(
-                "{name} | {theta_samples} | {resolution} | {ndf_floor:e} | {seconds:.2} | {:.1} | {:.4} | {:.4} | {:.4}",
+                "{label} | {theta_samples} | {resolution} | {warp_resolution} | {broad_share} | {seconds:.2} | {:.1} | {:.4} | {:.4} | {:.4}",
                 bytes.len() as f64 / 1e6,
                 (num / den).sqrt(),
                 q(0.5),

@@ -34,7 +34,8 @@ use crate::tensor::{DType, TensorFile};
 mod write;
 
 pub use write::{
-    MAX_EVAL_THETA_DEG, NDF_FLOOR, RglWriteOptions, RglWriteSummary, rgl_fields, write_rgl,
+    BROAD_SHARE, CHECK_PAIRS, DEFAULT_TOLERANCE, MAX_EVAL_THETA_DEG, RglWriteOptions,
+    RglWriteSummary, rgl_fields, write_rgl,
 };
 
 /// Linear interpolation weights along one conditioning axis, as Mitsuba's

@@ -504,6 +504,19 @@ impl TensorFile {
         Ok(out)
     }
 
+    /// The tensor file that `fields` make, as if read from `path` (no bytes involved).
+    pub(crate) fn from_fields(fields: Vec<Field>, path: impl AsRef<Path>) -> Self {
+        Self {
+            path: path.as_ref().to_path_buf(),
+            fields,
+        }
+    }
+
+    /// The fields, taken out of the file.
+    pub(crate) fn into_fields(self) -> Vec<Field> {
+        self.fields
+    }
+
     /// Writes `fields` as a tensor file at `path` through [`crate::output::write_file_atomic`]
     /// (temporary file and rename; special files such as `/dev/stdout` written in place).
     pub fn write(path: impl AsRef<Path>, fields: &[Field]) -> Result<()> {

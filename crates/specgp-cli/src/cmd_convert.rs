@@ -35,12 +35,19 @@ pub struct ConvertArgs {
 #[derive(Debug, Clone, clap::Args)]
 pub struct RglArgs {
     /// Incident elevations of a written `.bsdf` file (2..=1024; cosine-spaced, 0-90 degrees).
-    #[arg(long, default_value_t = RglWriteOptions::default().theta_samples)]
-    pub theta_samples: usize,
+    /// Default: 32, refined (see --tolerance).
+    #[arg(long)]
+    pub theta_samples: Option<usize>,
     /// Side of a written `.bsdf` file's value tables (2..=1024; points of the warped square
-    /// per incident elevation).
-    #[arg(long, default_value_t = RglWriteOptions::default().resolution)]
-    pub resolution: usize,
+    /// per incident elevation). Default: 32, refined (see --tolerance).
+    #[arg(long)]
+    pub resolution: Option<usize>,
+    /// Check error (cos-weighted relative RMS against the source at 4096 direction pairs)
+    /// above which a written `.bsdf` file is refined: the incident elevations or the tables'
+    /// side doubled (up to 128 each) while that cuts the error by a quarter. Giving
+    /// --theta-samples or --resolution writes those sizes as they are.
+    #[arg(long, default_value_t = brdf_io::rgl::DEFAULT_TOLERANCE, conflicts_with_all = ["resolution", "theta_samples"])]
+    pub tolerance: f64,
     /// Description stored in a written `.bsdf` file (default: the source).
     #[arg(long)]
     pub description: Option<String>,
@@ -54,11 +61,14 @@ pub fn write_bsdf(
     args: &RglArgs,
 ) -> anyhow::Result<()> {
     let start = std::time::Instant::now();
+    let default = RglWriteOptions::default();
     let options = RglWriteOptions {
-        theta_samples: args.theta_samples,
-        resolution: args.resolution,
+        theta_samples: args.theta_samples.unwrap_or(default.theta_samples),
+        resolution: args.resolution.unwrap_or(default.resolution),
+        tolerance: (args.resolution.is_none() && args.theta_samples.is_none())
+            .then_some(args.tolerance),
         description: args.description.clone().unwrap_or_else(|| label.to_owned()),
-        ..RglWriteOptions::default()
+        ..default
     };
     let summary =
         write_rgl(source, out, &options).with_context(|| format!("writing {}", out.display()))?;
@@ -68,16 +78,26 @@ pub fn write_bsdf(
     };
     eprintln!(
         "wrote {}: {label} as an RGL BSDF ({} incident elevations, {r} x {r} values each, \
-         {channels}; {} bytes, {:.2} s)",
+         {channels}; {} bytes, {:.2} s); check against the source: {:.2} % cos-weighted RMS \
+         error at {} direction pairs",
         out.display(),
-        options.theta_samples,
+        summary.theta_samples,
         brdf_io::output::output_len(out).map_or_else(|| "?".to_owned(), |b| b.to_string()),
         start.elapsed().as_secs_f64(),
-        r = options.resolution,
+        100.0 * summary.check_rms,
+        brdf_io::rgl::CHECK_PAIRS,
+        r = summary.resolution,
     );
+    if options.tolerance.is_some_and(|t| summary.check_rms > t) {
+        eprintln!(
+            "warning: the check error is above --tolerance {}: finer tables did not reduce it \
+             by a quarter; the source varies faster than the format's interpolation follows",
+            args.tolerance,
+        );
+    }
     if summary.negative_clamped > 0 {
         eprintln!(
-            "warning: {} of {} values are negative (stored as 0: a renderer needs a \
+            "warning: {} of {} source values are negative (stored as 0: a renderer needs a \
              non-negative BRDF)",
             summary.negative_clamped, summary.values
         );

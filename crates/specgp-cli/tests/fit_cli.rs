@@ -824,7 +824,8 @@ fn rgl_files_of_predictions_and_stored_materials_read_back_as_their_source() {
         d,
     );
     assert!(
-        said.contains("as an RGL BSDF (12 incident elevations, 16 x 16 values each, 7 wavelengths"),
+        said.contains("as an RGL BSDF (12 incident elevations, 16 x 16 values each, 7 wavelengths")
+            && said.contains("% cos-weighted RMS error at 4096 direction pairs"),
         "{said}"
     );
     specgp(
@@ -891,6 +892,19 @@ fn rgl_files_of_predictions_and_stored_materials_read_back_as_their_source() {
         (
             vec!["convert", "data.sbrdf", "--out", "h.bsdf"],
             "name one of its materials",
+        ),
+        (
+            vec![
+                "convert",
+                "data.sbrdf:metal_gold",
+                "--out",
+                "h.bsdf",
+                "--resolution",
+                "64",
+                "--tolerance",
+                "0.01",
+            ],
+            "cannot be used with",
         ),
     ] {
         let err = specgp_fails(&args, d);

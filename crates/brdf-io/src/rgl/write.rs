@@ -10,9 +10,11 @@
 //! (`RglBsdf`, module docs of [`super`]). Any positive D gives a valid file; a D shaped like the
 //! BRDF's own lobe puts the table's samples where the BRDF varies. The writer:
 //! 1. estimates D from the source's retro-reflection, `D(theta) ~ lum f(w, w) cos^2 theta` (the
-//!    microfacet model's `f(w, w) = D F G / (4 cos^2 theta)` without F and G), floored at
-//!    [`RglWriteOptions::ndf_floor`] of its peak, normalised so that the integral of D cos theta_m is 1, and
-//!    tabulated over `u = sqrt(2 theta / pi)` as the format does;
+//!    microfacet model's `f(w, w) = D F G / (4 cos^2 theta)` without F and G), normalised so
+//!    that the integral of D cos theta_m is 1, mixed with the uniform NDF 1/pi in the share
+//!    [`RglWriteOptions::broad_share`] (so the warp still puts table points where the estimate
+//!    is small but the BRDF is not, e.g. at grazing angles, and no value is divided by a
+//!    vanishing D), and tabulated over `u = sqrt(2 theta / pi)` as the format does;
 //! 2. integrates the projected area `sigma(w_i) = int D(m) max(0, w_i . m) dm` numerically;
 //! 3. tabulates per `theta_i` the VNDF `D(m) max(0, w_i . m)` times the Jacobian of the
 //!    format's half-vector coordinates (`2 pi^2 u sin theta_m`), i.e. the warp's density;
@@ -33,14 +35,28 @@ use std::path::Path;
 
 use rayon::prelude::*;
 
-use super::{Corners, Table2D, Warp, phi2u, theta2u};
+use super::{Corners, RglBsdf, Table2D, Warp, phi2u, theta2u};
 use crate::error::{Error, Result};
 use crate::grid::Channels;
 use crate::source::BrdfSource;
 use crate::tensor::{Field, TensorFile};
 
-/// The default [`RglWriteOptions::ndf_floor`].
-pub const NDF_FLOOR: f64 = 1e-4;
+/// The default [`RglWriteOptions::broad_share`].
+pub const BROAD_SHARE: f64 = 0.02;
+
+/// A refinement is kept only when it brings the check error below this fraction of the
+/// previous one.
+const REFINE_GAIN: f64 = 0.75;
+
+/// Largest warp-table side that refinement goes to.
+const MAX_WARP: usize = 512;
+
+/// The default [`RglWriteOptions::tolerance`]: 5 % cos-weighted relative RMS error.
+pub const DEFAULT_TOLERANCE: f64 = 0.05;
+
+/// Direction pairs of the check ([`RglWriteSummary::check_rms`]): 3/4 cosine-distributed,
+/// 1/4 within ~3 degrees of the mirror direction.
+pub const CHECK_PAIRS: usize = 4096;
 
 /// The luminance table is floored at this fraction of its mean (a sampling density must be
 /// positive wherever the BRDF may be).
@@ -60,10 +76,22 @@ pub struct RglWriteOptions {
     pub resolution: usize,
     /// Side of the `ndf`, `sigma` and `vndf` tables, at least 2.
     pub warp_resolution: usize,
-    /// The estimated NDF is floored at this fraction of its peak, in (0, 1]: the warp then
-    /// still samples the whole hemisphere (a larger floor puts more of the table's points away
-    /// from a sharp peak), and no value is divided by a vanishing D.
-    pub ndf_floor: f64,
+    /// Refinement: while the written file's check error ([`RglWriteSummary::check_rms`]) is
+    /// above this, the file is written again with twice the incident elevations or twice the
+    /// value tables' side (and warp tables of at least 4 times that), whichever cuts the error
+    /// more, up to `max_theta_samples` and `max_resolution`, as long as a doubling cuts the
+    /// error by at least a quarter (otherwise the coarser file is kept); `None` writes the
+    /// sizes as they are.
+    pub tolerance: Option<f64>,
+    /// Most incident elevations that refinement goes to (at least `theta_samples`, at most
+    /// 256).
+    pub max_theta_samples: usize,
+    /// Largest value-table side that refinement goes to (at least `resolution`, at most 256).
+    pub max_resolution: usize,
+    /// Share of the uniform NDF 1/pi in the file's NDF, in (0, 1]: the rest is the NDF
+    /// estimated from the source. The table's points are placed by the NDF: a larger share
+    /// puts more of them away from the estimate's peak.
+    pub broad_share: f64,
     /// The file's `description` text (also names the source in errors).
     pub description: String,
 }
@@ -78,7 +106,10 @@ impl Default for RglWriteOptions {
             theta_samples: 32,
             resolution: 32,
             warp_resolution: 128,
-            ndf_floor: NDF_FLOOR,
+            tolerance: Some(DEFAULT_TOLERANCE),
+            max_theta_samples: 128,
+            max_resolution: 128,
+            broad_share: BROAD_SHARE,
             description: String::new(),
         }
     }
@@ -97,11 +128,28 @@ impl RglWriteOptions {
                 return bad(format!("RGL {name} {v} must be in 2..=1024"));
             }
         }
-        if !(self.ndf_floor > 0.0 && self.ndf_floor <= 1.0) {
+        if !(self.broad_share > 0.0 && self.broad_share <= 1.0) {
             return bad(format!(
-                "RGL NDF floor {} must be in (0, 1]",
-                self.ndf_floor
+                "RGL broad NDF share {} must be in (0, 1]",
+                self.broad_share
             ));
+        }
+        if let Some(t) = self.tolerance
+            && !(t.is_finite() && t > 0.0)
+        {
+            return bad(format!("RGL tolerance {t} must be finite and > 0"));
+        }
+        if self.tolerance.is_some() {
+            for (name, v, max) in [
+                ("resolution", self.resolution, self.max_resolution),
+                ("theta samples", self.theta_samples, self.max_theta_samples),
+            ] {
+                if !(v..=256).contains(&max) {
+                    return bad(format!(
+                        "RGL maximum {name} {max} must be in {v}..=256 (at least the {name})"
+                    ));
+                }
+            }
         }
         if self.theta_samples * self.warp_resolution * self.warp_resolution > 1 << 28 {
             return bad(format!(
@@ -122,6 +170,30 @@ pub struct RglWriteSummary {
     pub negative_clamped: usize,
     /// Table points whose reflected direction falls below the horizon (stored as 0).
     pub below_horizon: usize,
+    /// The written file's error against the source at [`CHECK_PAIRS`] seeded direction pairs:
+    /// relative RMS with each value weighted by cos theta_i cos theta_o (as it reaches a
+    /// picture).
+    pub check_rms: f64,
+    /// Incident elevations in the file (after refinement).
+    pub theta_samples: usize,
+    /// The value tables' side in the file (after refinement).
+    pub resolution: usize,
+    /// The warp tables' side in the file (after refinement).
+    pub warp_resolution: usize,
+}
+
+impl RglWriteSummary {
+    fn empty(theta_samples: usize, resolution: usize, warp_resolution: usize) -> Self {
+        Self {
+            theta_samples,
+            values: 0,
+            negative_clamped: 0,
+            below_horizon: 0,
+            check_rms: f64::NAN,
+            resolution,
+            warp_resolution,
+        }
+    }
 }
 
 /// Luminance weights of `channels` (summing to 1): Rec. 709 for RGB; for spectra, equal weights
@@ -214,13 +286,145 @@ fn warp_forward(warp: &Warp, c: &Corners, s: [f64; 2]) -> [f64; 2] {
     [ux, uy]
 }
 
-/// The fields of an isotropic RGL file holding `source` (see the module docs), and what writing
-/// found.
+/// The fields of an isotropic RGL file holding `source` (see the module docs), refined to
+/// [`RglWriteOptions::tolerance`], and what writing found (with the check error).
 pub fn rgl_fields(
     source: &dyn BrdfSource,
     options: &RglWriteOptions,
 ) -> Result<(Vec<Field>, RglWriteSummary)> {
     options.check()?;
+    let pairs = check_pairs();
+    let build = |opts: &RglWriteOptions| -> Result<(Vec<Field>, RglWriteSummary)> {
+        let (fields, mut summary) = fixed_fields(source, opts)?;
+        let file = TensorFile::from_fields(fields, "written.bsdf");
+        summary.check_rms = check_error(&RglBsdf::from_tensor_file(&file)?, source, &pairs)?;
+        tracing::info!(
+            theta_samples = opts.theta_samples,
+            resolution = opts.resolution,
+            warp = opts.warp_resolution,
+            check_rms = summary.check_rms,
+            "RGL tables of {}",
+            options.description
+        );
+        Ok((file.into_fields(), summary))
+    };
+    let mut opts = options.clone();
+    let mut best = build(&opts)?;
+    let Some(tolerance) = options.tolerance else {
+        return Ok(best);
+    };
+    // Each step doubles the incident elevations or the value tables' side, whichever cuts the
+    // error more; a step that does not cut it by a quarter is not worth its size (the error is
+    // then the source's own detail), so the coarser file is kept.
+    while best.1.check_rms > tolerance {
+        let mut candidates = Vec::new();
+        if 2 * opts.theta_samples <= options.max_theta_samples {
+            candidates.push(RglWriteOptions {
+                theta_samples: 2 * opts.theta_samples,
+                ..opts.clone()
+            });
+        }
+        if 2 * opts.resolution <= options.max_resolution {
+            candidates.push(RglWriteOptions {
+                resolution: 2 * opts.resolution,
+                warp_resolution: opts.warp_resolution.max(8 * opts.resolution).min(MAX_WARP),
+                ..opts.clone()
+            });
+        }
+        let mut next: Option<(RglWriteOptions, (Vec<Field>, RglWriteSummary))> = None;
+        for c in candidates {
+            let built = build(&c)?;
+            if next
+                .as_ref()
+                .is_none_or(|(_, (_, s))| built.1.check_rms < s.check_rms)
+            {
+                next = Some((c, built));
+            }
+        }
+        match next {
+            Some((c, built)) if built.1.check_rms <= REFINE_GAIN * best.1.check_rms => {
+                opts = c;
+                best = built;
+            }
+            _ => break,
+        }
+    }
+    Ok(best)
+}
+
+/// Seeded direction pairs of the check: cosine-distributed, and near the mirror direction.
+fn check_pairs() -> Vec<([f64; 3], [f64; 3])> {
+    let mut state = 0x5eed_u64;
+    let mut next = move || {
+        state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let cosine = |next: &mut dyn FnMut() -> f64| {
+        let (r, phi) = (next().sqrt(), 2.0 * PI * next());
+        [r * phi.cos(), r * phi.sin(), (1.0 - r * r).max(1e-4).sqrt()]
+    };
+    let mut pairs = Vec::with_capacity(CHECK_PAIRS);
+    while pairs.len() < CHECK_PAIRS {
+        let wi = cosine(&mut next);
+        let wo = if pairs.len() % 4 == 3 {
+            let (d, phi) = (0.05 * next(), 2.0 * PI * next());
+            let v = [-wi[0] + d * phi.cos(), -wi[1] + d * phi.sin(), wi[2]];
+            let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            [v[0] / n, v[1] / n, v[2] / n]
+        } else {
+            cosine(&mut next)
+        };
+        if wo[2] > 0.01 {
+            pairs.push((wi, wo));
+        }
+    }
+    pairs
+}
+
+/// Relative RMS error of `file` against `source` over `pairs`, each value weighted by
+/// cos theta_i cos theta_o (0 when the source is 0 everywhere and so is the file).
+fn check_error(
+    file: &RglBsdf,
+    source: &dyn BrdfSource,
+    pairs: &[([f64; 3], [f64; 3])],
+) -> Result<f64> {
+    let nc = source.channels().len();
+    let (num, den) = pairs
+        .par_chunks(256)
+        .map(|chunk| {
+            let (mut f, mut g) = (vec![0.0; nc], vec![0.0; nc]);
+            let (mut num, mut den) = (0.0, 0.0);
+            for &(wi, wo) in chunk {
+                file.eval(wi, wo, &mut f)?;
+                source.eval(wi, wo, &mut g)?;
+                let w = wi[2] * wo[2];
+                for (a, b) in f.iter().zip(&g) {
+                    let b = b.max(0.0);
+                    num += (w * (a - b)).powi(2);
+                    den += (w * b).powi(2);
+                }
+            }
+            Ok((num, den))
+        })
+        .collect::<Result<Vec<(f64, f64)>>>()?
+        .into_iter()
+        .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+    Ok(if den > 0.0 {
+        (num / den).sqrt()
+    } else if num > 0.0 {
+        f64::INFINITY
+    } else {
+        0.0
+    })
+}
+
+/// [`rgl_fields`] at the options' resolutions, without the check.
+fn fixed_fields(
+    source: &dyn BrdfSource,
+    options: &RglWriteOptions,
+) -> Result<(Vec<Field>, RglWriteSummary)> {
     let name = if options.description.is_empty() {
         "source"
     } else {
@@ -253,28 +457,28 @@ pub fn rgl_fields(
             Ok(lum(&f) * theta.cos().powi(2))
         })
         .collect::<Result<Vec<f64>>>()?;
-    let peak = ndf.iter().copied().fold(0.0, f64::max);
-    if peak > 0.0 {
-        ndf.iter_mut()
-            .for_each(|d| *d = d.max(options.ndf_floor * peak));
-    } else {
-        ndf.fill(1.0);
-    }
     // Normalise: 2 pi int D cos(theta) sin(theta) dtheta = 1, theta = u^2 pi / 2, dtheta = pi u du
-    // (trapezoid in u over the table's nodes).
-    let integrand = |k: usize| {
-        let u = u_at(k, nw);
-        let t = u2theta(u);
-        ndf[k] * t.cos() * t.sin() * PI * u
+    // (trapezoid in u over the table's nodes); then mix in the uniform NDF 1/pi.
+    let integral = {
+        let integrand = |k: usize| {
+            let u = u_at(k, nw);
+            let t = u2theta(u);
+            ndf[k] * t.cos() * t.sin() * PI * u
+        };
+        2.0 * PI / (nw - 1) as f64
+            * (0..nw - 1)
+                .map(|k| 0.5 * (integrand(k) + integrand(k + 1)))
+                .sum::<f64>()
     };
-    let du = 1.0 / (nw - 1) as f64;
-    let integral = 2.0
-        * PI
-        * du
-        * (0..nw - 1)
-            .map(|k| 0.5 * (integrand(k) + integrand(k + 1)))
-            .sum::<f64>();
-    ndf.iter_mut().for_each(|d| *d = stored(*d / integral));
+    let share = options.broad_share;
+    let estimate = if integral > 0.0 && integral.is_finite() {
+        1.0 - share
+    } else {
+        0.0
+    };
+    ndf.iter_mut().for_each(|d| {
+        *d = stored(estimate * *d / integral.max(f64::MIN_POSITIVE) + (1.0 - estimate) / PI)
+    });
     let ndf_table = Table2D {
         w: nw,
         h: 2,
@@ -345,11 +549,7 @@ pub fn rgl_fields(
             let mut values = vec![0.0f32; nc * res * res];
             let mut lum_slice = vec![0.0f64; res * res];
             let mut f = vec![0.0; nc];
-            let mut summary = RglWriteSummary {
-                values: 0,
-                negative_clamped: 0,
-                below_horizon: 0,
-            };
+            let mut summary = RglWriteSummary::empty(nt, res, nw);
             for row in 0..res {
                 for col in 0..res {
                     let s = [u_at(col, res), u_at(row, res)];
@@ -390,11 +590,7 @@ pub fn rgl_fields(
             Ok((values, lum_slice, summary))
         })
         .collect::<Result<Vec<_>>>()?;
-    let mut summary = RglWriteSummary {
-        values: 0,
-        negative_clamped: 0,
-        below_horizon: 0,
-    };
+    let mut summary = RglWriteSummary::empty(nt, res, nw);
     let (mut values, mut luminance) = (Vec::new(), Vec::new());
     for (v, l, s) in slices {
         values.extend(v);
@@ -522,10 +718,15 @@ mod tests {
             theta_samples: 6,
             resolution: 12,
             warp_resolution: 64,
-            ndf_floor: NDF_FLOOR,
+            tolerance: None,
             description: "analytic".into(),
+            ..RglWriteOptions::default()
         };
         let (bsdf, summary) = written(&source, &options);
+        assert!(
+            summary.check_rms > 0.0 && summary.check_rms < 0.5,
+            "{summary:?}"
+        );
         assert_eq!(bsdf.description(), "analytic");
         assert_eq!(bsdf.channels(), source.channels);
         assert_eq!(summary.values, 6 * 12 * 12 * 4);
@@ -593,16 +794,64 @@ mod tests {
             theta_samples: 6,
             resolution: 8,
             warp_resolution: 64,
-            ndf_floor: NDF_FLOOR,
-            description: String::new(),
+            tolerance: None,
+            ..RglWriteOptions::default()
         };
-        let (bsdf, _) = written(&source, &coarse);
+        let (bsdf, coarse) = written(&source, &coarse);
         let e_coarse = rms_error(&bsdf, &source);
-        let (bsdf, _) = written(&source, &RglWriteOptions::default());
+        let (bsdf, default) = written(&source, &RglWriteOptions::default());
         let e_default = rms_error(&bsdf, &source);
-        eprintln!("relative RMS error: coarse {e_coarse:.4}, default {e_default:.4}");
+        eprintln!(
+            "relative RMS error: coarse {e_coarse:.4} (check {:.4}), default {e_default:.4} \
+             (check {:.4})",
+            coarse.check_rms, default.check_rms
+        );
         assert!(e_default < 0.02, "default tables: {e_default}");
         assert!(e_default < 0.5 * e_coarse, "{e_default} vs {e_coarse}");
+        // The writer's own check tells the same story; it is stricter (a quarter of its
+        // pairs are near the mirror direction, where a lobe is hardest to interpolate).
+        assert!(
+            coarse.check_rms > 10.0 * default.check_rms,
+            "{coarse:?} {default:?}"
+        );
+        for (check, test) in [(coarse.check_rms, e_coarse), (default.check_rms, e_default)] {
+            assert!(check > test && check < 5.0 * test, "{check} vs {test}");
+        }
+    }
+
+    /// A sharp lobe written at a coarse size misses the tolerance; refinement doubles the
+    /// incident elevations or the tables until it is met (or stops improving) and says so.
+    #[test]
+    fn refinement_meets_the_tolerance_on_a_sharp_lobe() {
+        let source = Analytic::new(0.03);
+        let start = RglWriteOptions {
+            theta_samples: 8,
+            resolution: 8,
+            tolerance: None,
+            ..RglWriteOptions::default()
+        };
+        let (_, fixed) = written(&source, &start);
+        let (bsdf, refined) = written(
+            &source,
+            &RglWriteOptions {
+                tolerance: Some(0.05),
+                ..start.clone()
+            },
+        );
+        eprintln!("{fixed:?}\n{refined:?}");
+        assert!(fixed.check_rms > 0.05, "{fixed:?}");
+        assert!(
+            refined.theta_samples * refined.resolution > 64,
+            "{refined:?}"
+        );
+        assert!(refined.check_rms < 0.75 * fixed.check_rms, "{refined:?}");
+        assert!(
+            refined.check_rms <= 0.05 || refined.resolution == 128,
+            "{refined:?}"
+        );
+        assert_eq!(bsdf.theta_i.len(), refined.theta_samples);
+        assert_eq!(bsdf.spec_w, refined.resolution);
+        assert!((rms_error(&bsdf, &source) - refined.check_rms).abs() < refined.check_rms);
     }
 
     /// RGB sources are written as `rgb` tables; negative values are stored as 0 and counted;
@@ -652,6 +901,32 @@ mod tests {
         ] {
             let err = rgl_fields(&Rgb(0.1), &bad).unwrap_err().to_string();
             assert!(err.contains("must be in 2..=1024"), "{err}");
+        }
+        for (bad, says) in [
+            (
+                RglWriteOptions {
+                    tolerance: Some(-1.0),
+                    ..options.clone()
+                },
+                "tolerance -1 must be finite and > 0",
+            ),
+            (
+                RglWriteOptions {
+                    max_resolution: 16,
+                    ..options.clone()
+                },
+                "maximum resolution 16 must be in 32..=256",
+            ),
+            (
+                RglWriteOptions {
+                    broad_share: 0.0,
+                    ..options.clone()
+                },
+                "broad NDF share 0 must be in (0, 1]",
+            ),
+        ] {
+            let err = rgl_fields(&Rgb(0.1), &bad).unwrap_err().to_string();
+            assert!(err.contains(says), "{err}");
         }
     }
 }
