@@ -5,8 +5,8 @@
 //! material `DATA.sbrdf:MATERIAL` or an RGL file `FILE.bsdf` (re-encoded with specgp's own
 //! parameterisation).
 //!
-//! For each source and setting: the time to build the file's fields, its size, and the
-//! errors of the written file (read back with `RglBsdf`) against the stored material at 20,000
+//! For each source and setting (fixed sizes, and the default refinement): the time to build
+//! the file's fields (with its check), its size, the writer's own check error, and the errors of the written file (read back with `RglBsdf`) against the stored material at 20,000
 //! seeded direction pairs (cosine-distributed, plus 2,000 near the mirror direction): relative
 //! RMS weighted by cos theta_i cos theta_o (what reaches a picture), and the median and 90th
 //! percentile of the per-value relative error (values above 1e-3 of the material's largest).
@@ -55,20 +55,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let visible = Channels::spectral(vec![450.0, 550.0, 650.0])?;
     let pairs = pairs();
-    let settings: Vec<(usize, usize, f64, usize)> = vec![
-        (32, 32, 0.02, 128),
-        (32, 32, 0.02, 256),
-        (32, 64, 0.02, 256),
-        (32, 32, 0.005, 128),
-        (32, 32, 0.1, 128),
-        (32, 32, 0.2, 128),
-        (32, 32, 0.4, 128),
-        (16, 32, 0.2, 128),
-        (32, 64, 0.2, 128),
-        (64, 64, 0.2, 128),
+    // (theta_i, table side, refine): fixed sizes, and the default refinement from 32 x 32.
+    let settings = [
+        (16, 32, false),
+        (32, 32, false),
+        (64, 32, false),
+        (32, 64, false),
+        (64, 64, false),
+        (32, 32, true),
     ];
     println!(
-        "source | theta_i | table | warp | broad share | build s | MB | cos-weighted rel RMS | median | p90"
+        "source | theta_i | table | warp | build s | MB | check | cos-weighted rel RMS | median | p90"
     );
     for name in &args {
         let source: Box<dyn BrdfSource> = match brdf_io::store::parse_store_spec(name) {
@@ -82,19 +79,25 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let (mut f, mut g) = (vec![0.0; nc], vec![0.0; nc]);
         let reference: Vec<Vec<f64>> = pairs
             .iter()
-            .map(|&(wi, wo)| source.eval(wi, wo, &mut g).map(|_| g.clone()))
+            .map(|&(wi, wo)| {
+                // The file stores negative values (out-of-gamut RGB) as 0.
+                source
+                    .eval(wi, wo, &mut g)
+                    .map(|_| g.iter().map(|v| v.max(0.0)).collect())
+            })
             .collect::<Result<_, _>>()?;
         let peak = reference.iter().flatten().copied().fold(0.0, f64::max);
-        for &(theta_samples, resolution, broad_share, warp_resolution) in &settings {
+        for &(theta_samples, resolution, refine) in &settings {
+            let default = RglWriteOptions::default();
             let options = RglWriteOptions {
                 theta_samples,
                 resolution,
-                broad_share,
-                warp_resolution,
-                ..RglWriteOptions::default()
+                warp_resolution: default.warp_resolution.max(4 * resolution),
+                tolerance: default.tolerance.filter(|_| refine),
+                ..default
             };
             let start = Instant::now();
-            let (fields, _) = rgl_fields(source.as_ref(), &options)?;
+            let (fields, summary) = rgl_fields(source.as_ref(), &options)?;
             let seconds = start.elapsed().as_secs_f64();
             let bytes = TensorFile::to_bytes(&fields)?;
             let bsdf = RglBsdf::from_tensor_file(&TensorFile::from_bytes(&bytes, "study.bsdf")?)?;
@@ -113,8 +116,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             rel.sort_by(f64::total_cmp);
             let q = |p: f64| rel[((rel.len() - 1) as f64 * p) as usize];
             println!(
-                "{label} | {theta_samples} | {resolution} | {warp_resolution} | {broad_share} | {seconds:.2} | {:.1} | {:.4} | {:.4} | {:.4}",
+                "{label} | {}{} | {} | {} | {seconds:.2} | {:.1} | {:.4} | {:.4} | {:.4} | {:.4}",
+                summary.theta_samples,
+                if refine { " (refined)" } else { "" },
+                summary.resolution,
+                summary.warp_resolution,
                 bytes.len() as f64 / 1e6,
+                summary.check_rms,
                 (num / den).sqrt(),
                 q(0.5),
                 q(0.9)
