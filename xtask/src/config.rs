@@ -89,6 +89,10 @@ pub struct PredictParams {
     /// Materialise every prediction to `.npy` (timed).
     #[serde(default)]
     pub materialize: bool,
+    /// Write every prediction as an RGL `.bsdf` file (Mitsuba 3, pbrt-v4), checked against
+    /// the prediction and refined to the writer's default tolerance (timed).
+    #[serde(default)]
+    pub bsdf: bool,
 }
 
 /// The `[evaluate]` table.
@@ -246,6 +250,8 @@ pub struct PredictConfig {
     pub predictor: PredictorChoice,
     /// Materialise every prediction.
     pub materialize: bool,
+    /// Write every prediction as an RGL `.bsdf` file.
+    pub bsdf: bool,
 }
 
 /// A validated pipeline config.
@@ -507,6 +513,7 @@ impl PipelineParams {
             midpoints: p.midpoints.clone(),
             predictor,
             materialize: p.materialize,
+            bsdf: p.bsdf,
         };
         // Synthetic materials are known now; other kinds' names once the data are read
         // (`PipelineConfig::check_midpoints`, before the fit).

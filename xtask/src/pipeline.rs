@@ -235,7 +235,7 @@ pub fn is_pipeline_output(name: &str) -> bool {
             .is_some_and(|(k, ext)| {
                 !k.is_empty()
                     && k.bytes().all(|b| b.is_ascii_digit())
-                    && ["npy", "sbrdf", "binary"].contains(&ext)
+                    && ["npy", "sbrdf", "binary", "bsdf"].contains(&ext)
             })
 }
 

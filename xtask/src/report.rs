@@ -263,6 +263,33 @@ fn predictions(s: &mut String, r: &Results) {
             p.materialize_seconds
         );
     }
+    if r.predictions.iter().any(|p| p.bsdf.is_some()) {
+        let _ = writeln!(
+            s,
+            "\nThe predictions as RGL `.bsdf` files, which Mitsuba 3 and pbrt-v4 render (`measured` \
+             material; `specgp predict --out X.bsdf`). Check: the file's cos-weighted relative \
+             RMS error against the prediction at {} direction pairs.\n\n| point | file | incident \
+             elevations | table | check | seconds |\n|---|---|---:|---:|---:|---:|",
+            brdf_io::rgl::CHECK_PAIRS
+        );
+        for p in &r.predictions {
+            if let Some(b) = &p.bsdf {
+                let _ = writeln!(
+                    s,
+                    "| {} | [`{}`]({}) ({}) | {} | {} x {} | {:.2} % | {:.2} |",
+                    p.label,
+                    b.file,
+                    b.file,
+                    bytes(b.bytes),
+                    b.theta_samples,
+                    b.resolution,
+                    b.resolution,
+                    100.0 * b.check_rms,
+                    b.seconds
+                );
+            }
+        }
+    }
 }
 
 fn evaluation(s: &mut String, r: &Results) {

@@ -34,6 +34,25 @@ pub struct PredictionRow {
     pub file_bytes: u64,
     /// Seconds to materialise all D values (0 when not materialised).
     pub materialize_seconds: f64,
+    /// The prediction as an RGL `.bsdf` file (relative to the output directory), when asked.
+    pub bsdf: Option<BsdfFile>,
+}
+
+/// A prediction written as an RGL `.bsdf` file (`[predict] bsdf = true`).
+#[derive(Debug, Clone, Serialize)]
+pub struct BsdfFile {
+    /// File name, relative to the output directory.
+    pub file: String,
+    /// Size in bytes.
+    pub bytes: u64,
+    /// Seconds to write it (sampling the lazy prediction, checking, refining).
+    pub seconds: f64,
+    /// Incident elevations of the file (after refinement).
+    pub theta_samples: usize,
+    /// Value-table side.
+    pub resolution: usize,
+    /// The writer's check: cos-weighted relative RMS error against the prediction.
+    pub check_rms: f64,
 }
 
 fn kind(choice: PredictorChoice) -> PredictorKind {
@@ -116,6 +135,27 @@ pub fn predict_points(
         } else {
             (None, 0, 0.0)
         };
+        let bsdf = if config.predict.bsdf {
+            let name = format!("prediction-{}.bsdf", i + 1);
+            let path = out.join(&name);
+            let t = Instant::now();
+            let options = brdf_io::rgl::RglWriteOptions {
+                description: format!("specgp prediction: {label}"),
+                ..Default::default()
+            };
+            let summary = brdf_io::rgl::write_rgl(&m, &path, &options)
+                .map_err(|e| Error::stage("predict", &path, e))?;
+            Some(BsdfFile {
+                bytes: brdf_io::output::output_len(&path).unwrap_or(0),
+                file: name,
+                seconds: t.elapsed().as_secs_f64(),
+                theta_samples: summary.theta_samples,
+                resolution: summary.resolution,
+                check_rms: summary.check_rms,
+            })
+        } else {
+            None
+        };
         rows.push(PredictionRow {
             label,
             point: x,
@@ -127,6 +167,7 @@ pub fn predict_points(
             file,
             file_bytes,
             materialize_seconds,
+            bsdf,
         });
     }
     Ok(rows)

@@ -115,7 +115,29 @@ fn quick_pipeline_report_matches_the_model_and_data() {
         let bytes = std::fs::metadata(&file).unwrap().len();
         assert_eq!(bytes, p["file_bytes"].as_u64().unwrap());
         assert!(bytes >= (8 * 8 * 16 * 7 * 4) as u64);
+        // The RGL file of the prediction reads back as the lazy prediction.
+        let b = &p["bsdf"];
+        let path = dir.path().join(b["file"].as_str().unwrap());
+        assert_eq!(
+            std::fs::metadata(&path).unwrap().len(),
+            b["bytes"].as_u64().unwrap()
+        );
+        let check = finite(&b["check_rms"]);
+        assert!(check > 0.0 && check < 0.05, "{b}");
+        let file = brdf_io::rgl::RglBsdf::open(&path).unwrap();
+        let lazy = pred.predict(&x, kind).unwrap();
+        let (wi, wo) = ([0.3, 0.1, 0.949], [-0.5, 0.2, 0.843]);
+        let (mut f, mut g) = (vec![0.0; 7], vec![0.0; 7]);
+        brdf_io::BrdfSource::eval(&file, wi, wo, &mut f).unwrap();
+        brdf_io::BrdfSource::eval(&lazy, wi, wo, &mut g).unwrap();
+        for (a, b) in f.iter().zip(&g) {
+            assert!((a - b).abs() <= 0.1 * b.abs() + 1e-9, "{f:?} {g:?}");
+        }
     }
+    assert!(
+        report.contains("The predictions as RGL `.bsdf` files"),
+        "{report}"
+    );
 
     // Errors by kind cover every material once, and match the per-material means.
     let kinds = json["by_kind"].as_array().unwrap();

@@ -264,26 +264,91 @@ fn eval_finite(
     Ok(())
 }
 
+/// Root of the continuous, non-decreasing `at` on [0, 1] at `target`, by 46 halvings (to
+/// 1.4e-14: a lookup at the result lands on the stored point to far below f32 rounding).
+fn bisect(target: f64, at: impl Fn(f64) -> f64) -> f64 {
+    let (mut lo, mut hi) = (0.0f64, 1.0f64);
+    for _ in 0..46 {
+        let mid = 0.5 * (lo + hi);
+        if at(mid) < target {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// The `u.y` of the half-vector square whose row the warp slice `c` maps to `s_y` (the
+/// marginal part of [`Warp::invert`] depends on `u.y` only).
+fn warp_forward_y(warp: &Warp, c: &Corners, s_y: f64) -> f64 {
+    bisect(s_y, |y| warp.invert([0.5, y], c)[1])
+}
+
 /// The point `u` of the half-vector square that the warp slice `c` maps to `s` (the inverse of
-/// [`Warp::invert`]): bisection on the marginal (y, which depends on `u.y` only), then on the
-/// conditional (x at that y). Both are continuous and non-decreasing; 60 halvings resolve them
-/// to 1e-18.
-fn warp_forward(warp: &Warp, c: &Corners, s: [f64; 2]) -> [f64; 2] {
-    let solve = |target: f64, at: &dyn Fn(f64) -> f64| {
-        let (mut lo, mut hi) = (0.0f64, 1.0f64);
-        for _ in 0..60 {
-            let mid = 0.5 * (lo + hi);
-            if at(mid) < target {
-                lo = mid;
-            } else {
-                hi = mid;
+/// [`Warp::invert`]), given `u.y` = [`warp_forward_y`] of `s[1]`: the conditional part.
+fn warp_forward_x(warp: &Warp, c: &Corners, s_x: f64, u_y: f64) -> [f64; 2] {
+    [bisect(s_x, |x| warp.invert([x, u_y], c)[0]), u_y]
+}
+
+/// A grid source ([`BrdfSource::grid`]) whose cells are evaluated once each, when first
+/// needed, and interpolated with the grid's stencil: the writer evaluates the source ~10^5
+/// times per file, and a lazily predicted material costs N multiply-adds per value per cell,
+/// so each lookup would otherwise redo 8 cells' predictions. Equal to the source's own `eval`
+/// up to rounding (the trait's contract for grid sources).
+struct CachedCells<'a> {
+    source: &'a dyn BrdfSource,
+    grid: crate::grid::AngularGrid,
+    channels: Channels,
+    cells: Vec<std::sync::OnceLock<Result<Box<[f64]>>>>,
+}
+
+impl<'a> CachedCells<'a> {
+    fn new(source: &'a dyn BrdfSource, grid: crate::grid::AngularGrid) -> Self {
+        Self {
+            source,
+            grid,
+            channels: source.channels(),
+            cells: (0..grid.len())
+                .map(|_| std::sync::OnceLock::new())
+                .collect(),
+        }
+    }
+}
+
+impl BrdfSource for CachedCells<'_> {
+    fn channels(&self) -> Channels {
+        self.channels.clone()
+    }
+
+    fn eval(&self, wi: [f64; 3], wo: [f64; 3], out: &mut [f64]) -> Result<()> {
+        crate::source::check_output_len(out, self.channels.len())?;
+        out.fill(0.0);
+        let hd = match crate::grid::HalfDiff::from_dirs(wi, wo) {
+            Some(hd) if wi[2] > 0.0 && wo[2] > 0.0 => hd,
+            _ => return Ok(()),
+        };
+        for (a, w) in self.grid.interpolation_stencil(&hd) {
+            if w == 0.0 {
+                continue;
+            }
+            let cell = self.cells[a].get_or_init(|| {
+                let mut v = vec![0.0; self.channels.len()];
+                self.source
+                    .eval_cell(a, &mut v)
+                    .map(|()| v.into_boxed_slice())
+            });
+            match cell {
+                Ok(v) => out.iter_mut().zip(v.iter()).for_each(|(o, c)| *o += w * c),
+                Err(e) => {
+                    return Err(Error::InvalidArgument {
+                        reason: format!("cell {a} of the source: {e}"),
+                    });
+                }
             }
         }
-        0.5 * (lo + hi)
-    };
-    let uy = solve(s[1], &|y| warp.invert([0.5, y], c)[1]);
-    let ux = solve(s[0], &|x| warp.invert([x, uy], c)[0]);
-    [ux, uy]
+        Ok(())
+    }
 }
 
 /// The fields of an isotropic RGL file holding `source` (see the module docs), refined to
@@ -293,6 +358,14 @@ pub fn rgl_fields(
     options: &RglWriteOptions,
 ) -> Result<(Vec<Field>, RglWriteSummary)> {
     options.check()?;
+    let cached;
+    let source: &dyn BrdfSource = match source.grid() {
+        Some(grid) => {
+            cached = CachedCells::new(source, grid);
+            &cached
+        }
+        None => source,
+    };
     let pairs = check_pairs();
     let build = |opts: &RglWriteOptions| -> Result<(Vec<Field>, RglWriteSummary)> {
         let (fields, mut summary) = fixed_fields(source, opts)?;
@@ -551,9 +624,9 @@ fn fixed_fields(
             let mut f = vec![0.0; nc];
             let mut summary = RglWriteSummary::empty(nt, res, nw);
             for row in 0..res {
+                let u_y = warp_forward_y(&warp, &c, u_at(row, res));
                 for col in 0..res {
-                    let s = [u_at(col, res), u_at(row, res)];
-                    let u = warp_forward(&warp, &c, s);
+                    let u = warp_forward_x(&warp, &c, u_at(col, res), u_y);
                     let m = direction(u2theta(u[0]), u2phi(u[1]));
                     let dot = wi[0] * m[0] + wi[1] * m[1] + wi[2] * m[2];
                     let wo = [
@@ -740,7 +813,8 @@ mod tests {
             for row in 0..options.resolution {
                 for col in 0..options.resolution {
                     let n = (options.resolution - 1) as f64;
-                    let u = warp_forward(&bsdf.vndf, &c, [col as f64 / n, row as f64 / n]);
+                    let u_y = warp_forward_y(&bsdf.vndf, &c, row as f64 / n);
+                    let u = warp_forward_x(&bsdf.vndf, &c, col as f64 / n, u_y);
                     let m = direction(u2theta(u[0]), u2phi(u[1]));
                     let dot = wi[0] * m[0] + wi[1] * m[1] + wi[2] * m[2];
                     let wo = [0, 1, 2].map(|i| 2.0 * dot * m[i] - wi[i]);
