@@ -450,6 +450,26 @@ impl RglBsdf {
         &self.description
     }
 
+    /// The incident elevations (`theta_i`, radians) the file tabulates.
+    pub fn theta_i(&self) -> &[f64] {
+        &self.theta_i
+    }
+
+    /// Width and height of the value tables (`spectra` or `rgb`) per incident elevation.
+    pub fn table_size(&self) -> (usize, usize) {
+        (self.spec_w, self.spec_h)
+    }
+
+    /// Width and height of the VNDF warp tables.
+    pub fn warp_size(&self) -> (usize, usize) {
+        (self.vndf.w, self.vndf.h)
+    }
+
+    /// Whether values are stored divided by the microfacet term (field `jacobian`).
+    pub fn jacobian(&self) -> bool {
+        self.jacobian
+    }
+
     /// The channels stored in the file (its wavelengths, or R, G, B).
     pub fn native_channels(&self) -> &Channels {
         &self.native

@@ -337,19 +337,77 @@ fn import_rgl(args: &RglArgs) -> anyhow::Result<()> {
 /// Arguments of `specgp info`.
 #[derive(Debug, clap::Args)]
 pub struct InfoArgs {
-    /// A dataset store (`.sbrdf`) or a model file (`.toml`, written by `specgp fit`).
+    /// A dataset store (`.sbrdf`), a model file (`.toml`, written by `specgp fit`) or an RGL
+    /// file (`.bsdf`).
     path: PathBuf,
     /// Print the header (store) or the model without its Gram matrix as JSON, with the file
     /// size and the checksum verdict (store) or whether the model's dataset is present and
-    /// matches (model).
+    /// matches (model); for an RGL file its description, channels and table sizes.
     #[arg(long)]
     json: bool,
 }
 
-/// Runs `specgp info`: a model file (`.toml`) or a dataset store (anything else).
+/// `specgp info FILE.bsdf`: an RGL file's description, channels and table sizes.
+fn bsdf_info(args: &InfoArgs) -> anyhow::Result<()> {
+    let bsdf = brdf_io::rgl::RglBsdf::open(&args.path)?;
+    let degrees: Vec<f64> = bsdf.theta_i().iter().map(|t| t.to_degrees()).collect();
+    let (tw, th) = bsdf.table_size();
+    let (ww, wh) = bsdf.warp_size();
+    let channels = bsdf.native_channels();
+    let bytes = std::fs::metadata(&args.path)
+        .with_context(|| format!("reading {}", args.path.display()))?
+        .len();
+    if args.json {
+        let v = serde_json::json!({
+            "path": args.path.display().to_string(),
+            "format": "rgl-bsdf",
+            "description": bsdf.description(),
+            "channels": channels,
+            "theta_i_degrees": degrees,
+            "table": [tw, th],
+            "warp": [ww, wh],
+            "jacobian": bsdf.jacobian(),
+            "file_bytes": bytes,
+        });
+        out!("{}", serde_json::to_string_pretty(&v)?)?;
+    } else {
+        let list = |v: &[f64]| {
+            v.iter()
+                .map(|d| format!("{d:.1}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        out!(
+            "file           {} (RGL tensor file, isotropic)",
+            args.path.display()
+        )?;
+        out!("description    {}", bsdf.description())?;
+        out!(
+            "channels       {} ({})",
+            channels.len(),
+            channels.labels().join(",")
+        )?;
+        out!(
+            "theta_i        {} (degrees: {})",
+            degrees.len(),
+            list(&degrees)
+        )?;
+        out!("value tables   {tw} x {th} per incident elevation")?;
+        out!("warp tables    {ww} x {wh}")?;
+        out!("jacobian       {}", bsdf.jacobian())?;
+        out!("bytes          {bytes}")?;
+    }
+    Ok(())
+}
+
+/// Runs `specgp info`: a model file (`.toml`), an RGL file (`.bsdf`) or a dataset store
+/// (anything else).
 pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
     if args.path.extension().is_some_and(|e| e == "toml") {
         return model_info(args);
+    }
+    if args.path.extension().is_some_and(|e| e == "bsdf") {
+        return bsdf_info(args);
     }
     let store = Store::open(&args.path)?;
     let verified = store.verify_checksum();

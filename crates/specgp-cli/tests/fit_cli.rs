@@ -853,6 +853,17 @@ fn rgl_files_of_predictions_and_stored_materials_read_back_as_their_source() {
     let bsdf = brdf_io::rgl::RglBsdf::open(d.join("p.bsdf")).unwrap();
     assert_eq!(bsdf.channels().len(), 7);
     specgp(&["convert", "data.sbrdf:metal_gold", "--out", "g.bsdf"], d);
+    let info = specgp(&["info", "p.bsdf"], d);
+    assert!(
+        info.contains("theta_i        12 (degrees: 0.0, ")
+            && info.contains("value tables   16 x 16 per incident elevation")
+            && info.contains("channels       7 (400,450,500,550,600,650,700)"),
+        "{info}"
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&specgp(&["info", "g.bsdf", "--json"], d)).unwrap();
+    assert_eq!(json["description"], "data.sbrdf:metal_gold");
+    assert_eq!(json["theta_i_degrees"].as_array().unwrap().len(), 32);
     // Near the mirror direction, off it, and towards grazing.
     let dirs =
         "0.3,0,0.954,-0.3,0.01,0.954\n0.5,0.1,0.86,0.2,-0.6,0.775\n0.1,0,0.995,-0.8,0.3,0.52\n";
