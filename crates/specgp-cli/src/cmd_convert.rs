@@ -70,8 +70,16 @@ pub fn write_bsdf(
         description: args.description.clone().unwrap_or_else(|| label.to_owned()),
         ..default
     };
-    let summary =
-        write_rgl(source, out, &options).with_context(|| format!("writing {}", out.display()))?;
+    // Sampling, checking and refining take up to ~10 s for sharp lobes (128 x 128 tables).
+    let spinner = indicatif::ProgressBar::new_spinner();
+    spinner.set_message(format!(
+        "writing {} (sampling the source, checking, refining)",
+        out.display()
+    ));
+    spinner.enable_steady_tick(std::time::Duration::from_millis(120));
+    let written = write_rgl(source, out, &options);
+    spinner.finish_and_clear();
+    let summary = written.with_context(|| format!("writing {}", out.display()))?;
     let channels = match source.channels() {
         Channels::Rgb => "R,G,B".to_owned(),
         c => format!("{} wavelengths", c.len()),
