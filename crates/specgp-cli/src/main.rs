@@ -150,6 +150,20 @@ fn run_command(command: Command) -> anyhow::Result<()> {
     }
 }
 
+/// Whether `err` comes from writing into a pipe that its reader closed (`specgp latent m.toml |
+/// head`, `specgp sample ... --out - | head`): not an error. The I/O error may be the cause
+/// itself or inside a `brdf_io::Error::Io` (outputs written through `brdf_io::output`).
+fn is_broken_pipe(err: &anyhow::Error) -> bool {
+    let broken = |io: &std::io::Error| io.kind() == std::io::ErrorKind::BrokenPipe;
+    err.chain().any(|e| {
+        e.downcast_ref::<std::io::Error>().is_some_and(broken)
+            || matches!(
+                e.downcast_ref::<brdf_io::Error>(),
+                Some(brdf_io::Error::Io { error, .. }) if broken(error)
+            )
+    })
+}
+
 fn main() -> std::process::ExitCode {
     // Usage errors exit with 1 like every other error (CLI.md); --help and --version exit 0.
     let cli = match Cli::try_parse() {
@@ -167,14 +181,7 @@ fn main() -> std::process::ExitCode {
     match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         // A closed pipe (`specgp latent m.toml | head`) is not an error.
-        Err(err)
-            if err.chain().any(|e| {
-                e.downcast_ref::<std::io::Error>()
-                    .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
-            }) =>
-        {
-            std::process::ExitCode::SUCCESS
-        }
+        Err(err) if is_broken_pipe(&err) => std::process::ExitCode::SUCCESS,
         Err(err) => {
             eprintln!("error: {err:#}");
             std::process::ExitCode::FAILURE

@@ -614,6 +614,40 @@ fn dash_outputs_write_into_redirected_standard_output() {
     assert!(!d.join("-").exists());
 }
 
+/// A reader that closes the pipe early (`| head`) is not an error, for outputs written through
+/// brdf-io as for printed ones (`sample --out -` and `convert --out -` exited 1 with "Broken
+/// pipe").
+#[cfg(unix)]
+#[test]
+fn a_closed_output_pipe_is_not_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    synth_small(d, "400:700:100");
+    let rows = "0.3,0,0.954,-0.3,0,0.954\n".repeat(50_000);
+    std::fs::write(d.join("dirs.csv"), rows).unwrap();
+    for command in [
+        r#""$SPECGP" sample data.sbrdf:paper_white --dirs dirs.csv --out -"#,
+        r#""$SPECGP" convert data.sbrdf:paper_white --out -"#,
+    ] {
+        // The shell's exit status is the command's (`head` closes the pipe after 10 bytes).
+        let script = format!("{command} 2> err.txt > fifo & head -c 10 fifo > /dev/null; wait $!");
+        std::fs::remove_file(d.join("fifo")).ok();
+        assert!(
+            Command::new("mkfifo")
+                .arg(d.join("fifo"))
+                .status()
+                .unwrap()
+                .success()
+        );
+        let status = shell(&script, d);
+        let err = std::fs::read_to_string(d.join("err.txt")).unwrap();
+        assert!(
+            status.success() && !err.contains("error"),
+            "{command}: {status} {err}"
+        );
+    }
+}
+
 /// `import nbrdf` and `import rgl` on the real shared data; a network whose outputs overflow
 /// (weights scaled by 1e30) is an error naming it, and no store is written.
 #[test]
