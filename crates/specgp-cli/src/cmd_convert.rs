@@ -12,21 +12,12 @@ use brdf_io::{BrdfSource, Channels};
 /// Arguments of `specgp convert`.
 #[derive(Debug, clap::Args)]
 pub struct ConvertArgs {
-    /// The BRDF: an RGL `.bsdf` file, a MERL `.binary` file, `DATA.sbrdf:MATERIAL` or
-    /// `MODEL.toml@X1,...,Xq` (lazy GP prediction at a latent point; the exact predictor unless
-    /// --smooth).
-    pub source: String,
+    #[command(flatten)]
+    pub from: crate::cmd_sample::SourceArgs,
     /// Output RGL file (`.bsdf`; spectral sources give `spectra` and `wavelengths`, RGB
     /// sources an `rgb` table).
     #[arg(long)]
     pub out: PathBuf,
-    /// Wavelengths START:END:STEP or a comma list in nm, inside the stored range (spectral
-    /// sources; default: the stored ones).
-    #[arg(long)]
-    pub wavelengths: Option<String>,
-    /// With a model point: the smooth predictor instead of the exact one.
-    #[arg(long)]
-    pub smooth: bool,
     #[command(flatten)]
     pub rgl: RglArgs,
 }
@@ -115,18 +106,8 @@ pub fn write_bsdf(
 
 /// Runs `specgp convert`.
 pub fn convert(args: &ConvertArgs) -> anyhow::Result<()> {
-    let source_path = crate::paths::source_file(&args.source);
-    crate::paths::ensure_output_is_not_an_input(&args.out, &[&source_path])?;
+    crate::paths::ensure_output_is_not_an_input(&args.out, &[&args.from.file()])?;
     crate::paths::ensure_extension(&args.out, "bsdf", "an RGL tensor file")?;
-    let wavelengths = args
-        .wavelengths
-        .as_deref()
-        .map(Channels::parse_wavelengths)
-        .transpose()?;
-    let source = crate::cmd_sample::open_source(
-        &args.source,
-        wavelengths.as_ref(),
-        crate::cmd_sample::predictor_kind(args.smooth),
-    )?;
-    write_bsdf(source.as_ref(), &args.source, &args.out, &args.rgl)
+    let source = args.from.open()?;
+    write_bsdf(source.as_ref(), &args.from.source, &args.out, &args.rgl)
 }

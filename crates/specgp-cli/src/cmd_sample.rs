@@ -17,21 +17,14 @@ use anyhow::{Context, bail};
 use brdf_io::{BrdfSource, Channels, Vec3};
 use predict::PredictorKind;
 
-/// Arguments of `specgp sample`.
+/// A BRDF source argument with the options every command that reads one takes (`sample`,
+/// `convert`).
 #[derive(Debug, clap::Args)]
-pub struct SampleArgs {
+pub struct SourceArgs {
     /// The BRDF: an RGL `.bsdf` file, a MERL `.binary` file, `DATA.sbrdf:MATERIAL` or
     /// `MODEL.toml@X1,...,Xq` (lazy GP prediction at a latent point, all q coordinates; the
     /// exact predictor, which returns a training material at its own point, unless --smooth).
     pub source: String,
-    /// CSV of direction pairs, one `wi_x,wi_y,wi_z,wo_x,wo_y,wo_z` row each (local frame,
-    /// z = normal; a header line is allowed).
-    #[arg(long)]
-    pub dirs: PathBuf,
-    /// Output CSV: a header naming the channels, then one row of values (1/sr) per pair (`-`:
-    /// standard output).
-    #[arg(long)]
-    pub out: PathBuf,
     /// Wavelengths START:END:STEP or a comma list in nm, inside the stored range (spectral
     /// sources; linear interpolation between stored wavelengths; default: the stored ones).
     /// Not for MERL files.
@@ -41,6 +34,43 @@ pub struct SampleArgs {
     /// the latent point) instead of the exact one.
     #[arg(long)]
     pub smooth: bool,
+}
+
+impl SourceArgs {
+    /// The file the source reads (the store of `DATA.sbrdf:MATERIAL`, the model of
+    /// `MODEL.toml@X`), for checks that an output does not replace it.
+    pub fn file(&self) -> PathBuf {
+        crate::paths::source_file(&self.source)
+    }
+
+    /// Opens the source ([`open_source`]).
+    pub fn open(&self) -> anyhow::Result<Box<dyn BrdfSource>> {
+        let wavelengths = self
+            .wavelengths
+            .as_deref()
+            .map(Channels::parse_wavelengths)
+            .transpose()?;
+        open_source(
+            &self.source,
+            wavelengths.as_ref(),
+            predictor_kind(self.smooth),
+        )
+    }
+}
+
+/// Arguments of `specgp sample`.
+#[derive(Debug, clap::Args)]
+pub struct SampleArgs {
+    #[command(flatten)]
+    pub from: SourceArgs,
+    /// CSV of direction pairs, one `wi_x,wi_y,wi_z,wo_x,wo_y,wo_z` row each (local frame,
+    /// z = normal; a header line is allowed).
+    #[arg(long)]
+    pub dirs: PathBuf,
+    /// Output CSV: a header naming the channels, then one row of values (1/sr) per pair (`-`:
+    /// standard output).
+    #[arg(long)]
+    pub out: PathBuf,
 }
 
 /// The predictor a `--smooth` flag names.
@@ -241,25 +271,15 @@ pub fn sample_csv(source: &dyn BrdfSource, pairs: &[(Vec3, Vec3)]) -> anyhow::Re
 
 /// Runs `specgp sample`.
 pub fn sample(args: &SampleArgs) -> anyhow::Result<()> {
-    let source = crate::paths::source_file(&args.source);
-    crate::paths::ensure_output_is_not_an_input(&args.out, &[&args.dirs, &source])?;
-    let wavelengths = args
-        .wavelengths
-        .as_deref()
-        .map(Channels::parse_wavelengths)
-        .transpose()?;
-    let source = open_source(
-        &args.source,
-        wavelengths.as_ref(),
-        predictor_kind(args.smooth),
-    )?;
+    crate::paths::ensure_output_is_not_an_input(&args.out, &[&args.dirs, &args.from.file()])?;
+    let source = args.from.open()?;
     let text = std::fs::read_to_string(&args.dirs)
         .with_context(|| format!("reading {}", args.dirs.display()))?;
     let pairs = parse_dirs(&text, &args.dirs)?;
     let csv = sample_csv(source.as_ref(), &pairs)
-        .with_context(|| format!("sampling {} at {}", args.source, args.dirs.display()))?;
+        .with_context(|| format!("sampling {} at {}", args.from.source, args.dirs.display()))?;
     brdf_io::output::write_file_atomic(&args.out, csv.as_bytes())?;
-    tracing::info!(pairs = pairs.len(), out = %args.out.display(), "sampled {}", args.source);
+    tracing::info!(pairs = pairs.len(), out = %args.out.display(), "sampled {}", args.from.source);
     Ok(())
 }
 

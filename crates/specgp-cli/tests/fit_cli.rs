@@ -57,6 +57,15 @@ fn synth_small(dir: &Path, wavelengths: &str) {
     );
 }
 
+/// [`synth_small`] and a fit `m.toml` of it with q = 2 (the default fit otherwise).
+fn fitted_small(dir: &Path, wavelengths: &str) {
+    synth_small(dir, wavelengths);
+    specgp(
+        &["fit", "data.sbrdf", "--out", "m.toml", "--latent-dim", "2"],
+        dir,
+    );
+}
+
 #[test]
 fn model_log_likelihood_matches_recomputation_from_export() {
     let dir = tempfile::tempdir().unwrap();
@@ -245,11 +254,7 @@ fn png_rgba(path: &Path) -> (u32, u32, Vec<u8>) {
 fn lazy_renders_of_model_points_read_an_existing_sidecar() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    synth_small(d, "400:700:20");
-    specgp(
-        &["fit", "data.sbrdf", "--out", "m.toml", "--latent-dim", "2"],
-        d,
-    );
+    fitted_small(d, "400:700:20");
     let model = Model::load(&d.join("m.toml")).unwrap();
     assert_ne!(
         model.transform,
@@ -776,11 +781,7 @@ fn interrupted_run_removes_its_temporary_output() {
 fn merl_output_of_a_coarse_model_is_on_merls_grid() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    synth_small(d, "400:700:50");
-    specgp(
-        &["fit", "data.sbrdf", "--out", "m.toml", "--latent-dim", "2"],
-        d,
-    );
+    fitted_small(d, "400:700:50");
     let (_, said) = specgp_outputs(
         &["predict", "m.toml", "--at", "0,0", "--out", "x.binary"],
         d,
@@ -843,11 +844,7 @@ fn merl_output_of_a_coarse_model_is_on_merls_grid() {
 fn rgl_files_of_predictions_and_stored_materials_read_back_as_their_source() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    synth_small(d, "400:700:50");
-    specgp(
-        &["fit", "data.sbrdf", "--out", "m.toml", "--latent-dim", "2"],
-        d,
-    );
+    fitted_small(d, "400:700:50");
     let small = ["--theta-samples", "12", "--resolution", "16"];
     let (_, said) = specgp_outputs(
         &[
