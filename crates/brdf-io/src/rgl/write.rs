@@ -672,6 +672,18 @@ fn fixed_fields(
         summary.negative_clamped += s.negative_clamped;
         summary.below_horizon += s.below_horizon;
     }
+    // A finite source value times 4 sigma / D can leave f32's range (a MERL file of 1e300s):
+    // the file would hold infinities that renderers turn into white or NaN pixels.
+    let overflow = values.iter().filter(|v| !v.is_finite()).count()
+        + luminance.iter().filter(|v| !v.is_finite()).count();
+    if overflow > 0 {
+        return Err(Error::InvalidArgument {
+            reason: format!(
+                "{name}: {overflow} table values exceed the f32 range of an RGL file (above \
+                 3.4e38: the source's values are too large)"
+            ),
+        });
+    }
     let as_f32 = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
     let mut fields = vec![
         Field::from_u8(
