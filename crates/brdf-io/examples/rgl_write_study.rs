@@ -65,7 +65,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         (32, 32, true),
     ];
     println!(
-        "source | theta_i | table | warp | build s | MB | check | cos-weighted rel RMS | median | p90"
+        "source | theta_i | table | warp | mirror lobe | build s | MB | check | cos-weighted rel RMS | median | p90"
     );
     for name in &args {
         let source: Box<dyn BrdfSource> = match brdf_io::store::parse_store_spec(name) {
@@ -116,11 +116,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             rel.sort_by(f64::total_cmp);
             let q = |p: f64| rel[((rel.len() - 1) as f64 * p) as usize];
             println!(
-                "{label} | {}{} | {} | {} | {seconds:.2} | {:.1} | {:.4} | {:.4} | {:.4} | {:.4}",
+                "{label} | {}{} | {} | {} | {} | {seconds:.2} | {:.1} | {:.4} | {:.4} | {:.4} | {:.4}",
                 summary.theta_samples,
                 if refine { " (refined)" } else { "" },
                 summary.resolution,
                 summary.warp_resolution,
+                summary.mirror_share,
                 bytes.len() as f64 / 1e6,
                 summary.check_rms,
                 (num / den).sqrt(),
