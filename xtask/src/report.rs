@@ -268,15 +268,16 @@ fn predictions(s: &mut String, r: &Results) {
             s,
             "\nThe predictions as RGL `.bsdf` files, which Mitsuba 3 and pbrt-v4 render (`measured` \
              material; `specgp predict --out X.bsdf`). Check: the file's cos-weighted relative \
-             RMS error against the prediction at {} direction pairs.\n\n| point | file | incident \
-             elevations | table | check | seconds |\n|---|---|---:|---:|---:|---:|",
+             RMS error against the prediction at {} direction pairs, and largest relative error \
+             of its directional albedo at incidence 0-88 degrees.\n\n| point | file | incident \
+             elevations | table | check | albedo | seconds |\n|---|---|---:|---:|---:|---:|---:|",
             brdf_io::rgl::CHECK_PAIRS
         );
         for p in &r.predictions {
             if let Some(b) = &p.bsdf {
                 let _ = writeln!(
                     s,
-                    "| {} | [`{}`]({}) ({}) | {} | {} x {} | {:.2} % | {:.2} |",
+                    "| {} | [`{}`]({}) ({}) | {} | {} x {} | {:.2} % | {:.2} % | {:.2} |",
                     p.label,
                     b.file,
                     b.file,
@@ -285,6 +286,7 @@ fn predictions(s: &mut String, r: &Results) {
                     b.resolution,
                     b.resolution,
                     100.0 * b.check_rms,
+                    100.0 * b.albedo_error,
                     b.seconds
                 );
             }

@@ -53,6 +53,8 @@ pub struct BsdfFile {
     pub resolution: usize,
     /// The writer's check: cos-weighted relative RMS error against the prediction.
     pub check_rms: f64,
+    /// The writer's check: largest relative error of the directional albedo (0-88 degrees).
+    pub albedo_error: f64,
 }
 
 fn kind(choice: PredictorChoice) -> PredictorKind {
@@ -152,6 +154,7 @@ pub fn predict_points(
                 theta_samples: summary.theta_samples,
                 resolution: summary.resolution,
                 check_rms: summary.check_rms,
+                albedo_error: summary.albedo_error,
             })
         } else {
             None

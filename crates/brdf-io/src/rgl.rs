@@ -34,8 +34,8 @@ use crate::tensor::{DType, TensorFile};
 mod write;
 
 pub use write::{
-    BROAD_SHARE, CHECK_PAIRS, DEFAULT_TOLERANCE, MAX_EVAL_THETA_DEG, RglWriteOptions,
-    RglWriteSummary, rgl_fields, write_rgl,
+    ALBEDO_THETAS_DEG, BROAD_SHARE, CHECK_PAIRS, DEFAULT_TOLERANCE, MAX_EVAL_THETA_DEG,
+    MIRROR_SHARE, RglWriteOptions, RglWriteSummary, rgl_fields, write_rgl,
 };
 
 /// Linear interpolation weights along one conditioning axis, as Mitsuba's

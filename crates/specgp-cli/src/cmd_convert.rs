@@ -26,16 +26,18 @@ pub struct ConvertArgs {
 #[derive(Debug, Clone, clap::Args)]
 pub struct RglArgs {
     /// Incident elevations of a written `.bsdf` file (2..=1024; cosine-spaced, 0-90 degrees).
-    /// Default: 32, refined (see --tolerance).
+    /// Default: 32, refined (see --tolerance). Clear-coated materials (car paint, vinyl) need
+    /// 128 with --resolution 128 for their albedo at grazing incidence (a ~400 MB file).
     #[arg(long)]
     pub theta_samples: Option<usize>,
     /// Side of a written `.bsdf` file's value tables (2..=1024; points of the warped square
     /// per incident elevation). Default: 32, refined (see --tolerance).
     #[arg(long)]
     pub resolution: Option<usize>,
-    /// Check error (cos-weighted relative RMS against the source at 4096 direction pairs)
-    /// above which a written `.bsdf` file is refined: the incident elevations or the tables'
-    /// side doubled (up to 128 each) while that cuts the error by a quarter. Giving
+    /// Check error (cos-weighted relative RMS against the source at 4096 direction pairs, or
+    /// relative error of the directional albedo at incidence 0-88 degrees, whichever is
+    /// larger) above which a written `.bsdf` file is refined: the incident elevations or the tables'
+    /// side doubled (up to 64 each) while that cuts the error by a quarter. Giving
     /// --theta-samples or --resolution writes those sizes as they are.
     #[arg(long, default_value_t = brdf_io::rgl::DEFAULT_TOLERANCE, conflicts_with_all = ["resolution", "theta_samples"])]
     pub tolerance: f64,
@@ -78,19 +80,22 @@ pub fn write_bsdf(
     eprintln!(
         "wrote {}: {label} as an RGL BSDF ({} incident elevations, {r} x {r} values each, \
          {channels}; {} bytes, {:.2} s); check against the source: {:.2} % cos-weighted RMS \
-         error at {} direction pairs",
+         error at {} direction pairs, directional albedo within {:.2} % at incidence 0-88 \
+         degrees",
         out.display(),
         summary.theta_samples,
         brdf_io::output::output_len(out).map_or_else(|| "?".to_owned(), |b| b.to_string()),
         start.elapsed().as_secs_f64(),
         100.0 * summary.check_rms,
         brdf_io::rgl::CHECK_PAIRS,
+        100.0 * summary.albedo_error,
         r = summary.resolution,
     );
-    if options.tolerance.is_some_and(|t| summary.check_rms > t) {
+    if options.tolerance.is_some_and(|t| summary.check() > t) {
         eprintln!(
             "warning: the check error is above --tolerance {}: finer tables did not reduce it \
-             by a quarter; the source varies faster than the format's interpolation follows",
+             by a quarter (or reached 64 x 64); sharp coats over a diffuse base need larger tables at \
+             grazing incidence (--theta-samples 128 --resolution 128)",
             args.tolerance,
         );
     }

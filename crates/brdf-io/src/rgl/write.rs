@@ -62,6 +62,9 @@ const MAX_WARP: usize = 512;
 /// The default [`RglWriteOptions::tolerance`]: 5 % cos-weighted relative RMS error.
 pub const DEFAULT_TOLERANCE: f64 = 0.05;
 
+/// Incident elevations (degrees) of the albedo check ([`RglWriteSummary::albedo_error`]).
+pub const ALBEDO_THETAS_DEG: [f64; 8] = [0.0, 30.0, 50.0, 65.0, 75.0, 82.0, 86.0, 88.0];
+
 /// Direction pairs of the check ([`RglWriteSummary::check_rms`]): 3/4 cosine-distributed,
 /// 1/4 within ~3 degrees of the mirror direction.
 pub const CHECK_PAIRS: usize = 4096;
@@ -114,17 +117,17 @@ pub struct RglWriteOptions {
 
 impl Default for RglWriteOptions {
     /// 32 incident elevations, 32 x 32 value tables and 128-sample warps (the RGL database's
-    /// files use 8, 32 and 128), NDF floor [`NDF_FLOOR`]: on six synthetic materials (diffuse
-    /// to chrome) 0.4-5 % cos-weighted relative RMS error against the source, median error
-    /// 0.07-0.7 %, in 0.2 s (BENCHMARKS.md "brdf-io", RGL writer).
+    /// files mostly use 8, 32 and 128), refined to [`DEFAULT_TOLERANCE`] up to 64 incident
+    /// elevations and 64 x 64 tables (at most ~50 MB for 33 wavelengths); the mirror lobe
+    /// chosen by the check (BENCHMARKS.md "brdf-io formats", RGL writer).
     fn default() -> Self {
         Self {
             theta_samples: 32,
             resolution: 32,
             warp_resolution: 128,
             tolerance: Some(DEFAULT_TOLERANCE),
-            max_theta_samples: 128,
-            max_resolution: 128,
+            max_theta_samples: 64,
+            max_resolution: 64,
             broad_share: BROAD_SHARE,
             mirror_share: None,
             description: String::new(),
@@ -133,7 +136,8 @@ impl Default for RglWriteOptions {
 }
 
 impl RglWriteOptions {
-    /// Checks the sizes (each at least 2, tables at most 1024 per side and 2^28 values).
+    /// Checks the sizes (each at least 2, at most 1024; warp tables at most 2^28 values; the
+    /// value tables, which also depend on the channels, are checked when written).
     pub fn check(&self) -> Result<()> {
         let bad = |reason: String| Err(Error::InvalidArgument { reason });
         for (name, v) in [
@@ -186,7 +190,8 @@ impl RglWriteOptions {
 /// What writing a file found.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RglWriteSummary {
-    /// Values evaluated for the table (points x channels).
+    /// Table values (points x channels), including the points whose reflected direction is
+    /// below the horizon (not evaluated, stored as 0).
     pub values: usize,
     /// Negative source values stored as 0.
     pub negative_clamped: usize,
@@ -196,6 +201,10 @@ pub struct RglWriteSummary {
     /// relative RMS with each value weighted by cos theta_i cos theta_o (as it reaches a
     /// picture).
     pub check_rms: f64,
+    /// The written file's largest relative error in directional albedo (luminance) against
+    /// the source, over incident elevations [`ALBEDO_THETAS_DEG`] (up to 88 degrees, which
+    /// the cos-weighted pairs of `check_rms` hardly see): what a render shows as rims.
+    pub albedo_error: f64,
     /// The share of the mirror lobe in the file's NDF ([`RglWriteOptions::mirror_share`]).
     pub mirror_share: f64,
     /// Incident elevations in the file (after refinement).
@@ -207,6 +216,11 @@ pub struct RglWriteSummary {
 }
 
 impl RglWriteSummary {
+    /// The larger of the two check errors, which refinement compares with the tolerance.
+    pub fn check(&self) -> f64 {
+        self.check_rms.max(self.albedo_error)
+    }
+
     fn empty(theta_samples: usize, resolution: usize, warp_resolution: usize) -> Self {
         Self {
             theta_samples,
@@ -214,6 +228,7 @@ impl RglWriteSummary {
             negative_clamped: 0,
             below_horizon: 0,
             check_rms: f64::NAN,
+            albedo_error: f64::NAN,
             mirror_share: 0.0,
             resolution,
             warp_resolution,
@@ -395,8 +410,11 @@ pub fn rgl_fields(
     let build = |opts: &RglWriteOptions| -> Result<(Vec<Field>, RglWriteSummary)> {
         let (fields, mut summary) = fixed_fields(source, opts)?;
         let file = TensorFile::from_fields(fields, "written.bsdf");
-        summary.check_rms = check_error(&RglBsdf::from_tensor_file(&file)?, source, &pairs)?;
+        let bsdf = RglBsdf::from_tensor_file(&file)?;
+        summary.check_rms = check_error(&bsdf, source, &pairs)?;
+        summary.albedo_error = albedo_error(&bsdf, source)?;
         tracing::info!(
+            albedo_error = summary.albedo_error,
             mirror_share = opts.mirror_share,
             theta_samples = opts.theta_samples,
             resolution = opts.resolution,
@@ -421,7 +439,7 @@ pub fn rgl_fields(
                 if best
                     .as_ref()
                     .is_none_or(|(_, (_, s)): &(_, (_, RglWriteSummary))| {
-                        built.1.check_rms < s.check_rms
+                        built.1.check() < s.check()
                     })
                 {
                     best = Some((o, built));
@@ -438,7 +456,7 @@ pub fn rgl_fields(
     // Each step doubles the incident elevations or the value tables' side, whichever cuts the
     // error more; a step that does not cut it by a quarter is not worth its size (the error is
     // then the source's own detail), so the coarser file is kept.
-    while best.1.check_rms > tolerance {
+    while best.1.check() > tolerance {
         let mut candidates = Vec::new();
         if 2 * opts.theta_samples <= options.max_theta_samples {
             candidates.push(RglWriteOptions {
@@ -458,13 +476,13 @@ pub fn rgl_fields(
             let built = build(&c)?;
             if next
                 .as_ref()
-                .is_none_or(|(_, (_, s))| built.1.check_rms < s.check_rms)
+                .is_none_or(|(_, (_, s))| built.1.check() < s.check())
             {
                 next = Some((c, built));
             }
         }
         match next {
-            Some((c, built)) if built.1.check_rms <= REFINE_GAIN * best.1.check_rms => {
+            Some((c, built)) if built.1.check() <= REFINE_GAIN * best.1.check() => {
                 opts = c;
                 best = built;
             }
@@ -503,6 +521,64 @@ fn check_pairs() -> Vec<([f64; 3], [f64; 3])> {
         }
     }
     pairs
+}
+
+/// Largest relative error of `file`'s directional albedo (luminance-weighted over the
+/// channels) against `source`'s, over [`ALBEDO_THETAS_DEG`]. Both are integrated over the same
+/// nodes in half-vector space: wo = the reflection of wi about m, dwo = 4 (wi . m) dm, with m
+/// on a midpoint grid in the format's coordinates (u = sqrt(2 theta_m / pi), phi_m), whose
+/// nodes crowd towards the mirror direction (the first is 0.003 degrees from it), so a sharp
+/// lobe is integrated as well as a broad one. Errors are relative to the largest albedo over
+/// the elevations when an albedo is below a thousandth of it (a black material does not
+/// divide by 0).
+fn albedo_error(file: &RglBsdf, source: &dyn BrdfSource) -> Result<f64> {
+    const N_U: usize = 96;
+    const N_PHI: usize = 96;
+    let channels = source.channels();
+    let lum_w = luminance_weights(&channels);
+    let albedos = ALBEDO_THETAS_DEG
+        .par_iter()
+        .map(|deg| {
+            let wi = direction(deg.to_radians(), 0.0);
+            let (mut f, mut g) = (vec![0.0; channels.len()], vec![0.0; channels.len()]);
+            let (mut a_file, mut a_source) = (0.0, 0.0);
+            let (du, dphi) = (1.0 / N_U as f64, 2.0 * PI / N_PHI as f64);
+            for i in 0..N_U {
+                let u = (i as f64 + 0.5) * du;
+                let tm = u2theta(u);
+                // dm = sin(theta_m) dtheta_m dphi, dtheta_m = pi u du.
+                let dm = tm.sin() * PI * u * du * dphi;
+                for j in 0..N_PHI {
+                    let m = direction(tm, (j as f64 + 0.5) * dphi);
+                    let dot = wi[0] * m[0] + wi[1] * m[1] + wi[2] * m[2];
+                    let wo = [0, 1, 2].map(|k| 2.0 * dot * m[k] - wi[k]);
+                    if !(dot > 0.0 && wo[2] > 0.0) {
+                        continue;
+                    }
+                    file.eval(wi, wo, &mut f)?;
+                    source.eval(wi, wo, &mut g)?;
+                    let w = wo[2] * 4.0 * dot * dm;
+                    for ((a, b), l) in f.iter().zip(&g).zip(&lum_w) {
+                        a_file += w * l * a;
+                        a_source += w * l * b.max(0.0);
+                    }
+                }
+            }
+            Ok((a_file, a_source))
+        })
+        .collect::<Result<Vec<(f64, f64)>>>()?;
+    let largest = albedos.iter().map(|a| a.1).fold(0.0, f64::max);
+    Ok(albedos
+        .iter()
+        .map(|(a, b)| {
+            let scale = b.max(1e-3 * largest);
+            if scale > 0.0 {
+                (a - b).abs() / scale
+            } else {
+                0.0
+            }
+        })
+        .fold(0.0, f64::max))
 }
 
 /// Relative RMS error of `file` against `source` over `pairs`, each value weighted by
@@ -554,6 +630,25 @@ fn fixed_fields(
     };
     let channels = source.channels();
     let nc = channels.len();
+    let table = [
+        options.theta_samples,
+        nc,
+        options.resolution,
+        options.resolution,
+    ];
+    if table
+        .iter()
+        .try_fold(1usize, |a, &b| a.checked_mul(b))
+        .is_none_or(|v| v > 1 << 28)
+    {
+        return Err(Error::InvalidArgument {
+            reason: format!(
+                "{name}: RGL value tables of {} x {} x {} x {} values are too large (at most \
+                 2^28, 1 GiB of f32)",
+                table[0], table[1], table[2], table[3]
+            ),
+        });
+    }
     let lum_w = luminance_weights(&channels);
     let lum = |f: &[f64]| {
         f.iter()
@@ -971,8 +1066,30 @@ mod tests {
         }
     }
 
+    /// The albedo check measures relative albedo errors: a file against itself scaled by 1.1
+    /// is 1/11 off at every elevation, against itself 0.
+    #[test]
+    fn the_albedo_check_measures_relative_albedo_errors() {
+        struct Scaled<'a>(&'a RglBsdf, f64);
+        impl BrdfSource for Scaled<'_> {
+            fn channels(&self) -> Channels {
+                self.0.channels()
+            }
+            fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+                self.0.eval(wi, wo, out)?;
+                out.iter_mut().for_each(|v| *v *= self.1);
+                Ok(())
+            }
+        }
+        let (bsdf, summary) = written(&Analytic::new(0.2), &RglWriteOptions::default());
+        assert!(summary.albedo_error < 0.02, "{summary:?}");
+        assert_eq!(albedo_error(&bsdf, &Scaled(&bsdf, 1.0)).unwrap(), 0.0);
+        let e = albedo_error(&bsdf, &Scaled(&bsdf, 1.1)).unwrap();
+        assert!((e - 0.1 / 1.1).abs() < 1e-12, "{e}");
+    }
+
     /// A broad material's file ripples around the mirror direction unless the NDF holds the
-    /// mirror lobe; the writer tries both and keeps the better check.
+    /// mirror lobe; the writer tries both and keeps the one that checks better.
     #[test]
     fn the_mirror_lobe_is_chosen_when_it_checks_better() {
         let mut source = Analytic::new(0.5);
@@ -1012,8 +1129,10 @@ mod tests {
         );
         assert!(r1 < 0.5 * r0, "{r0} {r1}");
         assert!(s1.check_rms < s0.check_rms, "{s0:?} {s1:?}");
-        assert_eq!(chosen.mirror_share, MIRROR_SHARE);
-        assert_eq!(chosen.check_rms, s1.check_rms);
+        // The writer keeps the file with the smaller check (the larger of its two errors).
+        let better = if s1.check() < s0.check() { &s1 } else { &s0 };
+        assert_eq!(chosen.mirror_share, better.mirror_share);
+        assert_eq!(chosen.check(), better.check());
     }
 
     /// A sharp lobe written at a coarse size misses the tolerance; refinement doubles the
