@@ -56,11 +56,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let visible = Channels::spectral(vec![450.0, 550.0, 650.0])?;
     let pairs = pairs();
     // (theta_i, table side, refine): fixed sizes, and the default refinement from 32 x 32.
-    let settings = [
-        (32, 32, false),
-        (64, 64, false),
-        (32, 32, true),
-    ];
+    let settings = [(32, 32, false), (64, 64, false), (32, 32, true)];
     println!(
         "source | theta_i | table | warp | mirror lobe | build s | MB | check | albedo check | cos-weighted rel RMS | median | p90"
     );

@@ -88,9 +88,9 @@ pub struct RglWriteOptions {
     /// Side of the `ndf`, `sigma` and `vndf` tables, at least 2.
     pub warp_resolution: usize,
     /// Refinement: while the written file's check error ([`RglWriteSummary::check_rms`]) is
-    /// above this, the file is written again with twice the incident elevations or twice the
-    /// value tables' side (and warp tables of at least 4 times that), whichever cuts the error
-    /// more, up to `max_theta_samples` and `max_resolution`, as long as a doubling cuts the
+    /// above this, the file is written again with twice the incident elevations, twice the
+    /// value tables' side (and warp tables of at least 4 times that) or both, whichever cuts
+    /// the error most, up to `max_theta_samples` and `max_resolution`, as long as a doubling cuts the
     /// error by at least a quarter (otherwise the coarser file is kept); `None` writes the
     /// sizes as they are.
     pub tolerance: Option<f64>,
@@ -453,8 +453,8 @@ pub fn rgl_fields(
     let Some(tolerance) = options.tolerance else {
         return Ok(best);
     };
-    // Each step doubles the incident elevations or the value tables' side, whichever cuts the
-    // error more; a step that does not cut it by a quarter is not worth its size (the error is
+    // Each step doubles the incident elevations, the value tables' side or both, whichever
+    // cuts the error most; a step that does not cut it by a quarter is not worth its size (the error is
     // then the source's own detail), so the coarser file is kept.
     while best.1.check() > tolerance {
         let mut candidates = Vec::new();
@@ -469,6 +469,13 @@ pub fn rgl_fields(
                 resolution: 2 * opts.resolution,
                 warp_resolution: opts.warp_resolution.max(8 * opts.resolution).min(MAX_WARP),
                 ..opts.clone()
+            });
+        }
+        // Some sources need both (an iridescent paint: neither doubling alone gains a quarter).
+        if candidates.len() == 2 {
+            candidates.push(RglWriteOptions {
+                theta_samples: 2 * opts.theta_samples,
+                ..candidates[1].clone()
             });
         }
         let mut next: Option<(RglWriteOptions, (Vec<Field>, RglWriteSummary))> = None;
