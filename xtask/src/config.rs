@@ -89,8 +89,8 @@ pub struct PredictParams {
     /// Materialise every prediction to `.npy` (timed).
     #[serde(default)]
     pub materialize: bool,
-    /// Write every prediction as an RGL `.bsdf` file (Mitsuba 3, pbrt-v4), checked against
-    /// the prediction and refined to the writer's default tolerance (timed).
+    /// Write every prediction as an RGL `.bsdf` file (Mitsuba 3, pbrt-v4) at the writer's
+    /// starting sizes, checked against the prediction (not refined; timed).
     #[serde(default)]
     pub bsdf: bool,
 }

@@ -267,7 +267,8 @@ fn predictions(s: &mut String, r: &Results) {
         let _ = writeln!(
             s,
             "\nThe predictions as RGL `.bsdf` files, which Mitsuba 3 and pbrt-v4 render (`measured` \
-             material; `specgp predict --out X.bsdf`). Check: the file's cos-weighted relative \
+             material), at the writer's starting sizes (`specgp predict --out X.bsdf` also refines them \
+             while a check is above 5 %). Check: the file's cos-weighted relative \
              RMS error against the prediction at {} direction pairs, and largest relative error \
              of its directional albedo at incidence 0-88 degrees.\n\n| point | file | incident \
              elevations | table | check | albedo | seconds |\n|---|---|---:|---:|---:|---:|---:|",

@@ -141,8 +141,13 @@ pub fn predict_points(
             let name = format!("prediction-{}.bsdf", i + 1);
             let path = out.join(&name);
             let t = Instant::now();
+            // The writer's starting sizes (32 incident elevations, 32 x 32 tables: 6.6 MB at 33
+            // wavelengths, ~0.3 s), checked but not refined: refinement can take a prediction to
+            // 50 MB and 4 s, which the pipeline's figures do not need; `specgp predict --out
+            // X.bsdf` refines.
             let options = brdf_io::rgl::RglWriteOptions {
                 description: format!("specgp prediction: {label}"),
+                tolerance: None,
                 ..Default::default()
             };
             let summary = brdf_io::rgl::write_rgl(&m, &path, &options)
