@@ -454,8 +454,8 @@ pub fn rgl_fields(
         return Ok(best);
     };
     // Each step doubles the incident elevations, the value tables' side or both, whichever
-    // cuts the error most; a step that does not cut it by a quarter is not worth its size (the error is
-    // then the source's own detail), so the coarser file is kept.
+    // cuts the error most; a step that does not cut it by a quarter is not worth its size (the
+    // error is then the source's own detail), so the coarser file is kept.
     while best.1.check() > tolerance {
         let mut candidates = Vec::new();
         if 2 * opts.theta_samples <= options.max_theta_samples {
