@@ -266,10 +266,10 @@ fn predictions(s: &mut String, r: &Results) {
     if r.predictions.iter().any(|p| p.bsdf.is_some()) {
         let _ = writeln!(
             s,
-            "\nThe predictions as RGL `.bsdf` files, which Mitsuba 3 and pbrt-v4 render (`measured` \
-             material), at the writer's starting sizes (`specgp predict --out X.bsdf` also refines them \
-             while a check is above 5 %). Check: the file's cos-weighted relative \
-             RMS error against the prediction at {} direction pairs, and largest relative error \
+            "\nThe predictions as RGL `.bsdf` files, which Mitsuba 3 and pbrt-v4 render \
+             (`measured` material), at the writer's starting sizes (`specgp predict --out X.bsdf` \
+             also refines them while a check is above 5 %). Check: the file's cos-weighted \
+             relative RMS error against the prediction at {} direction pairs, and largest relative error \
              of its directional albedo at incidence 0-88 degrees.\n\n| point | file | incident \
              elevations | table | check | albedo | seconds |\n|---|---|---:|---:|---:|---:|---:|",
             brdf_io::rgl::CHECK_PAIRS

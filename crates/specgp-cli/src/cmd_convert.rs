@@ -36,10 +36,14 @@ pub struct RglArgs {
     pub resolution: Option<usize>,
     /// Check error (cos-weighted relative RMS against the source at 4096 direction pairs, or
     /// relative error of the directional albedo at incidence 0-88 degrees, whichever is
-    /// larger) above which a written `.bsdf` file is refined: the incident elevations or the tables'
-    /// side doubled (up to 64 each) while that cuts the error by a quarter. Giving
-    /// --theta-samples or --resolution writes those sizes as they are.
-    #[arg(long, default_value_t = brdf_io::rgl::DEFAULT_TOLERANCE, conflicts_with_all = ["resolution", "theta_samples"])]
+    /// larger) above which a written `.bsdf` file is refined: the incident elevations, the
+    /// tables' side or both doubled (up to 64 each) while that cuts the error by a quarter.
+    /// Giving --theta-samples or --resolution writes those sizes as they are.
+    #[arg(
+        long,
+        default_value_t = brdf_io::rgl::DEFAULT_TOLERANCE,
+        conflicts_with_all = ["resolution", "theta_samples"]
+    )]
     pub tolerance: f64,
     /// Description stored in a written `.bsdf` file (default: the source).
     #[arg(long)]
@@ -94,8 +98,8 @@ pub fn write_bsdf(
     if options.tolerance.is_some_and(|t| summary.check() > t) {
         eprintln!(
             "warning: the check error is above --tolerance {}: finer tables did not reduce it \
-             by a quarter (or reached 64 x 64); sharp coats over a diffuse base need larger tables at \
-             grazing incidence (--theta-samples 128 --resolution 128)",
+             by a quarter (or reached 64 x 64); sharp coats over a diffuse base need larger \
+             tables at grazing incidence (--theta-samples 128 --resolution 128)",
             args.tolerance,
         );
     }

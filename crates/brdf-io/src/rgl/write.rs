@@ -90,9 +90,9 @@ pub struct RglWriteOptions {
     /// Refinement: while the written file's check error ([`RglWriteSummary::check_rms`]) is
     /// above this, the file is written again with twice the incident elevations, twice the
     /// value tables' side (and warp tables of at least 4 times that) or both, whichever cuts
-    /// the error most, up to `max_theta_samples` and `max_resolution`, as long as a doubling cuts the
-    /// error by at least a quarter (otherwise the coarser file is kept); `None` writes the
-    /// sizes as they are.
+    /// the error most, up to `max_theta_samples` and `max_resolution`, as long as a doubling
+    /// cuts the error by at least a quarter (otherwise the coarser file is kept); `None` writes
+    /// the sizes as they are.
     pub tolerance: Option<f64>,
     /// Most incident elevations that refinement goes to (at least `theta_samples`, at most
     /// 256).
