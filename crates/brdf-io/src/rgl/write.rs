@@ -26,8 +26,12 @@
 //!    and stores `f(w_i, w_o) cos(theta_o) 4 sigma / D` with the tables' own interpolated D and
 //!    sigma: the file then reproduces the source exactly (to f32 rounding) at every stored point
 //!    and interpolates between them;
-//! 5. stores a luminance table (the sampling density renderers use for importance sampling).
+//! 5. stores a luminance table (the sampling density renderers use for importance sampling);
+//! 6. checks the file against the source ([`RglWriteSummary::check_rms`] at seeded direction
+//!    pairs, [`RglWriteSummary::albedo_error`] at incidence 0-88 degrees) and, above
+//!    [`RglWriteOptions::tolerance`], writes it again with finer tables.
 //!
+//! Grid sources (stored and predicted materials) are evaluated cell by cell, each cell once.
 //! Negative source values (a raw-space prediction undershooting zero) are stored as 0 and
 //! counted. Incident elevations are cosine-spaced from 0 to 90 degrees (denser towards grazing,
 //! like the RGL database's files); the source is evaluated at most at [`MAX_EVAL_THETA_DEG`].
