@@ -306,6 +306,12 @@ fn u2phi(u: f64) -> f64 {
     (2.0 * u - 1.0) * PI
 }
 
+/// `wi` reflected about the unit half vector `m`, and `wi . m` (positive when `m` faces `wi`).
+fn reflect(wi: [f64; 3], m: [f64; 3]) -> (f64, [f64; 3]) {
+    let dot = wi[0] * m[0] + wi[1] * m[1] + wi[2] * m[2];
+    (dot, [0, 1, 2].map(|k| 2.0 * dot * m[k] - wi[k]))
+}
+
 /// Incident elevation `k` of `n`: cosine-spaced, `acos(1 - k / (n - 1))`, 0 to 90 degrees.
 fn theta_i_sample(k: usize, n: usize) -> f64 {
     (1.0 - k as f64 / (n - 1) as f64).clamp(0.0, 1.0).acos()
@@ -590,8 +596,7 @@ fn albedo_error(file: &RglBsdf, source: &dyn BrdfSource) -> Result<f64> {
                 let dm = tm.sin() * PI * u * du * dphi;
                 for j in 0..N_PHI {
                     let m = direction(tm, (j as f64 + 0.5) * dphi);
-                    let dot = wi[0] * m[0] + wi[1] * m[1] + wi[2] * m[2];
-                    let wo = [0, 1, 2].map(|k| 2.0 * dot * m[k] - wi[k]);
+                    let (dot, wo) = reflect(wi, m);
                     if !(dot > 0.0 && wo[2] > 0.0) {
                         continue;
                     }
@@ -806,15 +811,13 @@ fn fixed_fields(
                     let u = u_at(col, nw);
                     let tm = u2theta(u);
                     let m = direction(tm, phi);
-                    let c = (wi[0] * m[0] + wi[1] * m[1] + wi[2] * m[2]).max(0.0);
+                    let (dot, wo) = reflect(wi, m);
+                    let c = dot.max(0.0);
                     let jac = u * tm.sin();
                     geo[row * nw + col] = d_at(u) * c * jac;
-                    if lobe_share > 0.0 && c > 0.0 {
-                        let wo = [0, 1, 2].map(|i| 2.0 * c * m[i] - wi[i]);
-                        if wo[2] > 0.0 {
-                            eval_finite(source, name, wi, wo, &mut f)?;
-                            lobe[row * nw + col] = lum(&f) * wo[2] * 4.0 * c * jac;
-                        }
+                    if lobe_share > 0.0 && c > 0.0 && wo[2] > 0.0 {
+                        eval_finite(source, name, wi, wo, &mut f)?;
+                        lobe[row * nw + col] = lum(&f) * wo[2] * 4.0 * c * jac;
                     }
                 }
             }
@@ -858,12 +861,7 @@ fn fixed_fields(
                 for col in 0..res {
                     let u = warp_forward_x(&warp, &c, u_at(col, res), u_y);
                     let m = direction(u2theta(u[0]), u2phi(u[1]));
-                    let dot = wi[0] * m[0] + wi[1] * m[1] + wi[2] * m[2];
-                    let wo = [
-                        2.0 * dot * m[0] - wi[0],
-                        2.0 * dot * m[1] - wi[1],
-                        2.0 * dot * m[2] - wi[2],
-                    ];
+                    let (dot, wo) = reflect(wi, m);
                     summary.values += nc;
                     let d = d_at(u[0]);
                     if !(dot > 0.0 && wo[2] > 0.0 && d > 0.0) {
@@ -1071,8 +1069,7 @@ mod tests {
                     let u_y = warp_forward_y(&bsdf.vndf, &c, row as f64 / n);
                     let u = warp_forward_x(&bsdf.vndf, &c, col as f64 / n, u_y);
                     let m = direction(u2theta(u[0]), u2phi(u[1]));
-                    let dot = wi[0] * m[0] + wi[1] * m[1] + wi[2] * m[2];
-                    let wo = [0, 1, 2].map(|i| 2.0 * dot * m[i] - wi[i]);
+                    let (_, wo) = reflect(wi, m);
                     if wo[2] < 1e-3 {
                         continue;
                     }
