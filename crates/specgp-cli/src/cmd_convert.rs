@@ -50,6 +50,24 @@ pub struct RglArgs {
     pub description: Option<String>,
 }
 
+impl RglArgs {
+    /// The first RGL option given on the command line (the tolerance counts when it is not
+    /// the default), for commands that refuse options their output would ignore.
+    pub fn given(&self) -> Option<&'static str> {
+        if self.theta_samples.is_some() {
+            Some("--theta-samples")
+        } else if self.resolution.is_some() {
+            Some("--resolution")
+        } else if self.description.is_some() {
+            Some("--description")
+        } else if self.tolerance != brdf_io::rgl::DEFAULT_TOLERANCE {
+            Some("--tolerance")
+        } else {
+            None
+        }
+    }
+}
+
 /// Writes `source` (named `label`) as an RGL file at `out` and reports it on stderr.
 pub fn write_bsdf(
     source: &dyn BrdfSource,

@@ -194,6 +194,16 @@ pub fn with_existing_sidecar(pred: Predictor) -> anyhow::Result<Predictor> {
 pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
     let inputs = crate::paths::model_inputs(&args.model, args.dataset.as_deref());
     crate::paths::ensure_output_is_not_an_input(&args.out, &inputs)?;
+    let bsdf = args
+        .out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("bsdf"));
+    if !bsdf && let Some(flag) = args.rgl.given() {
+        bail!(
+            "{flag} applies to a `.bsdf` output, not to {}",
+            args.out.display()
+        );
+    }
     let mut pred = Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
         .with_context(|| format!("opening model {}", args.model.display()))?;
     if args.sidecar {
@@ -253,11 +263,7 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
     if let Some(spec) = &args.wavelengths {
         material = material.with_wavelengths(&Channels::parse_wavelengths(spec)?)?;
     }
-    if args
-        .out
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("bsdf"))
-    {
+    if bsdf {
         return crate::cmd_convert::write_bsdf(&material, material.label(), &args.out, &args.rgl);
     }
     let pb = bar(pred.store().n_chunks() as u64, "predict");

@@ -937,6 +937,19 @@ fn rgl_files_of_predictions_and_stored_materials_read_back_as_their_source() {
         ),
         (
             vec![
+                "predict",
+                "m.toml",
+                "--at",
+                "0,0",
+                "--out",
+                "h.npy",
+                "--resolution",
+                "16",
+            ],
+            "--resolution applies to a `.bsdf` output, not to h.npy",
+        ),
+        (
+            vec![
                 "convert",
                 "data.sbrdf:metal_gold",
                 "--out",
