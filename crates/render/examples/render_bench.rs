@@ -9,7 +9,11 @@
 //! ```sh
 //! specgp synth --out /tmp/b/synth.sbrdf && specgp fit /tmp/b/synth.sbrdf --out /tmp/b/model.toml
 //! cargo run --release -p render --example render_bench -- /tmp/b/model.toml [SIZE] [--sidecar]
+//! cargo run --release -p render --example render_bench -- /tmp/b/model.toml [SIZE] --stored-materials
 //! ```
+//! `--stored-materials` runs the accuracy study of the environment table instead: every stored
+//! material of the model's dataset rendered with several table resolutions against a dense table
+//! (the images' largest and mean linear sRGB difference and largest 8-bit code difference).
 //! The latent point is the midpoint of the first two materials.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -78,6 +82,75 @@ fn deviation(a: &render::Image, b: &render::Image) -> (f64, f64, i32) {
     (max, sum / n.max(1) as f64, codes)
 }
 
+/// The dense reference table of the accuracy comparisons.
+const DENSE_TABLE: EnvTableSpec = EnvTableSpec {
+    nodes: 128,
+    rings: 512,
+    azimuths: 32,
+};
+
+/// `--stored-materials`: each stored material of `store` rendered (`size` pixels) with several
+/// table resolutions, against [`DENSE_TABLE`]; one row per material, then the worst per spec.
+fn stored_materials_study(
+    store: std::sync::Arc<brdf_io::store::Store>,
+    size: usize,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let specs = [
+        EnvTableSpec::FAST,
+        EnvTableSpec {
+            nodes: 16,
+            rings: 64,
+            azimuths: 4,
+        },
+        EnvTableSpec {
+            nodes: 16,
+            rings: 128,
+            azimuths: 8,
+        },
+        EnvTableSpec::default(),
+        EnvTableSpec {
+            nodes: 32,
+            rings: 256,
+            azimuths: 8,
+        },
+    ];
+    let opts = |spec| SphereOptions {
+        size,
+        env_mode: EnvMode::Table(spec),
+        ..SphereOptions::default()
+    };
+    println!(
+        "{size} px, against the dense table {DENSE_TABLE:?}; per spec: max |img - dense| (linear), mean, max 8-bit code difference"
+    );
+    println!(
+        "material | {}",
+        specs
+            .iter()
+            .map(|s| format!("({}, {}, {})", s.nodes, s.rings, s.azimuths))
+            .collect::<Vec<_>>()
+            .join(" | ")
+    );
+    let mut worst = vec![(0.0f64, 0.0f64, 0i32); specs.len()];
+    for index in 0..store.n_materials() {
+        let m = brdf_io::store::StoreMaterial::by_index(store.clone(), index)?;
+        let dense = render_sphere(&m, &opts(DENSE_TABLE))?;
+        let mut line = store.names()[index].to_string();
+        for (spec, w) in specs.iter().zip(&mut worst) {
+            let (max, mean, codes) = deviation(&render_sphere(&m, &opts(*spec))?, &dense);
+            line += &format!(" | {max:.1e} {mean:.1e} {codes}");
+            *w = (w.0.max(max), w.1.max(mean), w.2.max(codes));
+        }
+        println!("{line}");
+    }
+    for (s, w) in specs.iter().zip(&worst) {
+        println!(
+            "({}, {}, {}): worst max {:.2e}, worst mean {:.2e}, worst code difference {}",
+            s.nodes, s.rings, s.azimuths, w.0, w.1, w.2
+        );
+    }
+    Ok(())
+}
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
     let model =
@@ -89,6 +162,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .transpose()?
         .unwrap_or(256);
     let mut pred = predict::Predictor::open(&model)?;
+    if args.iter().any(|a| a == "--stored-materials") {
+        return stored_materials_study(pred.store().clone(), size);
+    }
     let dir = tempfile::tempdir()?;
     // `--sidecar`: read forward-transformed values (built once per dataset, not timed), so a
     // lookup under `log` costs N multiply-adds and no logarithms.
@@ -216,32 +292,33 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         pred.grid().len()
     );
     // Environment-table resolution against cost: cold-cache lazy renders (cells predicted)
-    // and the largest deviation from a dense table (256 nodes, 1024 + 3 x 128 directions).
+    // and the largest deviation from a dense table (128 nodes, 512 rings x 32 azimuths).
     let dense_src = lazy_material()?;
     let mut fast = f64::NAN;
     let dense = render_sphere(
         &dense_src,
         &SphereOptions {
-            env_mode: EnvMode::Table(EnvTableSpec {
-                nodes: 256,
-                cosine: 1024,
-                cap: 128,
-            }),
+            env_mode: EnvMode::Table(DENSE_TABLE),
             ..opts.clone()
         },
     )?;
     println!(
-        "table (nodes, cosine, cap) | lazy s (median of 5) | cells | max |img - dense| (linear) | mean | max 8-bit sRGB code difference"
+        "table (nodes, rings, azimuths) | lazy s (median of 5) | cells | max |img - dense| (linear) | mean | max 8-bit sRGB code difference"
     );
-    for (nodes, cosine, cap) in [
-        (16, 8, 4),
-        (16, 32, 4),
-        (16, 96, 8),
-        (24, 96, 32),
-        (32, 96, 32),
-        (64, 96, 32),
+    for (nodes, rings, azimuths) in [
+        (16, 32, 2),
+        (16, 64, 2),
+        (16, 64, 4),
+        (16, 128, 8),
+        (32, 64, 4),
+        (32, 128, 8),
+        (64, 128, 8),
     ] {
-        let mode = EnvMode::Table(EnvTableSpec { nodes, cosine, cap });
+        let mode = EnvMode::Table(EnvTableSpec {
+            nodes,
+            rings,
+            azimuths,
+        });
         let o = SphereOptions {
             env_mode: mode,
             ..opts.clone()
@@ -261,7 +338,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             fast = t;
         }
         println!(
-            "({nodes}, {cosine}, {cap}) | {t:.3} | {cells} | {max:.2e} | {mean:.2e} | {codes}"
+            "({nodes}, {rings}, {azimuths}) | {t:.3} | {cells} | {max:.2e} | {mean:.2e} | {codes}"
         );
     }
     let pp = render_sphere(

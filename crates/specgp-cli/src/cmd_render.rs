@@ -46,10 +46,12 @@ pub struct RenderArgs {
     #[arg(long)]
     pub view: Option<f64>,
     /// The environment: the dim uniform one integrated as `table` (pre-integrated over the
-    /// view angle once per render; isotropic BRDFs, i.e. every specgp source), `fast` (a
-    /// coarser table: fewer lookups, less accurate on glossy lobes) or `per-pixel` (20
-    /// directions per pixel); or `studio`, a bright sky over a dark floor (per pixel, slower),
-    /// in which metals and mirrors show a horizon instead of looking like black plastic.
+    /// view angle once per render through the half vector, accurate on the sharpest lobes;
+    /// isotropic BRDFs, i.e. every specgp source), `fast` (a coarser table: a quarter of the
+    /// lookups, a few 8-bit steps off at grazing views of sharp materials) or `per-pixel` (20
+    /// directions per pixel, coarse on sharp lobes); or `studio`, a bright sky over a dark floor
+    /// (per pixel, slower), in which metals and mirrors show a horizon instead of looking like
+    /// black plastic.
     #[arg(long, default_value = "table")]
     pub env: String,
     /// With a model point: the smooth predictor (the noise-free posterior mean, continuous in
