@@ -79,10 +79,12 @@ pub const ENV_CAP_DEGREES: [f64; 3] = [2.0, 7.0, 25.0];
 /// Environment directions per pixel.
 pub const ENV_SAMPLES: usize = ENV_COSINE + ENV_CAP * ENV_CAP_DEGREES.len();
 
-/// Cosine-weighted directions per pixel of the studio environment ([`EnvMode::Studio`]).
-pub const STUDIO_COSINE: usize = 48;
-/// Directions per cone around the mirror direction of the studio environment.
-pub const STUDIO_CAP: usize = 24;
+/// Half-vector rings per pixel of the studio environment ([`EnvMode::Studio`],
+/// [`HalfVectorQuadrature::for_each_both_sides`]).
+pub const STUDIO_RINGS: usize = 64;
+/// Azimuths per ring and side of the studio environment (with the rings: 512 directions per
+/// pixel).
+pub const STUDIO_AZIMUTHS: usize = 4;
 
 /// View angles (nodes) of the pre-integrated environment table.
 pub const ENV_TABLE_NODES: usize = 32;
@@ -139,8 +141,9 @@ pub enum EnvMode {
     Table(EnvTableSpec),
     /// The [`ENV_SAMPLES`]-direction quadrature evaluated at every pixel (any BRDF).
     PerPixel,
-    /// A studio environment instead of the uniform one, integrated per pixel like
-    /// [`EnvMode::PerPixel`] with a denser quadrature ([`STUDIO_COSINE`], [`STUDIO_CAP`]): a sky above the horizon (radiance rising towards the
+    /// A studio environment instead of the uniform one, integrated per pixel through the half
+    /// vector ([`HalfVectorQuadrature`], [`STUDIO_RINGS`] x [`STUDIO_AZIMUTHS`] on both sides
+    /// of the plane of incidence): a sky above the horizon (radiance rising towards the
     /// zenith) over a dark floor, `env_radiance` x [`studio_radiance`] of the world direction's
     /// height (camera frame, y up). Glossy and metallic materials then show what they reflect:
     /// a horizon across a chrome sphere, a sheen on a metal; under the uniform environment a
@@ -400,7 +403,18 @@ impl HalfVectorQuadrature {
     /// view direction `wo` (z = normal, unit, wo.z > 0; any azimuth): `sum weight * f(wi, wo)`
     /// estimates the integral of f cos over the hemisphere (per unit environment radiance) for
     /// an isotropic f (the directions cover one side of the plane of incidence).
-    pub fn for_each(&self, wo: Vec3, mut visit: impl FnMut(Vec3, f64)) {
+    pub fn for_each(&self, wo: Vec3, visit: impl FnMut(Vec3, f64)) {
+        self.visit(wo, false, visit);
+    }
+
+    /// As [`HalfVectorQuadrature::for_each`], each direction with its mirror image about the
+    /// plane of incidence (half the weight each): twice the directions, for any f, and for a
+    /// non-uniform environment (`sum weight * f(wi, wo) L(wi)`).
+    pub fn for_each_both_sides(&self, wo: Vec3, visit: impl FnMut(Vec3, f64)) {
+        self.visit(wo, true, visit);
+    }
+
+    fn visit(&self, wo: Vec3, both_sides: bool, mut visit: impl FnMut(Vec3, f64)) {
         use std::f64::consts::{FRAC_PI_2, PI};
         // The frame where wo = (so, 0, co): rotate the samples back by wo's azimuth.
         let so = wo[0].hypot(wo[1]);
@@ -438,7 +452,7 @@ impl HalfVectorQuadrature {
             }
             lo
         };
-        let mut samples = Vec::with_capacity(self.rings * self.azimuths);
+        let mut samples = Vec::with_capacity(self.rings * self.azimuths * 2);
         let mut total = 0.0;
         let step = 1.0 / self.rings as f64;
         for j in 0..self.rings {
@@ -470,7 +484,13 @@ impl HalfVectorQuadrature {
                 }
                 let w = patch * 4.0 * c * wi[2];
                 total += w;
-                samples.push(([ca * wi[0] - sa * wi[1], sa * wi[0] + ca * wi[1], wi[2]], w));
+                let rotate = |y: f64| [ca * wi[0] - sa * y, sa * wi[0] + ca * y, wi[2]];
+                if both_sides {
+                    samples.push((rotate(wi[1]), 0.5 * w));
+                    samples.push((rotate(-wi[1]), 0.5 * w));
+                } else {
+                    samples.push((rotate(wi[1]), w));
+                }
             }
         }
         if total > 0.0 {
@@ -581,10 +601,10 @@ pub struct Shader<'a> {
     lights: Vec<(Vec3, f64)>,
     /// Environment radiance and its quadrature (per-pixel mode).
     env: (f64, EnvQuadrature),
+    /// The studio environment's quadrature ([`EnvMode::Studio`]), which replaces `env.1`.
+    studio: Option<HalfVectorQuadrature>,
     /// The pre-integrated environment (table mode, non-zero environment).
     table: Option<EnvTable>,
-    /// Whether the environment is the studio one ([`EnvMode::Studio`]).
-    studio: bool,
     scale: f64,
     /// For grid sources ([`BrdfSource::grid`]): each touched cell's linear sRGB (the colour
     /// projection is linear, so interpolating projected cells equals projecting interpolated
@@ -602,16 +622,12 @@ impl<'a> Shader<'a> {
         let n_channels = channels.len();
         let (weights, needed) = colour_weights(&channels, opts.illuminant)?;
         let lights = vec![(opts.light_dir(), opts.light_irradiance)];
-        // The studio sky varies across a glossy lobe: a denser quadrature keeps its reflection
-        // free of the sparse one's ring-shaped bands.
-        let env = (
-            opts.env_radiance,
-            if opts.env_mode == EnvMode::Studio {
-                EnvQuadrature::with_counts(STUDIO_COSINE, STUDIO_CAP)
-            } else {
-                EnvQuadrature::default()
-            },
-        );
+        let env = (opts.env_radiance, EnvQuadrature::default());
+        // The studio sky varies across a glossy lobe, which may be a spike on a grid: the
+        // half-vector quadrature on both sides of the plane of incidence, dense enough to keep
+        // its reflection free of bands (BENCHMARKS.md "render", session 13).
+        let studio = (opts.env_mode == EnvMode::Studio)
+            .then(|| HalfVectorQuadrature::new(STUDIO_RINGS, STUDIO_AZIMUTHS));
         let mut shader = Self {
             source,
             weights,
@@ -620,7 +636,7 @@ impl<'a> Shader<'a> {
             lights,
             env,
             table: None,
-            studio: opts.env_mode == EnvMode::Studio,
+            studio,
             scale: 2f64.powf(opts.exposure),
             cells: source
                 .grid()
@@ -697,9 +713,9 @@ impl<'a> Shader<'a> {
         }
         if self.env.0 > 0.0 {
             let mut err = Ok(());
-            self.env.1.for_each(wo, |wi, w| {
+            let mut add = |wi: Vec3, w: f64| {
                 if err.is_ok() {
-                    let radiance = if self.studio {
+                    let radiance = if self.studio.is_some() {
                         // Height of the direction in the camera frame (y up).
                         let y = t[1] * wi[0] + b[1] * wi[1] + n[1] * wi[2];
                         self.env.0 * studio_radiance(y)
@@ -711,7 +727,11 @@ impl<'a> Shader<'a> {
                         Err(e) => err = Err(e),
                     }
                 }
-            });
+            };
+            match &self.studio {
+                Some(q) => q.for_each_both_sides(wo, &mut add),
+                None => self.env.1.for_each(wo, &mut add),
+            }
             err?;
         }
         Ok(acc.map(|v| self.scale * v))
