@@ -12,16 +12,15 @@
 //! - a uniform environment of radiance [`SphereOptions::env_radiance`] from every direction,
 //!   integrated in the local frame by a fixed, deterministic quadrature (no noise, no polka
 //!   dots of reflected point lights): by default once per render into a table over the view
-//!   angle (below); per pixel ([`EnvMode::PerPixel`], and the studio environment), by
-//!   [`EnvQuadrature`], which partitions the hemisphere into nested cones of half-angles
-//!   [`ENV_CAP_DEGREES`] around the mirror direction of the view (the innermost cone and each
-//!   ring between two cones get [`ENV_CAP`] directions, uniform in solid angle, stratified in
-//!   cos theta with golden-angle azimuths; each weighs its region's solid angle / [`ENV_CAP`] x
-//!   cos theta_i) and the rest of the hemisphere, covered by those of [`ENV_COSINE`] fixed
-//!   cosine-weighted directions (stratified likewise) that fall outside the outer cone, sharing
-//!   the rest's projected solid angle (pi minus the cones' share). A Lambertian gets exactly
-//!   pi f; glossy lobes are resolved by the cones as long as they are wider than the cones'
-//!   directions are apart;
+//!   angle (below); per pixel ([`EnvMode::PerPixel`]) by [`EnvQuadrature`], which partitions
+//!   the hemisphere into nested cones of half-angles [`ENV_CAP_DEGREES`] around the mirror
+//!   direction of the view (the innermost cone and each ring between two cones get [`ENV_CAP`]
+//!   directions, uniform in solid angle, stratified in cos theta with golden-angle azimuths;
+//!   each weighs its region's solid angle / [`ENV_CAP`] x cos theta_i) and the rest of the
+//!   hemisphere, covered by those of [`ENV_COSINE`] fixed cosine-weighted directions
+//!   (stratified likewise) that fall outside the outer cone, sharing the rest's projected
+//!   solid angle (pi minus the cones' share). A Lambertian gets exactly pi f; glossy lobes are
+//!   resolved by the cones as long as they are wider than the cones' directions are apart;
 //! - both lights have the illuminant's spectrum (a spectral source's value at each wavelength is
 //!   weighted by the illuminant and the observer, [`crate::colour::ColourPipeline`]).
 //!
@@ -112,10 +111,11 @@ pub struct EnvTableSpec {
 }
 
 impl EnvTableSpec {
-    /// A coarse, cheap table (16 nodes, 64 rings x 2 azimuths per node): within ~8 % of a dense
-    /// quadrature at every view angle on the sharpest synthetic materials (within ~1 % below
-    /// 80 degrees), and for a lazily predicted material it touches about a quarter of the cells
-    /// of the default table (BENCHMARKS.md "render", session 13).
+    /// A coarse, cheap table (16 nodes, 64 rings x 2 azimuths per node): albedo within ~6 % of
+    /// a dense quadrature at every view angle on the sharpest synthetic materials, sphere
+    /// images within 6 8-bit codes of a dense table (mean 5e-4 linear) on all 51; for a lazily
+    /// predicted material it touches about 30 % of the cells of the default table
+    /// (BENCHMARKS.md "render", session 13).
     pub const FAST: Self = Self {
         nodes: 16,
         rings: 64,
@@ -370,12 +370,14 @@ impl EnvQuadrature {
 /// the hemisphere, sampled through the half vector h, wi = 2 (wo.h) h - wo, so that samples are
 /// densest where specular lobes are sharpest (h near the normal) whatever their width.
 ///
-/// Rings of h at theta_h = (pi/2) u^2 (MERL's mapping of theta_h, so a grid source's bins get
-/// equally many rings), u at the midpoints of `rings` equal steps of [0, u_max], u_max the
-/// largest ring with any direction above the horizon; on each ring, azimuths at the midpoints
-/// of `azimuths` equal steps of the arc where wi is above the horizon (on one side of the plane
-/// of incidence, each weighted twice: an isotropic BRDF is symmetric about that plane), so the
-/// horizon cuts no sample interval. Weights: the solid angle of the sample's patch of h,
+/// Rings of h in bands of `rings` equal steps of u in [0, 1], theta_h = (pi/2) u^2 (MERL's
+/// mapping of theta_h, so a grid source's bins get equally many rings, and with a multiple of
+/// twice its bins the band edges fall on its bin centres, where its interpolation kinks), cut
+/// at u_max, the largest ring with any direction above the horizon; each ring at its band's
+/// centroid under the band's measure. On each ring, azimuths at the midpoints of `azimuths`
+/// equal steps of the arc where wi is above the horizon, on one side of the plane of incidence
+/// (each weighted twice: an isotropic BRDF is symmetric about that plane), so the horizon cuts
+/// no sample interval. Weights: the exact solid angle of the sample's patch of h,
 /// d(omega_i) = 4 (wo.h) d(omega_h), times cos(theta_i), scaled so that they sum to pi exactly
 /// (the integral of cos theta_i: a Lambertian BRDF is integrated exactly).
 ///
