@@ -1103,6 +1103,20 @@ mod tests {
         assert!(lit > 300, "{lit} lit pixels");
     }
 
+    /// The integral over the hemisphere of a normalised Phong lobe of exponent 2000 about the
+    /// mirror direction of `wo`, divided by cos theta_i (so ~1 when the lobe is above the
+    /// horizon), by the quadrature whose `for_each` is `q`.
+    fn mirror_lobe_integral(wo: Vec3, q: impl Fn(Vec3, &mut dyn FnMut(Vec3, f64))) -> f64 {
+        let e = 2000.0;
+        let r = [-wo[0], -wo[1], wo[2]];
+        let mut s = 0.0;
+        q(wo, &mut |wi, w| {
+            let c = dot(wi, r).max(0.0);
+            s += w * (e + 1.0) / std::f64::consts::TAU * c.powf(e) / wi[2];
+        });
+        s
+    }
+
     #[test]
     fn env_quadrature_integrates_lambert_and_mirror_like_lobes() {
         let q = EnvQuadrature::default();
@@ -1123,13 +1137,7 @@ mod tests {
             );
             // A narrow normalised lobe around the mirror direction (Phong, exponent 2000) has
             // integral ~1 (times cos at the mirror direction).
-            let e = 2000.0;
-            let r = [-wo[0], -wo[1], wo[2]];
-            let mut s = 0.0;
-            q.for_each(wo, |wi, w| {
-                let c = dot(wi, r).max(0.0);
-                s += w * (e + 1.0) / std::f64::consts::TAU * c.powf(e) / wi[2];
-            });
+            let s = mirror_lobe_integral(wo, |wo, v| q.for_each(wo, v));
             assert!((s - 1.0).abs() < 0.25, "{wo:?}: mirror lobe {s}");
         }
         let (t, b) = basis([0.6, 0.0, 0.8]);
@@ -1193,13 +1201,7 @@ mod tests {
             if wo[2] < 0.79 {
                 continue;
             }
-            let e = 2000.0;
-            let r = [-wo[0], -wo[1], wo[2]];
-            let mut s = 0.0;
-            q.for_each(wo, |wi, w| {
-                let c = dot(wi, r).max(0.0);
-                s += w * (e + 1.0) / std::f64::consts::TAU * c.powf(e) / wi[2];
-            });
+            let s = mirror_lobe_integral(wo, |wo, v| q.for_each(wo, v));
             assert!((s - 1.0).abs() < 0.02, "{wo:?}: mirror lobe {s}");
         }
     }
