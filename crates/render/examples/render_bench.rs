@@ -113,6 +113,16 @@ fn stored_materials_study(
             rings: 256,
             azimuths: 8,
         },
+        EnvTableSpec {
+            nodes: 32,
+            rings: 64,
+            azimuths: 2,
+        },
+        EnvTableSpec {
+            nodes: 24,
+            rings: 64,
+            azimuths: 2,
+        },
     ];
     let opts = |spec| SphereOptions {
         size,
@@ -131,10 +141,11 @@ fn stored_materials_study(
             .join(" | ")
     );
     let mut worst = vec![(0.0f64, 0.0f64, 0i32); specs.len()];
-    for index in 0..store.n_materials() {
+    let names: Vec<String> = store.names().into_iter().map(String::from).collect();
+    for (index, name) in names.into_iter().enumerate() {
         let m = brdf_io::store::StoreMaterial::by_index(store.clone(), index)?;
         let dense = render_sphere(&m, &opts(DENSE_TABLE))?;
-        let mut line = store.names()[index].to_string();
+        let mut line = name;
         for (spec, w) in specs.iter().zip(&mut worst) {
             let (max, mean, codes) = deviation(&render_sphere(&m, &opts(*spec))?, &dense);
             line += &format!(" | {max:.1e} {mean:.1e} {codes}");
