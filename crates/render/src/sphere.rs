@@ -1254,6 +1254,29 @@ mod tests {
         assert!(render_sphere(&src, &SphereOptions { size: 0, ..env }).is_err());
     }
 
+    #[test]
+    fn invalid_environment_tables_are_refused_with_the_reason() {
+        let src = Lambert(Channels::Rgb, 0.5);
+        let table = |nodes, rings, azimuths| SphereOptions {
+            size: 8,
+            env_mode: EnvMode::Table(EnvTableSpec {
+                nodes,
+                rings,
+                azimuths,
+            }),
+            ..SphereOptions::default()
+        };
+        for (nodes, rings, azimuths) in [(1, 8, 2), (16, 0, 2), (16, 8, 0), (16, 1 << 11, 1 << 10)]
+        {
+            let err = render_sphere(&src, &table(nodes, rings, azimuths))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains("environment table"), "{err}");
+            assert!(err.contains("rings x azimuths <= 2^20"), "{err}");
+        }
+        assert!(render_sphere(&src, &table(2, 1, 1)).is_ok());
+    }
+
     /// Lambertian plus a normalised Blinn-Phong lobe of exponent `e` (isotropic), grey.
     #[derive(Clone, Copy)]
     struct Glossy(f64, f64, f64);
