@@ -21,8 +21,8 @@ use brdf_io::{AngularGrid, BrdfSource, HalfDiff, Vec3};
 use rayon::prelude::*;
 
 use super::{
-    ENV_TABLE_MAX_DEGREES, EnvTable, EnvTableSpec, HalfVectorQuadrature, Sight, SphereOptions,
-    basis, colour_weights, dot, project,
+    ENV_TABLE_MAX_DEGREES, EnvTable, EnvTableSpec, Sight, SphereOptions, basis, colour_weights,
+    dot, project,
 };
 use crate::error::Result;
 use crate::image::Image;
@@ -167,7 +167,7 @@ impl Plan {
             .collect();
         let mut env: Vec<Vec<(f64, Option<Stencil>)>> = Vec::new();
         if key.env {
-            let q = HalfVectorQuadrature::new(key.spec.rings, key.spec.azimuths);
+            let q = key.spec.quadrature();
             env = (0..key.spec.nodes)
                 .into_par_iter()
                 .map(|k| {
