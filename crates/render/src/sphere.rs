@@ -29,6 +29,13 @@
 //! in the local frame of the surface point (z = normal, a branchless orthonormal basis for the
 //! tangents).
 //!
+//! **Argument order.** A source is called as `eval(view, light)`: [`BrdfSource::eval`] follows
+//! Mitsuba 3's order, whose first direction is `si.wi`, the one towards the camera, and pbrt-v4's
+//! `MeasuredBxDF::f` likewise picks an RGL file's incident slice by its `wo`, the camera side.
+//! Reciprocal sources do not care; a file written by `specgp convert` is reciprocal only up to
+//! its resampling error, and then renders as those renderers show it (the environment of a
+//! pixel is integrated within the view's slice). Grid sources are reciprocal by construction.
+//!
 //! **Pre-integrated environment** ([`EnvMode::Table`], the default). For an *isotropic* BRDF the
 //! environment term is `L_env A(theta_o)` with `A(theta_o)` = the integral over the hemisphere
 //! of f(wi, wo) cos(theta_i) dwi, a function of the view polar angle only. Each render builds,
@@ -747,12 +754,16 @@ impl<'a> Shader<'a> {
         Ok(acc.map(|v| self.scale * v))
     }
 
-    /// Linear sRGB (before exposure) of f(wi, wo): for a grid source, the interpolated
-    /// colours of the stencil's cells (each projected once per render); otherwise the source's
-    /// channels at (wi, wo), projected. `f` is scratch of the source's channel count.
+    /// Linear sRGB (before exposure) of the BRDF for light arriving from `wi` and leaving
+    /// towards the viewer along `wo`: for a grid source, the interpolated colours of the
+    /// stencil's cells (each projected once per render; the grid is reciprocal, so the order
+    /// does not matter); otherwise the source's channels at `eval(wo, wi)`, projected: the
+    /// view first, as Mitsuba 3 (`si.wi`) and pbrt-v4 (`wo`) pass it, so an RGL file's
+    /// incident slice is the view's (see the module docs). `f` is scratch of the source's
+    /// channel count.
     fn rgb_of(&self, wi: Vec3, wo: Vec3, f: &mut [f64]) -> Result<[f64; 3]> {
         let Some((grid, cells)) = &self.cells else {
-            self.source.eval(wi, wo, f)?;
+            self.source.eval(wo, wi, f)?;
             return Ok(self.to_rgb(f, 1.0));
         };
         let mut rgb = [0.0; 3];
@@ -1070,6 +1081,58 @@ mod tests {
             out.fill(v);
             Ok(())
         }
+    }
+
+    /// Sources are called with the view first, as Mitsuba 3 and pbrt-v4 call an RGL file: a
+    /// non-reciprocal grey source f(wi, wo) = wi_z / pi (the first direction's cosine only)
+    /// renders E (n.v) (n.l) / pi under the light alone; the other order would give
+    /// E (n.l)^2 / pi, up to 1/2 - 1/4 = 1/4 of E / pi apart at the sphere's interior pixels.
+    #[test]
+    fn sources_are_evaluated_with_the_view_as_the_first_direction() {
+        struct FirstCosine;
+        impl BrdfSource for FirstCosine {
+            fn channels(&self) -> Channels {
+                Channels::Rgb
+            }
+            fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
+                let v = if wi[2] > 0.0 && wo[2] > 0.0 {
+                    wi[2] / std::f64::consts::PI
+                } else {
+                    0.0
+                };
+                out.fill(v);
+                Ok(())
+            }
+        }
+        let size = 32;
+        let opts = SphereOptions {
+            size,
+            env_radiance: 0.0,
+            ..SphereOptions::default()
+        };
+        let img = render_sphere(&FirstCosine, &opts).unwrap();
+        let (sight, l) = (sphere_sight(size), opts.light_dir());
+        let k = opts.light_irradiance * 2f64.powf(opts.exposure) / std::f64::consts::PI;
+        let (mut checked, mut apart) = (0, 0.0f64);
+        for py in 0..size {
+            for px in 0..size {
+                let Some((n, view, cov)) = sight(px, py) else {
+                    continue;
+                };
+                if cov < 1.0 {
+                    continue;
+                }
+                let (nv, nl) = (dot(n, view), dot(n, l).max(0.0));
+                let expect = k * nv * nl;
+                apart = apart.max(k * (nv - nl).abs() * nl);
+                for v in img.rgb[py * size + px] {
+                    assert!((v - expect).abs() < 1e-9, "({px}, {py}): {v} vs {expect}");
+                }
+                checked += 1;
+            }
+        }
+        assert!(checked > 600, "{checked} interior pixels");
+        assert!(apart > 0.2 * k, "the two orders differ by {apart} at most");
     }
 
     /// Negative BRDF values render as 0, not as negative light: a Lambertian whose red channel
