@@ -9,8 +9,10 @@
 //! specgp synth --out /tmp/rb/s.sbrdf --grid 32,32,64
 //! specgp convert /tmp/rb/s.sbrdf:carpaint_solid_red --out /tmp/rb/cp.bsdf
 //! cargo run --release -p render --example rgl_render_study -- /tmp/rb/cp.bsdf /tmp/rb/s.sbrdf:carpaint_solid_red [SIZE]
+//! cargo run --release -p render --example rgl_render_study -- ../shared/data/rgl-rgb/paper_white_rgb.bsdf
 //! ```
-//! Prints, for the default scene and the environment alone: the largest and mean linear sRGB
+//! With only FILE, prints how far apart the two orders render the file itself (128 px).
+//! Otherwise prints, for the default scene and the environment alone: the largest and mean linear sRGB
 //! difference of each file render against the source's and the largest 8-bit code difference;
 //! then the directional albedo (channel nearest 560 nm) at view angles 0-88 degrees, by a dense
 //! half-vector quadrature, for the source and the file in both orders.
@@ -77,10 +79,45 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
     let usage = "usage: rgl_render_study FILE.bsdf DATA.sbrdf:MATERIAL [SIZE]";
     let file = brdf_io::rgl::RglBsdf::open(args.get(1).ok_or(usage)?)?;
-    let (store, name) = parse_store_spec(args.get(2).ok_or(usage)?).ok_or(usage)?;
+    let swapped = Swapped(&file);
+    let Some(spec) = args.get(2) else {
+        // No source material: how far apart the two orders render the file itself.
+        for (scene, light_irradiance) in [("default scene", None), ("environment only", Some(0.0))]
+        {
+            let mut opts = SphereOptions {
+                size: 128,
+                ..SphereOptions::default()
+            };
+            if let Some(e) = light_irradiance {
+                opts.light_irradiance = e;
+            }
+            let (a, b) = (
+                render_sphere(&file, &opts)?,
+                render_sphere(&swapped, &opts)?,
+            );
+            let (max, mean, codes) = deviation(&a, &b);
+            // The same inside 75 degrees of view (sphere radius < sin 75), away from the rim.
+            let r = 64.0 * 75f64.to_radians().sin();
+            let inner = |img: &Image| {
+                let mut img = img.clone();
+                for (i, al) in img.alpha.iter_mut().enumerate() {
+                    let (x, y) = ((i % 128) as f64 + 0.5 - 64.0, (i / 128) as f64 + 0.5 - 64.0);
+                    if x * x + y * y > r * r {
+                        *al = 0.0;
+                    }
+                }
+                img
+            };
+            let (imax, imean, icodes) = deviation(&inner(&a), &inner(&b));
+            println!(
+                "{scene}, view slice against light slice: max {max:.3e}, mean {mean:.3e}, {codes} codes; inside 75 degrees: max {imax:.3e}, mean {imean:.3e}, {icodes} codes"
+            );
+        }
+        return Ok(());
+    };
+    let (store, name) = parse_store_spec(spec).ok_or(usage)?;
     let source = StoreMaterial::open(&store, &name)?;
     let size: usize = args.get(3).map_or(Ok(128), |s| s.parse())?;
-    let swapped = Swapped(&file);
     for (scene, light_irradiance) in [("default scene", None), ("environment only", Some(0.0))] {
         let mut opts = SphereOptions {
             size,
