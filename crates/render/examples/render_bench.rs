@@ -61,27 +61,6 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// Largest and mean absolute difference of linear sRGB over pixels (all channels), and the
-/// largest difference of the 8-bit sRGB codes the PNG would hold.
-fn deviation(a: &render::Image, b: &render::Image) -> (f64, f64, i32) {
-    let (mut max, mut sum, mut n, mut codes) = (0.0f64, 0.0, 0, 0i32);
-    for ((p, q), al) in a.rgb.iter().zip(&b.rgb).zip(&a.alpha) {
-        if *al > 0.0 {
-            for c in 0..3 {
-                max = max.max((p[c] - q[c]).abs());
-                sum += (p[c] - q[c]).abs();
-                n += 1;
-                let (x, y) = (
-                    render::colour::to_srgb8(p[c]),
-                    render::colour::to_srgb8(q[c]),
-                );
-                codes = codes.max((i32::from(x) - i32::from(y)).abs());
-            }
-        }
-    }
-    (max, sum / n.max(1) as f64, codes)
-}
-
 /// The dense reference table of the accuracy comparisons.
 const DENSE_TABLE: EnvTableSpec = EnvTableSpec {
     nodes: 128,
@@ -140,14 +119,15 @@ fn stored_materials_study(
             .collect::<Vec<_>>()
             .join(" | ")
     );
-    let mut worst = vec![(0.0f64, 0.0f64, 0i32); specs.len()];
+    let mut worst = vec![(0.0f64, 0.0f64, 0u8); specs.len()];
     let names: Vec<String> = store.names().into_iter().map(String::from).collect();
     for (index, name) in names.into_iter().enumerate() {
         let m = brdf_io::store::StoreMaterial::by_index(store.clone(), index)?;
         let dense = render_sphere(&m, &opts(DENSE_TABLE))?;
         let mut line = name;
         for (spec, w) in specs.iter().zip(&mut worst) {
-            let (max, mean, codes) = deviation(&render_sphere(&m, &opts(*spec))?, &dense);
+            let render::ImageDifference { max, mean, codes } =
+                render_sphere(&m, &opts(*spec))?.difference(&dense)?;
             line += &format!(" | {max:.1e} {mean:.1e} {codes}");
             *w = (w.0.max(max), w.1.max(mean), w.2.max(codes));
         }
@@ -343,7 +323,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             cells = src.computed_cells();
         }
         let img = img.ok_or("no image")?;
-        let (max, mean, codes) = deviation(&img, &dense);
+        let render::ImageDifference { max, mean, codes } = img.difference(&dense)?;
         let t = median(times);
         if mode == EnvMode::Table(EnvTableSpec::FAST) {
             fast = t;
@@ -359,7 +339,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             ..opts.clone()
         },
     )?;
-    let (max, mean, codes) = deviation(&pp, &dense);
+    let render::ImageDifference { max, mean, codes } = pp.difference(&dense)?;
     println!(
         "per-pixel quadrature: |img - dense| max {max:.2e}, mean {mean:.2e}, {codes} 8-bit codes"
     );

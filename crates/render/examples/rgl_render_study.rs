@@ -34,28 +34,6 @@ impl BrdfSource for Swapped<'_> {
     }
 }
 
-/// Largest and mean absolute linear sRGB difference over covered pixels, and the largest
-/// 8-bit code difference.
-fn deviation(a: &Image, b: &Image) -> (f64, f64, i32) {
-    let (mut max, mut sum, mut n, mut codes) = (0.0f64, 0.0, 0usize, 0i32);
-    for ((p, q), al) in a.rgb.iter().zip(&b.rgb).zip(&a.alpha) {
-        if *al > 0.0 {
-            for c in 0..3 {
-                let d = (p[c] - q[c]).abs();
-                max = max.max(d);
-                sum += d;
-                n += 1;
-                let (x, y) = (
-                    render::colour::to_srgb8(p[c]),
-                    render::colour::to_srgb8(q[c]),
-                );
-                codes = codes.max((i32::from(x) - i32::from(y)).abs());
-            }
-        }
-    }
-    (max, sum / n.max(1) as f64, codes)
-}
-
 /// The directional albedo of channel `c` of `src` at view angle `deg`:
 /// the integral of f(view, light) cos(theta_light) over the light's hemisphere.
 fn albedo(src: &dyn BrdfSource, c: usize, deg: f64) -> Result<f64, brdf_io::Error> {
@@ -95,7 +73,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 render_sphere(&file, &opts)?,
                 render_sphere(&swapped, &opts)?,
             );
-            let (max, mean, codes) = deviation(&a, &b);
+            let render::ImageDifference { max, mean, codes } = a.difference(&b)?;
             // The same inside 75 degrees of view (sphere radius < sin 75), away from the rim.
             let r = 64.0 * 75f64.to_radians().sin();
             let inner = |img: &Image| {
@@ -108,7 +86,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 }
                 img
             };
-            let (imax, imean, icodes) = deviation(&inner(&a), &inner(&b));
+            let render::ImageDifference {
+                max: imax,
+                mean: imean,
+                codes: icodes,
+            } = inner(&a).difference(&inner(&b))?;
             println!(
                 "{scene}, view slice against light slice: max {max:.3e}, mean {mean:.3e}, {codes} codes; inside 75 degrees: max {imax:.3e}, mean {imean:.3e}, {icodes} codes"
             );
@@ -132,7 +114,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             ("file, renderer's order", &file as &dyn BrdfSource),
             ("file, swapped", &swapped),
         ] {
-            let (max, mean, codes) = deviation(&render_sphere(src, &opts)?, &reference);
+            let render::ImageDifference { max, mean, codes } =
+                render_sphere(src, &opts)?.difference(&reference)?;
             println!("{scene}, {label}: max {max:.3e}, mean {mean:.3e}, {codes} codes");
         }
     }

@@ -19,7 +19,53 @@ pub struct Image {
     pub alpha: Vec<f64>,
 }
 
+/// How far one image is from another ([`Image::difference`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImageDifference {
+    /// Largest absolute linear sRGB difference over the compared pixels and channels.
+    pub max: f64,
+    /// Mean absolute linear sRGB difference over the compared pixels and channels (0 when
+    /// no pixel is compared).
+    pub mean: f64,
+    /// Largest difference of the 8-bit sRGB codes a PNG would hold.
+    pub codes: u8,
+}
+
 impl Image {
+    /// The difference of `other` from this image over the pixels this image covers
+    /// (alpha > 0), every channel; an error when the sizes differ.
+    pub fn difference(&self, other: &Image) -> Result<ImageDifference> {
+        if (self.width, self.height) != (other.width, other.height) {
+            return Err(Error::InvalidArgument {
+                reason: format!(
+                    "comparing a {}x{} image with a {}x{} one",
+                    self.width, self.height, other.width, other.height
+                ),
+            });
+        }
+        let (mut max, mut sum, mut n, mut codes) = (0.0f64, 0.0, 0usize, 0u8);
+        for ((p, q), _) in self
+            .rgb
+            .iter()
+            .zip(&other.rgb)
+            .zip(&self.alpha)
+            .filter(|(_, a)| **a > 0.0)
+        {
+            for (a, b) in p.iter().zip(q) {
+                let d = (a - b).abs();
+                max = max.max(d);
+                sum += d;
+                n += 1;
+                codes = codes.max(to_srgb8(*a).abs_diff(to_srgb8(*b)));
+            }
+        }
+        Ok(ImageDifference {
+            max,
+            mean: if n == 0 { 0.0 } else { sum / n as f64 },
+            codes,
+        })
+    }
+
     /// A `width x height` image filled with the opaque linear colour `rgb`.
     pub fn new(width: usize, height: usize, rgb: [f64; 3]) -> Self {
         Self {
@@ -229,6 +275,29 @@ pub fn ramp(t: f64) -> [f64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn difference_over_covered_pixels_in_linear_values_and_8_bit_codes() {
+        let mut a = Image::new(2, 2, [0.5; 3]);
+        let mut b = a.clone();
+        b.rgb[0] = [0.5, 0.52, 0.5];
+        b.rgb[3] = [0.0, 0.0, 0.0];
+        // Pixel 3 is not covered in `a`: not compared.
+        a.alpha[3] = 0.0;
+        let d = a.difference(&b).unwrap();
+        assert!((d.max - 0.02).abs() < 1e-15, "{d:?}");
+        assert!((d.mean - 0.02 / 9.0).abs() < 1e-15, "{d:?}");
+        // sRGB codes of linear 0.5 and 0.52: 188 and 191.
+        assert_eq!((to_srgb8(0.5), to_srgb8(0.52)), (188, 191));
+        assert_eq!(d.codes, 3);
+        // Beyond white the codes saturate at 255; the linear difference does not.
+        b.rgb[0] = [3.0, 0.5, 0.5];
+        let d = a.difference(&b).unwrap();
+        assert_eq!((d.max, d.codes), (2.5, 67));
+        assert_eq!(a.difference(&a).unwrap().codes, 0);
+        let err = a.difference(&Image::new(2, 3, [0.0; 3])).unwrap_err();
+        assert!(err.to_string().contains("2x2 image with a 2x3"), "{err}");
+    }
 
     #[test]
     fn png_round_trip_and_drawing() {

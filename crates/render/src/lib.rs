@@ -18,7 +18,7 @@ pub mod sphere;
 pub use cache::CellCache;
 pub use colour::{ColourPipeline, Illuminant, SpectralWeights, delta_e_2000, delta_e_2000_rgb};
 pub use error::{Error, Result};
-pub use image::Image;
+pub use image::{Image, ImageDifference};
 pub use map::{MapOptions, latent_map};
 pub use sheet::{ComparisonSheet, comparison_sheet, path_comparison, sphere_rows};
 pub use sphere::{
