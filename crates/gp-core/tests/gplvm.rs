@@ -532,6 +532,52 @@ fn stress_duplicates_tiny_noise_and_dynamic_range() {
     }
 }
 
+/// At a training point the exact predictor's `k*` is a column of `K`, so its weights are `e_i`
+/// and its variance 0 *exactly*, however ill-conditioned `K` is; a solve with `K` returns
+/// `e_i` only to ~cond(K) eps (here visibly off).
+#[test]
+fn exact_predictor_returns_training_points_exactly_when_k_is_ill_conditioned() {
+    let mut rng = ChaCha8Rng::seed_from_u64(17);
+    let (n, q) = (12, 2);
+    let mut x = rand_mat(&mut rng, n, q, -1.0, 1.0);
+    // Material 1 a hair away from material 0, and a tiny noise: cond(K) ~ 1e13.
+    x[(1, 0)] = x[(0, 0)] + 1e-7;
+    x[(1, 1)] = x[(0, 1)];
+    let p = KernelParams::isotropic(1.0, 1.0, 1e-13).unwrap();
+    let gp = GpRegression::new(x.as_ref(), p, Par::Seq).unwrap();
+    assert!(
+        gp.factor().condition_lower_bound() > 1e11,
+        "{}",
+        gp.factor().condition_lower_bound()
+    );
+    for i in 0..n {
+        let xi: Vec<f64> = (0..q).map(|j| x[(i, j)]).collect();
+        let mut e = vec![0.0; n];
+        e[i] = 1.0;
+        assert_eq!(
+            gp.weights(&xi, Predictor::Exact).unwrap(),
+            e,
+            "material {i}"
+        );
+        assert_eq!(gp.variance_of(&xi, Predictor::Exact).unwrap(), 0.0);
+        let xs = Mat::from_fn(3, q, |r, j| if r == 1 { xi[j] } else { 0.3 * r as f64 });
+        for par in [Par::Seq, Par::rayon(2)] {
+            let wb = gp
+                .weights_batch(xs.as_ref(), Predictor::Exact, par)
+                .unwrap();
+            assert!((0..n).all(|k| wb[(k, 1)] == e[k]), "batch, material {i}");
+        }
+    }
+    // The solve the shortcut replaces: K^-1 k* with k* = K e_0 is off by far more than eps.
+    let x0 = [x[(0, 0)], x[(0, 1)]];
+    let k = gp.cross_covariance(&x0, Predictor::Exact).unwrap();
+    let solved = gp.factor().solve_vec(&k).unwrap();
+    let off = (0..n)
+        .map(|k| (solved[k] - if k == 0 { 1.0 } else { 0.0 }).abs())
+        .fold(0.0, f64::max);
+    assert!(off > 1e-6, "the solve returns e_0 to {off}");
+}
+
 #[test]
 fn stress_large_n_and_spread_inputs() {
     let mut rng = ChaCha8Rng::seed_from_u64(2000);
