@@ -108,8 +108,10 @@ pub enum GpError {
         /// The collection's size.
         len: usize,
     },
-    /// A learnt noise variance at or below the floor it is kept above.
-    #[error("noise {noise:e} must exceed the noise floor {floor:e} when the noise is learnt")]
+    /// A learnt noise variance below the floor it is kept above (or not positive).
+    #[error(
+        "noise {noise:e} must be positive and at least the noise floor {floor:e} when the noise is learnt"
+    )]
     NoiseBelowFloor {
         /// The noise variance given.
         noise: f64,

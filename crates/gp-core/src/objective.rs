@@ -573,15 +573,20 @@ impl<'a> FlatGplvm<'a> {
             v.extend_from_slice(&lt[1..1 + k]);
         }
         if self.learn.noise {
-            let mu = params.noise();
-            if mu <= self.noise_floor {
-                return Err(GpError::NoiseBelowFloor {
-                    noise: mu,
-                    floor: self.noise_floor,
-                });
+            let (mu, floor) = (params.noise(), self.noise_floor);
+            if mu < floor || mu <= 0.0 {
+                return Err(GpError::NoiseBelowFloor { noise: mu, floor });
             }
-            // With a floor of 0 this is `ln(mu)`, the same bits as `to_log_vec`'s entry.
-            v.push((mu - self.noise_floor).ln());
+            // With a floor of 0 this is `ln(mu)`, the same bits as `to_log_vec`'s entry. A
+            // noise equal to a positive floor is what `unpack` gives once `exp(theta)` falls
+            // below half an ulp of the floor (a fit that drove the noise to its floor): packed
+            // as such a `theta` (floor eps / 8), so it unpacks to the same noise.
+            let excess = if mu > floor {
+                mu - floor
+            } else {
+                floor * f64::EPSILON / 8.0
+            };
+            v.push(excess.ln());
         }
         Ok(v)
     }

@@ -767,13 +767,22 @@ fn partial_learn_masks_pack_and_differentiate() {
                 assert_close(central_diff(&f, &theta, i), *gi, v.abs(), "flat gradient");
             }
             if learn.noise && floor > 0.0 {
-                // The floor holds for any theta, and a noise at or below it cannot be packed.
+                // The floor holds for any theta; a noise that reached it (as unpacked) packs
+                // and unpacks to itself (a warm start from a fit that ran into the floor: an
+                // audit found leave-one-out refits refusing it); a noise below it cannot be
+                // packed.
                 let mut t = theta.clone();
                 *t.last_mut().unwrap() = -800.0;
-                assert_eq!(flat.unpack(&t).unwrap().1.noise(), floor);
-                let low =
-                    KernelParams::new(other.signal_variance(), other.length_scale().clone(), floor)
-                        .unwrap();
+                let (_, at_floor) = flat.unpack(&t).unwrap();
+                assert_eq!(at_floor.noise(), floor);
+                let repacked = flat.pack(x.as_ref(), &at_floor).unwrap();
+                assert_eq!(flat.unpack(&repacked).unwrap().1.noise(), floor);
+                let low = KernelParams::new(
+                    other.signal_variance(),
+                    other.length_scale().clone(),
+                    floor * (1.0 - 1e-9),
+                )
+                .unwrap();
                 assert!(matches!(
                     flat.pack(x.as_ref(), &low),
                     Err(GpError::NoiseBelowFloor { .. })

@@ -93,7 +93,8 @@ pub struct FitParams {
     pub lengthscale: f64,
     /// Noise mu (K = K_rbf + mu I).
     pub noise: f64,
-    /// Learn s, l and mu with the latent points (type-II maximum likelihood).
+    /// Learn s and mu with the latent points (type-II maximum likelihood); l stays fixed, as
+    /// the latent points' own scale makes it redundant ([`crate::fit::LEARNT`]).
     pub learn_hyperparameters: bool,
     /// With `learn_hyperparameters`: the learnt noise stays above this floor (on the scaled
     /// data; `0` for none). Without it, data a noise-free GP can interpolate drive mu to ~1e-16

@@ -299,6 +299,9 @@ fn reported_likelihood_matches_an_independent_recomputation() {
         let model = Model::load(&out).unwrap();
         if learn {
             let h = &model.hyperparameters;
+            // Amplitude and noise are learnt; the length-scale is not (redundant with the
+            // latent scale; with the prior no maximum exists over it).
+            assert_eq!(h.length_scale, vec![p.lengthscale], "{h:?}");
             assert!(h.noise >= p.min_noise, "{h:?}");
             assert!(h.signal_variance != p.amplitude.powi(2), "{h:?}");
             assert!(
