@@ -48,14 +48,16 @@ pub enum Error {
     },
     /// Every material is the same after the transform: no variance to fit.
     #[error(
-        "the {n} materials are identical after the transform (total variance {total_variance:e}); \
-         nothing to fit"
+        "the {n} materials are identical after the transform, up to rounding (total variance \
+         {total_variance:.3e} about their mean against {uncentred_total:.3e} about 0); nothing to fit"
     )]
     IdenticalMaterials {
         /// Number of materials.
         n: usize,
         /// Trace of the centred Gram matrix.
         total_variance: f64,
+        /// Trace of the uncentred Gram matrix (the rounding of centring scales with it).
+        uncentred_total: f64,
     },
     /// The data cannot support the requested fit.
     #[error("invalid data: {reason}")]
