@@ -108,7 +108,10 @@ impl Target {
                 if !rgb_model {
                     return Err(mismatch("a MERL file (R,G,B)"));
                 }
-                brdf_io::merl::read_merl(path)?.resample(grid, brdf_io::merl::Resampling::Average)
+                let (values, report) = brdf_io::merl::read_merl(path)?
+                    .resample(grid, brdf_io::merl::Resampling::Average);
+                report.ensure_finite(&spec)?;
+                (values, report)
             }
             _ => {
                 return Err(Error::InvalidArgument {

@@ -987,4 +987,21 @@ fn locate_refuses_targets_it_cannot_compare() {
         17 % nc
     );
     assert!(e.contains(&want), "{e}");
+
+    // A file whose values resample to NaN or beyond f32 (stored as 0 by the resampler) is
+    // refused as `import` refuses it, not located as a black material: a 2 x 2 x 2 MERL
+    // file of 1e300 (an audit's `locate` placed it at -3 with exit 0).
+    let dir = tempfile::tempdir().unwrap();
+    let merl = dir.path().join("huge.binary");
+    let mut bytes: Vec<u8> = [2i32, 2, 2].iter().flat_map(|v| v.to_le_bytes()).collect();
+    bytes.extend((0..24).flat_map(|_| 1e300f64.to_le_bytes()));
+    std::fs::write(&merl, bytes).unwrap();
+    let e = Target::from_file(&merl, &grid(), &Channels::Rgb)
+        .err()
+        .expect("a file of 1e300 values is refused")
+        .to_string();
+    assert!(
+        e.contains("huge.binary") && e.contains("NaN or infinite"),
+        "{e}"
+    );
 }
