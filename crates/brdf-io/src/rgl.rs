@@ -15,13 +15,23 @@
 //! 5. when the `jacobian` flag is set the result is multiplied by ndf(u_m) / (4 sigma(u_i)).
 //!
 //! Anisotropic files (more than two `phi_i` samples, Mitsuba's test) are rejected as not supported
-//! yet. Parameters outside the stored `theta_i` range are clamped like Mitsuba; a requested
-//! wavelength outside the stored range is an error.
+//! yet. A requested wavelength outside the stored range is an error.
+//!
+//! Beyond the structure Mitsuba checks, [`RglBsdf::open`] refuses values that would make
+//! evaluation NaN or silently wrong: `theta_i` must run from 0 to pi/2 (every incidence then
+//! falls between two stored slices; the 7 RGL files and [`write_rgl`] hold 0 to pi/2 rounded to
+//! f32, at most 7.5e-8 rad off) and `phi_i` must lie within [-pi, pi] (the range of the azimuth
+//! it is interpolated at; isotropic files hold `[0]`); `ndf`, `vndf` and `luminance` must be
+//! finite and >= 0 (`ndf` not 0 everywhere), `sigma` > 0, and each `vndf` slice must integrate
+//! to a positive value. Rows of a `vndf` slice without density (the 90-degree slice of each of
+//! the 7 RGL files has none on the half where microfacets face away from wi) invert as a uniform
+//! row instead of 0/0 (Mitsuba's inversion returns NaN there), so a file that opens never
+//! evaluates to NaN (directions at or below the horizon give 0).
 //!
 //! [`write_rgl`] writes any [`BrdfSource`] (a stored or predicted material) as an isotropic file
 //! that this evaluator, Mitsuba 3 and pbrt-v4 read (`rgl/write.rs`).
 
-use std::f64::consts::PI;
+use std::f64::consts::{FRAC_PI_2, PI};
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
@@ -218,7 +228,12 @@ impl Warp {
         }
         let r0 = c.lookup(&self.cond, n_cond, row + (w - 1) - 1);
         let r1 = c.lookup(&self.cond, n_cond, row + 2 * (w - 1) - 1);
-        x /= lerp(r0, r1, sy);
+        let row_mass = lerp(r0, r1, sy);
+        // A pair of rows without density (the 90-degree slice of the 7 RGL files has none on
+        // the half of the square facing away from wi) is never reached by the warp, and x would be
+        // 0/0 here (Mitsuba's `invert_continuous` then returns NaN): take it as a uniform row.
+        // Densities are >= 0 (checked at open), so a positive mass bounds x by about 1.
+        x = if row_mass > 0.0 { x / row_mass } else { u[0] };
         let mut y = sy * lerp(r0, r1, 0.5 * sy) / (h - 1) as f64;
         if py > 0 {
             y += c.lookup(&self.marg, n_marg, py - 1);
@@ -300,8 +315,62 @@ fn expect<'a>(tf: &'a TensorFile, name: &str, dtype: DType, rank: usize) -> Resu
     Ok(f.shape())
 }
 
-fn strictly_increasing(v: &[f64]) -> bool {
-    v.windows(2).all(|w| w[1] > w[0])
+/// Slack of the incident-angle checks (radians): f32 rounding of pi/2 lands 4.4e-8 above it
+/// (the nearest f32) or 7.5e-8 below it (the 7 RGL files hold both), and a few ulps of the
+/// arithmetic that produced the angles. 1e-6 rad is 6e-5 degrees.
+const ANGLE_SLACK: f64 = 1e-6;
+
+/// Checks the incident-angle axes: each strictly increasing, `phi_i` within [-pi, pi] (the range
+/// of `atan2`, the azimuth it is interpolated at) and `theta_i` within [0, pi/2], starting at 0
+/// and ending at pi/2 (evaluation clamps to the stored range, so an axis that stops short
+/// would give every incidence beyond it the nearest stored slice, silently wrong; one that
+/// runs past it would put slices where no incidence can reach them).
+fn check_incident_axes(path: &Path, phi_i: &[f64], theta_i: &[f64]) -> Result<()> {
+    for (name, v) in [("phi_i", phi_i), ("theta_i", theta_i)] {
+        if let Some(k) = v.windows(2).position(|w| w[1] <= w[0]) {
+            return Err(Error::Format {
+                path: path.to_path_buf(),
+                reason: format!(
+                    "field \"{name}\" must be strictly increasing; value {} of {} is {} after {}",
+                    k + 1,
+                    v.len(),
+                    v[k + 1],
+                    v[k]
+                ),
+            });
+        }
+    }
+    let lim = PI + ANGLE_SLACK;
+    check_values(
+        path,
+        "phi_i",
+        phi_i,
+        |v| (-lim..=lim).contains(&v),
+        "within [-pi, pi] radians",
+    )?;
+    let lim = FRAC_PI_2 + ANGLE_SLACK;
+    check_values(
+        path,
+        "theta_i",
+        theta_i,
+        |v| (-ANGLE_SLACK..=lim).contains(&v),
+        "within [0, pi/2] radians (0 to 90 degrees)",
+    )?;
+    let (first, last) = (theta_i[0], theta_i[theta_i.len() - 1]);
+    if first > ANGLE_SLACK || last < FRAC_PI_2 - ANGLE_SLACK {
+        return Err(Error::Format {
+            path: path.to_path_buf(),
+            reason: format!(
+                "field \"theta_i\" must run from 0 to pi/2 radians (0 to 90 degrees), it holds \
+                 {} values from {first} to {last} ({:.4} to {:.4} degrees): incidences outside \
+                 would take the nearest stored slice",
+                theta_i.len(),
+                first.to_degrees(),
+                last.to_degrees()
+            ),
+        });
+    }
+    Ok(())
 }
 
 impl RglBsdf {
@@ -387,9 +456,7 @@ impl RglBsdf {
         }
         let phi_i = tf.field_f64("phi_i")?;
         let theta_i = tf.field_f64("theta_i")?;
-        if !strictly_increasing(&phi_i) || !strictly_increasing(&theta_i) {
-            return Err(bad("phi_i and theta_i must be strictly increasing".into()));
-        }
+        check_incident_axes(path, &phi_i, &theta_i)?;
         let native = match wavelengths {
             Some(w) => Channels::spectral(w).map_err(|e| {
                 bad(format!(
@@ -410,15 +477,29 @@ impl RglBsdf {
             h: sigma_s[0],
             data: tf.field_f64("sigma")?,
         };
-        let vndf = Warp::new(
-            &tf.field_f64("vndf")?,
-            n_phi * n_theta,
-            vndf_s[3],
-            vndf_s[2],
+        let vndf_raw = tf.field_f64("vndf")?;
+        // A density: negative values would make its CDFs decrease and the inverse garbage.
+        check_values(path, "vndf", &vndf_raw, |v| v >= 0.0, "finite and >= 0")?;
+        let vndf = Warp::new(&vndf_raw, n_phi * n_theta, vndf_s[3], vndf_s[2], path)?;
+        // Not used by evaluation, but a renderer samples with it (a sampling density).
+        let luminance = tf.field_f64("luminance")?;
+        check_values(
             path,
+            "luminance",
+            &luminance,
+            |v| v >= 0.0,
+            "finite and >= 0",
         )?;
         let spectra = tf.field_f32(spec_name)?;
         check_values(path, "ndf", &ndf.data, |v| v >= 0.0, "finite and >= 0")?;
+        if jacobian && !ndf.data.iter().any(|&v| v > 0.0) {
+            return Err(Error::Format {
+                path: path.to_path_buf(),
+                reason: "field \"ndf\" is 0 everywhere (every value of the file would be 0); a \
+                         microfacet distribution must be positive somewhere"
+                    .into(),
+            });
+        }
         // sigma divides every value: zero or negative would give infinite or negative BRDFs.
         check_values(path, "sigma", &sigma.data, |v| v > 0.0, "finite and > 0")?;
         let selection = ChannelSelection::all(&native);
@@ -558,7 +639,6 @@ impl RglBsdf {
                 fy,
             )
         };
-        let inv_cos_o = 1.0 / wo[2];
         for (o, &(k0, k1, t)) in out.iter_mut().zip(&sel.taps) {
             let mut acc = 0.0;
             for c in 0..4 {
@@ -577,7 +657,10 @@ impl RglBsdf {
             // Mitsuba 3's `measured` (DESIGN.md's reference, and the test tables) keeps those
             // values; rgl-epfl/brdf-loader's `powitacq_rgb` clamps them at 0. `resample`
             // clamps (and counts) them.
-            *o = acc * scale * inv_cos_o;
+            // Divided last: 1 / cos(theta_o) overflows for a subnormal wo[2], and a 0 value
+            // times that infinity was NaN (the 7 RGL files have such zeros at wo.z = 1e-320);
+            // a non-zero value over such a wo[2] is still +-inf.
+            *o = acc * scale / wo[2];
         }
         Ok(())
     }
@@ -703,6 +786,26 @@ mod tests {
                 "{s:?}"
             );
         }
+    }
+
+    #[test]
+    fn warp_inverse_in_rows_without_density_is_uniform() {
+        // 3 x 3 density, rows 0 and 1 empty: a point in the patch between them would be 0/0.
+        let raw = vec![0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 2.0, 1.0];
+        let warp = Warp::new(&raw, 1, 3, 3, Path::new("t")).unwrap();
+        let c = Corners::new((0, 0.0), (0, 0.0), 0, 0);
+        for x in [0.0, 0.3, 0.5, 0.9, 1.0] {
+            let s = warp.invert([x, 0.25], &c);
+            // All the mass sits in the upper patch: y is 0 below it.
+            assert_eq!(s, [x, 0.0]);
+        }
+        // The patch between rows 1 and 2 still inverts its density: on row 2 the x CDF of
+        // 1, 2, 1 is 0.5 at the middle.
+        let s = warp.invert([0.5, 1.0], &c);
+        assert!(
+            (s[0] - 0.5).abs() < 1e-12 && (s[1] - 1.0).abs() < 1e-12,
+            "{s:?}"
+        );
     }
 
     #[test]
