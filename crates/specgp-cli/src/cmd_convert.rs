@@ -99,7 +99,7 @@ pub fn write_bsdf(
         Channels::Rgb => "R,G,B".to_owned(),
         c => format!("{} wavelengths", c.len()),
     };
-    eprintln!(
+    errln!(
         "wrote {}: {label} as an RGL BSDF ({} incident elevations, {r} x {r} values each, \
          {channels}; {} bytes, {:.2} s); check against the source: {:.2} % cos-weighted RMS \
          error at {} direction pairs, directional albedo within {:.2} % at incidence 0-88 \
@@ -114,7 +114,7 @@ pub fn write_bsdf(
         r = summary.resolution,
     );
     if options.tolerance.is_some_and(|t| summary.check() > t) {
-        eprintln!(
+        errln!(
             "warning: the check error is above --tolerance {}: finer tables did not reduce it \
              by a quarter (or reached 64 x 64); sharp coats over a diffuse base need larger \
              tables at grazing incidence (--theta-samples 128 --resolution 128)",
@@ -122,10 +122,11 @@ pub fn write_bsdf(
         );
     }
     if summary.negative_clamped > 0 {
-        eprintln!(
+        errln!(
             "warning: {} of {} source values are negative (stored as 0: a renderer needs a \
              non-negative BRDF)",
-            summary.negative_clamped, summary.values
+            summary.negative_clamped,
+            summary.values
         );
     }
     Ok(())

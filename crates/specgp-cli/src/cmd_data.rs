@@ -9,20 +9,6 @@ use brdf_io::store::{Compression, Dtype};
 use brdf_io::{AngularGrid, Channels, ImportReport, Store, StoreInfo, StoreOptions, StoreWriter};
 use indicatif::{ProgressBar, ProgressStyle};
 
-/// `println!` that treats a closed stdout (`specgp info X | head`) as success instead of
-/// panicking; other write errors are returned.
-macro_rules! out {
-    ($($t:tt)*) => {{
-        use std::io::Write as _;
-        match writeln!(std::io::stdout().lock(), $($t)*) {
-            Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
-                Err(anyhow::Error::from(e).context("writing to stdout"))
-            }
-            _ => Ok::<(), anyhow::Error>(()),
-        }
-    }};
-}
-
 /// Options shared by every `import` format: where and how the store is written.
 #[derive(Debug, clap::Args)]
 pub struct StoreOut {
@@ -201,15 +187,15 @@ fn import_each(
         report.ensure_finite(&format!("{name} ({source})"))?;
         pb.set_message(name.clone());
         writer.add_material(&name, &source, &values)?;
-        pb.suspend(|| eprintln!("{name}: {report}"));
+        pb.suspend(|| errln!("{name}: {report}"));
         total = total.merge(&report);
         pb.inc(1);
     }
     pb.finish_and_clear();
     let header = writer.finish()?;
     // Status goes to stderr like every command's (stdout is for machine-readable output).
-    eprintln!("total: {total}");
-    eprintln!(
+    errln!("total: {total}");
+    errln!(
         "wrote {}: {} materials, grid {}, {} channels, D = {}",
         store.out.display(),
         header.n_materials(),
@@ -369,7 +355,7 @@ fn bsdf_info(args: &InfoArgs) -> anyhow::Result<()> {
             "jacobian": bsdf.jacobian(),
             "file_bytes": bytes,
         });
-        out!("{}", serde_json::to_string_pretty(&v)?)?;
+        outln!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         let list = |v: &[f64]| {
             v.iter()
@@ -377,25 +363,25 @@ fn bsdf_info(args: &InfoArgs) -> anyhow::Result<()> {
                 .collect::<Vec<_>>()
                 .join(", ")
         };
-        out!(
+        outln!(
             "file           {} (RGL tensor file, isotropic)",
             args.path.display()
-        )?;
-        out!("description    {}", bsdf.description())?;
-        out!(
+        );
+        outln!("description    {}", bsdf.description());
+        outln!(
             "channels       {} ({})",
             channels.len(),
             channels.labels().join(",")
-        )?;
-        out!(
+        );
+        outln!(
             "theta_i        {} (degrees: {})",
             degrees.len(),
             list(&degrees)
-        )?;
-        out!("value tables   {tw} x {th} per incident elevation")?;
-        out!("warp tables    {ww} x {wh}")?;
-        out!("jacobian       {}", bsdf.jacobian())?;
-        out!("bytes          {bytes}")?;
+        );
+        outln!("value tables   {tw} x {th} per incident elevation");
+        outln!("warp tables    {ww} x {wh}");
+        outln!("jacobian       {}", bsdf.jacobian());
+        outln!("bytes          {bytes}");
     }
     Ok(())
 }
@@ -419,21 +405,21 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
             o.insert("file_bytes".into(), store.file_bytes().into());
             o.insert("checksum_verified".into(), verified.is_ok().into());
         }
-        out!("{}", serde_json::to_string_pretty(&v)?)?;
+        outln!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         let comp = match h.layout.compression {
             Compression::None => "none".to_owned(),
             Compression::Zstd { level } => format!("zstd level {level}"),
             Compression::ZstdShuffle { level } => format!("byte shuffle + zstd level {level}"),
         };
-        out!("file           {}", args.path.display())?;
-        out!("materials      {}", h.n_materials())?;
+        outln!("file           {}", args.path.display());
+        outln!("materials      {}", h.n_materials());
         for m in &h.materials {
             let flushed = match m.stats.flushed_to_zero {
                 0 => String::new(),
                 n => format!("  flushed to 0 by {} {n}", h.layout.dtype.name()),
             };
-            out!(
+            outln!(
                 "  {:<24} mean {:.4e}  min {:.4e}  max {:.4e}  negatives {}{flushed}  from {}",
                 m.name,
                 m.stats.mean,
@@ -441,10 +427,10 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
                 m.stats.max,
                 m.stats.negatives,
                 m.source
-            )?;
+            );
         }
-        out!("grid           {}", h.grid)?;
-        out!(
+        outln!("grid           {}", h.grid);
+        outln!(
             "channels       {} ({})",
             h.channels.len(),
             match &h.channels {
@@ -455,18 +441,18 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
                     w.last().copied().unwrap_or(0.0)
                 ),
             }
-        )?;
-        out!("D              {}", h.d)?;
-        out!("order          {}", h.dimension_order)?;
-        out!("bytes          {}", store.file_bytes())?;
-        out!(
+        );
+        outln!("D              {}", h.d);
+        outln!("order          {}", h.dimension_order);
+        outln!("bytes          {}", store.file_bytes());
+        outln!(
             "layout         {}, {} indices x {} chunks, {}, {comp}",
             h.layout.order,
             h.layout.chunk_len,
             h.layout.n_chunks,
             h.layout.dtype.name()
-        )?;
-        out!(
+        );
+        outln!(
             "checksum       {} {} ({})",
             h.checksum.algorithm,
             h.checksum.value,
@@ -475,7 +461,7 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
             } else {
                 "MISMATCH"
             }
-        )?;
+        );
     }
     verified?;
     Ok(())
@@ -507,61 +493,61 @@ fn model_info(args: &InfoArgs) -> anyhow::Result<()> {
             o.insert("path".into(), args.path.display().to_string().into());
             o.insert("dataset_status".into(), dataset.into());
         }
-        out!("{}", serde_json::to_string_pretty(&v)?)?;
+        outln!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }
-    out!("file           {} (model)", args.path.display())?;
-    out!("dataset        {} ({dataset})", ds_path.display())?;
-    out!("checksum       {}", ds.checksum)?;
-    out!(
+    outln!("file           {} (model)", args.path.display());
+    outln!("dataset        {} ({dataset})", ds_path.display());
+    outln!("checksum       {}", ds.checksum);
+    outln!(
         "data           {} materials, grid {}, {} channels, D {} ({} with data)",
         ds.n_materials,
         ds.grid,
         ds.channels.len(),
         ds.d,
         ds.d_effective
-    )?;
-    out!(
+    );
+    outln!(
         "model          q = {}, transform {}, data scale {:.6e}, prior {}",
         model.latent_dim,
         model.transform,
         model.data_scale,
         if model.prior { "on" } else { "off" }
-    )?;
-    out!(
+    );
+    outln!(
         "kernel         signal variance {:.6e}, length-scale {:?}, noise {:.3e}",
         h.signal_variance,
         h.length_scale,
         h.noise
-    )?;
-    out!(
+    );
+    outln!(
         "fit            {}: log-likelihood {:.10e} (PCA start {:.6e}), |grad| {:.3e}",
         f.optimizer,
         f.log_likelihood,
         f.initial_log_likelihood,
         f.gradient_norm
-    )?;
-    out!(
+    );
+    outln!(
         "               {} iterations, {} evaluations, stopped: {}",
         f.iterations,
         f.evaluations,
         f.stop_reason
-    )?;
-    out!(
+    );
+    outln!(
         "               jitter {:.3e}, condition number {:.3e}, PCA explained {:.4}",
         f.jitter,
         f.condition_number,
         f.pca_explained
-    )?;
-    out!(
+    );
+    outln!(
         "               Gram pass {:.3} s, optimiser {:.3} s",
         f.gram_seconds,
         f.optimize_seconds
-    )?;
-    out!("materials      (see `specgp latent`)")?;
+    );
+    outln!("materials      (see `specgp latent`)");
     for m in &model.materials {
         let coords: Vec<String> = m.coords.iter().map(|c| format!("{c:+.4}")).collect();
-        out!("  {:<32} {}", m.name, coords.join(" "))?;
+        outln!("  {:<32} {}", m.name, coords.join(" "));
     }
     Ok(())
 }
@@ -694,7 +680,7 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
     }
     drop(file);
     out.commit()?;
-    eprintln!(
+    errln!(
         "wrote {}: {} x {d} {} ({})",
         args.out.display(),
         rows.len(),

@@ -1,6 +1,5 @@
 //! `specgp fit` and `specgp latent`: fit the latent space of a dataset and show it.
 
-use std::io::Write;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -129,7 +128,7 @@ pub fn fit(args: &FitArgs) -> anyhow::Result<()> {
     let model = model.with_context(|| format!("fitting {}", args.data.display()))?;
     model.save(&args.out)?;
     let f = &model.fit;
-    eprintln!(
+    errln!(
         "fitted {} materials, q = {}, transform {}: log-likelihood {:.6e} (PCA start {:.6e}), \
          |grad| {:.2e}, {} evaluations, Gram pass {:.2} s, optimiser {:.3} s -> {}",
         model.materials.len(),
@@ -159,7 +158,6 @@ pub struct LatentArgs {
 /// Runs `specgp latent`.
 pub fn latent(args: &LatentArgs) -> anyhow::Result<()> {
     let model = Model::load(&args.model)?;
-    let mut out = std::io::stdout().lock();
     if args.json {
         let doc = serde_json::json!({
             "log_likelihood": model.fit.log_likelihood,
@@ -169,12 +167,12 @@ pub fn latent(args: &LatentArgs) -> anyhow::Result<()> {
             })).collect::<Vec<_>>(),
         });
         let text = serde_json::to_string_pretty(&doc).context("serialising JSON")?;
-        writeln!(out, "{text}")?;
+        outln!("{text}");
     } else {
-        writeln!(out, "# log-likelihood {:.10e}", model.fit.log_likelihood)?;
+        outln!("# log-likelihood {:.10e}", model.fit.log_likelihood);
         for m in &model.materials {
             let coords: Vec<String> = m.coords.iter().map(|c| format!("{c:+.6}")).collect();
-            writeln!(out, "{:<40} {}", m.name, coords.join(" "))?;
+            outln!("{:<40} {}", m.name, coords.join(" "));
         }
     }
     Ok(())

@@ -156,7 +156,7 @@ fn read_targets(pred: &Predictor, batch: &[Pending]) -> anyhow::Result<Vec<Targe
             Pending::Stored { .. } => {}
             Pending::File(spec) => {
                 let (t, report) = Target::from_file(Path::new(spec), pred.grid(), pred.channels())?;
-                eprintln!("resampled {spec}: {report}");
+                errln!("resampled {spec}: {report}");
                 targets[k] = Some(t);
             }
         }
@@ -205,7 +205,7 @@ pub fn locate_command(args: &LocateArgs) -> anyhow::Result<()> {
         .with_context(|| format!("opening model {}", args.model.display()))?;
     let located = locate_targets(&pred, &args.targets, args.starts)?;
 
-    let mut table = crate::cmd_predict::table_output(args.json.as_deref());
+    let mut table = crate::console::table_output(args.json.as_deref());
     writeln!(
         table,
         "{} target(s) in model {} (transform {}, q = {}). Eq. 22 RMSE against the target of \
@@ -248,7 +248,7 @@ pub fn locate_command(args: &LocateArgs) -> anyhow::Result<()> {
         .iter()
         .filter(|l| l.variance_fraction > predict::PointSupport::FAR)
     {
-        eprintln!(
+        errln!(
             "warning: {} lies far from every training material (the GP explains {:.0} % of the \
              prior variance at its point): its location says little",
             l.name,

@@ -171,7 +171,7 @@ pub fn with_existing_sidecar(pred: Predictor) -> anyhow::Result<Predictor> {
                 // Said once, on stderr: the sidecar's f32 transformed values move results by
                 // ~1e-6 relative, so an output that changes after `predict --sidecar` has a
                 // visible cause.
-                eprintln!(
+                errln!(
                     "reading the sidecar {} (transformed values in f32: ~1e-6 relative)",
                     side.display()
                 );
@@ -217,13 +217,13 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
             Some(Ok(p)) => p,
             stale => {
                 if let Some(Err(e)) = stale {
-                    eprintln!("the sidecar is unusable ({e}); rebuilding it");
+                    errln!("the sidecar is unusable ({e}); rebuilding it");
                 }
                 let pb = bar(pred.store().n_chunks() as u64, "sidecar");
                 pred.build_transformed_store(&side, |done, _| pb.set_position(done as u64))
                     .with_context(|| format!("writing {}", side.display()))?;
                 pb.finish_and_clear();
-                eprintln!("wrote the forward-transformed sidecar {}", side.display());
+                errln!("wrote the forward-transformed sidecar {}", side.display());
                 pred.with_transformed_store(&side)?
             }
         };
@@ -235,7 +235,7 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
             warn_if_far(&pred, &x)?;
             if args.variance {
                 let v = pred.variance_of(&x, kind)?;
-                println!(
+                outln!(
                     "variance {v:e} of the {kind} predictor (model units: centred transformed \
                      data / sqrt(data_scale)); {:e} per transformed value (std {:e}, transform {})",
                     v * pred.model().data_scale,
@@ -278,7 +278,7 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
     }
     .with_context(|| format!("writing {}", args.out.display()))?;
     pb.finish_and_clear();
-    eprintln!(
+    errln!(
         "wrote {}: {} ({} values, {}, {:.2} s)",
         report.path.display(),
         material.label(),
@@ -289,7 +289,7 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
         report.seconds
     );
     if report.negatives > 0 {
-        eprintln!(
+        errln!(
             "warning: {} {} values are negative (min {:e} 1/sr): {}",
             report.negatives,
             if spectral_merl {
@@ -363,16 +363,6 @@ fn write_spectral_merl(
     })
 }
 
-/// Where a command's table goes: standard output, or standard error when its JSON (`json`)
-/// goes to standard output.
-pub(crate) fn table_output(json: Option<&Path>) -> Box<dyn std::io::Write> {
-    if json.is_some_and(|p| p == Path::new(brdf_io::output::STDOUT)) {
-        Box::new(std::io::stderr())
-    } else {
-        Box::new(std::io::stdout())
-    }
-}
-
 /// Runs `specgp evaluate`.
 pub fn evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
     if let Some(json) = &args.json {
@@ -410,7 +400,7 @@ pub fn evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
     };
     let ev = run_evaluation(&pred, &options, &progress)?;
     // The table goes to standard error when the JSON goes to standard output.
-    let mut table = table_output(args.json.as_deref());
+    let mut table = crate::console::table_output(args.json.as_deref());
     writeln!(
         table,
         "{} materials, transform {}, q = {}, Eq. 22 RMSE (divided by {} angular cells)",

@@ -260,7 +260,7 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
         _ => Vec::new(),
     };
     for l in &located {
-        eprintln!(
+        errln!(
             "located {} at {} (Eq. 22 RMSE {:.4e} in BRDF space)",
             l.name,
             crate::cmd_predict::format_point(&l.point),

@@ -78,7 +78,7 @@ pub fn synth(args: &SynthArgs) -> anyhow::Result<()> {
     pb.finish_and_clear();
     let bytes = brdf_io::output::output_len(&args.out)
         .map_or_else(|| "size unknown".to_owned(), |b| format!("{b} bytes"));
-    eprintln!(
+    errln!(
         "wrote {}: {} materials, grid {}, {} channels, D = {}, {}, {:.1} s",
         args.out.display(),
         header.n_materials(),

@@ -6,6 +6,9 @@
 use brdf_io::{AngularGrid, Channels};
 use clap::{Parser, Subcommand};
 
+// First: its printing macros (`outln!`, `errln!`) are used by the modules below.
+#[macro_use]
+mod console;
 mod cmd_convert;
 mod cmd_data;
 mod cmd_fit;
@@ -80,15 +83,15 @@ fn grid_command(args: &GridArgs) -> anyhow::Result<()> {
     let cells = args.grid.len();
     let valid = args.grid.validity_mask().iter().filter(|v| **v).count();
     let d = cells * channels.len();
-    println!("grid           {}", args.grid);
-    println!("angular cells  {cells}");
-    println!(
+    outln!("grid           {}", args.grid);
+    outln!("angular cells  {cells}");
+    outln!(
         "above horizon  {valid} ({:.1} %)",
         100.0 * valid as f64 / cells as f64
     );
-    println!("channels       {}", channels.len());
-    println!("D              {d}");
-    println!("bytes (f32)    {}", d * 4);
+    outln!("channels       {}", channels.len());
+    outln!("D              {d}");
+    outln!("bytes (f32)    {}", d * 4);
     Ok(())
 }
 
@@ -103,10 +106,13 @@ fn init_tracing(verbosity: u8) {
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level));
     // Colours only on a terminal: redirected logs stay plain text.
     let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    // Without `log_internal_errors(false)` a log line that cannot be written (stderr closed or
+    // full) is reported with `eprintln!`, which panics; losing the line is better.
     let fmt = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
-        .with_ansi(ansi);
+        .with_ansi(ansi)
+        .log_internal_errors(false);
     if verbosity == 0 {
         // Without -v only warnings show: "WARN message", no timestamp or module path.
         fmt.without_time().with_target(false).init();
@@ -122,7 +128,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     tracing::debug!(command = ?cli.command, "arguments");
     tracing::info!("{name}: start");
     let start = std::time::Instant::now();
-    let result = run_command(cli.command);
+    // A print that failed (other than into a closed pipe) fails the command once its files
+    // are written.
+    let result = run_command(cli.command).and_then(|()| console::finish_stdout());
     let seconds = start.elapsed().as_secs_f64();
     match &result {
         Ok(()) => tracing::info!(seconds, "{name}: done"),
@@ -150,9 +158,10 @@ fn run_command(command: Command) -> anyhow::Result<()> {
     }
 }
 
-/// Whether `err` comes from writing into a pipe that its reader closed (`specgp latent m.toml |
-/// head`, `specgp sample ... --out - | head`): not an error. The I/O error may be the cause
-/// itself or inside a `brdf_io::Error::Io` (outputs written through `brdf_io::output`).
+/// Whether `err` comes from writing into a pipe that its reader closed (`specgp sample ...
+/// --out - | head`): not an error. The I/O error may be the cause itself or inside a
+/// `brdf_io::Error::Io` (outputs written through `brdf_io::output`). Printed tables and
+/// reports never return such errors (`console`): the command goes on to write its files.
 fn is_broken_pipe(err: &anyhow::Error) -> bool {
     let broken = |io: &std::io::Error| io.kind() == std::io::ErrorKind::BrokenPipe;
     err.chain().any(|e| {
@@ -169,8 +178,15 @@ fn main() -> std::process::ExitCode {
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(err) => {
-            let code = if err.use_stderr() { 1 } else { 0 };
-            let _ = err.print();
+            // --help or --version that cannot be printed (other than into a closed pipe) fail.
+            let failed = match err.print() {
+                Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe && !err.use_stderr() => {
+                    errln!("error: writing to standard output: {e}");
+                    true
+                }
+                _ => false,
+            };
+            let code = if err.use_stderr() || failed { 1 } else { 0 };
             return std::process::ExitCode::from(code);
         }
     };
@@ -180,10 +196,11 @@ fn main() -> std::process::ExitCode {
     }
     match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
-        // A closed pipe (`specgp latent m.toml | head`) is not an error.
+        // A closed pipe (`specgp sample ... --out - | head`) is not an error.
         Err(err) if is_broken_pipe(&err) => std::process::ExitCode::SUCCESS,
         Err(err) => {
-            eprintln!("error: {err:#}");
+            // Best effort: standard error may be closed too; the exit code says it anyway.
+            errln!("error: {err:#}");
             std::process::ExitCode::FAILURE
         }
     }

@@ -653,6 +653,194 @@ fn a_closed_output_pipe_is_not_an_error() {
     }
 }
 
+/// Where a spawned command's standard output or error goes ([`run_into`]).
+#[cfg(unix)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Sink {
+    /// A pipe whose reader is closed before the command starts (`| head -0`).
+    Closed,
+    /// `/dev/full`: every write fails with ENOSPC.
+    Full,
+    /// Captured, returned in the output.
+    Captured,
+}
+
+#[cfg(unix)]
+impl Sink {
+    fn stdio(self) -> std::process::Stdio {
+        match self {
+            Sink::Closed => {
+                let (reader, writer) = std::io::pipe().unwrap();
+                drop(reader);
+                writer.into()
+            }
+            Sink::Full => std::fs::OpenOptions::new()
+                .write(true)
+                .open("/dev/full")
+                .unwrap()
+                .into(),
+            Sink::Captured => std::process::Stdio::piped(),
+        }
+    }
+}
+
+/// Runs `specgp args` in `dir` with standard output into `stdout` and standard error into
+/// `stderr`.
+#[cfg(unix)]
+fn run_into(args: &[&str], dir: &Path, stdout: Sink, stderr: Sink) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_specgp"))
+        .args(args)
+        .current_dir(dir)
+        .stdout(stdout.stdio())
+        .stderr(stderr.stdio())
+        .output()
+        .expect("run specgp")
+}
+
+/// Printed tables, reports and warnings never panic nor cost an output file: standard output
+/// closed by its reader ends the printing quietly (exit 0) after every requested file is
+/// written, standard output on a full disk fails the command (exit 1, saying so) after they are
+/// written, and standard error closed or full is ignored (`println!`/`eprintln!` panicked with
+/// exit 101; `evaluate`/`locate --json` lost the JSON behind a closed pipe, `import` its store).
+#[cfg(unix)]
+#[test]
+fn unwritable_standard_streams_neither_panic_nor_lose_outputs() {
+    use Sink::{Captured, Closed, Full};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    fitted_small(d, "400:700:100");
+    let read = |name: &str| std::fs::read(d.join(name)).unwrap();
+    // Reference outputs with both streams working.
+    let predict = |out: &'static str| {
+        [
+            "predict",
+            "m.toml",
+            "--at",
+            "0.1,-0.2",
+            "--variance",
+            "--out",
+            out,
+        ]
+    };
+    let variance = specgp(&predict("ref.npy"), d);
+    assert!(variance.starts_with("variance "), "{variance}");
+    specgp(&["evaluate", "m.toml", "--json", "ref-ev.json"], d);
+    let locate = |json: &'static str| ["locate", "m.toml", "data.sbrdf:metal_gold", "--json", json];
+    specgp(&locate("ref-loc.json"), d);
+    let ref_loc: serde_json::Value = serde_json::from_slice(&read("ref-loc.json")).unwrap();
+    assert_eq!(ref_loc["locations"][0]["name"], "metal_gold");
+
+    // Standard output closed or full: the files are written all the same.
+    for (sink, code) in [(Closed, 0), (Full, 1)] {
+        let expect = |args: &[&str], out: &std::process::Output| {
+            let err = String::from_utf8_lossy(&out.stderr);
+            assert_eq!(out.status.code(), Some(code), "{args:?} {sink:?}: {err}");
+            if sink == Full {
+                assert!(
+                    err.contains("error: writing to standard output: No space left on device"),
+                    "{args:?}: {err}"
+                );
+            } else {
+                assert!(!err.contains("error"), "{args:?}: {err}");
+            }
+        };
+        let args = ["grid", "--grid", "8,8,16"];
+        expect(&args, &run_into(&args, d, sink, Captured));
+        let args = predict("p.npy");
+        std::fs::remove_file(d.join("p.npy")).ok();
+        expect(&args, &run_into(&args, d, sink, Captured));
+        assert_eq!(read("p.npy"), read("ref.npy"), "{sink:?}");
+        let args = ["evaluate", "m.toml", "--json", "ev.json"];
+        std::fs::remove_file(d.join("ev.json")).ok();
+        expect(&args, &run_into(&args, d, sink, Captured));
+        let (ev, want): (serde_json::Value, serde_json::Value) = (
+            serde_json::from_slice(&read("ev.json")).unwrap(),
+            serde_json::from_slice(&read("ref-ev.json")).unwrap(),
+        );
+        assert_eq!(ev["n_materials"], 51);
+        assert_eq!(ev["summary"], want["summary"], "{sink:?}");
+        let args = locate("loc.json");
+        std::fs::remove_file(d.join("loc.json")).ok();
+        expect(&args, &run_into(&args, d, sink, Captured));
+        let loc: serde_json::Value = serde_json::from_slice(&read("loc.json")).unwrap();
+        assert_eq!(loc["locations"], ref_loc["locations"], "{sink:?}");
+        for args in [&["latent", "m.toml"][..], &["info", "m.toml"]] {
+            expect(args, &run_into(args, d, sink, Captured));
+        }
+    }
+
+    // Standard error closed or full: the work is done, the exit code is the command's.
+    specgp(
+        &[
+            "convert",
+            "data.sbrdf:paper_white",
+            "--theta-samples",
+            "4",
+            "--resolution",
+            "8",
+            "--out",
+            "a.bsdf",
+        ],
+        d,
+    );
+    for sink in [Closed, Full] {
+        let outputs = ["r.sbrdf", "s.sbrdf", "f.toml", "q.npy", "b.bsdf", "far.png"];
+        for name in outputs {
+            std::fs::remove_file(d.join(name)).ok();
+        }
+        for args in [
+            &[
+                "import", "rgl", "a.bsdf", "--grid", "4,4,8", "--out", "r.sbrdf",
+            ][..],
+            &[
+                "synth",
+                "--grid",
+                "4,4,8",
+                "--wavelengths",
+                "500,600",
+                "--out",
+                "s.sbrdf",
+            ],
+            &["fit", "data.sbrdf", "--latent-dim", "2", "--out", "f.toml"],
+            &["predict", "m.toml", "--at", "0.1,-0.2", "--out", "q.npy"],
+            &[
+                "convert",
+                "a.bsdf",
+                "--theta-samples",
+                "4",
+                "--resolution",
+                "8",
+                "--out",
+                "b.bsdf",
+            ],
+            // A tracing warning (far from every material), at -v with info logs too.
+            &[
+                "render",
+                "m.toml@40,40",
+                "--size",
+                "16",
+                "-v",
+                "--out",
+                "far.png",
+            ],
+        ] {
+            let out = run_into(args, d, Captured, sink);
+            assert_eq!(out.status.code(), Some(0), "{args:?} {sink:?}");
+        }
+        assert_eq!(read("q.npy"), read("ref.npy"), "{sink:?}");
+        let store = brdf_io::store::Store::open(d.join("r.sbrdf")).unwrap();
+        assert_eq!(store.names(), ["a"]);
+        store.verify_checksum().unwrap();
+        assert_eq!(Model::load(&d.join("f.toml")).unwrap().latent_dim, 2);
+        for name in outputs {
+            assert!(d.join(name).is_file(), "{name} {sink:?}");
+        }
+        // An error with its message lost still exits 1, not 101.
+        let out = run_into(&["info", "nonexistent.sbrdf"], d, Captured, sink);
+        assert_eq!(out.status.code(), Some(1), "{sink:?}");
+    }
+}
+
 /// `import nbrdf` and `import rgl` on the real shared data; a network whose outputs overflow
 /// (weights scaled by 1e30) is an error naming it, and no store is written.
 #[test]
