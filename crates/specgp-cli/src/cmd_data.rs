@@ -468,21 +468,36 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
 }
 
 /// `specgp info MODEL.toml`: the fit's summary and whether its dataset is where the model says,
-/// with the checksum it was fitted on (the store header's; a full verification is `specgp info
-/// DATA.sbrdf`).
+/// with the checksum it was fitted on and an intact payload (re-hashed as `specgp info
+/// DATA.sbrdf` does; a damaged payload is reported, then fails the command like there).
 fn model_info(args: &InfoArgs) -> anyhow::Result<()> {
     let model = gplvm::Model::load(&args.path)?;
     let ds = &model.dataset;
     let ds_path = model.dataset_path(&args.path);
-    let dataset = match Store::open(&ds_path) {
+    let (dataset, verified) = match Store::open(&ds_path) {
         Ok(store) => {
-            if store.header().checksum.to_string() == ds.checksum {
-                "present, checksum matches".to_owned()
-            } else {
-                "present, DIFFERENT checksum (refitted or replaced?)".to_owned()
-            }
+            let verified = store.verify_checksum();
+            let recorded = store.header().checksum.to_string() == ds.checksum;
+            let status = match (&verified, recorded) {
+                (Err(brdf_io::Error::StoreChecksum { .. }), _) => {
+                    "present, checksum MISMATCH: its payload is damaged".to_owned()
+                }
+                (Err(e), _) => format!("present, its payload cannot be verified: {e}"),
+                (Ok(()), true) => "present, checksum verified".to_owned(),
+                (Ok(()), false) => "present, DIFFERENT checksum (refitted or replaced?)".to_owned(),
+            };
+            (status, Some(verified))
         }
-        Err(e) => format!("not usable: {e}"),
+        Err(e) => (format!("not usable: {e}"), None),
+    };
+    // After the summary: a damaged dataset fails the command, as `info DATA.sbrdf` does.
+    let checked = verified.as_ref().map(Result::is_ok);
+    let verdict = match verified {
+        Some(Err(e)) => {
+            let model = args.path.display();
+            Err(anyhow::Error::from(e).context(format!("the dataset of model {model}")))
+        }
+        _ => Ok(()),
     };
     let f = &model.fit;
     let h = &model.hyperparameters;
@@ -492,9 +507,10 @@ fn model_info(args: &InfoArgs) -> anyhow::Result<()> {
             o.remove("gram");
             o.insert("path".into(), args.path.display().to_string().into());
             o.insert("dataset_status".into(), dataset.into());
+            o.insert("dataset_checksum_verified".into(), checked.into());
         }
         outln!("{}", serde_json::to_string_pretty(&v)?);
-        return Ok(());
+        return verdict;
     }
     outln!("file           {} (model)", args.path.display());
     outln!("dataset        {} ({dataset})", ds_path.display());
@@ -549,7 +565,7 @@ fn model_info(args: &InfoArgs) -> anyhow::Result<()> {
         let coords: Vec<String> = m.coords.iter().map(|c| format!("{c:+.4}")).collect();
         outln!("  {:<32} {}", m.name, coords.join(" "));
     }
-    Ok(())
+    verdict
 }
 
 /// Arguments of `specgp export`.

@@ -163,7 +163,8 @@ fn model_log_likelihood_matches_recomputation_from_export() {
             info["fit"]["log_likelihood"].as_f64().unwrap(),
             model.fit.log_likelihood
         );
-        assert_eq!(info["dataset_status"], "present, checksum matches");
+        assert_eq!(info["dataset_status"], "present, checksum verified");
+        assert_eq!(info["dataset_checksum_verified"], true);
         assert!(info.get("gram").is_none());
         let text = specgp(&["info", model_name], d);
         assert!(
@@ -485,6 +486,17 @@ fn damaged_stores_are_refused_by_export_and_fit() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     synth_small(d, "400:700:100");
+    specgp(
+        &[
+            "fit",
+            "data.sbrdf",
+            "--latent-dim",
+            "2",
+            "--out",
+            "good.toml",
+        ],
+        d,
+    );
     let mut bytes = std::fs::read(d.join("data.sbrdf")).unwrap();
     bytes[4096 + 1001] ^= 0x40;
     std::fs::write(d.join("data.sbrdf"), bytes).unwrap();
@@ -496,6 +508,35 @@ fn damaged_stores_are_refused_by_export_and_fit() {
         assert!(e.contains("data.sbrdf") && e.contains("checksum"), "{e}");
         assert!(!d.join(out).exists());
     }
+    // `info MODEL` re-hashes its dataset as `info STORE` does (it compared the header's
+    // recorded checksum only, and said "checksum matches"): the summary, then exit 1.
+    for (args, status) in [
+        (&["info", "data.sbrdf"][..], "(MISMATCH)"),
+        (
+            &["info", "good.toml"],
+            "(present, checksum MISMATCH: its payload is damaged)",
+        ),
+    ] {
+        let out = run(args, d);
+        let (stdout, stderr) = (
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr),
+        );
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {stderr}");
+        assert!(stdout.contains(status), "{args:?}: {stdout}");
+        assert!(
+            stderr.contains("data.sbrdf: checksum mismatch: header says"),
+            "{args:?}: {stderr}"
+        );
+    }
+    let out = run(&["info", "good.toml", "--json"], d);
+    assert_eq!(out.status.code(), Some(1));
+    let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(info["dataset_checksum_verified"], false);
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("the dataset of model good.toml"),
+        "{out:?}"
+    );
 }
 
 /// Runs the shell command `script` in `dir` with `$SPECGP` set to the binary: its status.
