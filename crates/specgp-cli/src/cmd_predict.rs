@@ -130,7 +130,8 @@ pub fn open_model_source(
     }
     Some((|| {
         let x = parse_point(point)?;
-        let pred = Predictor::open(Path::new(model)).with_context(|| format!("opening {model}"))?;
+        let pred =
+            open_model_of_source(Path::new(model)).with_context(|| format!("opening {model}"))?;
         warn_if_far(&pred, &x)?;
         let mut m = with_existing_sidecar(pred)?.predict(&x, kind)?;
         if let Some(w) = wavelengths {
@@ -138,6 +139,26 @@ pub fn open_model_source(
         }
         Ok(m)
     })())
+}
+
+/// Opens the model of a `MODEL.toml@X` source. The commands that read such sources (`sample`,
+/// `render`, `convert`) have no `--dataset` option, which the library's message for a moved
+/// dataset suggests: say instead how to point the model file at it.
+fn open_model_of_source(model: &Path) -> anyhow::Result<Predictor> {
+    match Predictor::open(model) {
+        Err(predict::Error::DatasetMissing {
+            model,
+            dataset,
+            given: false,
+        }) => bail!(
+            "model {}: its dataset {} is not a file (moved or deleted?); set `path` in the \
+             model file's [dataset] table to the store's new path (a relative path is read from \
+             the model file's directory), or move the store back",
+            model.display(),
+            dataset.display()
+        ),
+        result => Ok(result?),
+    }
 }
 
 /// Warns when latent point `x` is far from every training material: the GP's prediction
@@ -201,6 +222,14 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
     if !bsdf && let Some(flag) = args.rgl.given() {
         bail!(
             "{flag} applies to a `.bsdf` output, not to {}",
+            args.out.display()
+        );
+    }
+    // The format is known from the name: refuse an unknown one before any work.
+    if !bsdf && predict::OutputFormat::from_path(&args.out).is_err() {
+        bail!(
+            "{}: unknown output format: expected a .sbrdf, .npy, .binary or .bsdf file (or - \
+             for .npy on standard output)",
             args.out.display()
         );
     }

@@ -1258,6 +1258,55 @@ fn source_mistakes_say_how_to_fix_them() {
     );
     let e = specgp_fails(&["render", "m.toml", "--out", "x.png"], d);
     assert!(e.contains("m.toml@X1,...,Xq"), "{e}");
+    // A model whose dataset moved: each command names a remedy it has (`render`, `sample` and
+    // `convert` have no --dataset, which the message used to suggest).
+    let model_text = std::fs::read_to_string(d.join("m.toml")).unwrap();
+    let moved: Vec<&str> = model_text
+        .lines()
+        .map(|l| {
+            if l.starts_with("path = ") {
+                "path = \"gone.sbrdf\""
+            } else {
+                l
+            }
+        })
+        .collect();
+    std::fs::write(d.join("moved.toml"), moved.join("\n")).unwrap();
+    std::fs::write(d.join("one.csv"), "0,0,1,0,0,1\n").unwrap();
+    for args in [
+        &["render", "moved.toml@0,0,0", "--out", "x.png"][..],
+        &[
+            "sample",
+            "moved.toml@0,0,0",
+            "--dirs",
+            "one.csv",
+            "--out",
+            "-",
+        ],
+        &["convert", "moved.toml@0,0,0", "--out", "x.bsdf"],
+    ] {
+        let e = specgp_fails(args, d);
+        assert!(
+            e.contains("gone.sbrdf is not a file")
+                && e.contains("set `path` in the model file's [dataset] table")
+                && !e.contains("--dataset"),
+            "{args:?}: {e}"
+        );
+    }
+    let e = specgp_fails(
+        &["predict", "moved.toml", "--at", "0,0,0", "--out", "x.npy"],
+        d,
+    );
+    assert!(e.contains("gone.sbrdf") && e.contains("`--dataset`"), "{e}");
+    // An unknown output format names every accepted one (.bsdf was missing), before any work.
+    let e = specgp_fails(
+        &["predict", "moved.toml", "--at", "0,0,0", "--out", "x.png"],
+        d,
+    );
+    assert!(
+        e.contains("x.png: unknown output format: expected a .sbrdf, .npy, .binary or .bsdf file"),
+        "{e}"
+    );
     let e = specgp_fails(&["render", "m.toml@0.1,0.2", "--out", "x.png"], d);
     assert!(e.contains("give all 3 coordinates, e.g. 0,0,0"), "{e}");
     let e = specgp_fails(
