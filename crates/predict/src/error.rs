@@ -41,17 +41,17 @@ pub enum Error {
         /// What differs (checksum, grid, channels, materials, D).
         what: String,
     },
-    /// A NaN or infinite value where a finite one is needed: a damaged dataset store or
-    /// sidecar (lookups do not re-hash the payload), or an overflowing prediction.
-    #[error(
-        "{what} is {value} (a damaged dataset store or sidecar? `specgp info STORE` verifies a \
-         store's checksum)"
-    )]
+    /// A NaN or infinite value where a finite one is needed and no stored value explains it
+    /// (a damaged stored value is [`brdf_io::Error::DamagedValue`], naming its file): an
+    /// overflowing prediction, or a target's own values.
+    #[error("{what} is {value}: {cause}")]
     NonFiniteValue {
         /// Which value (material or prediction, index).
         what: String,
         /// The value.
         value: f64,
+        /// Why it is not finite, as far as known.
+        cause: String,
     },
     /// A latent point that cannot be used (NaN, wrong dimension).
     #[error("invalid latent point {point:?}: {reason}")]

@@ -660,6 +660,10 @@ pub(crate) fn rmse_pass(
                 } else {
                     sums.0[r].0
                 },
+                cause: "every stored value is finite (checked), so the error overflowed: a \
+                        prediction far outside the training materials, or values too large for \
+                        f64 squares"
+                    .into(),
             },
         });
     }

@@ -225,6 +225,7 @@ pub fn locate(
                     t.source
                 ),
                 value: f64::from(t.values[k]),
+                cause: "a target's values must be finite".into(),
             });
         }
     }
@@ -403,6 +404,9 @@ pub fn cross_products(
                     .nth(k)
                     .copied()
                     .unwrap_or(f64::NAN),
+                cause: "every stored value is finite (checked), so the sum overflowed: values \
+                        too large for f64 products"
+                    .into(),
             },
         });
     }

@@ -723,19 +723,30 @@ impl PredictedMaterial {
 
     /// An error naming the first non-finite value of `values` (the output values from flat
     /// output index `first`), if any: stored NaN or infinity, or an overflowing prediction,
-    /// must not pass silently into pictures and files.
+    /// must not pass silently into pictures and files. On that error path the store the
+    /// lookups read (the dataset or its sidecar) is scanned: a damaged stored value is
+    /// reported with its file, material and index; otherwise the prediction overflowed.
     pub(crate) fn check_finite<T: Copy + Into<f64>>(
         &self,
         values: &[T],
         first: usize,
     ) -> Result<()> {
-        match values.iter().position(|v| !(*v).into().is_finite()) {
-            None => Ok(()),
-            Some(k) => Err(Error::NonFiniteValue {
-                what: format!("value {} of the prediction {}", first + k, self.label),
-                value: values[k].into(),
-            }),
+        let Some(k) = values.iter().position(|v| !(*v).into().is_finite()) else {
+            return Ok(());
+        };
+        let (store, _) = self.pred.lookup_store();
+        if let Some(e) = crate::evaluate::damaged_value(store)? {
+            return Err(e);
         }
+        Err(Error::NonFiniteValue {
+            what: format!("value {} of the prediction {}", first + k, self.label),
+            value: values[k].into(),
+            cause: format!(
+                "every value stored in {} is finite (checked), so the prediction overflowed: \
+                 the point or blend lies far outside the training materials",
+                store.path().display()
+            ),
+        })
     }
 
     /// A hint that [`PredictedMaterial::eval_cell`] of cell `a` follows soon: starts fetching

@@ -759,13 +759,21 @@ fn damaged_stored_values_are_errors_not_nans() {
 
     let pred = Predictor::open_with_dataset(&f.model, Some(&damaged)).unwrap();
     let m = pred.predict(&[0.1, -0.2], PredictorKind::Exact).unwrap();
-    let e = m.eval_cell(d / nc, &mut out).unwrap_err();
-    assert!(matches!(e, Error::NonFiniteValue { .. }), "{e}");
-    assert!(e.to_string().contains("damaged"), "{e}");
+    // The prediction meets the NaN: the error names the stored value, not the prediction.
+    let e = m.eval_cell(d / nc, &mut out).unwrap_err().to_string();
+    assert!(
+        e.contains("damaged.sbrdf")
+            && e.contains(&format!("{name:?}"))
+            && e.contains(&format!("index {d}")),
+        "{e}"
+    );
     assert!(m.value_at(d).is_err());
     let npy = f.store.with_file_name("p.npy");
     let e = m.materialize(&npy, |_, _| {}).unwrap_err().to_string();
-    assert!(e.contains("is NaN"), "{e}");
+    assert!(
+        e.contains("damaged.sbrdf") && e.contains("non-finite value NaN"),
+        "{e}"
+    );
     assert!(!npy.exists());
     let model = pred.model().clone();
     // Material 0's reconstruction from itself meets the NaN too (0 x NaN in the product over
@@ -788,6 +796,29 @@ fn damaged_stored_values_are_errors_not_nans() {
             "{e}"
         );
     }
+}
+
+/// A prediction that overflows on sound data (a log-space blend far beyond its two
+/// materials) is an error that says so and clears the store, which it scanned.
+#[test]
+fn overflowing_predictions_are_errors_that_clear_the_store() {
+    let f = fixture(6, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    let names: Vec<String> = pred.store().names().iter().map(|s| s.to_string()).collect();
+    let nc = pred.channels().len();
+    let m = pred.lerp(&names[0], &names[1], 1e6).unwrap();
+    let mut out = vec![0.0; nc];
+    let cells = pred.store().d() / nc;
+    let e = (0..cells)
+        .find_map(|a| m.eval_cell(a, &mut out).err())
+        .expect("a blend at 1e6 overflows somewhere")
+        .to_string();
+    assert!(
+        e.contains("prediction overflowed")
+            && e.contains(&f.store.display().to_string())
+            && e.contains("is inf"),
+        "{e}"
+    );
 }
 
 /// The D values of material `name` of the store at `path`.
