@@ -44,7 +44,8 @@ pub struct PredictArgs {
     /// Use the smooth predictor (noise-free posterior mean).
     #[arg(long)]
     pub smooth: bool,
-    /// Print the predictive variance at the point.
+    /// Print the predictive variance at the point (on standard output; on standard error with
+    /// `--out -`).
     #[arg(long)]
     pub variance: bool,
     /// Read the dataset from this store instead of the path recorded in the model.
@@ -264,13 +265,19 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
             warn_if_far(&pred, &x)?;
             if args.variance {
                 let v = pred.variance_of(&x, kind)?;
-                outln!(
+                let line = format!(
                     "variance {v:e} of the {kind} predictor (model units: centred transformed \
                      data / sqrt(data_scale)); {:e} per transformed value (std {:e}, transform {})",
                     v * pred.model().data_scale,
                     (v * pred.model().data_scale).sqrt(),
                     pred.transform()
                 );
+                // On standard error when the .npy goes to standard output (`--out -`).
+                if args.out == Path::new(brdf_io::output::STDOUT) {
+                    errln!("{line}");
+                } else {
+                    outln!("{line}");
+                }
             }
             pred.predict(&x, kind)?
         }

@@ -654,6 +654,11 @@ fn dash_outputs_write_into_redirected_standard_output() {
     assert_eq!(std::fs::read(d.join("q2.npy")).unwrap(), q);
     let perr = std::fs::read_to_string(d.join("perr.txt")).unwrap();
     assert!(perr.contains(&format!("{} bytes", q.len())), "{perr}");
+    // `--variance` prints on standard error then (it went into the .npy's bytes).
+    assert!(shell(&format!("{predict} --variance > q3.npy 2> perr.txt"), d).success());
+    assert_eq!(std::fs::read(d.join("q3.npy")).unwrap(), q);
+    let perr = std::fs::read_to_string(d.join("perr.txt")).unwrap();
+    assert!(perr.starts_with("variance "), "{perr}");
     let json = specgp(&["evaluate", "m.toml", "--json", "-"], d);
     let v: serde_json::Value = serde_json::from_str(&json).expect("standard output is the JSON");
     assert_eq!(v["n_materials"], 51, "{json}");
