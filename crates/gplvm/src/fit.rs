@@ -372,6 +372,15 @@ pub fn fit_gram(g: MatRef<'_, f64>, d: usize, config: &FitConfig) -> Result<Fit>
             condition_number * f64::EPSILON
         );
     }
+    let isolated = isolated_materials(x.as_ref(), &params);
+    if 2 * isolated > n {
+        tracing::warn!(
+            "{isolated} of {n} materials correlate less than {ISOLATED_CORRELATION:e} with their \
+             nearest neighbour in the latent space (they sit many length-scales apart): between \
+             them the GP predicts the data mean, so the space does not interpolate; a larger \
+             lengthscale (or a fit from a smaller PCA scale) brings them together"
+        );
+    }
     Ok(Fit {
         x,
         params,
@@ -446,10 +455,48 @@ pub fn fit_store(path: &Path, config: &FitConfig) -> Result<Model> {
     })
 }
 
+/// Below this kernel correlation `k(x_i, x_j) / s^2` with its nearest neighbour a material is
+/// isolated: the GP barely links it to any other.
+pub const ISOLATED_CORRELATION: f64 = 1e-3;
+
+/// How many latent points correlate less than [`ISOLATED_CORRELATION`] with their nearest
+/// neighbour (`exp(-r^2 / 2)`, r the scaled distance). `O(N^2 q)`. When most are, the fit
+/// may report convergence on the plateau `K ~ (s^2 + mu) I` (an audit: lengthscale 1e-6), where
+/// the space predicts the mean everywhere between materials.
+pub fn isolated_materials(x: MatRef<'_, f64>, params: &KernelParams) -> usize {
+    let n = x.nrows();
+    let rows: Vec<Vec<f64>> = (0..n)
+        .map(|i| (0..x.ncols()).map(|k| x[(i, k)]).collect())
+        .collect();
+    // exp(-r^2 / 2) < c  <=>  r^2 > -2 ln c.
+    let r2_max = -2.0 * ISOLATED_CORRELATION.ln();
+    (0..n)
+        .filter(|&i| {
+            n > 1
+                && (0..n)
+                    .filter(|&j| j != i)
+                    .all(|j| params.scaled_sq_dist(&rows[i], &rows[j]) > r2_max)
+        })
+        .count()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use rand::RngCore;
+
+    /// Points 4 length-scales apart correlate exp(-8) = 3.4e-4 < 1e-3 (isolated); 3 apart
+    /// exp(-4.5) = 1.1e-2 (linked).
+    #[test]
+    fn isolated_materials_counts_points_far_from_every_other() {
+        let p = KernelParams::isotropic(1.0, 0.5, 1e-4).unwrap();
+        let x = Mat::from_fn(4, 1, |i, _| [0.0, 1.5, 3.5, 5.5][i]);
+        // In length-scales: 0, 3, 7, 11: points 0 and 1 linked, 2 and 3 each 4 from the next.
+        assert_eq!(isolated_materials(x.as_ref(), &p), 2);
+        let wide = KernelParams::isotropic(1.0, 1.0, 1e-4).unwrap();
+        assert_eq!(isolated_materials(x.as_ref(), &wide), 0);
+        assert_eq!(isolated_materials(x.as_ref().subrows(0, 1), &p), 0);
+    }
 
     /// Restart streams differ between restarts of one seed and between neighbouring seeds
     /// (seed 7's restart 2 and seed 8's restart 1 were the same stream).
