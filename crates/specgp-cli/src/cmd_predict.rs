@@ -181,6 +181,16 @@ pub fn warn_if_far(pred: &Predictor, x: &[f64]) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Says once, on stderr, that lookups read the sidecar `side` (every command that reads one):
+/// its f32 transformed values move results by ~1e-6 relative, so an output that changes after
+/// `predict --sidecar` has a visible cause.
+fn announce_sidecar(side: &Path) {
+    errln!(
+        "reading the sidecar {} (transformed values in f32: ~1e-6 relative)",
+        side.display()
+    );
+}
+
 /// `pred` reading the forward-transformed sidecar store next to its dataset when one exists
 /// (non-raw transforms; built by `specgp predict --sidecar`): no logarithms per lookup.
 pub fn with_existing_sidecar(pred: Predictor) -> anyhow::Result<Predictor> {
@@ -190,13 +200,7 @@ pub fn with_existing_sidecar(pred: Predictor) -> anyhow::Result<Predictor> {
         // values (`predict --sidecar` rebuilds it).
         return Ok(match pred.with_transformed_store(&side) {
             Ok(p) => {
-                // Said once, on stderr: the sidecar's f32 transformed values move results by
-                // ~1e-6 relative, so an output that changes after `predict --sidecar` has a
-                // visible cause.
-                errln!(
-                    "reading the sidecar {} (transformed values in f32: ~1e-6 relative)",
-                    side.display()
-                );
+                announce_sidecar(&side);
                 p
             }
             Err(e) => {
@@ -244,7 +248,10 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
             .is_file()
             .then(|| pred.clone().with_transformed_store(&side));
         pred = match existing {
-            Some(Ok(p)) => p,
+            Some(Ok(p)) => {
+                announce_sidecar(&side);
+                p
+            }
             stale => {
                 if let Some(Err(e)) = stale {
                     errln!("the sidecar is unusable ({e}); rebuilding it");

@@ -350,6 +350,35 @@ fn lazy_renders_of_model_points_read_an_existing_sidecar() {
         err.contains("reading the sidecar") && !err.contains("unusable"),
         "{err}"
     );
+    // `predict --sidecar` says which sidecar it reads, as the other commands do (it said
+    // nothing about an existing one) ...
+    let side = d.join(&sidecar[0]).display().to_string();
+    let (_, err) = specgp_outputs(&predict_with_sidecar, d);
+    assert!(
+        err.contains(&format!("reading the sidecar {side}")),
+        "{err}"
+    );
+    // ... and a sidecar that opens but holds NaN (lookups do not re-hash its payload) stops
+    // every command that reads it with an error naming the file.
+    let mut bytes = std::fs::read(d.join(&sidecar[0])).unwrap();
+    let payload = 4096..4096 + (bytes.len() - 4096) / 2;
+    bytes[payload].fill(0xff);
+    std::fs::write(d.join(&sidecar[0]), bytes).unwrap();
+    std::fs::write(d.join("normal.csv"), "0,0,1,0,0,1\n").unwrap();
+    for args in [
+        &predict_with_sidecar[..],
+        &["render", point, "--out", "nan.png"],
+        &["sample", point, "--dirs", "normal.csv", "--out", "nan.csv"],
+    ] {
+        let err = specgp_fails(args, d);
+        let error = err.lines().find(|l| l.starts_with("error: ")).unwrap_or("");
+        assert!(
+            err.contains(&format!("reading the sidecar {side}"))
+                && error.contains(&format!("{side}: material "))
+                && error.contains("NaN"),
+            "{args:?}: {err}"
+        );
+    }
 }
 
 #[test]
