@@ -475,7 +475,12 @@ impl StagingDir {
 pub fn remove_unfinished_outputs_on_signal(program: &'static str) -> Result<()> {
     ctrlc::set_handler(move || {
         let removed = remove_unfinished_outputs();
-        eprintln!("{program}: interrupted; removed {removed} unfinished output file(s)");
+        // Best effort: a closed stderr must not keep the handler from exiting (`eprintln!`
+        // would panic the handler's thread).
+        let _ = writeln!(
+            std::io::stderr(),
+            "{program}: interrupted; removed {removed} unfinished output file(s)"
+        );
         std::process::exit(130);
     })
     .map_err(|e| Error::InvalidArgument {

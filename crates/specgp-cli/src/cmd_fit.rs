@@ -30,7 +30,8 @@ pub struct FitArgs {
     /// Noise mu [default: 0.0001].
     #[arg(long)]
     noise: Option<f64>,
-    /// Learn amplitude, length-scale and noise with the latent points.
+    /// Learn amplitude and noise with the latent points (the length-scale stays: the latent
+    /// points' own scale makes it redundant, docs/CONVENTIONS.md).
     #[arg(long)]
     learn_hyperparameters: bool,
     /// Data transform: raw, log or log:OFFSET [default: log, i.e. log:0.01].
