@@ -72,17 +72,17 @@ pub struct EvaluateArgs {
     /// Write the full results (per material and summary) as JSON.
     #[arg(long)]
     pub json: Option<PathBuf>,
-    /// Starting points of the latent search per held-out material (1..=1000; at most the N - 1
-    /// training points are used).
-    #[arg(long, default_value_t = 3, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1000))]
+    /// With --loo: starting points of the latent search per held-out material (1..=1000; at
+    /// most the N - 1 training points are used).
+    #[arg(long, default_value_t = 3, requires = "loo", value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1000))]
     pub starts: usize,
-    /// Refit each leave-one-out model from the PCA start (a fresh fit) instead of warm-starting
-    /// from the full model's latent points.
-    #[arg(long)]
+    /// With --loo: refit each leave-one-out model from the PCA start (a fresh fit) instead of
+    /// warm-starting from the full model's latent points.
+    #[arg(long, requires = "loo")]
     pub cold: bool,
-    /// Cap on the optimiser iterations of each leave-one-out refit (0: the model's own
-    /// configuration).
-    #[arg(long, default_value_t = 200)]
+    /// With --loo: cap on the optimiser iterations of each leave-one-out refit (0: the model's
+    /// own configuration).
+    #[arg(long, default_value_t = 200, requires = "loo")]
     pub refit_iterations: u64,
     /// Read the dataset from this store instead of the path recorded in the model.
     #[arg(long)]

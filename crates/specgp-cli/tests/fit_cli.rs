@@ -1462,6 +1462,45 @@ fn source_mistakes_say_how_to_fix_them() {
     assert!(e.contains("--smooth applies to a model point"), "{e}");
 }
 
+/// Options that would be ignored are refused before any work (README): nothing is written.
+#[test]
+fn ignored_options_are_refused_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    fitted_small(d, "400:700:100");
+    // evaluate: the leave-one-out options without --loo.
+    for extra in [
+        &["--starts", "5"][..],
+        &["--cold"],
+        &["--refit-iterations", "10"],
+    ] {
+        let mut args = vec!["evaluate", "m.toml", "--json", "ev.json"];
+        args.extend_from_slice(extra);
+        let e = specgp_fails(&args, d);
+        assert!(e.contains("--loo"), "{extra:?}: {e}");
+        assert!(!d.join("ev.json").exists());
+    }
+    // With --loo they apply (and a plain evaluate still runs with their defaults).
+    specgp(
+        &[
+            "evaluate",
+            "m.toml",
+            "--loo",
+            "--starts",
+            "1",
+            "--refit-iterations",
+            "5",
+            "--json",
+            "ev.json",
+        ],
+        d,
+    );
+    let ev: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("ev.json")).unwrap()).unwrap();
+    assert_eq!(ev["n_materials"], 51);
+    specgp(&["evaluate", "m.toml"], d);
+}
+
 /// A JSON array of numbers as the CLI prints a latent point (`X1,X2,...`, shortest form).
 fn point_text(point: &serde_json::Value) -> String {
     point
