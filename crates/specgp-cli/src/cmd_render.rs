@@ -202,7 +202,8 @@ pub struct MapArgs {
     /// Thumbnail sphere size in pixels (with --thumbnails; 8..=1024).
     #[arg(long, default_value_t = 64, requires = "thumbnails", value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(8..=1024))]
     pub thumbnail_size: usize,
-    /// The dataset store, when it moved since fitting (default: the path in the model).
+    /// With --thumbnails or --locate (the only parts of a map that read the data): the dataset
+    /// store, when it moved since fitting (default: the path in the model).
     #[arg(long)]
     pub dataset: Option<PathBuf>,
     /// Also mark where these materials outside the training set sit (as `specgp locate` finds
@@ -215,6 +216,16 @@ pub struct MapArgs {
 /// thumbnails), predictive variance of the GP (`predict::Predictor::variance`), thumbnails of
 /// the exact predictor's materials (lazy, only the observer's wavelengths looked up).
 pub fn map(args: &MapArgs) -> anyhow::Result<()> {
+    if let Some(dataset) = &args.dataset
+        && !args.thumbnails
+        && args.locate.is_empty()
+    {
+        bail!(
+            "--dataset {} applies to --thumbnails and --locate, which read the data (the map \
+             itself needs only the model file)",
+            dataset.display()
+        );
+    }
     let mut inputs = crate::paths::model_inputs(&args.model, args.dataset.as_deref());
     let located_files: Vec<PathBuf> = args
         .locate

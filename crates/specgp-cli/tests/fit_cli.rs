@@ -1499,6 +1499,37 @@ fn ignored_options_are_refused_before_any_work() {
         serde_json::from_slice(&std::fs::read(d.join("ev.json")).unwrap()).unwrap();
     assert_eq!(ev["n_materials"], 51);
     specgp(&["evaluate", "m.toml"], d);
+    // map --dataset without --thumbnails or --locate (the plain map reads no data), even when
+    // the store does not exist.
+    for dataset in ["data.sbrdf", "missing.sbrdf"] {
+        let e = specgp_fails(
+            &["map", "m.toml", "--dataset", dataset, "--out", "map.png"],
+            d,
+        );
+        assert!(
+            e.contains(&format!(
+                "--dataset {dataset} applies to --thumbnails and --locate"
+            )),
+            "{e}"
+        );
+        assert!(!d.join("map.png").exists());
+    }
+    specgp(
+        &[
+            "map",
+            "m.toml",
+            "--dataset",
+            "data.sbrdf",
+            "--locate",
+            "data.sbrdf:metal_gold",
+            "--size",
+            "64",
+            "--out",
+            "map.png",
+        ],
+        d,
+    );
+    assert!(d.join("map.png").is_file());
 }
 
 /// A JSON array of numbers as the CLI prints a latent point (`X1,X2,...`, shortest form).
