@@ -106,6 +106,7 @@ pub fn fit(args: &FitArgs) -> anyhow::Result<()> {
     if let Some(n) = args.max_evaluations {
         params.max_evaluations = n;
     }
+    refuse_ignored_caps(args, &params)?;
     let config = params.check().with_context(|| match &args.config {
         Some(path) => format!(
             "fit configuration {} (with the command line's flags)",
@@ -143,6 +144,42 @@ pub fn fit(args: &FitArgs) -> anyhow::Result<()> {
         f.optimize_seconds,
         args.out.display()
     );
+    Ok(())
+}
+
+/// Refuses a cap flag that the chosen optimiser ignores (README: options that would be ignored
+/// are refused before any work): `--max-evaluations` caps Hooke-Jeeves only (L-BFGS counts
+/// iterations, each of one or more evaluations by its line search) and `--max-iterations`
+/// caps L-BFGS only. `params` are the merged configuration; only the command line's flags are
+/// checked (a `--config` file may hold both caps, for either optimiser).
+fn refuse_ignored_caps(args: &FitArgs, params: &FitParams) -> anyhow::Result<()> {
+    let chosen_by = || match (&args.optimizer, &args.config) {
+        (Some(_), _) => "--optimizer".to_owned(),
+        (None, Some(path)) => format!("the --config file {}", path.display()),
+        (None, None) => "the default".to_owned(),
+    };
+    match params.optimizer {
+        OptimizerKind::Lbfgs => {
+            if let Some(n) = args.max_evaluations {
+                anyhow::bail!(
+                    "--max-evaluations {n} caps the Hooke-Jeeves optimiser, but the fit uses \
+                     lbfgs ({}), which stops at --max-iterations (or choose --optimizer \
+                     hooke-jeeves)",
+                    chosen_by()
+                );
+            }
+        }
+        OptimizerKind::HookeJeeves => {
+            if let Some(n) = args.max_iterations {
+                anyhow::bail!(
+                    "--max-iterations {n} caps the L-BFGS optimiser, but the fit uses \
+                     hooke-jeeves ({}), which stops at --max-evaluations (or choose \
+                     --optimizer lbfgs)",
+                    chosen_by()
+                );
+            }
+        }
+    }
     Ok(())
 }
 

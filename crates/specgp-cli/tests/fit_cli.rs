@@ -1530,6 +1530,53 @@ fn ignored_options_are_refused_before_any_work() {
         d,
     );
     assert!(d.join("map.png").is_file());
+    // fit: a cap of the other optimiser (L-BFGS counts iterations, Hooke-Jeeves evaluations),
+    // whether the optimiser comes from the default, --optimizer or a --config file.
+    std::fs::write(d.join("hj.toml"), "optimizer = \"hooke-jeeves\"\n").unwrap();
+    for (extra, want) in [
+        (
+            &["--max-evaluations", "10"][..],
+            "--max-evaluations 10 caps the Hooke-Jeeves optimiser, but the fit uses lbfgs (the \
+             default)",
+        ),
+        (
+            &["--optimizer", "lbfgs", "--max-evaluations", "10"],
+            "uses lbfgs (--optimizer)",
+        ),
+        (
+            &["--optimizer", "hooke-jeeves", "--max-iterations", "5"],
+            "--max-iterations 5 caps the L-BFGS optimiser, but the fit uses hooke-jeeves \
+             (--optimizer)",
+        ),
+        (
+            &["--config", "hj.toml", "--max-iterations", "5"],
+            "uses hooke-jeeves (the --config file hj.toml)",
+        ),
+    ] {
+        let mut args = vec!["fit", "data.sbrdf", "--out", "capped.toml"];
+        args.extend_from_slice(extra);
+        let e = specgp_fails(&args, d);
+        assert!(e.contains(want), "{extra:?}: {e}");
+        assert!(!d.join("capped.toml").exists());
+    }
+    // Each optimiser's own cap applies, and stops it.
+    specgp(
+        &[
+            "fit",
+            "data.sbrdf",
+            "--out",
+            "capped.toml",
+            "--config",
+            "hj.toml",
+            "--latent-dim",
+            "2",
+            "--max-evaluations",
+            "40",
+        ],
+        d,
+    );
+    let fit = Model::load(&d.join("capped.toml")).unwrap().fit;
+    assert_eq!(fit.stop_reason, "reached 40 evaluations");
 }
 
 /// A JSON array of numbers as the CLI prints a latent point (`X1,X2,...`, shortest form).
