@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::FitParams;
+use crate::config::{DataScaling, FitParams};
 use crate::error::{Error, Result};
 use crate::transform::Transform;
 
@@ -265,6 +265,40 @@ impl Model {
                 "hyperparameters must be finite and > 0, got signal_variance {}, length_scale \
                  {:?}, noise {}",
                 h.signal_variance, h.length_scale, h.noise
+            )));
+        }
+        if h.length_scale.len() != 1 && h.length_scale.len() != model.latent_dim {
+            return Err(err(format!(
+                "{} length-scales for latent_dim {}: one (isotropic) or one per latent axis",
+                h.length_scale.len(),
+                model.latent_dim
+            )));
+        }
+        let d_eff = model.dataset.d_effective;
+        if d_eff == 0 || d_eff > model.dataset.d {
+            return Err(err(format!(
+                "d_effective = {d_eff} must be in 1..={} (the dataset's D)",
+                model.dataset.d
+            )));
+        }
+        // The data scale is the Gram matrix's centred trace per value (unit-variance scaling)
+        // or 1: an edit of either alone would make every error and variance silently wrong.
+        let expected = match model.config.data_scaling {
+            DataScaling::None => 1.0,
+            DataScaling::UnitVariance => {
+                let total: f64 = g.iter().flatten().sum();
+                let trace: f64 = (0..n).map(|i| g[i][i]).sum();
+                (trace - total / n as f64) / (n as f64 * d_eff as f64)
+            }
+        };
+        // Centring cancels ~n eps of the uncentred trace; beyond that, 1e-9 relative.
+        let uncentred: f64 = (0..n).map(|i| g[i][i]).sum::<f64>() / (n as f64 * d_eff as f64);
+        let tolerance = 1e-9 * expected.abs() + 64.0 * n as f64 * f64::EPSILON * uncentred;
+        if (model.data_scale - expected).abs() > tolerance {
+            return Err(err(format!(
+                "data_scale {:e} disagrees with the Gram matrix ({expected:e} for data_scaling \
+                 {:?}): an edited Gram matrix or scale",
+                model.data_scale, model.config.data_scaling
             )));
         }
         Ok(model)

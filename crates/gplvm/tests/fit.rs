@@ -452,8 +452,33 @@ fn bad_model_files_are_clear_errors() {
     // overflows. (They used to surface later, without the file's name, or as -inf.)
     let model = Model::load(&good).unwrap();
     type Edit = (&'static str, fn(&mut Model), &'static str);
-    let edits: [Edit; 4] = [
+    let edits: [Edit; 9] = [
         ("asymmetric Gram", |m| m.gram[0][1] *= 1.5, "not symmetric"),
+        (
+            "Gram scaled (its data scale not)",
+            |m| m.gram.iter_mut().flatten().for_each(|v| *v *= 1e300),
+            "data_scale",
+        ),
+        (
+            "Gram zeroed",
+            |m| m.gram.iter_mut().flatten().for_each(|v| *v = 0.0),
+            "data_scale",
+        ),
+        (
+            "data scale edited",
+            |m| m.data_scale *= 1.0 + 1e-6,
+            "data_scale",
+        ),
+        (
+            "length-scales for 3 axes at q = 2",
+            |m| m.hyperparameters.length_scale = vec![1.0, 2.0, 3.0],
+            "3 length-scales for latent_dim 2",
+        ),
+        (
+            "no informative values",
+            |m| m.dataset.d_effective = 0,
+            "d_effective",
+        ),
         (
             "negated Gram",
             |m| m.gram.iter_mut().flatten().for_each(|v| *v = -*v),
