@@ -25,7 +25,9 @@ pub struct PredictArgs {
     )]
     pub at: Option<String>,
     /// The paper's linear interpolation NAME1,NAME2,A: a y1 + (1 - a) y2 of two training
-    /// materials, in the model's transformed space.
+    /// materials, in the model's transformed space. Names may contain commas (A, a number, is
+    /// the last field; the rest must split into two of the model's names in exactly one way);
+    /// a name is matched as given, else without spaces at its ends.
     #[arg(long)]
     pub lerp: Option<String>,
     /// Output file: `.sbrdf` (one material), `.npy` (1 x D f32), `.binary` (MERL RGB;
@@ -104,6 +106,73 @@ pub fn parse_point(s: &str) -> anyhow::Result<Vec<f64>> {
                 .with_context(|| format!("latent point {s:?}: {t:?} is not a number"))
         })
         .collect()
+}
+
+/// Reads `--lerp NAME1,NAME2,A` against the model's material `names`: the indices of the two
+/// materials and A. A is the last comma field and must be a number; names may contain commas,
+/// so the rest is split at each of its commas, and the one split whose halves both name
+/// materials is taken (a half is matched as given, else trimmed of spaces at its ends, so
+/// `a, b, 0.5` still reads). Several such splits are an ambiguity, refused naming each
+/// reading. With none, the error is `unknown(NAME)` for the half that names no material
+/// (where the other half does).
+fn parse_lerp(
+    spec: &str,
+    names: &[&str],
+    unknown: impl Fn(&str) -> anyhow::Error,
+) -> anyhow::Result<(usize, usize, f64)> {
+    let syntax = || format!("--lerp {spec:?}: expected NAME1,NAME2,A");
+    let Some((rest, a)) = spec.rsplit_once(',') else {
+        bail!("{}", syntax());
+    };
+    let a = a.trim();
+    let Ok(t) = a.parse::<f64>() else {
+        bail!(
+            "{}: A = {a:?} is not a number (A, the weight of NAME1, is the last field)",
+            syntax()
+        );
+    };
+    let find = |name: &str| {
+        let at = |n: &str| names.iter().position(|m| *m == n);
+        at(name).or_else(|| at(name.trim()))
+    };
+    let splits: Vec<(&str, &str)> = rest
+        .match_indices(',')
+        .map(|(i, _)| (&rest[..i], &rest[i + 1..]))
+        .collect();
+    let Some(&(first, _)) = splits.first() else {
+        bail!("{}: two material names before A", syntax());
+    };
+    let mut readings: Vec<(usize, usize)> = Vec::new();
+    for (x, y) in &splits {
+        if let (Some(i), Some(j)) = (find(x), find(y))
+            && !readings.contains(&(i, j))
+        {
+            readings.push((i, j));
+        }
+    }
+    match readings.as_slice() {
+        [(i, j)] => Ok((*i, *j, t)),
+        [] => {
+            let bad = splits
+                .iter()
+                .find_map(|(x, y)| match (find(x), find(y)) {
+                    (Some(_), None) => Some(*y),
+                    (None, Some(_)) => Some(*x),
+                    _ => None,
+                })
+                .unwrap_or(first);
+            Err(unknown(bad.trim()))
+        }
+        several => bail!(
+            "--lerp {spec:?} is ambiguous: the model's material names (which may contain \
+             commas) read it as {}",
+            several
+                .iter()
+                .map(|(i, j)| format!("NAME1 {:?} and NAME2 {:?}", names[*i], names[*j]))
+                .collect::<Vec<_>>()
+                .join(" or as ")
+        ),
+    }
 }
 
 /// A progress bar on standard error: `what`, elapsed time, position and what is left.
@@ -218,6 +287,21 @@ pub fn with_existing_sidecar(pred: Predictor) -> anyhow::Result<Predictor> {
 
 /// Runs `specgp predict`.
 pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
+    // What --lerp would ignore: it has no predictor to choose, nor a variance.
+    if args.lerp.is_some() {
+        for (given, flag) in [
+            (args.smooth, "--smooth"),
+            (args.exact, "--exact"),
+            (args.variance, "--variance"),
+        ] {
+            if given {
+                bail!(
+                    "{flag} applies to a latent point (--at), not to --lerp (a linear \
+                     interpolation of two training materials: no GP predictor, no variance)"
+                );
+            }
+        }
+    }
     let inputs = crate::paths::model_inputs(&args.model, args.dataset.as_deref());
     crate::paths::ensure_output_is_not_an_input(&args.out, &inputs)?;
     let bsdf = args
@@ -238,8 +322,36 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
             args.out.display()
         );
     }
+    let point = args.at.as_deref().map(parse_point).transpose()?;
     let mut pred = Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
         .with_context(|| format!("opening model {}", args.model.display()))?;
+    // The materials of --lerp, before any sidecar is built.
+    let lerp = match &args.lerp {
+        Some(spec) if point.is_none() => {
+            let names: Vec<&str> = pred
+                .model()
+                .materials
+                .iter()
+                .map(|m| m.name.as_str())
+                .collect();
+            let (i, j, t) = parse_lerp(spec, &names, |name| {
+                // A name with spaces at its ends is matched only as given: point at it.
+                if let Some(padded) = names.iter().find(|n| n.trim() == name) {
+                    return anyhow::anyhow!(
+                        "--lerp {spec:?}: no material {name:?} in model {}; did you mean \
+                         {padded:?}? (its name has spaces at its ends: give them)",
+                        args.model.display()
+                    );
+                }
+                pred.material_index(name)
+                    .map_or_else(anyhow::Error::from, |_| {
+                        anyhow::anyhow!("--lerp {spec:?}: no material {name:?}")
+                    })
+            })?;
+            Some((names[i].to_owned(), names[j].to_owned(), t))
+        }
+        _ => None,
+    };
     if args.sidecar {
         let side = pred.transformed_store_path();
         // An existing sidecar is used when it opens and belongs to this dataset; a damaged or
@@ -266,9 +378,8 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
         };
     }
     let kind = crate::cmd_sample::predictor_kind(args.smooth);
-    let mut material = match (&args.at, &args.lerp) {
-        (Some(at), _) => {
-            let x = parse_point(at)?;
+    let mut material = match (point, lerp) {
+        (Some(x), _) => {
             warn_if_far(&pred, &x)?;
             if args.variance {
                 let v = pred.variance_of(&x, kind)?;
@@ -288,19 +399,7 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
             }
             pred.predict(&x, kind)?
         }
-        (None, Some(l)) => {
-            let parts: Vec<&str> = l.split(',').map(str::trim).collect();
-            let [a, b, t] = parts.as_slice() else {
-                bail!("--lerp {l:?}: expected NAME1,NAME2,A");
-            };
-            let t: f64 = t
-                .parse()
-                .with_context(|| format!("--lerp {l:?}: A = {t:?} is not a number"))?;
-            if args.variance {
-                bail!("--variance applies to a latent point (--at), not to --lerp");
-            }
-            pred.lerp(a, b, t)?
-        }
+        (None, Some((a, b, t))) => pred.lerp(&a, &b, t)?,
         (None, None) => bail!("give --at X,Y or --lerp NAME1,NAME2,A"),
     };
     if let Some(spec) = &args.wavelengths {
@@ -500,5 +599,52 @@ mod tests {
             .unwrap()
             .unwrap_err();
         assert!(format!("{e:#}").contains("/nonexistent/m.toml"), "{e:#}");
+    }
+
+    #[test]
+    fn lerp_names_may_contain_commas_and_spaces() {
+        let names = ["a", "a,b", "b,c", "c", "gp-exact@0.1,0.2", " pad "];
+        let unknown = |n: &str| anyhow::anyhow!("unknown {n:?}");
+        let read = |spec: &str| parse_lerp(spec, &names, unknown);
+        // The plain syntax, with spaces around the fields.
+        assert_eq!(read("a,c,0.25").unwrap(), (0, 3, 0.25));
+        assert_eq!(read(" a , c , -1e-1").unwrap(), (0, 3, -0.1));
+        // Names with commas, where one split reads.
+        assert_eq!(read("gp-exact@0.1,0.2,c,0.5").unwrap(), (4, 3, 0.5));
+        assert_eq!(read("c,gp-exact@0.1,0.2,1").unwrap(), (3, 4, 1.0));
+        assert_eq!(read("a,b,a,0.5").unwrap(), (1, 0, 0.5));
+        // A name with spaces at its ends, as given; trimmed, it is not a name.
+        assert_eq!(read(" pad ,c,0.5").unwrap(), (5, 3, 0.5));
+        assert_eq!(
+            read("pad,c,0.5").unwrap_err().to_string(),
+            "unknown \"pad\""
+        );
+        // Two readings: refused, naming both.
+        let e = read("a,b,c,0.5").unwrap_err().to_string();
+        assert!(
+            e.contains("is ambiguous")
+                && e.contains("NAME1 \"a\" and NAME2 \"b,c\"")
+                && e.contains("NAME1 \"a,b\" and NAME2 \"c\""),
+            "{e}"
+        );
+        // The unknown half is the one reported (the other names a material).
+        assert_eq!(
+            read("c,metal,0.5").unwrap_err().to_string(),
+            "unknown \"metal\""
+        );
+        assert_eq!(
+            read("metal, c,0.5").unwrap_err().to_string(),
+            "unknown \"metal\""
+        );
+        // Syntax: A last, a number; two names before it.
+        for (bad, want) in [
+            ("a,c", "A = \"c\" is not a number"),
+            ("a,c,x", "A = \"x\" is not a number"),
+            ("a,0.5", "two material names before A"),
+            ("a", "expected NAME1,NAME2,A"),
+        ] {
+            let e = read(bad).unwrap_err().to_string();
+            assert!(e.contains(want), "{bad}: {e}");
+        }
     }
 }

@@ -1579,6 +1579,118 @@ fn ignored_options_are_refused_before_any_work() {
     assert_eq!(fit.stop_reason, "reached 40 evaluations");
 }
 
+/// `predict --lerp NAME1,NAME2,A` reads material names that contain commas (`import` accepts
+/// them, `predict` writes `gp-exact@X,Y`) or spaces at their ends; a split with two readings is
+/// refused, and --smooth, --exact and --variance, which --lerp would ignore, before any work.
+#[test]
+fn lerp_reads_names_with_commas() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let info = brdf_io::StoreInfo {
+        grid: AngularGrid::new(3, 3, 4).unwrap(),
+        channels: brdf_io::Channels::Rgb,
+    };
+    let mask = info.grid.validity_mask();
+    let row = |m: usize| -> Vec<f32> {
+        (0..info.d())
+            .map(|k| {
+                if mask[k / 3] {
+                    0.05 + ((m * 37 + k * 11) % 17) as f32 / 10.0
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    };
+    let names = ["a", "a,b", "b,c", "c", "gp-exact@0.1,0.2", " pad "];
+    let mut w = brdf_io::StoreWriter::create(
+        d.join("data.sbrdf"),
+        info.clone(),
+        brdf_io::StoreOptions::default(),
+    )
+    .unwrap();
+    for (m, name) in names.iter().enumerate() {
+        w.add_material(name, "test", &row(m)).unwrap();
+    }
+    w.finish().unwrap();
+    specgp(
+        &[
+            "fit",
+            "data.sbrdf",
+            "--out",
+            "m.toml",
+            "--transform",
+            "raw",
+            "--latent-dim",
+            "2",
+        ],
+        d,
+    );
+    // a y1 + (1 - a) y2 of the named rows (raw values: no transform between).
+    let lerp = |spec: &str, i: usize, j: usize, a: f64| {
+        std::fs::remove_file(d.join("l.npy")).ok();
+        specgp(&["predict", "m.toml", "--lerp", spec, "--out", "l.npy"], d);
+        let NpyData::F32(got) = read(d.join("l.npy")).unwrap().data else {
+            panic!("expected f32")
+        };
+        let (y1, y2) = (row(i), row(j));
+        for (k, g) in got.iter().enumerate() {
+            let want = a * f64::from(y1[k]) + (1.0 - a) * f64::from(y2[k]);
+            assert!(
+                (f64::from(*g) - want).abs() <= 1e-5 * want.max(1e-3),
+                "{spec}: value {k}: {g} vs {want}"
+            );
+        }
+    };
+    lerp("gp-exact@0.1,0.2,c,0.25", 4, 3, 0.25);
+    lerp("a,b,a,0.75", 1, 0, 0.75);
+    lerp(" pad , c , 0.5", 5, 3, 0.5);
+    lerp("a, c,1", 0, 3, 1.0);
+    let e = specgp_fails(
+        &["predict", "m.toml", "--lerp", "a,b,c,0.5", "--out", "x.npy"],
+        d,
+    );
+    assert!(
+        e.contains("\"a,b,c,0.5\" is ambiguous")
+            && e.contains("NAME1 \"a\" and NAME2 \"b,c\"")
+            && e.contains("NAME1 \"a,b\" and NAME2 \"c\""),
+        "{e}"
+    );
+    let e = specgp_fails(
+        &["predict", "m.toml", "--lerp", "pad,c,0.5", "--out", "x.npy"],
+        d,
+    );
+    assert!(e.contains("did you mean \" pad \"?"), "{e}");
+    for flag in ["--smooth", "--exact", "--variance"] {
+        let e = specgp_fails(
+            &[
+                "predict",
+                "m.toml",
+                "--lerp",
+                "a,c,0.5",
+                flag,
+                "--sidecar",
+                "--out",
+                "x.npy",
+            ],
+            d,
+        );
+        assert!(
+            e.contains(&format!(
+                "{flag} applies to a latent point (--at), not to --lerp"
+            )),
+            "{e}"
+        );
+    }
+    // Refused before any work: no output, no sidecar built.
+    assert!(!d.join("x.npy").exists());
+    assert_eq!(
+        std::fs::read_dir(d).unwrap().count(),
+        3,
+        "data, model, l.npy"
+    );
+}
+
 /// A JSON array of numbers as the CLI prints a latent point (`X1,X2,...`, shortest form).
 fn point_text(point: &serde_json::Value) -> String {
     point
