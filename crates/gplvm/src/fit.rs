@@ -250,6 +250,14 @@ pub fn fit_gram(g: MatRef<'_, f64>, d: usize, config: &FitConfig) -> Result<Fit>
             q + 1 - n
         );
     }
+    let (s2, mu) = (p.amplitude * p.amplitude, p.noise);
+    if s2 + mu == s2 {
+        tracing::warn!(
+            "noise {mu:e} is below the rounding of the kernel's diagonal s^2 + mu = {s2:e}: it \
+             acts as 0 (any noise under {:.0e} fits the same)",
+            s2 * f64::EPSILON / 2.0
+        );
+    }
     let pca = Pca::from_centred_gram(s.as_ref(), q)?;
     let objective = GplvmObjective::new(s, d)?.with_prior(p.prior);
     let template = template_params(config)?;
