@@ -294,9 +294,67 @@ fn import_nbrdf(args: &NbrdfArgs) -> anyhow::Result<()> {
     )
 }
 
+/// Whether the RGL file `path` is spectral (a `wavelengths` field) or RGB (an `rgb` field),
+/// from the field list of its header alone (a few hundred bytes; the tables stay unread).
+/// `None` when the header cannot be read that far: the file's own error comes when it is
+/// opened.
+fn rgl_is_spectral(path: &Path) -> Option<bool> {
+    use std::io::Read;
+    let mut r = std::io::BufReader::new(File::open(path).ok()?);
+    let mut take = |n: usize| -> Option<Vec<u8>> {
+        let mut b = vec![0; n];
+        r.read_exact(&mut b).ok()?;
+        Some(b)
+    };
+    let u16_le = |b: Vec<u8>| Some(u16::from_le_bytes(b.try_into().ok()?));
+    // Magic, version, field count (tensor_file, as `brdf_io::tensor::TensorFile` reads it).
+    if take(12)? != b"tensor_file\0" {
+        return None;
+    }
+    take(2)?;
+    let fields = u32::from_le_bytes(take(4)?.try_into().ok()?);
+    let mut rgb = false;
+    for _ in 0..fields.min(1024) {
+        let len = usize::from(u16_le(take(2)?)?);
+        let name = take(len)?;
+        let rank = usize::from(u16_le(take(2)?)?);
+        take(1 + 8 + 8 * rank)?; // dtype code, offset, shape
+        match name.as_slice() {
+            b"wavelengths" => return Some(true),
+            b"rgb" => rgb = true,
+            _ => {}
+        }
+    }
+    rgb.then_some(false)
+}
+
+/// Refuses, before any file is resampled, RGL files that mix spectral and RGB data (a store
+/// holds one kind) and `--wavelengths` for RGB files; each message names the files.
+fn ensure_one_kind_of_rgl(args: &RglArgs) -> anyhow::Result<()> {
+    let kinds: Vec<(&PathBuf, bool)> = args
+        .files
+        .iter()
+        .filter_map(|f| rgl_is_spectral(f).map(|s| (f, s)))
+        .collect();
+    let spectral = kinds.iter().find(|(_, s)| *s).map(|(f, _)| f.display());
+    let rgb = kinds.iter().find(|(_, s)| !*s).map(|(f, _)| f.display());
+    match (spectral, rgb) {
+        (Some(s), Some(r)) => bail!(
+            "the files mix spectral and RGB data: {s} is spectral, {r} is RGB; a store holds \
+             one kind, so import them into separate stores"
+        ),
+        (None, Some(r)) if args.wavelengths.is_some() => bail!(
+            "{r}: RGB data has no wavelengths; leave out --wavelengths (its R, G, B channels \
+             are read as they are)"
+        ),
+        _ => Ok(()),
+    }
+}
+
 fn import_rgl(args: &RglArgs) -> anyhow::Result<()> {
     use brdf_io::rgl::RglBsdf;
     ensure_unique_names(&file_names(&args.files))?;
+    ensure_one_kind_of_rgl(args)?;
     let options = brdf_io::source::ResampleOptions {
         reciprocal: !args.no_reciprocal,
         ..Default::default()

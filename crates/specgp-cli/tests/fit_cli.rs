@@ -1586,33 +1586,9 @@ fn ignored_options_are_refused_before_any_work() {
 fn lerp_reads_names_with_commas() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let info = brdf_io::StoreInfo {
-        grid: AngularGrid::new(3, 3, 4).unwrap(),
-        channels: brdf_io::Channels::Rgb,
-    };
-    let mask = info.grid.validity_mask();
-    let row = |m: usize| -> Vec<f32> {
-        (0..info.d())
-            .map(|k| {
-                if mask[k / 3] {
-                    0.05 + ((m * 37 + k * 11) % 17) as f32 / 10.0
-                } else {
-                    0.0
-                }
-            })
-            .collect()
-    };
     let names = ["a", "a,b", "b,c", "c", "gp-exact@0.1,0.2", " pad "];
-    let mut w = brdf_io::StoreWriter::create(
-        d.join("data.sbrdf"),
-        info.clone(),
-        brdf_io::StoreOptions::default(),
-    )
-    .unwrap();
-    for (m, name) in names.iter().enumerate() {
-        w.add_material(name, "test", &row(m)).unwrap();
-    }
-    w.finish().unwrap();
+    let rows = rgb_store(&d.join("data.sbrdf"), &names);
+    let row = |m: usize| rows[m].clone();
     specgp(
         &[
             "fit",
@@ -1689,6 +1665,88 @@ fn lerp_reads_names_with_commas() {
         3,
         "data, model, l.npy"
     );
+}
+
+/// A store with RGB materials `names` on a 3 x 3 x 4 grid in `path` (values positive above
+/// the horizon, different per material).
+fn rgb_store(path: &Path, names: &[&str]) -> Vec<Vec<f32>> {
+    let info = brdf_io::StoreInfo {
+        grid: AngularGrid::new(3, 3, 4).unwrap(),
+        channels: brdf_io::Channels::Rgb,
+    };
+    let mask = info.grid.validity_mask();
+    let rows: Vec<Vec<f32>> = (0..names.len())
+        .map(|m| {
+            (0..info.d())
+                .map(|k| {
+                    if mask[k / 3] {
+                        0.05 + ((m * 37 + k * 11) % 17) as f32 / 10.0
+                    } else {
+                        0.0
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    let mut w = brdf_io::StoreWriter::create(path, info, brdf_io::StoreOptions::default()).unwrap();
+    for (name, row) in names.iter().zip(&rows) {
+        w.add_material(name, "test", row).unwrap();
+    }
+    w.finish().unwrap();
+    rows
+}
+
+/// `import rgl` of spectral and RGB files together is refused before any file is resampled,
+/// naming one file of each kind; so is --wavelengths for RGB files.
+#[test]
+fn import_rgl_refuses_mixed_spectral_and_rgb_files_up_front() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    synth_small(d, "400:700:100");
+    rgb_store(&d.join("rgb.sbrdf"), &["grey"]);
+    let small = ["--theta-samples", "4", "--resolution", "8"];
+    for (source, out) in [
+        ("data.sbrdf:metal_gold", "gold_spec.bsdf"),
+        ("data.sbrdf:paper_white", "paper_spec.bsdf"),
+        ("rgb.sbrdf:grey", "grey_rgb.bsdf"),
+    ] {
+        let mut args = vec!["convert", source, "--out", out];
+        args.extend_from_slice(&small);
+        specgp(&args, d);
+    }
+    let import = |files: &[&'static str], extra: &[&'static str]| {
+        let mut args = vec!["import", "rgl"];
+        args.extend_from_slice(files);
+        args.extend_from_slice(&["--grid", "8,8,16", "--out", "mix.sbrdf"]);
+        args.extend_from_slice(extra);
+        args
+    };
+    for files in [
+        &["gold_spec.bsdf", "paper_spec.bsdf", "grey_rgb.bsdf"][..],
+        &["grey_rgb.bsdf", "gold_spec.bsdf"],
+    ] {
+        let e = specgp_fails(&import(files, &[]), d);
+        assert!(
+            e.contains(
+                "the files mix spectral and RGB data: gold_spec.bsdf is spectral, \
+                 grey_rgb.bsdf is RGB"
+            ),
+            "{e}"
+        );
+        // Nothing was resampled (no per-material report) nor written.
+        assert!(!e.contains("values (min"), "{e}");
+        assert!(!d.join("mix.sbrdf").exists());
+    }
+    let e = specgp_fails(&import(&["grey_rgb.bsdf"], &["--wavelengths", "500"]), d);
+    assert!(
+        e.contains("grey_rgb.bsdf: RGB data has no wavelengths; leave out --wavelengths"),
+        "{e}"
+    );
+    // One kind imports, at the first file's own channels.
+    specgp(&import(&["gold_spec.bsdf", "paper_spec.bsdf"], &[]), d);
+    let store = brdf_io::store::Store::open(d.join("mix.sbrdf")).unwrap();
+    assert_eq!(store.names(), ["gold_spec", "paper_spec"]);
+    assert_eq!(store.channels().labels(), ["400", "500", "600", "700"]);
 }
 
 /// A JSON array of numbers as the CLI prints a latent point (`X1,X2,...`, shortest form).
