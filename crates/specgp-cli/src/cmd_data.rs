@@ -254,6 +254,14 @@ fn import_merl(args: &MerlArgs) -> anyhow::Result<()> {
 
 fn import_nbrdf(args: &NbrdfArgs) -> anyhow::Result<()> {
     use brdf_io::nbrdf::{NbrdfOptions, NbrdfSet};
+    // A name given twice in --only is the command line's mistake, not names.txt's.
+    let mut seen = std::collections::HashSet::new();
+    if let Some(repeated) = args.only.iter().flatten().find(|n| !seen.insert(n.trim())) {
+        bail!(
+            "--only names {:?} twice (names in a store must be unique)",
+            repeated.trim()
+        );
+    }
     let set = NbrdfSet::open(&args.weights, &args.names)?;
     let rows: Vec<usize> = match &args.only {
         Some(names) => names

@@ -1749,6 +1749,32 @@ fn import_rgl_refuses_mixed_spectral_and_rgb_files_up_front() {
     assert_eq!(store.channels().labels(), ["400", "500", "600", "700"]);
 }
 
+/// `import nbrdf --only` with a name twice says so (it blamed a line of the names file), before
+/// the network files are read.
+#[test]
+fn nbrdf_only_with_a_repeated_name_names_the_option() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let e = specgp_fails(
+        &[
+            "import",
+            "nbrdf",
+            "weights.npy",
+            "--names",
+            "names.txt",
+            "--only",
+            "bluebook, alum-bronze,bluebook",
+            "--out",
+            "n.sbrdf",
+        ],
+        d,
+    );
+    assert!(
+        e.contains("--only names \"bluebook\" twice") && !e.contains("names.txt"),
+        "{e}"
+    );
+}
+
 /// A JSON array of numbers as the CLI prints a latent point (`X1,X2,...`, shortest form).
 fn point_text(point: &serde_json::Value) -> String {
     point
