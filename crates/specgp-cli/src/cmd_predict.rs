@@ -99,6 +99,9 @@ pub fn format_point(x: &[f64]) -> String {
 
 /// Parses a latent point `X,Y[,...]`.
 pub fn parse_point(s: &str) -> anyhow::Result<Vec<f64>> {
+    if s.trim().is_empty() {
+        bail!("the latent point is empty: expected its coordinates X1,...,Xq");
+    }
     s.split(',')
         .map(|t| {
             t.trim()
@@ -199,7 +202,21 @@ pub fn open_model_source(
         return None;
     }
     Some((|| {
-        let x = parse_point(point)?;
+        if point.trim().is_empty() {
+            let q = gplvm::Model::load(Path::new(model)).map(|m| m.latent_dim);
+            let example = match q {
+                Ok(q) => format!(
+                    "all {q} coordinates, e.g. {model}@{}",
+                    vec!["0"; q].join(",")
+                ),
+                Err(_) => format!("all its coordinates, as {model}@X1,...,Xq"),
+            };
+            bail!(
+                "{spec}: no latent point after the '@' of model {model}: give {example} (`specgp \
+                 latent {model}` lists the materials' points)"
+            );
+        }
+        let x = parse_point(point).with_context(|| format!("model {model}"))?;
         let pred =
             open_model_of_source(Path::new(model)).with_context(|| format!("opening {model}"))?;
         warn_if_far(&pred, &x)?;
@@ -593,6 +610,25 @@ mod tests {
         assert_eq!(parse_point(&format_point(&x)).unwrap(), x);
         let e = parse_point("0.5,x").unwrap_err().to_string();
         assert!(e.contains("\"x\" is not a number"), "{e}");
+        let e = parse_point(" ").unwrap_err().to_string();
+        assert!(e.contains("the latent point is empty"), "{e}");
+        // A model point names its model, also when the point is missing or not a number.
+        for (spec, want) in [
+            (
+                "/nonexistent/m.toml@",
+                "/nonexistent/m.toml@: no latent point after the '@' of model \
+                 /nonexistent/m.toml: give all its coordinates",
+            ),
+            (
+                "/nonexistent/m.toml@0.5,x",
+                "model /nonexistent/m.toml: latent point \"0.5,x\": \"x\" is not a number",
+            ),
+        ] {
+            let e = open_model_source(spec, None, PredictorKind::Exact)
+                .unwrap()
+                .unwrap_err();
+            assert!(format!("{e:#}").contains(want), "{e:#}");
+        }
         assert!(open_model_source("data.sbrdf:felt", None, PredictorKind::Exact).is_none());
         assert!(open_model_source("file.bsdf", None, PredictorKind::Exact).is_none());
         let e = open_model_source("/nonexistent/m.toml@0,0", None, PredictorKind::Exact)

@@ -1343,6 +1343,14 @@ fn source_mistakes_say_how_to_fix_them() {
     );
     let e = specgp_fails(&["render", "m.toml@0.1,0.2", "--out", "x.png"], d);
     assert!(e.contains("give all 3 coordinates, e.g. 0,0,0"), "{e}");
+    let e = specgp_fails(&["render", "m.toml@", "--out", "x.png"], d);
+    assert!(
+        e.contains(
+            "m.toml@: no latent point after the '@' of model m.toml: give all 3 coordinates, \
+             e.g. m.toml@0,0,0"
+        ),
+        "{e}"
+    );
     let e = specgp_fails(
         &[
             "predict",
