@@ -21,7 +21,7 @@ pub struct RenderArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Image width and height in pixels (1..=8192).
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 256, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=render::map::MAX_MAP_PIXELS as u64))]
     pub size: usize,
     /// Direction of the light THETA,PHI in degrees: THETA from the view axis, PHI from the
     /// right towards up.

@@ -1343,6 +1343,19 @@ fn source_mistakes_say_how_to_fix_them() {
     );
     let e = specgp_fails(&["render", "m.toml@0.1,0.2", "--out", "x.png"], d);
     assert!(e.contains("give all 3 coordinates, e.g. 0,0,0"), "{e}");
+    // An image size out of range is a plain range message, before the source is opened.
+    for size in ["0", "8193"] {
+        let e = specgp_fails(
+            &["render", "nowhere.bsdf", "--size", size, "--out", "x.png"],
+            d,
+        );
+        assert!(
+            e.contains(&format!("invalid value '{size}' for '--size <SIZE>'"))
+                && e.contains("not in 1..=8192")
+                && !e.contains("bytes a pixel"),
+            "{e}"
+        );
+    }
     let e = specgp_fails(&["render", "m.toml@", "--out", "x.png"], d);
     assert!(
         e.contains(
