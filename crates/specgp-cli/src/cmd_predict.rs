@@ -91,10 +91,24 @@ pub struct EvaluateArgs {
     pub dataset: Option<PathBuf>,
 }
 
+/// `v` in the shortest form that reads back exactly: plain digits from 1e-4 to 1e6 (`0.25`,
+/// `40`), else with an exponent (`1e100`, `-2.5e-7`; plain digits would run to a hundred
+/// and more).
+pub fn format_number(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() || (1e-4..1e6).contains(&v.abs()) {
+        v.to_string()
+    } else {
+        format!("{v:e}")
+    }
+}
+
 /// A latent point as `X1,X2,...` in the shortest form that [`parse_point`] reads back exactly
-/// (for `MODEL.toml@X1,...` and `--at`).
+/// (for `MODEL.toml@X1,...` and `--at`; [`format_number`]).
 pub fn format_point(x: &[f64]) -> String {
-    x.iter().map(f64::to_string).collect::<Vec<_>>().join(",")
+    x.iter()
+        .map(|v| format_number(*v))
+        .collect::<Vec<_>>()
+        .join(",")
 }
 
 /// Parses a latent point `X,Y[,...]`.
@@ -254,13 +268,18 @@ fn open_model_of_source(model: &Path) -> anyhow::Result<Predictor> {
 pub fn warn_if_far(pred: &Predictor, x: &[f64]) -> anyhow::Result<()> {
     let s = pred.support(x)?;
     if s.is_far() {
+        // Far can be very far (a typo of 1e100): exponents rather than a hundred digits.
+        let distance = if s.distance < 1e6 {
+            format!("{:.1}", s.distance)
+        } else {
+            format!("{:.1e}", s.distance)
+        };
         tracing::warn!(
-            "latent point {} is far from every material (nearest: {}, {:.1} length-scales \
+            "latent point {} is far from every material (nearest: {}, {distance} length-scales \
              away; {:.0} % of the prior variance is left there): the prediction is close to the \
              mean of the data",
-            x.iter().map(f64::to_string).collect::<Vec<_>>().join(","),
+            format_point(x),
             s.nearest,
-            s.distance,
             100.0 * s.variance_fraction.min(1.0)
         );
     }
@@ -606,8 +625,22 @@ mod tests {
     #[test]
     fn parses_points_and_recognises_model_sources() {
         assert_eq!(parse_point("0.5,-1e-3").unwrap(), vec![0.5, -1e-3]);
-        let x = [0.1 + 0.2, -1e-300, 12345.678];
+        let x = [
+            0.1 + 0.2,
+            -1e-300,
+            12345.678,
+            1e100,
+            0.0,
+            1e-4,
+            9.5e5,
+            2.5e-7,
+            -1e6,
+        ];
         assert_eq!(parse_point(&format_point(&x)).unwrap(), x);
+        assert_eq!(
+            format_point(&x),
+            "0.30000000000000004,-1e-300,12345.678,1e100,0,0.0001,950000,2.5e-7,-1e6"
+        );
         let e = parse_point("0.5,x").unwrap_err().to_string();
         assert!(e.contains("\"x\" is not a number"), "{e}");
         let e = parse_point(" ").unwrap_err().to_string();

@@ -1397,6 +1397,23 @@ fn source_mistakes_say_how_to_fix_them() {
     assert!(!d.join("x.png").exists() && !d.join("x.npy").exists());
     // A latent point far from every material renders, with a warning saying so; a point
     // between materials does not warn.
+    // Very far: numbers with exponents, not a hundred digits.
+    let (_, err) = specgp_outputs(
+        &[
+            "render",
+            "m.toml@1e100,-2.5e-7,0",
+            "--size",
+            "16",
+            "--out",
+            "far.png",
+        ],
+        d,
+    );
+    assert!(
+        err.contains("latent point 1e100,-2.5e-7,0 is far from every material")
+            && err.contains(", 1.0e100 length-scales away;"),
+        "{err}"
+    );
     let (_, err) = specgp_outputs(
         &[
             "render",
@@ -1796,13 +1813,21 @@ fn nbrdf_only_with_a_repeated_name_names_the_option() {
     );
 }
 
-/// A JSON array of numbers as the CLI prints a latent point (`X1,X2,...`, shortest form).
+/// A JSON array of numbers as the CLI prints a latent point (`X1,X2,...`, shortest form: plain
+/// digits from 1e-4 to 1e6, else an exponent).
 fn point_text(point: &serde_json::Value) -> String {
     point
         .as_array()
         .unwrap()
         .iter()
-        .map(|v| v.as_f64().unwrap().to_string())
+        .map(|v| {
+            let v = v.as_f64().unwrap();
+            if v == 0.0 || (1e-4..1e6).contains(&v.abs()) {
+                v.to_string()
+            } else {
+                format!("{v:e}")
+            }
+        })
         .collect::<Vec<_>>()
         .join(",")
 }
