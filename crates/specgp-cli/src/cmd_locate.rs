@@ -29,7 +29,8 @@ pub struct LocateArgs {
     /// best; 1..=1000).
     #[arg(long, default_value_t = 3, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1000))]
     pub starts: usize,
-    /// Write the locations as JSON (`-`: standard output; the table then goes to standard error).
+    /// Write the locations as JSON (`.json`; `-`: standard output, the table then goes to
+    /// standard error).
     #[arg(long)]
     pub json: Option<PathBuf>,
     /// Read the model's dataset from this store instead of the path recorded in the model.
@@ -200,6 +201,7 @@ pub fn locate_command(args: &LocateArgs) -> anyhow::Result<()> {
         let mut inputs = crate::paths::model_inputs(&args.model, args.dataset.as_deref());
         inputs.extend(target_files.iter().map(PathBuf::as_path));
         crate::paths::ensure_output_is_not_an_input(json, &inputs)?;
+        crate::paths::ensure_extension(json, "json", "a JSON file")?;
     }
     let pred = Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
         .with_context(|| format!("opening model {}", args.model.display()))?;

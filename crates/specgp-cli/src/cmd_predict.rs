@@ -71,7 +71,8 @@ pub struct EvaluateArgs {
     /// and PCA.
     #[arg(long)]
     pub loo: bool,
-    /// Write the full results (per material and summary) as JSON.
+    /// Write the full results (per material and summary) as JSON (`.json`; `-`: standard
+    /// output, the table then goes to standard error).
     #[arg(long)]
     pub json: Option<PathBuf>,
     /// With --loo: starting points of the latent search per held-out material (1..=1000; at
@@ -546,6 +547,7 @@ pub fn evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
     if let Some(json) = &args.json {
         let inputs = crate::paths::model_inputs(&args.model, args.dataset.as_deref());
         crate::paths::ensure_output_is_not_an_input(json, &inputs)?;
+        crate::paths::ensure_extension(json, "json", "a JSON file")?;
     }
     let pred = Predictor::open_with_dataset(&args.model, args.dataset.as_deref())
         .with_context(|| format!("opening model {}", args.model.display()))?;

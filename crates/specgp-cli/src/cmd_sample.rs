@@ -67,8 +67,8 @@ pub struct SampleArgs {
     /// z = normal; a header line is allowed).
     #[arg(long)]
     pub dirs: PathBuf,
-    /// Output CSV: a header naming the channels, then one row of values (1/sr) per pair (`-`:
-    /// standard output).
+    /// Output CSV (`.csv`): a header naming the channels, then one row of values (1/sr) per
+    /// pair (`-`: standard output).
     #[arg(long)]
     pub out: PathBuf,
 }
@@ -272,6 +272,7 @@ pub fn sample_csv(source: &dyn BrdfSource, pairs: &[(Vec3, Vec3)]) -> anyhow::Re
 /// Runs `specgp sample`.
 pub fn sample(args: &SampleArgs) -> anyhow::Result<()> {
     crate::paths::ensure_output_is_not_an_input(&args.out, &[&args.dirs, &args.from.file()])?;
+    crate::paths::ensure_extension(&args.out, "csv", "a CSV file")?;
     let source = args.from.open()?;
     let text = std::fs::read_to_string(&args.dirs)
         .with_context(|| format!("reading {}", args.dirs.display()))?;

@@ -1617,6 +1617,67 @@ fn ignored_options_are_refused_before_any_work() {
     assert_eq!(fit.stop_reason, "reached 40 evaluations");
 }
 
+/// Outputs whose name says another format than the one written are refused before any work
+/// (as render, export, fit and predict refuse them): sample writes CSV, evaluate and locate
+/// --json JSON; `-` is standard output.
+#[test]
+fn sample_evaluate_and_locate_outputs_must_name_their_format() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    fitted_small(d, "400:700:100");
+    std::fs::write(d.join("dirs.csv"), "0,0,1,0,0,1\n").unwrap();
+    let cases: [(&[&str], &str, &str); 4] = [
+        (
+            &[
+                "sample",
+                "data.sbrdf:paper_white",
+                "--dirs",
+                "dirs.csv",
+                "--out",
+            ],
+            "v.npy",
+            "v.npy: the output is a CSV file; its name must end in .csv",
+        ),
+        (
+            &["evaluate", "m.toml", "--json"],
+            "e.txt",
+            "e.txt: the output is a JSON file; its name must end in .json",
+        ),
+        (
+            &["evaluate", "m.toml", "--json"],
+            "e",
+            "e: the output is a JSON file; its name must end in .json",
+        ),
+        (
+            &["locate", "m.toml", "data.sbrdf:metal_gold", "--json"],
+            "l.csv",
+            "l.csv: the output is a JSON file; its name must end in .json",
+        ),
+    ];
+    for (args, bad, want) in cases {
+        let mut a = args.to_vec();
+        a.push(bad);
+        let e = specgp_fails(&a, d);
+        assert!(e.contains(want), "{a:?}: {e}");
+        assert!(!d.join(bad).exists());
+        // The format's own extension, any case, and standard output are written.
+        let good = if args[0] == "sample" {
+            "v.CSV"
+        } else {
+            "r.json"
+        };
+        let mut a = args.to_vec();
+        a.push(good);
+        specgp(&a, d);
+        assert!(d.join(good).is_file());
+        let mut a = args.to_vec();
+        a.push("-");
+        assert!(!specgp(&a, d).is_empty());
+    }
+    let csv = std::fs::read_to_string(d.join("v.CSV")).unwrap();
+    assert!(csv.starts_with("400,500,600,700\n"), "{csv}");
+}
+
 /// `predict --lerp NAME1,NAME2,A` reads material names that contain commas (`import` accepts
 /// them, `predict` writes `gp-exact@X,Y`) or spaces at their ends; a split with two readings is
 /// refused, and --smooth, --exact and --variance, which --lerp would ignore, before any work.
