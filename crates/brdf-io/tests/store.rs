@@ -566,12 +566,39 @@ fn missing_file_and_wrong_magic() {
     let e = Store::open(&other).unwrap_err();
     assert!(matches!(e, Error::NotAStore { .. }), "{e}");
     names_file(&e, &other);
-    let empty = t.path().join("empty.sbrdf");
-    std::fs::write(&empty, b"").unwrap();
-    assert!(matches!(
-        Store::open(&empty).unwrap_err(),
-        Error::NotAStore { .. }
-    ));
+    assert!(e.to_string().contains("an RGL .bsdf tensor file"), "{e}");
+    // Other files a user may hand over by mistake are named for what they are.
+    let mut merl: Vec<u8> = [2i32, 1, 3].iter().flat_map(|d| d.to_le_bytes()).collect();
+    merl.extend((0..18).flat_map(|_| 0.5f64.to_le_bytes()));
+    let mut npy = b"\x93NUMPY\x01\x00".to_vec();
+    npy.extend([b' '; 80]);
+    for (name, bytes, says) in [
+        ("empty.sbrdf", Vec::new(), "the file is empty"),
+        (
+            "png.sbrdf",
+            b"\x89PNG\r\n\x1a\n0000".to_vec(),
+            "a PNG image",
+        ),
+        ("npy.sbrdf", npy, "a NumPy .npy array"),
+        ("merl.sbrdf", merl, "a MERL .binary BRDF (2 x 1 x 3"),
+        (
+            "model.sbrdf",
+            b"format = \"specgp-model\"\nversion = 1\n".to_vec(),
+            "the file is text (starts \"format = ",
+        ),
+        (
+            "odd.sbrdf",
+            vec![0u8, 1, 2, 3, 250, 251, 252, 253, 7],
+            "file starts with [00, 01",
+        ),
+    ] {
+        let path = t.path().join(name);
+        std::fs::write(&path, bytes).unwrap();
+        let e = Store::open(&path).unwrap_err();
+        assert!(matches!(e, Error::NotAStore { .. }), "{name}: {e}");
+        names_file(&e, &path);
+        assert!(e.to_string().contains(says), "{name}: {e}");
+    }
 }
 
 #[test]

@@ -311,6 +311,8 @@ impl Model {
             reason,
         };
         let text = toml::to_string_pretty(self).map_err(|e| err(e.to_string()))?;
-        brdf_io::output::write_file_atomic(path, text.as_bytes()).map_err(|e| err(e.to_string()))
+        // brdf-io's error names the path itself (wrapping it in `Error::File` said it twice).
+        brdf_io::output::write_file_atomic(path, text.as_bytes())?;
+        Ok(())
     }
 }

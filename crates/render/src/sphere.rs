@@ -232,7 +232,7 @@ impl SphereOptions {
         let bad = |reason: String| Err(Error::InvalidArgument { reason });
         if self.size == 0 || self.size > crate::map::MAX_MAP_PIXELS {
             return bad(format!(
-                "size {} is not in 1..={} (an image of 32 bytes a pixel while it is drawn)",
+                "image size {} pixels is not in 1..={}",
                 self.size,
                 crate::map::MAX_MAP_PIXELS
             ));

@@ -113,11 +113,7 @@ impl Store {
         if have < MAGIC.len() || prefix[..8] != MAGIC {
             return Err(Error::NotAStore {
                 path,
-                reason: format!(
-                    "file starts with {:02x?}, expected {:02x?}",
-                    &prefix[..have.min(8)],
-                    MAGIC
-                ),
+                reason: describe_foreign_file(&prefix[..have], file_len),
             });
         }
         if have < PREFIX_LEN {
@@ -786,4 +782,64 @@ impl std::fmt::Debug for Store {
             .field("layout", &self.header.layout)
             .finish()
     }
+}
+
+/// What a file that is not a store holds, from its first bytes: a format specgp meets
+/// elsewhere when recognisable, else the bytes against the store's magic.
+fn describe_foreign_file(head: &[u8], file_len: u64) -> String {
+    let known: [(&[u8], &str); 6] = [
+        (b"\x89PNG", "a PNG image"),
+        (
+            b"\x93NUMPY",
+            "a NumPy .npy array (`specgp export` writes these)",
+        ),
+        (
+            b"tensor_file\0",
+            "an RGL .bsdf tensor file (import it: `specgp import rgl`)",
+        ),
+        (b"PK\x03\x04", "a zip archive"),
+        (b"\x28\xb5\x2f\xfd", "a bare zstd frame"),
+        (b"\x1f\x8b", "a gzip file"),
+    ];
+    if head.is_empty() {
+        return "the file is empty".into();
+    }
+    if let Some((_, what)) = known.iter().find(|(m, _)| head.starts_with(m)) {
+        return format!("the file is {what}");
+    }
+    // MERL's `.binary`: three positive i32 dimensions, then 3 x their product f64 values.
+    if head.len() >= 12 {
+        let dim = |k: usize| {
+            i32::from_le_bytes([
+                head[4 * k],
+                head[4 * k + 1],
+                head[4 * k + 2],
+                head[4 * k + 3],
+            ])
+        };
+        let dims = [dim(0), dim(1), dim(2)];
+        if dims.iter().all(|&d| d > 0) {
+            let values = dims.iter().map(|&d| d as u64).product::<u64>() * 3;
+            if values.checked_mul(8).and_then(|b| b.checked_add(12)) == Some(file_len) {
+                return format!(
+                    "the file is a MERL .binary BRDF ({} x {} x {}; import it: `specgp import merl`)",
+                    dims[0], dims[1], dims[2]
+                );
+            }
+        }
+    }
+    let text = head
+        .iter()
+        .all(|b| b.is_ascii_graphic() || b.is_ascii_whitespace());
+    if text {
+        return format!(
+            "the file is text (starts {:?}; a model .toml or a config?)",
+            String::from_utf8_lossy(&head[..head.len().min(24)])
+        );
+    }
+    format!(
+        "file starts with {:02x?}, expected {:02x?}",
+        &head[..head.len().min(8)],
+        MAGIC
+    )
 }
