@@ -244,6 +244,19 @@ pub fn read_merl(path: impl AsRef<Path>) -> Result<MerlBrdf> {
     parse_merl(&bytes, path)
 }
 
+/// The three i32 resolutions at the start of a MERL file (`bytes` holds at least 12).
+pub(crate) fn header_dims(bytes: &[u8]) -> [i32; 3] {
+    let dim = |k: usize| {
+        i32::from_le_bytes([
+            bytes[4 * k],
+            bytes[4 * k + 1],
+            bytes[4 * k + 2],
+            bytes[4 * k + 3],
+        ])
+    };
+    [dim(0), dim(1), dim(2)]
+}
+
 /// Parses the bytes of a MERL file; `path` is only used in error messages.
 pub fn parse_merl(bytes: &[u8], path: impl AsRef<Path>) -> Result<MerlBrdf> {
     let path: PathBuf = path.as_ref().to_path_buf();
@@ -257,15 +270,7 @@ pub fn parse_merl(bytes: &[u8], path: impl AsRef<Path>) -> Result<MerlBrdf> {
             bytes.len()
         )));
     }
-    let dim = |k: usize| {
-        i32::from_le_bytes([
-            bytes[4 * k],
-            bytes[4 * k + 1],
-            bytes[4 * k + 2],
-            bytes[4 * k + 3],
-        ])
-    };
-    let dims = [dim(0), dim(1), dim(2)];
+    let dims = header_dims(bytes);
     if dims.iter().any(|&d| d <= 0) {
         return Err(bad(format!(
             "bad MERL resolution {dims:?} (expected e.g. 90 90 180)"

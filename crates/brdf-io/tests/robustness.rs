@@ -120,21 +120,7 @@ fn zero_sigma_and_negative_ndf_are_errors() {
     };
     let tf = TensorFile::open(&path).unwrap();
     for (name, bad, rule) in [("sigma", 0.0f32, "> 0"), ("ndf", -1.0, ">= 0")] {
-        let fields: Vec<Field> = tf
-            .fields()
-            .iter()
-            .map(|f| {
-                if f.name() != name {
-                    return f.clone();
-                }
-                let mut v = f.to_f64(&path).unwrap();
-                v[7] = f64::from(bad);
-                let v: Vec<f32> = v.iter().map(|&x| x as f32).collect();
-                Field::from_f32(name, f.shape().to_vec(), &v).unwrap()
-            })
-            .collect();
-        let bytes = TensorFile::to_bytes(&fields).unwrap();
-        let tf = TensorFile::from_bytes(&bytes, "bad.bsdf").unwrap();
+        let tf = with_field(name, "bad.bsdf", |v| v[7] = bad).unwrap();
         let e = RglBsdf::from_tensor_file(&tf).unwrap_err().to_string();
         assert!(
             e.contains("bad.bsdf") && e.contains(&format!("\"{name}\"")) && e.contains(rule),

@@ -809,15 +809,7 @@ fn describe_foreign_file(head: &[u8], file_len: u64) -> String {
     }
     // MERL's `.binary`: three positive i32 dimensions, then 3 x their product f64 values.
     if head.len() >= 12 {
-        let dim = |k: usize| {
-            i32::from_le_bytes([
-                head[4 * k],
-                head[4 * k + 1],
-                head[4 * k + 2],
-                head[4 * k + 3],
-            ])
-        };
-        let dims = [dim(0), dim(1), dim(2)];
+        let dims = crate::merl::header_dims(head);
         if dims.iter().all(|&d| d > 0) {
             let values = dims.iter().map(|&d| d as u64).product::<u64>() * 3;
             if values.checked_mul(8).and_then(|b| b.checked_add(12)) == Some(file_len) {
