@@ -811,8 +811,11 @@ fn describe_foreign_file(head: &[u8], file_len: u64) -> String {
     if head.len() >= 12 {
         let dims = crate::merl::header_dims(head);
         if dims.iter().all(|&d| d > 0) {
-            let values = dims.iter().map(|&d| d as u64).product::<u64>() * 3;
-            if values.checked_mul(8).and_then(|b| b.checked_add(12)) == Some(file_len) {
+            let bytes = dims
+                .iter()
+                .try_fold(24u64, |acc, &d| acc.checked_mul(d as u64))
+                .and_then(|b| b.checked_add(12));
+            if bytes == Some(file_len) {
                 return format!(
                     "the file is a MERL .binary BRDF ({} x {} x {}; import it: `specgp import merl`)",
                     dims[0], dims[1], dims[2]
