@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::{DataScaling, FitParams};
+use crate::config::FitParams;
 use crate::error::{Error, Result};
 use crate::transform::Transform;
 
@@ -281,16 +281,15 @@ impl Model {
                 model.dataset.d
             )));
         }
-        // The data scale is the Gram matrix's centred trace per value (unit-variance scaling)
-        // or 1: an edit of either alone would make every error and variance silently wrong.
-        let expected = match model.config.data_scaling {
-            DataScaling::None => 1.0,
-            DataScaling::UnitVariance => {
-                let total: f64 = g.iter().flatten().sum();
-                let trace: f64 = (0..n).map(|i| g[i][i]).sum();
-                (trace - total / n as f64) / (n as f64 * d_eff as f64)
-            }
-        };
+        // The data scale is what the fit derived from the Gram matrix (its centred trace per
+        // value, or 1): an edit of either alone would make every error and variance silently
+        // wrong.
+        let (_, expected) = crate::fit::scaled_centred_gram(
+            model.gram_matrix().as_ref(),
+            d_eff,
+            model.config.data_scaling,
+        )
+        .map_err(|e| err(format!("the Gram matrix gives no data_scale: {e}")))?;
         // Centring cancels ~n eps of the uncentred trace; beyond that, 1e-9 relative.
         let uncentred: f64 = (0..n).map(|i| g[i][i]).sum::<f64>() / (n as f64 * d_eff as f64);
         let tolerance = 1e-9 * expected.abs() + 64.0 * n as f64 * f64::EPSILON * uncentred;
