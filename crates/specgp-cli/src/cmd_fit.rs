@@ -107,6 +107,13 @@ pub fn fit(args: &FitArgs) -> anyhow::Result<()> {
         params.max_evaluations = n;
     }
     refuse_ignored_caps(args, &params)?;
+    if let (Some(seed), 0) = (args.seed, params.restarts) {
+        // A warning, not a refusal: scripts may pass a seed to every fit (docs/CLI.md).
+        tracing::warn!(
+            "--seed {seed} has no effect without restarts: the fit starts from the PCA \
+             solution, which is deterministic (add --restarts N to use the seed)"
+        );
+    }
     let config = params.check().with_context(|| match &args.config {
         Some(path) => format!(
             "fit configuration {} (with the command line's flags)",

@@ -1615,6 +1615,27 @@ fn ignored_options_are_refused_before_any_work() {
     );
     let fit = Model::load(&d.join("capped.toml")).unwrap().fit;
     assert_eq!(fit.stop_reason, "reached 40 evaluations");
+    // A seed without restarts would be silently unused: the fit runs (scripts may pass one to
+    // every fit) and says so; with restarts it is used, and nothing is said.
+    let seeded = |extra: &[&str]| {
+        let mut args = vec![
+            "fit",
+            "data.sbrdf",
+            "--out",
+            "seeded.toml",
+            "--latent-dim",
+            "2",
+        ];
+        args.extend_from_slice(extra);
+        specgp_outputs(&args, d).1
+    };
+    let unused = "--seed 7 has no effect without restarts";
+    let e = seeded(&["--seed", "7"]);
+    assert!(e.contains(unused), "{e}");
+    assert!(d.join("seeded.toml").is_file());
+    let e = seeded(&["--seed", "7", "--restarts", "1"]);
+    assert!(!e.contains(unused), "{e}");
+    assert!(d.join("seeded.toml").is_file());
 }
 
 /// Outputs whose name says another format than the one written are refused before any work
