@@ -1862,6 +1862,40 @@ fn import_rgl_refuses_mixed_spectral_and_rgb_files_up_front() {
         e.contains("grey_rgb.bsdf: RGB data has no wavelengths; leave out --wavelengths"),
         "{e}"
     );
+    // A spectral file whose range misses the channels, or a damaged file, is refused before
+    // the files in front of it are resampled.
+    let narrow = [
+        "synth",
+        "--out",
+        "narrow.sbrdf",
+        "--grid",
+        "8,8,16",
+        "--wavelengths",
+        "500:600:100",
+    ];
+    specgp(&narrow, d);
+    let mut args = vec![
+        "convert",
+        "narrow.sbrdf:metal_gold",
+        "--out",
+        "narrow_spec.bsdf",
+    ];
+    args.extend_from_slice(&small);
+    specgp(&args, d);
+    let gold = std::fs::read(d.join("gold_spec.bsdf")).unwrap();
+    std::fs::write(d.join("cut_spec.bsdf"), &gold[..gold.len() / 2]).unwrap();
+    for (files, want) in [
+        (
+            &["gold_spec.bsdf", "paper_spec.bsdf", "narrow_spec.bsdf"][..],
+            "narrow_spec.bsdf",
+        ),
+        (&["gold_spec.bsdf", "cut_spec.bsdf"], "cut_spec.bsdf"),
+    ] {
+        let e = specgp_fails(&import(files, &[]), d);
+        assert!(e.contains(want), "{e}");
+        assert!(!e.contains("values (min"), "{e}");
+        assert!(!d.join("mix.sbrdf").exists());
+    }
     // One kind imports, at the first file's own channels.
     specgp(&import(&["gold_spec.bsdf", "paper_spec.bsdf"], &[]), d);
     let store = brdf_io::store::Store::open(d.join("mix.sbrdf")).unwrap();
