@@ -81,7 +81,7 @@ pub struct PredictParams {
     #[serde(default)]
     pub points: Vec<Vec<f64>>,
     /// Pairs of material names: predict at the midpoint of their latent points.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "pairs")]
     pub midpoints: Vec<[String; 2]>,
     /// `exact` (reproduces training materials) or `smooth` (no noise term in k*).
     #[serde(default)]
@@ -93,6 +93,28 @@ pub struct PredictParams {
     /// starting sizes, checked against the prediction (not refined; timed).
     #[serde(default)]
     pub bsdf: bool,
+}
+
+/// `predict.midpoints`: a list of pairs. Read as lists and checked, because serde reads a fixed
+/// size array from the first elements of a longer list and ignores the rest (a third name was
+/// silently dropped).
+fn pairs<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<Vec<[String; 2]>, D::Error> {
+    let lists = Vec::<Vec<String>>::deserialize(d)?;
+    lists
+        .into_iter()
+        .enumerate()
+        .map(|(i, list)| {
+            <[String; 2]>::try_from(list).map_err(|list| {
+                serde::de::Error::custom(format!(
+                    "predict.midpoints[{i}] names {} material(s) {list:?}; each midpoint is a \
+                     pair [\"A\", \"B\"]",
+                    list.len()
+                ))
+            })
+        })
+        .collect()
 }
 
 /// The `[evaluate]` table.

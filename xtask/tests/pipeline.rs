@@ -277,6 +277,16 @@ fn unknown_keys_and_bad_values_are_named() {
             format!("{base}\n[locate]\nfiles = [\"a.bsdf\"]\nstarts = 0\n"),
             "locate.starts",
         ),
+        // A midpoint of three names (the third used to be dropped silently) or of one.
+        (
+            base.replace("\"metal_copper\"]]", "\"metal_copper\", \"paper_white\"]]"),
+            "predict.midpoints[0] names 3 material(s) [\"metal_gold\", \"metal_copper\", \
+             \"paper_white\"]; each midpoint is a pair",
+        ),
+        (
+            base.replace(", \"metal_copper\"]]", "]]"),
+            "predict.midpoints[0] names 1 material(s)",
+        ),
     ];
     for (i, (text, needle)) in cases.iter().enumerate() {
         let path = dir.path().join(format!("bad{i}.toml"));
