@@ -489,6 +489,14 @@ impl PipelineParams {
             if x.iter().any(|v| !v.is_finite()) {
                 return Err(bad(format!("predict.points[{i}] is not finite: {x:?}")));
             }
+            if let Some(v) = x.iter().find(|v| v.abs() > MAX_POINT_COORDINATE) {
+                return Err(bad(format!(
+                    "predict.points[{i}] has the coordinate {v:e}, beyond +-{MAX_POINT_COORDINATE:e} \
+                     (a quarter of the +-{:e} of model files, so that the latent map's padded \
+                     extent around it stays within that bound)",
+                    gplvm::model::MAX_COORDINATE
+                )));
+            }
         }
         let predictor = match p.predictor.as_deref() {
             None | Some("exact") => PredictorChoice::Exact,
@@ -510,6 +518,18 @@ impl PipelineParams {
                 "render.sheet_materials must be in 1..=64, got {}",
                 self.render.sheet_materials
             )));
+        }
+        if self.render.enabled {
+            let k = n_materials.map_or(self.render.sheet_materials, |n| {
+                self.render.sheet_materials.min(n)
+            });
+            check_figure_sizes(
+                self.render.size as usize,
+                k,
+                p.midpoints.len(),
+                p.points.len() + p.midpoints.len(),
+            )
+            .map_err(bad)?;
         }
         let l = &self.locate;
         if !(1..=1000).contains(&l.starts) {
@@ -561,6 +581,85 @@ impl PipelineParams {
 /// Largest dataset store a pipeline config may ask for (64 GB: the MERL grid with 195
 /// wavelengths for 51 materials, 58 GB, still fits).
 pub const MAX_STORE_BYTES: u64 = 64_000_000_000;
+
+/// Largest |coordinate| of a configured latent point: a quarter of the model files' bound, so
+/// that the latent map, which pads the points' bounding box by 15 % and widens it to a square,
+/// asks for variances only within that bound (a point at 1e100 passed the predict stage and
+/// failed in the render stage).
+pub const MAX_POINT_COORDINATE: f64 = gplvm::model::MAX_COORDINATE / 4.0;
+
+/// Largest figure, in pixels (the render crate draws in f64 RGB + alpha, 32 bytes a pixel: 2 GiB
+/// while it is drawn).
+pub const MAX_FIGURE_PIXELS: usize = 1 << 26;
+
+/// The figures of the render stage as (name, the config keys that size it, width, height), at
+/// their layouts (`figures::render_figures`; each sphere cell with its label and padding as
+/// `size + 40` pixels square): the sheet is `k` materials by 3 rows, the comparison sheet `k` rows
+/// by 7 cells (4 columns and 3 Delta E maps), the paths figure 7 steps by 3 rows per pair (at
+/// most 3 pairs), the predictions figure one sphere per point.
+pub fn figure_sizes(
+    size: usize,
+    k: usize,
+    pairs: usize,
+    points: usize,
+) -> Vec<(&'static str, &'static str, usize, usize)> {
+    let cell = size.saturating_add(40);
+    let mut v = vec![
+        (
+            "sheet.png",
+            "render.size and render.sheet_materials",
+            k.saturating_mul(cell),
+            3 * cell,
+        ),
+        (
+            "comparison.png",
+            "render.size and render.sheet_materials",
+            7 * cell,
+            k.saturating_mul(cell),
+        ),
+    ];
+    if pairs > 0 {
+        v.push((
+            "paths.png",
+            "render.size and the number of predict.midpoints (up to 3 are drawn)",
+            7 * cell,
+            pairs.min(3) * 3 * cell,
+        ));
+    }
+    if points > 0 {
+        v.push((
+            "predictions.png",
+            "render.size and the number of predict.points and predict.midpoints",
+            points.saturating_mul(cell),
+            cell,
+        ));
+    }
+    v
+}
+
+/// An error naming the figure and the keys when one would be larger than
+/// [`MAX_FIGURE_PIXELS`] (a size of 2048 with 51 sheet materials asked for a 10 GB image and
+/// aborted the process after the fit, leaving its staging directory behind).
+fn check_figure_sizes(
+    size: usize,
+    k: usize,
+    pairs: usize,
+    points: usize,
+) -> std::result::Result<(), String> {
+    for (name, keys, w, h) in figure_sizes(size, k, pairs, points) {
+        let pixels = w.saturating_mul(h);
+        if pixels > MAX_FIGURE_PIXELS {
+            return Err(format!(
+                "{keys} ask for a {name} of about {w} x {h} pixels ({:.1} GB while it is drawn), \
+                 over the {} million pixels a figure may have; lower render.size (now {size}) \
+                 or draw fewer spheres, or set render.enabled = false",
+                pixels as f64 * 32.0 / 1e9,
+                MAX_FIGURE_PIXELS / 1_000_000
+            ));
+        }
+    }
+    Ok(())
+}
 
 /// A `data.only` list: at least 3 names, no name twice.
 fn check_only(only: &[String]) -> std::result::Result<(), String> {

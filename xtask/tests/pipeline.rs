@@ -287,6 +287,22 @@ fn unknown_keys_and_bad_values_are_named() {
             base.replace(", \"metal_copper\"]]", "]]"),
             "predict.midpoints[0] names 1 material(s)",
         ),
+        // Figures too large to draw (the sheet of 51 spheres of 2048 pixels was a 10 GB image
+        // that aborted the process after the fit) and a point the latent map cannot frame
+        // (it failed in the render stage), before any work.
+        (
+            base.replace("size = 32\nsheet_materials = 2", "size = 2048\nsheet_materials = 64"),
+            "render.size and render.sheet_materials ask for a sheet.png of about 106488 x 6264 \
+             pixels (21.3 GB while it is drawn)",
+        ),
+        (
+            base.replace("size = 32\nsheet_materials = 2", "size = 2048\nsheet_materials = 1"),
+            "ask for a paths.png of about 14616 x 6264 pixels",
+        ),
+        (
+            base.replace("points = [[0.0, 0.0]]", "points = [[0.0, 0.0], [0.0, -1e100]]"),
+            "predict.points[1] has the coordinate -1e100, beyond +-2.5e99",
+        ),
     ];
     for (i, (text, needle)) in cases.iter().enumerate() {
         let path = dir.path().join(format!("bad{i}.toml"));
@@ -294,6 +310,18 @@ fn unknown_keys_and_bad_values_are_named() {
         let err = PipelineConfig::load(&path, &root).unwrap_err().to_string();
         assert!(err.contains(needle), "case {i}: {err}");
         assert!(err.contains(&format!("bad{i}.toml")), "case {i}: {err}");
+    }
+    // The largest figures and points that are still accepted.
+    for text in [
+        base.replace(
+            "size = 32\nsheet_materials = 2",
+            "size = 1024\nsheet_materials = 8",
+        ),
+        base.replace("points = [[0.0, 0.0]]", "points = [[2.5e99, -2.5e99]]"),
+    ] {
+        let path = dir.path().join("good.toml");
+        std::fs::write(&path, text).unwrap();
+        PipelineConfig::load(&path, &root).unwrap();
     }
 }
 
