@@ -350,6 +350,8 @@ impl PipelineParams {
         };
         // The synthetic materials' names (known before any data is written).
         let mut synth_names: Option<Vec<String>> = None;
+        // The materials of merl and rgl files (their stems).
+        let mut file_names: Option<Vec<String>> = None;
         let source = match d.kind.as_str() {
             "synth" => {
                 not_for("files", !d.files.is_empty())?;
@@ -412,6 +414,24 @@ impl PipelineParams {
                         d.files.len()
                     )));
                 }
+                // A material is named after its file's stem (`data::build_store`): two files
+                // with one stem failed in the data stage, after the earlier files' import.
+                let stems: Vec<String> = d.files.iter().map(|f| crate::data::stem(f)).collect();
+                if let Some((j, i)) = (0..stems.len()).find_map(|j| {
+                    stems[..j]
+                        .iter()
+                        .position(|s| *s == stems[j])
+                        .map(|i| (j, i))
+                }) {
+                    return Err(bad(format!(
+                        "data.files[{j}] ({}) and data.files[{i}] ({}) give one material name \
+                         {:?} (materials are named after their files' stems)",
+                        d.files[j].display(),
+                        d.files[i].display(),
+                        stems[j]
+                    )));
+                }
+                file_names = Some(stems);
                 let files = d.files.iter().map(|f| resolve(f)).collect();
                 if d.kind == "merl" {
                     not_for("wavelengths", d.wavelengths.is_some())?;
@@ -559,7 +579,7 @@ impl PipelineParams {
         };
         // Synthetic materials are known now; other kinds' names once the data are read
         // (`PipelineConfig::check_midpoints`, before the fit).
-        if let Some(names) = &synth_names {
+        if let Some(names) = synth_names.as_ref().or(file_names.as_ref()) {
             check_midpoints(&predict.midpoints, names).map_err(bad)?;
         }
         Ok(PipelineConfig {
@@ -661,12 +681,13 @@ fn check_figure_sizes(
     Ok(())
 }
 
-/// A `data.only` list: at least 3 names, no name twice.
+/// A `data.only` list: at least 3 names, no name twice (as the data stage looks them up: a
+/// network's name is matched without spaces at its ends).
 fn check_only(only: &[String]) -> std::result::Result<(), String> {
     if let Some((i, name)) = only
         .iter()
         .enumerate()
-        .find(|(i, n)| only[..*i].contains(n))
+        .find(|(i, n)| only[..*i].iter().any(|m| m.trim() == n.trim()))
     {
         return Err(format!("data.only lists {name:?} twice (entry {})", i + 1));
     }

@@ -152,7 +152,8 @@ fn import_each(
     Ok(total)
 }
 
-fn stem(path: &Path) -> String {
+/// The material name of a merl or rgl file: its stem.
+pub fn stem(path: &Path) -> String {
     path.file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| path.display().to_string())

@@ -260,6 +260,53 @@ fn inputs(config: &PipelineConfig) -> Vec<PathBuf> {
     v
 }
 
+/// An error naming the config and the key when an input file the run reads (data files, the
+/// Neural-BRDF weights and names, files to locate) is not a file: checked before the output
+/// directory is touched, rather than in the data stage after the earlier files' import.
+fn check_inputs(config: &PipelineConfig) -> Result<()> {
+    let p = &config.params;
+    let mut keyed: Vec<(String, &Path, &Path)> = Vec::new();
+    match &config.data.source {
+        crate::config::DataSource::Synth { .. } => {}
+        crate::config::DataSource::Nbrdf { weights, names, .. } => {
+            if let (Some(w), Some(n)) = (&p.data.weights, &p.data.names) {
+                keyed.push(("data.weights".into(), w, weights));
+                keyed.push(("data.names".into(), n, names));
+            }
+        }
+        crate::config::DataSource::Merl { files }
+        | crate::config::DataSource::Rgl { files, .. } => {
+            for (i, (given, f)) in p.data.files.iter().zip(files).enumerate() {
+                keyed.push((format!("data.files[{i}]"), given, f));
+            }
+        }
+    }
+    for (i, (given, f)) in p.locate.files.iter().zip(&config.locate).enumerate() {
+        keyed.push((format!("locate.files[{i}]"), given, f));
+    }
+    for (key, given, path) in keyed {
+        let what = match std::fs::metadata(path) {
+            Ok(m) if m.is_file() => continue,
+            Ok(_) => "is not a file",
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => "does not exist",
+            Err(_) => "cannot be read",
+        };
+        let relative = if given.is_relative() {
+            format!(
+                " (a relative path in a config is relative to the project root {})",
+                project_root().display()
+            )
+        } else {
+            String::new()
+        };
+        return Err(Error::Config {
+            path: config.path.clone(),
+            reason: format!("{key}: {} {what}{relative}", path.display()),
+        });
+    }
+    Ok(())
+}
+
 /// An error when publishing into `out` would replace or delete one of the run's inputs (a
 /// config or data file kept in the output directory under an output's name).
 fn ensure_inputs_survive(config: &PipelineConfig, out: &Path) -> Result<()> {
@@ -298,6 +345,7 @@ fn ensure_inputs_survive(config: &PipelineConfig, out: &Path) -> Result<()> {
 /// leaves `out` as it was, and a successful one removes the earlier run's outputs it does not
 /// produce. The model records its dataset as `data.sbrdf` beside it.
 pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
+    check_inputs(config)?;
     ensure_inputs_survive(config, out)?;
     let stage =
         brdf_io::output::StagingDir::create(out).map_err(|e| Error::stage("output", out, e))?;
@@ -313,14 +361,6 @@ pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
 fn run_in(config: &PipelineConfig, out: &Path, published: &Path) -> Result<Results> {
     let total = Instant::now();
     let mut stages = Vec::new();
-
-    // The files to locate must be there before hours of work start.
-    if let Some(f) = config.locate.iter().find(|f| !f.is_file()) {
-        return Err(Error::Config {
-            path: config.path.clone(),
-            reason: format!("locate.files: {} is not a file", f.display()),
-        });
-    }
 
     // Data.
     let store_path = out.join("data.sbrdf");

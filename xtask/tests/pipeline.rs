@@ -448,3 +448,125 @@ fn located_files_are_reported() {
     let stage = results.stages.iter().find(|s| s.name == "locate").unwrap();
     assert_eq!(stage.status, "done");
 }
+
+/// Input files are checked before any work, naming the config and the key: a missing data file
+/// (it failed in the data stage after the earlier files' import, naming no key), two files with
+/// one stem (their materials' one name failed in the data stage, naming the staging store), a
+/// `data.only` name repeated with spaces at its end (the data stage trims them), a midpoint of a
+/// file's material.
+#[test]
+fn inputs_are_checked_before_any_work() {
+    let root = project_root();
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::create_dir_all(d.join("x")).unwrap();
+    std::fs::create_dir_all(d.join("y")).unwrap();
+    for f in ["x/a.bsdf", "y/a.bsdf", "y/b.bsdf", "c.bsdf"] {
+        std::fs::write(d.join(f), "").unwrap();
+    }
+    let rgl = |files: &[String], extra: &str| {
+        let list: Vec<String> = files.iter().map(|f| format!("{f:?}")).collect();
+        format!(
+            "name = \"t\"\n[data]\nkind = \"rgl\"\ngrid = \"4,4,8\"\nfiles = [{}]\n{extra}",
+            list.join(", ")
+        )
+    };
+    let p = |f: &str| d.join(f).display().to_string();
+    let config = d.join("t.toml");
+    let load = |text: &str| {
+        std::fs::write(&config, text).unwrap();
+        PipelineConfig::load(&config, &root)
+    };
+    let run_err = |text: &str| {
+        let c = load(text).unwrap();
+        let out = d.join("out");
+        let e = xtask::run(&c, &out).unwrap_err().to_string();
+        assert!(!out.join("data.sbrdf").exists());
+        e
+    };
+
+    // Missing, relative and not a file.
+    let e = run_err(&rgl(&[p("x/a.bsdf"), p("nope.bsdf"), p("c.bsdf")], ""));
+    assert!(e.contains("t.toml: data.files[1]: "), "{e}");
+    assert!(
+        e.ends_with(&format!("{} does not exist", p("nope.bsdf"))),
+        "{e}"
+    );
+    let e = run_err(&rgl(
+        &[p("x/a.bsdf"), "no/such/b.bsdf".into(), p("c.bsdf")],
+        "",
+    ));
+    assert!(
+        e.ends_with(&format!(
+            "data.files[1]: {} does not exist (a relative path in a config is relative to the \
+             project root {})",
+            root.join("no/such/b.bsdf").display(),
+            root.display()
+        )),
+        "{e}"
+    );
+    let e = run_err(&rgl(&[p("x/a.bsdf"), p("c.bsdf"), p("y")], ""));
+    assert!(
+        e.ends_with(&format!("data.files[2]: {} is not a file", p("y"))),
+        "{e}"
+    );
+    let e = run_err(&rgl(
+        &[p("x/a.bsdf"), p("c.bsdf"), p("y/b.bsdf")],
+        &format!("[locate]\nfiles = [{:?}]\n", p("gone.bsdf")),
+    ));
+    assert!(
+        e.ends_with(&format!(
+            "locate.files[0]: {} does not exist",
+            p("gone.bsdf")
+        )),
+        "{e}"
+    );
+    let nbrdf = format!(
+        "name = \"t\"\n[data]\nkind = \"nbrdf\"\ngrid = \"4,4,8\"\nweights = {:?}\nnames = {:?}\n",
+        p("x"),
+        p("c.bsdf")
+    );
+    let e = run_err(&nbrdf);
+    assert!(
+        e.ends_with(&format!("data.weights: {} is not a file", p("x"))),
+        "{e}"
+    );
+
+    // Known at load: names of files and of networks.
+    let e = load(&rgl(&[p("x/a.bsdf"), p("c.bsdf"), p("y/a.bsdf")], ""))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.ends_with(&format!(
+            "data.files[2] ({}) and data.files[0] ({}) give one material name \"a\" (materials \
+             are named after their files' stems)",
+            p("y/a.bsdf"),
+            p("x/a.bsdf")
+        )),
+        "{e}"
+    );
+    let e = load(&rgl(
+        &[p("x/a.bsdf"), p("c.bsdf"), p("y/b.bsdf")],
+        "[predict]\nmidpoints = [[\"a\", \"d\"]]\n",
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.ends_with("predict.midpoints: no material named \"d\" in the data"),
+        "{e}"
+    );
+    load(&rgl(
+        &[p("x/a.bsdf"), p("c.bsdf"), p("y/b.bsdf")],
+        "[predict]\nmidpoints = [[\"a\", \"b\"]]\n",
+    ))
+    .unwrap();
+    let e = load(&format!(
+        "{nbrdf}only = [\"alum-bronze\", \"alum-bronze \", \"chrome\"]\n"
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.ends_with("data.only lists \"alum-bronze \" twice (entry 2)"),
+        "{e}"
+    );
+}
