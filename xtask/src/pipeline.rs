@@ -344,16 +344,84 @@ fn ensure_inputs_survive(config: &PipelineConfig, out: &Path) -> Result<()> {
 /// its files together at the end ([`brdf_io::output::StagingDir`]): a failed or interrupted run
 /// leaves `out` as it was, and a successful one removes the earlier run's outputs it does not
 /// produce. The model records its dataset as `data.sbrdf` beside it.
+///
+/// When `out` does not exist, the run stages in its nearest existing ancestor and moves the new
+/// directory (with any missing parents) there in one rename at the end, so that a failed or
+/// interrupted run leaves no directory behind either.
 pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
     check_inputs(config)?;
     ensure_inputs_survive(config, out)?;
-    let stage =
-        brdf_io::output::StagingDir::create(out).map_err(|e| Error::stage("output", out, e))?;
+    let output_err = |path: &Path, e: &dyn std::fmt::Display| Error::stage("output", path, e);
+    match std::fs::metadata(out) {
+        Ok(m) if m.is_dir() => {}
+        Ok(_) => {
+            return Err(output_err(
+                out,
+                &"exists and is not a directory (--out names the directory the run writes into)",
+            ));
+        }
+        Err(e) if is_missing(&e) => {
+            if let Some((base, missing)) = missing_dirs(out)? {
+                let stage = brdf_io::output::StagingDir::create(&base)
+                    .map_err(|e| output_err(&base, &e))?;
+                let inner = missing
+                    .iter()
+                    .fold(stage.path().to_owned(), |p, name| p.join(name));
+                std::fs::create_dir_all(&inner).map_err(|e| Error::io(&inner, e))?;
+                let results = run_in(config, &inner, out)?;
+                let (from, to) = (stage.path().join(&missing[0]), base.join(&missing[0]));
+                std::fs::rename(&from, &to).map_err(|e| Error::io(&to, e))?;
+                return Ok(results);
+            }
+        }
+        Err(e) => return Err(Error::io(out, e)),
+    }
+    let stage = brdf_io::output::StagingDir::create(out).map_err(|e| output_err(out, &e))?;
     let results = run_in(config, stage.path(), out)?;
     stage
         .publish(is_pipeline_output)
-        .map_err(|e| Error::stage("output", out, e))?;
+        .map_err(|e| output_err(out, &e))?;
     Ok(results)
+}
+
+/// Whether a path's metadata failed because it is not there (or a parent is a file).
+fn is_missing(e: &std::io::Error) -> bool {
+    matches!(
+        e.kind(),
+        std::io::ErrorKind::NotFound | std::io::ErrorKind::NotADirectory
+    )
+}
+
+/// For an output directory `out` that does not exist: its nearest existing ancestor and the
+/// names of the directories to create below it, outermost first. `None` when the missing part
+/// is not plain names (`..`), where the directories are created up front as before.
+fn missing_dirs(out: &Path) -> Result<Option<(PathBuf, Vec<std::ffi::OsString>)>> {
+    let mut missing = Vec::new();
+    let mut base = out;
+    loop {
+        if base.as_os_str().is_empty() {
+            base = Path::new(".");
+        }
+        match std::fs::metadata(base) {
+            Ok(m) if m.is_dir() => break,
+            Ok(_) => {
+                return Err(Error::stage(
+                    "output",
+                    out,
+                    format!("{} is not a directory", base.display()),
+                ));
+            }
+            Err(e) if is_missing(&e) => {}
+            Err(e) => return Err(Error::io(base, e)),
+        }
+        match base.components().next_back() {
+            Some(std::path::Component::Normal(name)) => missing.push(name.to_owned()),
+            _ => return Ok(None),
+        }
+        base = base.parent().unwrap_or(Path::new("."));
+    }
+    missing.reverse();
+    Ok(Some((base.to_owned(), missing)))
 }
 
 /// The stages of [`run`], writing into `out` (the staging directory; `published` is where the

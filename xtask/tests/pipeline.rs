@@ -570,3 +570,78 @@ fn inputs_are_checked_before_any_work() {
         "{e}"
     );
 }
+
+/// An output directory that does not exist is created only by a run that succeeds: a failed
+/// run used to leave it (and its missing parents) behind, empty. An existing file in its place
+/// is named as such (it was "File exists (os error 17)").
+#[test]
+fn a_failed_run_leaves_no_new_directory() {
+    let root = project_root();
+    let dir = tempfile::tempdir().unwrap();
+    let entries = |p: &Path| {
+        let mut v: Vec<String> = std::fs::read_dir(p)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        v.sort();
+        v
+    };
+    // Fails in the data stage: a weights file that is not a NumPy file.
+    std::fs::write(dir.path().join("w.npy"), "not numpy").unwrap();
+    std::fs::write(dir.path().join("names.txt"), "a\nb\nc\n").unwrap();
+    let failing = dir.path().join("failing.toml");
+    std::fs::write(
+        &failing,
+        format!(
+            "name = \"failing\"\n[data]\nkind = \"nbrdf\"\ngrid = \"4,4,8\"\nweights = {:?}\n\
+             names = {:?}\n",
+            dir.path().join("w.npy"),
+            dir.path().join("names.txt")
+        ),
+    )
+    .unwrap();
+    let config = PipelineConfig::load(&failing, &root).unwrap();
+    let out = dir.path().join("new").join("with space").join("out");
+    let err = xtask::run(&config, &out).unwrap_err().to_string();
+    assert!(err.contains("data stage"), "{err}");
+    assert_eq!(
+        entries(dir.path()),
+        ["failing.toml", "names.txt", "w.npy"],
+        "{err}"
+    );
+
+    // The same path, nested and new, with a run that succeeds.
+    let config = load(&root, "configs/quick.toml");
+    let results = xtask::run(&config, &out).unwrap();
+    assert_eq!(results.out_dir, out.display().to_string());
+    assert_eq!(
+        entries(dir.path()),
+        ["failing.toml", "names.txt", "new", "w.npy"]
+    );
+    let files = entries(&out);
+    assert!(files.contains(&"report.md".to_owned()), "{files:?}");
+    assert!(!files.iter().any(|f| f.starts_with('.')), "{files:?}");
+    predict::Predictor::open(&out.join("model.toml")).unwrap();
+
+    // A file where the directory should be, or where a parent should be.
+    let file = dir.path().join("names.txt");
+    let err = xtask::run(&config, &file).unwrap_err().to_string();
+    assert!(
+        err.ends_with(
+            "exists and is not a directory (--out names the directory the run writes into)"
+        ),
+        "{err}"
+    );
+    let err = xtask::run(&config, &file.join("sub"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.ends_with(&format!("{} is not a directory", file.display())),
+        "{err}"
+    );
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "a\nb\nc\n");
+    assert_eq!(
+        entries(dir.path()),
+        ["failing.toml", "names.txt", "new", "w.npy"]
+    );
+}
