@@ -29,6 +29,20 @@ pub fn bytes(b: u64) -> String {
     }
 }
 
+/// `s` as one POSIX shell word: as it is when it holds only characters the shell takes
+/// literally, else in single quotes (a regenerate command with `--out out/my run` ran into
+/// `out/my`).
+pub fn shell_word(s: &str) -> String {
+    if !s.is_empty()
+        && s.bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b"_./:=@%+,-".contains(&b))
+    {
+        s.to_owned()
+    } else {
+        format!("'{}'", s.replace('\'', "'\\''"))
+    }
+}
+
 /// The report of `r` as markdown.
 pub fn markdown(r: &Results) -> String {
     let mut s = String::new();
@@ -40,7 +54,10 @@ pub fn markdown(r: &Results) -> String {
         s,
         "Config `{}`; regenerate with `cargo xtask pipeline {} --out {}`. Every number below is \
          also in `results.json`. Total run time {:.1} s.\n",
-        r.config_file, r.config_file, r.out_dir, r.total_seconds
+        r.config_file,
+        shell_word(&r.config_file),
+        shell_word(&r.out_dir),
+        r.total_seconds
     );
 
     let _ = writeln!(
@@ -446,5 +463,20 @@ fn paper_table(s: &mut String, r: &Results) {
             num(k.reconstruction_smooth),
             num(k.loo_gp)
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::shell_word;
+
+    #[test]
+    fn shell_words_quote_what_the_shell_would_split_or_expand() {
+        assert_eq!(shell_word("configs/quick.toml"), "configs/quick.toml");
+        assert_eq!(shell_word("/tmp/a-b_c/out.1"), "/tmp/a-b_c/out.1");
+        assert_eq!(shell_word("out/my run"), "'out/my run'");
+        assert_eq!(shell_word("it's"), "'it'\\''s'");
+        assert_eq!(shell_word("$HOME/*"), "'$HOME/*'");
+        assert_eq!(shell_word(""), "''");
     }
 }

@@ -622,6 +622,10 @@ fn a_failed_run_leaves_no_new_directory() {
     assert!(files.contains(&"report.md".to_owned()), "{files:?}");
     assert!(!files.iter().any(|f| f.starts_with('.')), "{files:?}");
     predict::Predictor::open(&out.join("model.toml")).unwrap();
+    // The report's command to regenerate it quotes the path with a space.
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let command = format!("--out '{}'`", out.display());
+    assert!(report.contains(&command), "{report}");
 
     // A file where the directory should be, or where a parent should be.
     let file = dir.path().join("names.txt");
