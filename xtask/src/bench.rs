@@ -232,7 +232,25 @@ impl Settings {
         max_iterations: u64,
         max_evaluations: usize,
     ) -> std::result::Result<(), String> {
-        let (_, channels, _) = self.parsed()?;
+        let (grid, channels, dtype) = self.parsed()?;
+        // As a pipeline config's store (`config::MAX_STORE_BYTES`): a swept grid of 512,512,512
+        // started writing a 192 GB store after the earlier points had run.
+        let bytes = (grid.len() as u128)
+            * (channels.len() as u128)
+            * (brdf_synth::N_MATERIALS as u128)
+            * (dtype.size() as u128);
+        if bytes > u128::from(crate::config::MAX_STORE_BYTES) {
+            return Err(format!(
+                "the store would take {:.1} GB ({} materials x {} cells x {} channels x {} \
+                 bytes), over the {} GB a bench point may write",
+                bytes as f64 / 1e9,
+                brdf_synth::N_MATERIALS,
+                grid.len(),
+                channels.len(),
+                dtype.size(),
+                crate::config::MAX_STORE_BYTES / 1_000_000_000
+            ));
+        }
         brdf_synth::dataset::wavelengths_of(&channels)
             .map_err(|e| format!("wavelengths {:?}: {e}", self.wavelengths))?;
         self.optimizer
@@ -598,6 +616,12 @@ mod tests {
                 "wavelengths = 200:300:50",
             ),
             ("sphere_size = 48", "sphere_size = 1", "sphere_size"),
+            (
+                "\"16,16,32\"]",
+                "\"512,512,512\"]",
+                "grid = 512,512,512: the store would take 191.7 GB (51 materials x 134217728 \
+                 cells x 7 channels x 4 bytes), over the 64 GB a bench point may write",
+            ),
         ] {
             assert!(original.contains(from), "{from}");
             std::fs::write(&bad, original.replace(from, to)).unwrap();
