@@ -461,8 +461,16 @@ fn paper_table(s: &mut String, r: &Results) {
             k.n,
             num(k.reconstruction_exact),
             num(k.reconstruction_smooth),
-            num(k.loo_gp)
+            // NaN (null in results.json) when leave-one-out was not run.
+            if k.loo_gp.is_nan() {
+                "-".to_string()
+            } else {
+                num(k.loo_gp)
+            }
         );
+    }
+    if r.by_kind.iter().any(|k| k.loo_gp.is_nan()) {
+        let _ = writeln!(s, "\nLeave-one-out was not run (`[evaluate] loo = false`).");
     }
 }
 

@@ -649,3 +649,39 @@ fn a_failed_run_leaves_no_new_directory() {
         ["failing.toml", "names.txt", "new", "w.npy"]
     );
 }
+
+/// Without leave-one-out, the by-kind table says so instead of printing NaN as an error.
+#[test]
+fn by_kind_table_without_leave_one_out_says_it_was_not_run() {
+    let root = project_root();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("noloo.toml");
+    std::fs::write(
+        &path,
+        "name = \"noloo\"\n[data]\nkind = \"synth\"\ngrid = \"4,4,8\"\nwavelengths = \
+         \"400:700:100\"\n[fit]\nlatent_dim = 2\nmax_iterations = 20\n[evaluate]\nloo = false\n\
+         [render]\nenabled = false\n",
+    )
+    .unwrap();
+    let config = PipelineConfig::load(&path, &root).unwrap();
+    let out = dir.path().join("out");
+    let results = xtask::run(&config, &out).unwrap();
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert_eq!(results.by_kind.len(), 3);
+    for k in &results.by_kind {
+        assert!(k.loo_gp.is_nan());
+        let row = format!(
+            "| {} | {} | {} | {} | - |",
+            k.kind,
+            k.n,
+            xtask::report::num(k.reconstruction_exact),
+            xtask::report::num(k.reconstruction_smooth)
+        );
+        assert!(report.contains(&row), "{row}\n{report}");
+    }
+    assert!(!report.contains("NaN"), "{report}");
+    assert!(report.contains("Leave-one-out was not run (`[evaluate] loo = false`)."));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
+    assert!(json["by_kind"][0]["loo_gp"].is_null());
+}
