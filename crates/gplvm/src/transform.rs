@@ -283,8 +283,8 @@ fn ln_1p_lanes(x: f64) -> f64 {
     let p46 = z2.mul_add(c[6], p45);
     let p03 = z2.mul_add(p23, p01);
     let p = z4.mul_add(p46, p03);
-    // x - x is 0, or NaN for a NaN or infinite x, whose bits the reduction above loses.
-    k.mul_add(LN_2, s.mul_add(p, x - x))
+    // 0 x is 0, or NaN for a NaN or infinite x, whose bits the reduction above loses.
+    k.mul_add(LN_2, s.mul_add(p, 0.0 * x))
 }
 
 impl GramTransform for Transform {
