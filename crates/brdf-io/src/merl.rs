@@ -36,7 +36,12 @@ pub struct MerlBrdf {
 /// How [`MerlBrdf::resample`] maps MERL's cells onto another grid.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Resampling {
-    /// The MERL cell containing the target bin centre ([`AngularGrid::locate`]).
+    /// The MERL cell containing the target bin centre ([`AngularGrid::locate`]). When that cell
+    /// holds no value (a negative marker, or its own bin centre is below the horizon, where
+    /// files written by specgp hold 0) while the target cell is above the horizon, the valid
+    /// MERL cell of the lookup stencil ([`AngularGrid::interpolation_stencil`]) nearest to the
+    /// target bin centre (largest weight) that holds a value is read instead: a valid target
+    /// cell must not store a marker as 0.
     Nearest,
     /// The mean of the valid MERL cells whose bin centres fall into the target bin (negative
     /// markers and below-horizon cells excluded); a target bin that receives no MERL cell (a
@@ -176,18 +181,38 @@ impl MerlBrdf {
                 report.below_horizon_cells += 1;
                 continue;
             }
-            let (i, j, k) = src.locate(&grid.bin_centre_flat(t));
-            let nearest = src.index(i, j, k);
+            let centre = grid.bin_centre_flat(t);
             for c in 0..3 {
                 let v = if counts[t * 3 + c] > 0 {
                     sums[t * 3 + c] / f64::from(counts[t * 3 + c])
                 } else {
-                    self.values[c * n + nearest]
+                    self.nearest_value(&centre, c)
                 };
                 out[t * 3 + c] = report.record(v, None, false) as f32;
             }
         }
         (out, report)
+    }
+}
+
+impl MerlBrdf {
+    /// Channel `c` of the MERL cell containing `hd` ([`AngularGrid::locate`]) when that cell
+    /// holds a value: its bin centre is above the horizon and the value is not a negative
+    /// marker. Otherwise the value of the cell with the largest weight among the cells of
+    /// `hd`'s lookup stencil ([`AngularGrid::interpolation_stencil`]: valid cells only) that
+    /// hold one; the containing cell's value (a marker, stored as 0 and counted) when none does.
+    fn nearest_value(&self, hd: &HalfDiff, c: usize) -> f64 {
+        let g = self.grid;
+        let (i, j, k) = g.locate(hd);
+        let v = self.value(c, g.index(i, j, k));
+        if v >= 0.0 && g.is_valid_cell(i, j, k) {
+            return v;
+        }
+        g.interpolation_stencil(hd)
+            .iter()
+            .filter(|&&(a, w)| w > 0.0 && self.value(c, a) >= 0.0)
+            .max_by(|x, y| x.1.total_cmp(&y.1))
+            .map_or(v, |&(a, _)| self.value(c, a))
     }
 }
 
@@ -748,6 +773,47 @@ mod tests {
                 assert_eq!(v[t * 3], want, "cell {t} with {m:?}");
             }
         }
+    }
+
+    /// A valid (above-horizon) target cell whose MERL cell holds no value (its centre is below
+    /// the horizon: a negative marker in MERL's files, 0 in files specgp writes) reads the
+    /// nearest MERL cell that holds one: every valid target cell of a constant material is that
+    /// constant, with either method, on coarser and finer grids. Both used to store 0 there
+    /// (e.g. 1789 valid cells of MERL's grid on 45,45,90 with `Nearest`, 3506 on 100,100,200
+    /// with `Average`), zeros the store counts as data.
+    #[test]
+    fn valid_target_cells_never_read_cells_without_a_value() {
+        let src = AngularGrid::new(18, 18, 36).unwrap();
+        let (n, mask) = (src.len(), src.validity_mask());
+        for below in [-1.0 / 1500.0, 0.0] {
+            let values = (0..3 * n)
+                .map(|i| if mask[i % n] { 0.5 } else { below })
+                .collect();
+            let brdf = MerlBrdf::new(src, values).unwrap();
+            for (g, method) in [
+                ((9, 9, 18), Resampling::Nearest),
+                ((12, 12, 24), Resampling::Nearest),
+                ((20, 20, 40), Resampling::Average),
+                ((18, 18, 72), Resampling::Average),
+                ((20, 20, 40), Resampling::Nearest),
+            ] {
+                let grid = AngularGrid::new(g.0, g.1, g.2).unwrap();
+                let (v, report) = brdf.resample(&grid, method);
+                for (t, ok) in grid.validity_mask().into_iter().enumerate() {
+                    let want = if ok { [0.5; 3] } else { [0.0; 3] };
+                    assert_eq!(v[3 * t..3 * t + 3], want, "{g:?} {method:?} cell {t}");
+                }
+                assert_eq!(report.negatives_clamped, 0, "{g:?} {method:?}");
+            }
+        }
+        // Where the containing MERL cell holds a value, it is read as before.
+        let ramp = (0..3 * n).map(|i| (i % n) as f64).collect();
+        let brdf = MerlBrdf::new(src, ramp).unwrap();
+        let grid = AngularGrid::new(9, 9, 18).unwrap();
+        let (v, _) = brdf.resample(&grid, Resampling::Nearest);
+        let t = grid.index(2, 3, 4);
+        let (i, j, k) = src.locate(&grid.bin_centre(2, 3, 4));
+        assert_eq!(f64::from(v[3 * t]), src.index(i, j, k) as f64);
     }
 
     #[test]
