@@ -69,6 +69,8 @@ impl NbrdfSet {
             });
         }
         let text = std::fs::read_to_string(names_path).map_err(|e| Error::io(names_path, e))?;
+        // A byte-order mark (editors on Windows write one) is not part of the first name.
+        let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
         let names: Vec<String> = text
             .lines()
             .map(str::trim)
@@ -300,6 +302,12 @@ mod tests {
             NbrdfSet::open(&weights, &names).unwrap().names(),
             ["a", "b"]
         );
+        // A UTF-8 byte-order mark and CRLF line ends are not part of the names (the mark
+        // used to stay at the start of the first name, which `--only a` then did not find).
+        std::fs::write(&names, "\u{feff}a\r\nb\r\n").unwrap();
+        let set = NbrdfSet::open(&weights, &names).unwrap();
+        assert_eq!(set.names(), ["a", "b"]);
+        assert_eq!(set.find("a"), Some(0));
     }
 
     #[test]
