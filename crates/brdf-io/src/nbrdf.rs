@@ -57,17 +57,29 @@ impl NbrdfSet {
                 ),
             });
         }
-        let weights = arr.to_f32();
-        if let Some(i) = weights.iter().position(|w| !w.is_finite()) {
+        // Checked before the conversion to f32: an f64 weight beyond the f32 range is finite in
+        // the file (it used to be reported as a non-finite weight).
+        let wide = arr.to_f64();
+        if let Some(i) = wide
+            .iter()
+            .position(|w| !w.is_finite() || w.abs() > f64::from(f32::MAX))
+        {
+            let what = if wide[i].is_finite() {
+                format!("weight {:e} beyond the f32 range of the networks", wide[i])
+            } else {
+                format!("non-finite weight {}", wide[i])
+            };
             return Err(Error::Format {
                 path: path.to_path_buf(),
                 reason: format!(
-                    "non-finite weight in network {} (element {})",
+                    "{what} in network {} (element {})",
                     i / WEIGHTS_PER_NETWORK,
                     i % WEIGHTS_PER_NETWORK
                 ),
             });
         }
+        drop(wide);
+        let weights = arr.to_f32();
         let text = std::fs::read_to_string(names_path).map_err(|e| Error::io(names_path, e))?;
         // A byte-order mark (editors on Windows write one) is not part of the first name.
         let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
@@ -308,6 +320,43 @@ mod tests {
         let set = NbrdfSet::open(&weights, &names).unwrap();
         assert_eq!(set.names(), ["a", "b"]);
         assert_eq!(set.find("a"), Some(0));
+    }
+
+    /// Weights that the networks cannot hold are refused naming the file, the network, the
+    /// element and the problem: an f64 weight beyond the f32 range is not called non-finite.
+    #[test]
+    fn weights_beyond_f32_or_not_finite_are_refused_by_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let names = dir.path().join("n.txt");
+        std::fs::write(&names, "a\nb\n").unwrap();
+        let weights = dir.path().join("w.npy");
+        for (bad, want) in [
+            (
+                1e300,
+                "w.npy: weight 1e300 beyond the f32 range of the networks in network 1 (element 7)",
+            ),
+            (
+                f64::NAN,
+                "w.npy: non-finite weight NaN in network 1 (element 7)",
+            ),
+            (
+                -f64::INFINITY,
+                "w.npy: non-finite weight -inf in network 1 (element 7)",
+            ),
+        ] {
+            let mut row = vec![0.5f64; 2 * WEIGHTS_PER_NETWORK];
+            row[WEIGHTS_PER_NETWORK + 7] = bad;
+            crate::npy::write_f64(&weights, &[2, WEIGHTS_PER_NETWORK], &row).unwrap();
+            let e = NbrdfSet::open(&weights, &names).unwrap_err();
+            assert!(matches!(e, Error::Format { .. }), "{e}");
+            assert!(e.to_string().ends_with(want), "{e}");
+        }
+        // The largest f32 passes.
+        let mut row = vec![0.5f64; 2 * WEIGHTS_PER_NETWORK];
+        row[3] = f64::from(f32::MAX);
+        crate::npy::write_f64(&weights, &[2, WEIGHTS_PER_NETWORK], &row).unwrap();
+        let set = NbrdfSet::open(&weights, &names).unwrap();
+        assert_eq!(set.material(0).unwrap().w[3], f64::from(f32::MAX));
     }
 
     #[test]
