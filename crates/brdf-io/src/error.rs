@@ -172,10 +172,12 @@ pub enum Error {
         /// What was being written.
         what: String,
     },
-    /// A resampled source produced NaN or infinite values (a damaged file or network).
+    /// A resampled source produced NaN or infinite values, or values beyond the f32 range of a
+    /// store (a damaged file or network).
     #[error(
-        "{source_name}: {count} of {values} resampled values are NaN or infinite (a damaged file \
-         or network?); refusing to store them as zeros"
+        "{source_name}: {count} of {values} resampled values are NaN or infinite, or finite but \
+         beyond the f32 range of a store (|f| > 3.4e38; a damaged file or network?); refusing to \
+         store them as zeros"
     )]
     NonFiniteValues {
         /// The source (file, or network name).

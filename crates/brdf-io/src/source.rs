@@ -516,6 +516,19 @@ mod tests {
         assert_eq!(m, r);
         let e = r.ensure_finite("net").unwrap_err().to_string();
         assert!(e.starts_with("net: 1 of 5 resampled values are NaN"), "{e}");
+        // A finite value beyond the f32 range (a MERL number of 1e300) is not called NaN or
+        // infinite only.
+        let mut big = ImportReport::new();
+        assert_eq!(big.record(1e300, None, false), 0.0);
+        assert_eq!(big.non_finite, 1);
+        let e = big.ensure_finite("m.binary").unwrap_err().to_string();
+        assert!(
+            e.starts_with(
+                "m.binary: 1 of 1 resampled values are NaN or infinite, or finite but beyond the \
+                 f32 range of a store"
+            ),
+            "{e}"
+        );
         let mut ok = ImportReport::new();
         ok.record(1.0, None, false);
         assert!(ok.ensure_finite("net").is_ok());
