@@ -296,6 +296,21 @@ pub fn parse_merl(bytes: &[u8], path: impl AsRef<Path>) -> Result<MerlBrdf> {
         )));
     }
     let dims = header_dims(bytes);
+    // A file written big-endian (MERL's files are little-endian) has plausible dimensions only
+    // when they are byte-swapped, and then the right size: name that instead of the numbers.
+    let grid_of = |d: [i32; 3]| {
+        let [a, b, c] = d.map(|x| usize::try_from(x).ok());
+        AngularGrid::new(a?, b?, c?).ok()
+    };
+    let swapped = dims.map(i32::swap_bytes);
+    let swapped_len = grid_of(swapped).and_then(|g| g.len().checked_mul(24)?.checked_add(12));
+    if grid_of(dims).is_none() && swapped_len == Some(bytes.len()) {
+        return Err(bad(format!(
+            "the MERL header reads {dims:?}, which byte-swapped is {swapped:?} and fits the \
+             file's size: the file is big-endian; MERL files are little-endian (convert it, \
+             e.g. swap the bytes of the three i32 and of every f64)"
+        )));
+    }
     if dims.iter().any(|&d| d <= 0) {
         return Err(bad(format!(
             "bad MERL resolution {dims:?} (expected e.g. 90 90 180)"
@@ -814,6 +829,44 @@ mod tests {
         let t = grid.index(2, 3, 4);
         let (i, j, k) = src.locate(&grid.bin_centre(2, 3, 4));
         assert_eq!(f64::from(v[3 * t]), src.index(i, j, k) as f64);
+    }
+
+    /// A big-endian MERL file is named as such (its header read little-endian gave dimensions
+    /// like 1509949440 and a message about the grid's size limit).
+    #[test]
+    fn big_endian_files_are_named_big_endian() {
+        let mut bytes = Vec::new();
+        for d in [9i32, 9, 18] {
+            bytes.extend_from_slice(&d.to_be_bytes());
+        }
+        for _ in 0..3 * 9 * 9 * 18 {
+            bytes.extend_from_slice(&1500f64.to_be_bytes());
+        }
+        let e = parse_merl(&bytes, "be.binary").unwrap_err();
+        assert!(matches!(e, Error::Format { .. }), "{e}");
+        let msg = e.to_string();
+        assert!(
+            msg.starts_with("be.binary: the MERL header reads [150994944, 150994944, 301989888]")
+                && msg.contains("byte-swapped is [9, 9, 18]")
+                && msg.contains("the file is big-endian"),
+            "{msg}"
+        );
+        // 180 byte-swapped (0xb4000000) is a negative i32, as in MERL's own 90 x 90 x 180.
+        let mut bytes = Vec::new();
+        for d in [9i32, 9, 180] {
+            bytes.extend_from_slice(&d.to_be_bytes());
+        }
+        bytes.resize(12 + 24 * 9 * 9 * 180, 0);
+        let e = parse_merl(&bytes, "be.binary").unwrap_err().to_string();
+        assert!(e.contains("byte-swapped is [9, 9, 180]"), "{e}");
+        // Big-endian dimensions that do not fit the size stay a plain resolution error.
+        let e = parse_merl(&bytes[..bytes.len() - 8], "be.binary")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("bad MERL resolution") && !e.contains("big-endian"),
+            "{e}"
+        );
     }
 
     #[test]
