@@ -11,7 +11,8 @@
 //!   dropping the output uncommitted deletes it, so readers never see a half-written file. A
 //!   new file gets mode `0666 & !umask` (as `File::create`), a replaced file keeps its mode. A
 //!   symbolic link to a regular file is followed: the file it points to is replaced, the link
-//!   stays.
+//!   stays. A regular file without write permission (`chmod a-w`, or none for this user) is
+//!   refused with a permission error, as `File::create` refuses it, rather than renamed over.
 //! - **target exists and is not a regular file** (`/dev/stdout`, `/dev/null`, a FIFO, a
 //!   terminal, a character device; symlinks followed): the data is written straight into it,
 //!   since renaming would replace the special file by a regular one. Such output is not atomic.
@@ -175,6 +176,24 @@ fn is_append_mode(file: &File) -> bool {
     }
 }
 
+/// Whether the existing regular file `path` (`meta` its metadata, symbolic links followed) may
+/// be written: it has a write permission bit, and this process may write it (`access(2)`:
+/// the owner's, group's or others' bit that applies; root may write any file with a bit).
+fn writable(path: &Path, meta: &std::fs::Metadata) -> bool {
+    if meta.permissions().readonly() {
+        return false;
+    }
+    #[cfg(unix)]
+    {
+        rustix::fs::access(path, rustix::fs::Access::WRITE_OK).is_ok()
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = path;
+        true
+    }
+}
+
 impl AtomicOutput {
     /// Starts writing `path` (see the [module docs](self) for what happens with special files
     /// and with [`STDOUT`]).
@@ -201,6 +220,16 @@ impl AtomicOutput {
                 });
             }
             Ok(meta) => {
+                // A file without write permission is not replaced: the rename would succeed
+                // where `File::create` (and a shell's `>`) fails, so `chmod a-w` would not
+                // protect a reference file from an output aimed at it by mistake.
+                if !writable(&path, &meta) {
+                    return Err(io(std::io::Error::new(
+                        std::io::ErrorKind::PermissionDenied,
+                        "the file exists and is read-only (no write permission), so it is not \
+                         replaced; make it writable (chmod u+w) or choose another output",
+                    )));
+                }
                 let is_link = std::fs::symlink_metadata(&path)
                     .map(|m| m.file_type().is_symlink())
                     .unwrap_or(false);
@@ -689,6 +718,37 @@ mod tests {
         std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o640)).unwrap();
         write_file_atomic(&p, b"2").unwrap();
         assert_eq!(mode(&p), 0o640);
+    }
+
+    /// A read-only file (`chmod a-w`) is not replaced, even by root (a rename over it used to
+    /// succeed where `File::create` fails): the error names the path and says why, the file
+    /// keeps its bytes and no temporary file is left; through a symbolic link as well.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn read_only_files_are_not_replaced() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("ref.sbrdf");
+        let link = dir.path().join("link.sbrdf");
+        std::fs::write(&p, b"precious").unwrap();
+        std::os::unix::fs::symlink(&p, &link).unwrap();
+        std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o444)).unwrap();
+        for target in [&p, &link] {
+            let e = write_file_atomic(target, b"new").unwrap_err();
+            let Error::Io { path, error } = &e else {
+                panic!("{e}")
+            };
+            assert_eq!(path, target);
+            assert_eq!(error.kind(), std::io::ErrorKind::PermissionDenied);
+            assert!(e.to_string().contains("read-only"), "{e}");
+            assert_eq!(std::fs::read(&p).unwrap(), b"precious");
+            assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
+        }
+        // Writable again, it is replaced as usual (and keeps its mode).
+        std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o644)).unwrap();
+        write_file_atomic(&p, b"new").unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"new");
+        assert_eq!(mode(&p), 0o644);
     }
 
     #[cfg(unix)]
