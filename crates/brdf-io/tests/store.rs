@@ -695,6 +695,55 @@ fn header_with_a_huge_grid_is_refused() {
     names_file(&e, &path);
 }
 
+/// A header whose N x D x value size overflows 64 bits (1.2 10^6 wavelengths on a 512^3 grid,
+/// 10^5 materials, one chunk as before) is refused on open, naming the file; the chunk
+/// size check multiplied these unchecked (an overflow: a panic in debug builds).
+#[test]
+fn header_whose_payload_size_overflows_is_refused() {
+    let t = dir();
+    // One chunk: the chunk size check multiplies N by D itself.
+    let info = info(3, 3, 4, Channels::Rgb);
+    let rows: Vec<_> = (0..3).map(|i| material(&info, 70 + i)).collect();
+    let path = t.path().join("one_chunk.sbrdf");
+    let opts = StoreOptions {
+        chunk_len: Some(1000),
+        ..Default::default()
+    };
+    write_materials(&path, &info, &rows, opts, 1000).unwrap();
+    let cells: u64 = 512 * 512 * 512;
+    let channels: u64 = 1_200_000;
+    rewrite_header(&path, |h| {
+        let first = h["materials"][0].clone();
+        let materials: Vec<serde_json::Value> = (0..100_000)
+            .map(|i| {
+                let mut m = first.clone();
+                m["name"] = serde_json::json!(format!("m{i}"));
+                m
+            })
+            .collect();
+        h["materials"] = serde_json::Value::Array(materials);
+        h["grid"] = serde_json::json!({"n_theta_h": 512, "n_theta_d": 512, "n_phi_d": 512});
+        let wavelengths: Vec<f64> = (1..=channels).map(|w| w as f64).collect();
+        h["channels"] = serde_json::json!({"kind": "spectral", "wavelengths_nm": wavelengths});
+        // The chunk count (and so the offset table) stays: only the sizes are wrong.
+        let d = cells * channels;
+        let n_chunks = h["layout"]["n_chunks"].as_u64().unwrap();
+        let chunk_len = d.div_ceil(n_chunks);
+        assert_eq!(d.div_ceil(chunk_len), n_chunks);
+        h["d"] = serde_json::json!(d);
+        h["layout"]["chunk_len"] = serde_json::json!(chunk_len);
+    });
+    let e = Store::open(&path).unwrap_err();
+    assert!(matches!(e, Error::StoreCorrupt { .. }), "{e}");
+    assert!(
+        e.to_string().contains(
+            "100000 materials x D = 161061273600000 values x 4 bytes do not fit in 64 bits"
+        ),
+        "{e}"
+    );
+    names_file(&e, &path);
+}
+
 /// Headers with bad wavelengths or material names are refused on open, naming the store file
 /// (they used to open and fail later with messages naming no file).
 #[test]

@@ -754,6 +754,21 @@ fn validate_header(h: &StoreHeader, path: &Path) -> Result<()> {
             return bad(format!("duplicate material name {:?}", m.name));
         }
     }
+    // Every size the reader computes (a chunk's bytes, the payload's) is at most N x D values:
+    // a header whose N x D x value size does not fit in 64 bits is refused here, before any
+    // of those products overflows.
+    let payload = (h.materials.len() as u64)
+        .checked_mul(h.d as u64)
+        .and_then(|v| v.checked_mul(h.layout.dtype.size() as u64))
+        .filter(|&b| usize::try_from(b).is_ok());
+    if payload.is_none() {
+        return bad(format!(
+            "{} materials x D = {} values x {} bytes do not fit in 64 bits",
+            h.materials.len(),
+            h.d,
+            h.layout.dtype.size()
+        ));
+    }
     let l = &h.layout;
     if l.order != "chunked-index-major" {
         return bad(format!("unsupported layout order {:?}", l.order));
