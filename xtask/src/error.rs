@@ -51,11 +51,68 @@ impl Error {
         }
     }
 
+    /// The error with `staging` (the staging directory a run wrote into, gone once the run
+    /// fails) replaced by `out` (where the run publishes) in its path and message: a failed
+    /// stage then names the output the user asked for, not a deleted hidden directory.
+    pub fn published(self, staging: &std::path::Path, out: &std::path::Path) -> Self {
+        let path = |p: PathBuf| match p.strip_prefix(staging) {
+            Ok(rest) => out.join(rest),
+            Err(_) => p,
+        };
+        match self {
+            Self::Stage {
+                stage,
+                path: p,
+                reason,
+            } => Self::Stage {
+                stage,
+                path: path(p),
+                reason: reason.replace(&staging.display().to_string(), &out.display().to_string()),
+            },
+            Self::Io { path: p, error } => Self::Io {
+                path: path(p),
+                error,
+            },
+            other @ Self::Config { .. } => other,
+        }
+    }
+
     /// An I/O error on `path`.
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         Self::Io {
             path: path.into(),
             error: source,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    /// Paths and messages inside the staging directory name the published output instead;
+    /// others stay as they were.
+    #[test]
+    fn published_errors_name_the_output_not_the_staging_directory() {
+        let (staging, out) = (Path::new("/runs/.out.x1Y2.tmp"), Path::new("/runs/out"));
+        let e = Error::stage(
+            "fit",
+            staging.join("model.toml"),
+            "/runs/.out.x1Y2.tmp/data.sbrdf: two materials are identical",
+        )
+        .published(staging, out);
+        assert_eq!(
+            e.to_string(),
+            "fit stage (/runs/out/model.toml): /runs/out/data.sbrdf: two materials are identical"
+        );
+        let e = Error::io(
+            staging.join("sheet.png"),
+            std::io::Error::other("disk full"),
+        )
+        .published(staging, out);
+        assert_eq!(e.to_string(), "/runs/out/sheet.png: disk full");
+        let e = Error::stage("data", "/data/w.npy", "not an .npy file").published(staging, out);
+        assert_eq!(e.to_string(), "data stage (/data/w.npy): not an .npy file");
     }
 }

@@ -368,7 +368,7 @@ pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
                     .iter()
                     .fold(stage.path().to_owned(), |p, name| p.join(name));
                 std::fs::create_dir_all(&inner).map_err(|e| Error::io(&inner, e))?;
-                let results = run_in(config, &inner, out)?;
+                let results = run_in(config, &inner, out).map_err(|e| e.published(&inner, out))?;
                 let (from, to) = (stage.path().join(&missing[0]), base.join(&missing[0]));
                 std::fs::rename(&from, &to).map_err(|e| Error::io(&to, e))?;
                 return Ok(results);
@@ -377,7 +377,7 @@ pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
         Err(e) => return Err(Error::io(out, e)),
     }
     let stage = brdf_io::output::StagingDir::create(out).map_err(|e| output_err(out, &e))?;
-    let results = run_in(config, stage.path(), out)?;
+    let results = run_in(config, stage.path(), out).map_err(|e| e.published(stage.path(), out))?;
     stage
         .publish(is_pipeline_output)
         .map_err(|e| output_err(out, &e))?;
