@@ -314,8 +314,22 @@ pub struct BenchRow {
 
 /// Runs every point of `config`, writes `bench.md`, `bench.json` and `bench.png` into `out`.
 pub fn run(config: &BenchConfig, config_path: &Path, out: &Path) -> Result<Vec<BenchRow>> {
-    // Stores and models of the points live in a hidden scratch directory of `out`, deleted
-    // when the run ends, whether it succeeds or fails (or is interrupted).
+    // The three outputs are written into a staging directory and published together: a failed
+    // or interrupted run leaves `out` as it was (or absent).
+    crate::pipeline::run_staged(out, is_bench_output, |staged| {
+        run_in(config, config_path, staged)
+    })
+}
+
+/// The files a bench run publishes (an earlier run's are replaced as a set).
+fn is_bench_output(name: &str) -> bool {
+    matches!(name, "bench.json" | "bench.md" | "bench.png")
+}
+
+/// [`run`], writing into the staging directory `out`.
+fn run_in(config: &BenchConfig, config_path: &Path, out: &Path) -> Result<Vec<BenchRow>> {
+    // Stores and models of the points live in a hidden scratch directory, deleted when the
+    // points are done, whether they succeed or fail (or are interrupted).
     let scratch_dir =
         brdf_io::output::StagingDir::create(out).map_err(|e| Error::stage("bench", out, e))?;
     let scratch = scratch_dir.path().to_owned();

@@ -351,6 +351,20 @@ fn ensure_inputs_survive(config: &PipelineConfig, out: &Path) -> Result<()> {
 pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
     check_inputs(config)?;
     ensure_inputs_survive(config, out)?;
+    run_staged(out, is_pipeline_output, |dir| run_in(config, dir, out))
+}
+
+/// Runs `body` on a staging directory for the output directory `out` and publishes what it
+/// wrote there: into `out` when it exists ([`brdf_io::output::StagingDir::publish`], removing
+/// the earlier run's files for which `is_output` holds and that this run did not write), else
+/// by moving the new directory (with any missing parents) into place in one rename, so that a
+/// failed or interrupted run leaves `out` as it was, or absent. Errors name paths under `out`,
+/// not the staging directory ([`Error::published`]).
+pub(crate) fn run_staged<T>(
+    out: &Path,
+    is_output: impl Fn(&str) -> bool,
+    body: impl FnOnce(&Path) -> Result<T>,
+) -> Result<T> {
     let output_err = |path: &Path, e: &dyn std::fmt::Display| Error::stage("output", path, e);
     match std::fs::metadata(out) {
         Ok(m) if m.is_dir() => {}
@@ -368,20 +382,18 @@ pub fn run(config: &PipelineConfig, out: &Path) -> Result<Results> {
                     .iter()
                     .fold(stage.path().to_owned(), |p, name| p.join(name));
                 std::fs::create_dir_all(&inner).map_err(|e| Error::io(&inner, e))?;
-                let results = run_in(config, &inner, out).map_err(|e| e.published(&inner, out))?;
+                let value = body(&inner).map_err(|e| e.published(&inner, out))?;
                 let (from, to) = (stage.path().join(&missing[0]), base.join(&missing[0]));
                 std::fs::rename(&from, &to).map_err(|e| Error::io(&to, e))?;
-                return Ok(results);
+                return Ok(value);
             }
         }
         Err(e) => return Err(Error::io(out, e)),
     }
     let stage = brdf_io::output::StagingDir::create(out).map_err(|e| output_err(out, &e))?;
-    let results = run_in(config, stage.path(), out).map_err(|e| e.published(stage.path(), out))?;
-    stage
-        .publish(is_pipeline_output)
-        .map_err(|e| output_err(out, &e))?;
-    Ok(results)
+    let value = body(stage.path()).map_err(|e| e.published(stage.path(), out))?;
+    stage.publish(is_output).map_err(|e| output_err(out, &e))?;
+    Ok(value)
 }
 
 /// Whether a path's metadata failed because it is not there (or a parent is a file).

@@ -685,3 +685,53 @@ fn by_kind_table_without_leave_one_out_says_it_was_not_run() {
         serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
     assert!(json["by_kind"][0]["loo_gp"].is_null());
 }
+
+/// `cargo xtask bench` publishes bench.json, bench.md and bench.png together: into a new nested
+/// output directory that appears only when the run succeeds (no scratch or staging directory
+/// left), replacing an earlier run's set; an output path under a file is refused and creates
+/// nothing.
+#[test]
+fn bench_outputs_are_published_as_a_set() {
+    let dir = tempfile::tempdir().unwrap();
+    let config_path = dir.path().join("tiny.toml");
+    std::fs::write(
+        &config_path,
+        "max_iterations = 30\nmax_evaluations = 300\ndelta_e_materials = 0\nsphere_size = 16\n\
+         [base]\ngrid = \"4,4,8\"\nwavelengths = \"400:700:100\"\ndtype = \"f32\"\n\
+         latent_dim = 2\ntransform = \"log\"\noptimizer = \"lbfgs\"\npredictor = \"exact\"\n\
+         [sweep]\nlatent_dim = [1]\n",
+    )
+    .unwrap();
+    let config = xtask::bench::BenchConfig::load(&config_path).unwrap();
+    let entries = |p: &Path| {
+        let mut v: Vec<String> = std::fs::read_dir(p)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        v.sort();
+        v
+    };
+    let out = dir.path().join("new").join("bench");
+    let rows = xtask::bench::run(&config, &config_path, &out).unwrap();
+    assert_eq!(rows.len(), 2);
+    assert_eq!(entries(dir.path()), ["new", "tiny.toml"]);
+    assert_eq!(entries(&out), ["bench.json", "bench.md", "bench.png"]);
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("bench.json")).unwrap()).unwrap();
+    assert_eq!(json.as_array().unwrap().len(), 2);
+    // Again into the existing directory, over an earlier set: replaced, nothing added.
+    std::fs::write(out.join("bench.md"), "an earlier run").unwrap();
+    xtask::bench::run(&config, &config_path, &out).unwrap();
+    assert_eq!(entries(&out), ["bench.json", "bench.md", "bench.png"]);
+    assert_ne!(
+        std::fs::read_to_string(out.join("bench.md")).unwrap(),
+        "an earlier run"
+    );
+    // Under a file: refused, nothing created.
+    let under_file = dir.path().join("tiny.toml").join("bench");
+    let e = xtask::bench::run(&config, &config_path, &under_file)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("is not a directory"), "{e}");
+    assert_eq!(entries(dir.path()), ["new", "tiny.toml"]);
+}
