@@ -367,22 +367,22 @@ fn import_rgl(args: &RglArgs) -> anyhow::Result<()> {
         reciprocal: !args.no_reciprocal,
         ..Default::default()
     };
-    let channels = match &args.wavelengths {
-        Some(spec) => Channels::parse_wavelengths(spec)?,
-        None => RglBsdf::open(&args.files[0])?.native_channels().clone(),
-    };
     // Every file is read and checked against the channels before any is resampled (which
     // takes far longer than reading): a damaged file or a spectral file whose range misses a
     // wavelength is refused up front, not after the files before it were resampled.
-    if args.files.len() > 1 {
-        let pb = bar(args.files.len() as u64, "check rgl");
-        for file in &args.files {
-            pb.set_message(stem(file));
-            RglBsdf::open(file)?.with_channels(&channels)?;
-            pb.inc(1);
-        }
-        pb.finish_and_clear();
+    let first = RglBsdf::open(&args.files[0])?;
+    let channels = match &args.wavelengths {
+        Some(spec) => Channels::parse_wavelengths(spec)?,
+        None => first.native_channels().clone(),
+    };
+    first.with_channels(&channels)?;
+    let pb = bar(args.files.len() as u64 - 1, "check rgl");
+    for file in &args.files[1..] {
+        pb.set_message(stem(file));
+        RglBsdf::open(file)?.with_channels(&channels)?;
+        pb.inc(1);
     }
+    pb.finish_and_clear();
     import_each(
         &args.store,
         channels.clone(),
