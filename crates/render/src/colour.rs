@@ -285,13 +285,10 @@ pub fn linear_srgb_to_xyz(rgb: [f64; 3]) -> [f64; 3] {
     mat_vec(&SRGB_TO_XYZ, rgb)
 }
 
-/// The sRGB transfer curve (linear -> encoded), for values in [0, 1] (clamped).
+/// The sRGB transfer curve (linear -> encoded), for values in [0, 1] (clamped: +infinity, an
+/// overexposed value that overflowed, is white like any value above 1; NaN is black).
 pub fn srgb_encode(v: f64) -> f64 {
-    let v = if v.is_finite() {
-        v.clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
+    let v = if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) };
     if v <= 0.003_130_8 {
         12.92 * v
     } else {
@@ -608,6 +605,19 @@ mod tests {
         assert_eq!(to_srgb8(1.0), 255);
         assert_eq!(to_srgb8(0.0), 0);
         assert_eq!(to_srgb8(0.2159), 128);
+    }
+
+    /// A value that overflowed to +infinity (a bright highlight at a high exposure: 1e300 x
+    /// 2^64) clips to white like any value above 1; it used to be encoded as black, a black
+    /// spot in the middle of the highlight. NaN and -infinity stay black.
+    #[test]
+    fn overflowed_values_clip_to_white() {
+        assert_eq!(srgb_encode(f64::INFINITY), srgb_encode(1.0));
+        assert_eq!(to_srgb8(f64::INFINITY), 255);
+        assert_eq!(to_srgb8(1e300 * 2f64.powi(64)), 255);
+        assert_eq!(to_srgb8(f64::NEG_INFINITY), 0);
+        assert_eq!(to_srgb8(f64::NAN), 0);
+        assert_eq!(to_srgb8(2.0), 255);
     }
 
     /// All 34 pairs of Table 1 of Sharma, Wu and Dalal (2005), both orders (pairs 9-12 and
