@@ -71,11 +71,13 @@ pub fn variance_caption(transform: &str, q: usize) -> String {
 /// Makes a source for a latent point (e.g. a lazily predicted material).
 pub type SourceAt<'a> = dyn Fn([f64; 2]) -> Result<Box<dyn BrdfSource + 'a>> + Sync + 'a;
 
-/// The plot extent: the points' bounding box padded by 15 % (at least 0.5), widened to a square
-/// (equal scales on both axes), as (x0, x1, y0, y1).
+/// The plot extent: the points' bounding box padded by 15 % (at least 0.5, and at least
+/// 1e-11 of the largest coordinate's magnitude, so that the padding is not lost to rounding far
+/// from the origin and pixels stay apart in floating point), widened to a square (equal scales
+/// on both axes), as (x0, x1, y0, y1).
 pub fn extent(points: &[LabelledPoint]) -> [f64; 4] {
     let [x0, x1, y0, y1] = bounding_box(points);
-    let pad = |a: f64, b: f64| ((b - a) * 0.15).max(0.5);
+    let pad = |a: f64, b: f64| ((b - a) * 0.15).max(0.5).max(1e-11 * a.abs().max(b.abs()));
     let (px, py) = (pad(x0, x1), pad(y0, y1));
     let (mut x0, mut x1, mut y0, mut y1) = (x0 - px, x1 + px, y0 - py, y1 + py);
     // Equal scales on both axes (distances in the latent space are what the kernel sees).
@@ -568,6 +570,41 @@ mod tests {
         }
         assert!(nice_ticks(1.0, 1.0, 5).is_empty());
         assert!(nice_ticks(f64::NAN, 1.0, 5).is_empty());
+    }
+
+    /// Points far from the origin (model files allow coordinates up to 1e100) still get a plot
+    /// of positive width around them: a padding of 0.5 vanished in rounding next to 1e100, the
+    /// extent had zero width, every point mapped to NaN pixels and no dot was drawn.
+    #[test]
+    fn points_near_the_coordinate_bound_get_a_plot_around_them() {
+        for c in [1e100, -1e100, 3e17] {
+            let points = vec![("A".to_owned(), [c, c]), ("B".to_owned(), [c, c])];
+            let [x0, x1, y0, y1] = extent(&points);
+            assert!(
+                x0 < c && c < x1 && y0 < c && c < y1,
+                "{c}: {x0} {x1} {y0} {y1}"
+            );
+            // Wide enough for distinct pixel columns in floating point.
+            assert!(
+                (x1 - x0) / 8192.0 > 8.0 * c.abs() * f64::EPSILON,
+                "{x0} {x1}"
+            );
+            let opts = MapOptions {
+                size: 64,
+                variance_samples: 4,
+                ..MapOptions::default()
+            };
+            let img = latent_map(&points, &|_| Ok(1.0), None, &opts).unwrap();
+            // The dots sit at the plot's centre: red there (white ring, red core).
+            let centre = img.get(40 + 32, 40 + 32);
+            assert!(centre[0] > 0.5 && centre[1] < 0.2, "{c}: {centre:?}");
+        }
+        // Ordinary coordinates keep the 0.5 padding.
+        let [x0, x1, ..] = extent(&[("A".to_owned(), [0.3, 0.3])]);
+        assert!(
+            (x0 + 0.2).abs() < 1e-12 && (x1 - 0.8).abs() < 1e-12,
+            "{x0} {x1}"
+        );
     }
 
     #[test]
