@@ -864,7 +864,11 @@ pub fn evaluate(
         if let Some(cap) = options.refit_iterations {
             let p = &mut config.params;
             p.max_iterations = p.max_iterations.min(cap);
-            let evals = cap as usize * 2 * n * model.latent_dim;
+            // Saturating: a cap beyond any budget means the configuration's own (it wrapped
+            // to a handful of evaluations, or panicked in debug builds, for caps >= 2^63).
+            let evals = usize::try_from(cap)
+                .unwrap_or(usize::MAX)
+                .saturating_mul((2 * n).saturating_mul(model.latent_dim));
             p.max_evaluations = p.max_evaluations.min(evals);
         }
         let done = AtomicUsize::new(0);

@@ -575,6 +575,50 @@ fn brdf_space_errors_equal_model_space_errors_for_raw_data() {
     assert_eq!(ev.summary.len(), 2 + Method::ALL.len());
 }
 
+/// A leave-one-out refit cap beyond any budget (`evaluate --refit-iterations` takes any u64)
+/// leaves the model's own configuration in force: the Hooke-Jeeves evaluation budget derived
+/// from it (`cap * 2 N q`) overflowed, a panic in debug builds and, in release builds, a wrap
+/// to 0 evaluations (1 after the optimiser's floor), so the refits silently stayed at the warm
+/// start.
+#[test]
+fn a_huge_refit_cap_leaves_the_refits_configured_budget() {
+    let f = fixture(5, "log");
+    let mut model = Model::load(&f.model).unwrap();
+    model.config.optimizer = gplvm::OptimizerKind::HookeJeeves;
+    model.config.max_evaluations = 3000;
+    let store = Arc::new(Store::open(&f.store).unwrap());
+    let pred = Predictor::with_store(model, &f.model, store).unwrap();
+    let run = |cap: Option<u64>| {
+        let options = EvalOptions {
+            loo: true,
+            starts: 2,
+            warm_start: true,
+            refit_iterations: cap,
+        };
+        evaluate(&pred, &options, &|_, _, _| {}).unwrap()
+    };
+    let own = run(None);
+    let own_loo = own.loo.as_ref().unwrap();
+    for cap in [1u64 << 63, u64::MAX] {
+        let capped = run(Some(cap));
+        for (a, b) in own_loo.iter().zip(capped.loo.as_ref().unwrap()) {
+            assert_eq!(a.gp_point, b.gp_point, "cap {cap}, {}", a.name);
+            for (x, y) in a.methods.iter().zip(&b.methods) {
+                assert_eq!(x.model_rmse.to_bits(), y.model_rmse.to_bits(), "cap {cap}");
+            }
+        }
+    }
+    // The budget matters here (so the comparison above can fail): a starved refit (a cap of
+    // 1: 2 N q = 16 evaluations) places some held-out material elsewhere.
+    let starved = run(Some(1));
+    assert!(
+        own_loo
+            .iter()
+            .zip(starved.loo.as_ref().unwrap())
+            .any(|(a, b)| a.gp_point != b.gp_point)
+    );
+}
+
 #[test]
 fn bad_inputs_give_clear_errors() {
     let f = fixture(6, "log");
