@@ -67,6 +67,14 @@ pub enum Error {
         /// What does not fit.
         reason: String,
     },
+    /// An angular cell index beyond the grid (lookups by cell).
+    #[error("angular cell {cell} is beyond the grid's {cells} cells")]
+    CellOutOfRange {
+        /// The cell index given.
+        cell: usize,
+        /// Cells of the grid (valid indices are below this).
+        cells: usize,
+    },
     /// An output file that cannot be written in the requested format.
     #[error("{path}: {reason}")]
     Output {

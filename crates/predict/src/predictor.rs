@@ -704,6 +704,14 @@ impl PredictedMaterial {
     pub fn eval_cell(&self, a: usize, out: &mut [f64]) -> Result<()> {
         self.check_out(out)?;
         let inner = &*self.pred.inner;
+        // Before `a * nc`: a huge index wrapped onto another cell's values (a panic in debug
+        // builds).
+        if a >= inner.grid.len() {
+            return Err(Error::CellOutOfRange {
+                cell: a,
+                cells: inner.grid.len(),
+            });
+        }
         let (nc, n) = (inner.channels.len(), inner.n);
         let sel = &*self.selection;
         let (first, last) = self.selection.span();
@@ -750,8 +758,12 @@ impl PredictedMaterial {
     }
 
     /// A hint that [`PredictedMaterial::eval_cell`] of cell `a` follows soon: starts fetching
-    /// its stored values into the cache (see [`brdf_io::store::Store::prefetch`]).
+    /// its stored values into the cache (see [`brdf_io::store::Store::prefetch`]); no effect
+    /// for a cell outside the grid.
     pub fn prefetch_cell(&self, a: usize) {
+        if a >= self.pred.inner.grid.len() {
+            return;
+        }
         let nc = self.pred.inner.channels.len();
         let (first, last) = self.selection.span();
         let (store, _) = self.pred.lookup_store();

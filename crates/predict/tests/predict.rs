@@ -704,6 +704,41 @@ fn bad_inputs_give_clear_errors() {
     assert!(matches!(e, Error::InvalidPoint { .. }), "{e}");
 }
 
+/// A cell index beyond the grid is an error naming it, however large: `a * n_channels`
+/// overflowed (a panic in debug builds) and, in release builds, wrapped onto other cells'
+/// values: with 7 channels, cell (3 * 2^64 + 1) / 7 read the flat indices 1..8 and returned
+/// them as its values.
+#[test]
+fn cell_lookups_beyond_the_grid_are_errors() {
+    let f = fixture(4, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    let material = pred.predict(&[0.1, 0.2], PredictorKind::Exact).unwrap();
+    let nc = pred.channels().len();
+    assert_eq!(nc, 7);
+    let wraps_to_index_1 = ((3u128 << 64) + 1) / 7;
+    assert_eq!(wraps_to_index_1 as usize as u128, wraps_to_index_1);
+    let cells = pred.grid().len();
+    let mut out = vec![0.0; nc];
+    for a in [cells, wraps_to_index_1 as usize, usize::MAX] {
+        match material.eval_cell(a, &mut out) {
+            Err(Error::CellOutOfRange { cell, cells: c }) => assert_eq!((cell, c), (a, cells)),
+            other => panic!("cell {a}: {other:?} {out:?}"),
+        }
+        assert!(BrdfSource::eval_cell(&material, a, &mut out).is_err());
+        // A prefetch hint for it does nothing (it overflowed too).
+        material.prefetch_cell(a);
+        BrdfSource::prefetch_cell(&material, a);
+    }
+    // The last cell still reads.
+    material.eval_cell(cells - 1, &mut out).unwrap();
+    for (c, v) in out.iter().enumerate() {
+        assert_eq!(
+            v.to_bits(),
+            material.value_at((cells - 1) * nc + c).unwrap().to_bits()
+        );
+    }
+}
+
 #[test]
 fn the_transformed_sidecar_store_gives_the_same_predictions() {
     let f = fixture(8, "log");
