@@ -127,11 +127,13 @@ pub fn kernel_params(model: &Model) -> Result<KernelParams> {
 }
 
 /// Default path of the sidecar store of `transform`ed values of the dataset at `dataset`:
-/// `DATA.sbrdf.<transform>.sbrdf` next to it ([`Predictor::transformed_store_path`]).
+/// `DATA.sbrdf.<transform>.sbrdf` next to it ([`Predictor::transformed_store_path`]). The
+/// offset is written as [`short_number`] does (`log-0.01`, `log-1e-300`): as `{}` it took 300
+/// digits for 1e-300, a file name the file system refuses.
 pub fn transformed_store_path(dataset: &Path, transform: Transform) -> PathBuf {
     let tag = match transform {
         Transform::Raw => "raw".to_owned(),
-        Transform::Log { offset } => format!("log-{offset}"),
+        Transform::Log { offset } => format!("log-{}", short_number(offset)),
     };
     let mut name = dataset.file_name().unwrap_or_default().to_os_string();
     name.push(format!(".{tag}.sbrdf"));

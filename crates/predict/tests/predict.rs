@@ -807,6 +807,48 @@ fn the_transformed_sidecar_store_gives_the_same_predictions() {
     assert!(e.to_string().contains("forward-transformed"), "{e}");
 }
 
+/// The sidecar of a model with a tiny or huge log offset has a file name the file system
+/// takes: `log-{offset}` wrote 1e-300 with 300 digits (a 330-byte name, refused with "File
+/// name too long" by `predict --sidecar`). Distinct offsets keep distinct names.
+#[test]
+fn sidecars_of_extreme_log_offsets_have_short_names() {
+    let f = fixture(4, "log:1e-300");
+    let pred = Predictor::open(&f.model).unwrap();
+    assert_eq!(pred.transform(), Transform::Log { offset: 1e-300 });
+    let side = pred.transformed_store_path();
+    assert_eq!(
+        side.file_name().unwrap().to_string_lossy(),
+        "data.sbrdf.log-1e-300.sbrdf"
+    );
+    pred.build_transformed_store(&side, |_, _| {}).unwrap();
+    let fast = pred.with_transformed_store(&side).unwrap();
+    // The sidecar's lookups are the dataset's: the exact predictor returns a training
+    // material, through its transformed values t = ln(1 + f / 1e-300) ~ 690 rounded to f32
+    // (half an ulp: |t| 2^-24), so f moves by (f + c)(e^(|t| 2^-24) - 1), ~4e-5 relative.
+    let x = &pred.model().materials[2].coords;
+    let (a, b) = (
+        pred.predict(x, PredictorKind::Exact).unwrap(),
+        fast.predict(x, PredictorKind::Exact).unwrap(),
+    );
+    let mut nonzero = 0;
+    for d in 0..pred.store().d() {
+        let (u, v) = (a.value_at(d).unwrap(), b.value_at(d).unwrap());
+        let t = pred.transform().forward(u);
+        let allowed = (u.abs() + 1e-300) * (t.abs() * 2f64.powi(-24)).exp_m1() * 1.01;
+        assert!((u - v).abs() <= allowed, "d = {d}: {u} {v}");
+        nonzero += usize::from(u != 0.0);
+    }
+    assert!(nonzero > pred.store().d() / 2);
+    let name = |offset: f64| {
+        predict::transformed_store_path(Path::new("d.sbrdf"), Transform::Log { offset })
+            .to_string_lossy()
+            .into_owned()
+    };
+    assert_eq!(name(0.01), "d.sbrdf.log-0.01.sbrdf");
+    assert_eq!(name(1e300), "d.sbrdf.log-1e300.sbrdf");
+    assert_ne!(name(1e-5), name(1.0000000000000002e-5));
+}
+
 /// A NaN in the stored values (a damaged payload: lookups do not re-hash it) is an error
 /// naming the store or the prediction, in lookups of stored and predicted materials, in
 /// materialised `.npy` files and in BRDF-space errors; never a NaN passed on silently.
