@@ -161,6 +161,14 @@ pub fn latent_map(
     let [x0, x1, y0, y1] = extent(points);
     let size = opts.size;
     let margin = 40usize;
+    let (xt, yt) = (nice_ticks(x0, x1, 5), nice_ticks(y0, y1, 5));
+    // The left margin holds the y tick labels (right-aligned 6 px left of the frame).
+    let left = yt
+        .iter()
+        .map(|(_, label)| font::text_width(label, 1) + 8)
+        .max()
+        .unwrap_or(0)
+        .max(margin);
     let panel_title = if opts.caption.contains("SLICE") {
         "PREDICTED MATERIALS OVER THE GREY BOX, ON THE SLICE"
     } else {
@@ -173,7 +181,7 @@ pub fn latent_map(
     } else {
         0
     };
-    let width = margin + size + margin + panel;
+    let width = left + size + margin + panel;
     let height = margin + size + margin + 32;
     let mut img = Image::new(width, height, [1.0; 3]);
     // Variance on a coarse grid.
@@ -204,7 +212,7 @@ pub fn latent_map(
             let val = (1.0 - fv) * ((1.0 - fu) * g(i, j) + fu * g(i + 1, j))
                 + fv * ((1.0 - fu) * g(i, j + 1) + fu * g(i + 1, j + 1));
             img.set(
-                (margin + px) as i64,
+                (left + px) as i64,
                 (margin + py) as i64,
                 shade((val.max(0.0) / vmax).sqrt()),
             );
@@ -212,16 +220,16 @@ pub fn latent_map(
     }
     let to_px = |p: [f64; 2]| {
         (
-            margin as f64 + (p[0] - x0) / (x1 - x0) * size as f64,
+            left as f64 + (p[0] - x0) / (x1 - x0) * size as f64,
             margin as f64 + (y1 - p[1]) / (y1 - y0) * size as f64,
         )
     };
     // Frame and axis ranges.
     let black = [0.0; 3];
     let (l, t, r, b) = (
+        left as i64 - 1,
         margin as i64 - 1,
-        margin as i64 - 1,
-        (margin + size) as i64,
+        (left + size) as i64,
         (margin + size) as i64,
     );
     img.fill_rect(l, t, size + 2, 1, black);
@@ -230,15 +238,20 @@ pub fn latent_map(
     img.fill_rect(r, t, 1, size + 2, black);
     // Ticks at round coordinates (so a point can be read off the map, e.g. for
     // `render MODEL.toml@X1,X2,...`), with faint grid lines across the plot.
-    let (xt, yt) = (nice_ticks(x0, x1, 5), nice_ticks(y0, y1, 5));
-    let mut x_labels = Vec::new();
+    // A label that would run into the previous one or off the image is left out (its tick
+    // and grid line stay).
+    let mut x_labels: Vec<(i64, i64)> = Vec::new();
     for (v, label) in &xt {
         let px = to_px([*v, y0]).0.round() as i64;
         img.blend_rect(px, t + 1, 1, size, [0.0; 3], 0.12);
         img.fill_rect(px, b + 1, 1, 4, black);
         let w = font::text_width(label, 1) as i64;
-        img.text(px - w / 2, b + 7, label, 1, black);
-        x_labels.push((px - w / 2, px + w / 2));
+        let (a, z) = (px - w / 2, px - w / 2 + w);
+        if a < 0 || z > width as i64 || x_labels.last().is_some_and(|&(_, prev)| a < prev + 6) {
+            continue;
+        }
+        img.text(a, b + 7, label, 1, black);
+        x_labels.push((a, px + w / 2));
     }
     let mut y_labels = Vec::new();
     for (v, label) in &yt {
@@ -311,9 +324,9 @@ pub fn latent_map(
         .map(|(name, _)| font::text_width(name, 1))
         .collect();
     let plot = Rect {
-        x0: margin as i64,
+        x0: left as i64,
         y0: margin as i64,
-        x1: (margin + size) as i64,
+        x1: (left + size) as i64,
         y1: (margin + size) as i64,
     };
     let spots = place_labels(&dots, &widths, plot);
@@ -345,7 +358,7 @@ pub fn latent_map(
     if let (Some(f), Some([bx0, bx1, by0, by1])) = (source_at, thumbs_box) {
         let g = opts.thumbnails;
         let ts = opts.sphere.size;
-        let ox = (margin + size + margin) as i64;
+        let ox = (left + size + margin) as i64;
         let cells: Vec<(usize, usize)> = (0..g * g).map(|k| (k % g, k / g)).collect();
         let thumbs: Vec<Image> = cells
             .iter()
@@ -369,18 +382,20 @@ pub fn latent_map(
 
 /// Round tick values in `[lo, hi]`: multiples of 1, 2 or 5 times a power of ten, the smallest
 /// such step that gives at most 1.5 `target` ticks, each with its label (as many decimals as
-/// the step needs; "0" for zero).
+/// the step needs; "0" for zero; with an exponent, as `2.5E6` or `-1E100`, when the step is
+/// 1e5 or more, where plain digits ran to a hundred characters across the map).
 pub fn nice_ticks(lo: f64, hi: f64, target: usize) -> Vec<(f64, String)> {
     if !(lo.is_finite() && hi.is_finite() && hi > lo) {
         return Vec::new();
     }
     let raw = (hi - lo) / target.max(1) as f64;
-    let power = 10f64.powf(raw.log10().floor());
-    let step = [1.0, 2.0, 5.0, 10.0]
+    let exponent = raw.log10().floor() as i32;
+    let power = 10f64.powi(exponent);
+    let (mult, step) = [1i64, 2, 5, 10]
         .iter()
-        .map(|m| m * power)
-        .find(|s| (hi - lo) / s <= 1.5 * target.max(1) as f64)
-        .unwrap_or(10.0 * power);
+        .map(|&m| (m, m as f64 * power))
+        .find(|(_, s)| (hi - lo) / s <= 1.5 * target.max(1) as f64)
+        .unwrap_or((10, 10.0 * power));
     let decimals = (-step.log10().floor()).max(0.0) as usize;
     let first = (lo / step).ceil() as i64;
     let last = (hi / step).floor() as i64;
@@ -389,12 +404,28 @@ pub fn nice_ticks(lo: f64, hi: f64, target: usize) -> Vec<(f64, String)> {
             let v = k as f64 * step;
             let label = if k == 0 {
                 "0".to_owned()
+            } else if step >= 1e5 {
+                exponent_label(k.saturating_mul(mult), exponent)
             } else {
                 format!("{v:.decimals$}")
             };
             (v, label)
         })
         .collect()
+}
+
+/// `n x 10^e` written as `D.DDDE±X` with no trailing zeros (`15, 99` -> `1.5E100`).
+fn exponent_label(n: i64, e: i32) -> String {
+    let sign = if n < 0 { "-" } else { "" };
+    let digits = n.unsigned_abs().to_string();
+    let kept = digits.trim_end_matches('0');
+    let e = e as i64 + digits.len() as i64 - 1;
+    let (head, tail) = kept.split_at(1);
+    if tail.is_empty() {
+        format!("{sign}{head}E{e}")
+    } else {
+        format!("{sign}{head}.{tail}E{e}")
+    }
 }
 
 /// A pixel rectangle `[x0, x1) x [y0, y1)`.
@@ -568,6 +599,24 @@ mod tests {
             assert!((2..=10).contains(&t.len()), "{lo}..{hi}: {t:?}");
             assert!(t.iter().all(|(v, _)| *v >= lo - 1e-12 && *v <= hi + 1e-12));
         }
+        // Steps of 1e5 and more are written with an exponent (plain digits ran to a hundred
+        // characters for points near the model files' 1e100 bound).
+        assert_eq!(
+            labels(nice_ticks(-1.0, 1.0e6, 5)),
+            ["0", "2E5", "4E5", "6E5", "8E5", "1E6"]
+        );
+        assert_eq!(
+            labels(nice_ticks(-1.3e100, 1.3e100, 5)),
+            ["-1E100", "-5E99", "0", "5E99", "1E100"]
+        );
+        assert_eq!(
+            labels(nice_ticks(2.35e7, 2.95e7, 3)),
+            ["2.4E7", "2.6E7", "2.8E7"]
+        );
+        assert_eq!(
+            labels(nice_ticks(9000.0, 41000.0, 4)),
+            ["10000", "20000", "30000", "40000"]
+        );
         assert!(nice_ticks(1.0, 1.0, 5).is_empty());
         assert!(nice_ticks(f64::NAN, 1.0, 5).is_empty());
     }
@@ -595,8 +644,9 @@ mod tests {
                 ..MapOptions::default()
             };
             let img = latent_map(&points, &|_| Ok(1.0), None, &opts).unwrap();
-            // The dots sit at the plot's centre: red there (white ring, red core).
-            let centre = img.get(40 + 32, 40 + 32);
+            // The dots sit at the plot's centre (its right edge is 40 px from the image's):
+            // red there (white ring, red core).
+            let centre = img.get(img.width - 40 - 32, 40 + 32);
             assert!(centre[0] > 0.5 && centre[1] < 0.2, "{c}: {centre:?}");
         }
         // Ordinary coordinates keep the 0.5 padding.
@@ -605,6 +655,39 @@ mod tests {
             (x0 + 0.2).abs() < 1e-12 && (x1 - 0.8).abs() < 1e-12,
             "{x0} {x1}"
         );
+    }
+
+    /// Tick labels of huge coordinates stay on the image: the y labels get a left margin as
+    /// wide as they need (they were right-aligned into a fixed 40-pixel margin and ran off the
+    /// left edge), and x labels that would overlap are left out.
+    #[test]
+    fn huge_tick_labels_stay_on_the_image() {
+        let points = vec![
+            ("A".to_owned(), [-1e100, -1e100]),
+            ("B".to_owned(), [1e100, 1e100]),
+            ("C".to_owned(), [0.9e100, -3e99]),
+        ];
+        let opts = MapOptions {
+            size: 200,
+            variance_samples: 4,
+            ..MapOptions::default()
+        };
+        let img = latent_map(&points, &|_| Ok(1.0), None, &opts).unwrap();
+        let dark = |x: usize, y: usize| img.get(x, y).iter().all(|v| *v < 0.5);
+        // Column 0 and the last column hold no text below the title lines (the axis name X2
+        // starts at x = 2).
+        for y in 30..img.height {
+            assert!(
+                !dark(0, y) && !dark(img.width - 1, y),
+                "text at the edge, row {y}"
+            );
+        }
+        // The labels sit in the margin, left of the frame, right of the axis name.
+        let frame = (0..img.width).find(|&x| dark(x, 40 + 200)).unwrap();
+        assert!(frame > 40, "the margin did not widen: frame at {frame}");
+        let text_rows = 40..(40 + 200);
+        let ink = (16..frame - 1).any(|x| text_rows.clone().any(|y| dark(x, y)));
+        assert!(ink, "no y tick label left of the frame at {frame}");
     }
 
     #[test]
