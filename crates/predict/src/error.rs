@@ -67,6 +67,16 @@ pub enum Error {
         /// What does not fit.
         reason: String,
     },
+    /// A leave-one-out step (refit without the material, latent search, baselines) failed.
+    #[error("leave-one-out without material {index} ({name:?}): {source}")]
+    LeaveOneOut {
+        /// Index of the held-out material.
+        index: usize,
+        /// Its name.
+        name: String,
+        /// What failed.
+        source: Box<Error>,
+    },
     /// An angular cell index beyond the grid (lookups by cell).
     #[error("angular cell {cell} is beyond the grid's {cells} cells")]
     CellOutOfRange {

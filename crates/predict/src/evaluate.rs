@@ -879,7 +879,14 @@ pub fn evaluate(
             .into_par_iter()
             .map(|h| {
                 let warm = options.warm_start.then(|| (x_full.as_ref(), &params));
-                let r = leave_one_out(g.as_ref(), d_eff, &config, h, options.starts, warm);
+                // Named: the refit's own message counts the N - 1 materials it was given.
+                let r = leave_one_out(g.as_ref(), d_eff, &config, h, options.starts, warm).map_err(
+                    |e| Error::LeaveOneOut {
+                        index: h,
+                        name: model.materials[h].name.clone(),
+                        source: Box::new(e),
+                    },
+                );
                 progress(Stage::Refits, done.fetch_add(1, Ordering::Relaxed) + 1, n);
                 r
             })

@@ -619,6 +619,58 @@ fn a_huge_refit_cap_leaves_the_refits_configured_budget() {
     );
 }
 
+/// A leave-one-out refit that cannot be done (holding out the one distinct material of
+/// three leaves two identical ones: nothing to fit) is an error naming the held-out material;
+/// the refit's own message ("the 2 materials are identical") counted materials the user never
+/// gave and did not say which were left.
+#[test]
+fn a_failed_leave_one_out_refit_names_the_held_out_material() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = dir.path().join("twins.sbrdf");
+    let preset = brdf_synth::preset(0);
+    let mut twin = preset[0].clone();
+    twin.name = format!("{}_twin", twin.name);
+    let picked = vec![preset[0].clone(), twin, preset[20].clone()];
+    brdf_synth::write_store(
+        &store,
+        &picked,
+        grid(),
+        &channels(),
+        StoreOptions::default(),
+        0,
+        |_| {},
+    )
+    .unwrap();
+    let params = FitParams {
+        latent_dim: 1,
+        max_iterations: 300,
+        ..FitParams::default()
+    };
+    let model = gplvm::fit_store(&store, &params.check().unwrap()).unwrap();
+    let model_path = dir.path().join("model.toml");
+    model.save(&model_path).unwrap();
+    let pred = Predictor::open(&model_path).unwrap();
+    // Reconstruction alone works.
+    let ev = evaluate(&pred, &EvalOptions::default(), &|_, _, _| {}).unwrap();
+    assert_eq!(ev.reconstruction.len(), 3);
+    let options = EvalOptions {
+        loo: true,
+        ..EvalOptions::default()
+    };
+    match evaluate(&pred, &options, &|_, _, _| {}) {
+        Err(Error::LeaveOneOut {
+            index,
+            name,
+            source,
+        }) => {
+            assert_eq!((index, name.as_str()), (2, picked[2].name.as_str()));
+            assert!(matches!(*source, Error::Model(_)), "{source}");
+            assert!(source.to_string().contains("identical"), "{source}");
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
 #[test]
 fn bad_inputs_give_clear_errors() {
     let f = fixture(6, "log");
