@@ -68,14 +68,15 @@ pub enum Error {
         reason: String,
     },
     /// A leave-one-out step (refit without the material, latent search, baselines) failed.
-    #[error("leave-one-out without material {index} ({name:?}): {source}")]
+    #[error("leave-one-out without material {index} ({name:?}): {cause}")]
     LeaveOneOut {
         /// Index of the held-out material.
         index: usize,
         /// Its name.
         name: String,
-        /// What failed.
-        source: Box<Error>,
+        /// What failed (part of the message, so not a `source`: error chains, as the CLI
+        /// prints them, would show it twice).
+        cause: Box<Error>,
     },
     /// An angular cell index beyond the grid (lookups by cell).
     #[error("angular cell {cell} is beyond the grid's {cells} cells")]

@@ -884,7 +884,7 @@ pub fn evaluate(
                     |e| Error::LeaveOneOut {
                         index: h,
                         name: model.materials[h].name.clone(),
-                        source: Box::new(e),
+                        cause: Box::new(e),
                     },
                 );
                 progress(Stage::Refits, done.fetch_add(1, Ordering::Relaxed) + 1, n);
