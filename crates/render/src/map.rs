@@ -284,24 +284,37 @@ pub fn latent_map(
         mid_y - 3
     };
     img.text(2, y_name, "X2", 1, black);
-    img.text(
-        l,
-        8,
-        "LATENT SPACE, SHADED BY PREDICTIVE STANDARD DEVIATION",
-        1,
-        black,
-    );
+    // The title stops short of the thumbnail panel's title (or the image's edge) on small
+    // maps, where it used to run into it and off the image.
+    let title_room = if panel > 0 {
+        left + size + margin - 8
+    } else {
+        width - 4
+    }
+    .saturating_sub(l as usize);
+    let title = "LATENT SPACE, SHADED BY PREDICTIVE STANDARD DEVIATION";
+    img.text(l, 8, &font::fit(title, title_room, 1), 1, black);
     if !opts.caption.is_empty() {
         let caption = font::fit(&opts.caption, width.saturating_sub(l as usize + 4), 1);
         img.text(l, 20, &caption, 1, [0.3; 3]);
     }
-    // Colour bar.
+    // Colour bar: "0", a 120-pixel ramp and the largest standard deviation, from 130 px right
+    // of the frame's corner; on a map too narrow for that, from the corner with a shorter
+    // ramp (it ran off the image).
     let bar_y = b + 34;
-    for i in 0..120 {
-        img.fill_rect(l + 160 + i, bar_y, 1, 8, shade(i as f64 / 119.0));
+    let top = format!("{:.3}", vmax.sqrt());
+    let room = width as i64 - 4 - font::text_width(&top, 1) as i64 - 10;
+    let (zero_x, bar_x, bar_len) = if l + 280 <= room {
+        (l + 130, l + 160, 120)
+    } else {
+        (l, l + 10, (room - l - 10).clamp(8, 120))
+    };
+    for i in 0..bar_len {
+        let t = i as f64 / (bar_len - 1) as f64;
+        img.fill_rect(bar_x + i, bar_y, 1, 8, shade(t));
     }
-    img.text(l + 130, bar_y, "0", 1, black);
-    img.text(l + 290, bar_y, &format!("{:.3}", vmax.sqrt()), 1, black);
+    img.text(zero_x, bar_y, "0", 1, black);
+    img.text(bar_x + bar_len + 10, bar_y, &top, 1, black);
     // The thumbnails' region, outlined 6 px outside the points' box (so the line passes no dot
     // at the box's edge), drawn before the labels so that none is struck through.
     let thumbs_box = (source_at.is_some() && panel > 0).then(|| thumbnail_box(points));
@@ -688,6 +701,47 @@ mod tests {
         let text_rows = 40..(40 + 200);
         let ink = (16..frame - 1).any(|x| text_rows.clone().any(|y| dark(x, y)));
         assert!(ink, "no y tick label left of the frame at {frame}");
+    }
+
+    /// A small map keeps its title and colour bar on the image (at 64 pixels the title ran
+    /// 170 px and the colour bar's label 220 px beyond the right edge).
+    #[test]
+    fn small_maps_keep_title_and_colour_bar_on_the_image() {
+        let points = vec![("A".to_owned(), [0.0, 0.0]), ("B".to_owned(), [1.0, 0.5])];
+        let opts = MapOptions {
+            size: 64,
+            variance_samples: 4,
+            ..MapOptions::default()
+        };
+        let variance = |p: [f64; 2]| Ok(1.0 + p[0] * p[0]);
+        let img = latent_map(&points, &variance, None, &opts).unwrap();
+        let dark = |x: usize, y: usize| img.get(x, y).iter().all(|v| *v < 0.5);
+        for y in 0..img.height {
+            for x in img.width - 3..img.width {
+                assert!(!dark(x, y), "ink at ({x}, {y}) on the right edge");
+            }
+        }
+        // The bar's label (the largest standard deviation) is drawn: ink right of the ramp,
+        // whose darkest end is blue, not black.
+        let bar_y = 40 + 64 + 34;
+        let ink = (0..img.width).filter(|&x| dark(x, bar_y + 1)).count();
+        assert!(ink >= 4, "{ink} dark pixels on the colour bar's row");
+        // Default maps keep their layout: the 120-pixel ramp starts 160 px right of the corner.
+        let big = latent_map(
+            &points,
+            &variance,
+            None,
+            &MapOptions {
+                size: 400,
+                variance_samples: 4,
+                ..MapOptions::default()
+            },
+        )
+        .unwrap();
+        let y = 40 + 400 + 34 + 2;
+        assert_eq!(big.get(39 + 160, y), [1.0; 3]);
+        assert_ne!(big.get(39 + 161, y), [1.0; 3]);
+        assert_eq!(big.get(39 + 159, y), [1.0; 3]);
     }
 
     #[test]
