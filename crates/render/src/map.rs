@@ -58,10 +58,12 @@ pub type LabelledPoint = (String, [f64; 2]);
 /// The map caption of a model with latent dimension `q` and data transform `transform` (its
 /// display form), shaded by the predictive variance per transformed value (model variance x
 /// `data_scale`, the units the reports use): what the colour bar means, and for q > 2 that the
-/// map is the slice through the origin of the other axes.
+/// map is the slice through the origin of the other axes, for q = 1 that the vertical axis is
+/// not one of the model's (every material sits at X2 = 0 and nothing varies along it).
 pub fn variance_caption(transform: &str, q: usize) -> String {
     let slice = match q {
-        0..=2 => String::new(),
+        0 | 1 => ", ONE LATENT AXIS: X2 IS NOT A MODEL AXIS".to_owned(),
+        2 => String::new(),
         3 => ", SLICE X3 = 0".to_owned(),
         _ => format!(", SLICE X3..X{q} = 0"),
     };
@@ -755,6 +757,7 @@ mod tests {
             "SHADING: PREDICTIVE STD PER TRANSFORMED VALUE, raw, SLICE X3 = 0"
         );
         assert!(variance_caption("log(offset=0.01)", 5).ends_with(", SLICE X3..X5 = 0"));
+        assert!(variance_caption("raw", 1).ends_with(", ONE LATENT AXIS: X2 IS NOT A MODEL AXIS"));
     }
 
     const BOUNDS: Rect = Rect {
