@@ -9,6 +9,16 @@ fn load(root: &Path, rel: &str) -> PipelineConfig {
     PipelineConfig::load(&root.join(rel), root).unwrap()
 }
 
+/// The names in directory `p`, sorted.
+fn entries(p: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(p)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    v.sort();
+    v
+}
+
 #[test]
 fn quick_pipeline_report_matches_the_model_and_data() {
     let root = project_root();
@@ -578,14 +588,6 @@ fn inputs_are_checked_before_any_work() {
 fn a_failed_run_leaves_no_new_directory() {
     let root = project_root();
     let dir = tempfile::tempdir().unwrap();
-    let entries = |p: &Path| {
-        let mut v: Vec<String> = std::fs::read_dir(p)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().into_string().unwrap())
-            .collect();
-        v.sort();
-        v
-    };
     // Fails in the data stage: a weights file that is not a NumPy file.
     std::fs::write(dir.path().join("w.npy"), "not numpy").unwrap();
     std::fs::write(dir.path().join("names.txt"), "a\nb\nc\n").unwrap();
@@ -703,14 +705,6 @@ fn bench_outputs_are_published_as_a_set() {
     )
     .unwrap();
     let config = xtask::bench::BenchConfig::load(&config_path).unwrap();
-    let entries = |p: &Path| {
-        let mut v: Vec<String> = std::fs::read_dir(p)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().into_string().unwrap())
-            .collect();
-        v.sort();
-        v
-    };
     let out = dir.path().join("new").join("bench");
     let rows = xtask::bench::run(&config, &config_path, &out).unwrap();
     assert_eq!(rows.len(), 2);
