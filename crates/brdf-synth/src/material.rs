@@ -18,13 +18,15 @@
 //! height-correlated Smith masking has albedo <= F <= 1; diffuse and sheen lobes are normalised
 //! numerically so that their albedo is <= their colour; a layer's albedo is
 //! `E(mu_i) + T(mu_i) int T(mu_o) f_below cos <= E + (1 - E) = 1`. The tabulated E is taken at the
-//! largest index over the requested wavelengths (Fresnel grows with the index), so
-//! `T` never over-transmits.
+//! largest index over the supported range [`crate::dataset::WAVELENGTH_RANGE_NM`] (and any
+//! requested wavelength outside it; Fresnel grows with the index), so `T` never over-transmits,
+//! and f at a wavelength does not depend on which other wavelengths were requested.
 
 use std::f64::consts::PI;
 
 use brdf_io::{HalfDiff, Vec3};
 
+use crate::dataset::WAVELENGTH_RANGE_NM;
 use crate::microfacet::{charlie_d, ggx_lobe, sheen_visibility, smith_g2};
 use crate::optics::{Complex, Ior, Metal, fresnel, thin_film};
 use crate::spectrum::Spectrum;
@@ -294,8 +296,13 @@ impl PInterface {
             1.0,
             wavelengths,
         );
-        // Fresnel reflectance grows with the index: tabulate E at the largest one.
-        let eta = i.ior.max_over(wavelengths);
+        // Fresnel reflectance grows with the index: tabulate E at the largest one over the
+        // whole supported range, not only the requested wavelengths, so that f at a wavelength
+        // is the same whatever else is requested (the maximum over the request alone made
+        // values at 700 nm alone differ by up to 1.3 % from the same values prepared with
+        // 360:1000:20).
+        let (lo, hi) = WAVELENGTH_RANGE_NM;
+        let eta = i.ior.max_over(wavelengths).max(i.ior.max_over(&[lo, hi]));
         let e_table = (0..E_NODES)
             .map(|k| {
                 let t = k as f64 / (E_NODES - 1) as f64;
