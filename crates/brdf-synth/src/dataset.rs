@@ -31,6 +31,11 @@ pub const WAVELENGTH_RANGE_NM: (f64, f64) = (360.0, 1000.0);
 pub fn wavelengths_of(channels: &Channels) -> Result<&[f64]> {
     match channels {
         Channels::Spectral(w) => {
+            if w.is_empty() {
+                return Err(Error::InvalidRequest {
+                    reason: "the channel axis has no wavelengths".into(),
+                });
+            }
             let (lo, hi) = WAVELENGTH_RANGE_NM;
             if let Some(l) = w.iter().find(|l| !(lo..=hi).contains(*l)) {
                 return Err(Error::InvalidRequest {
@@ -55,10 +60,14 @@ pub fn prepare_all(materials: &[Material], channels: &Channels) -> Result<Vec<Pr
 }
 
 /// Evaluates one material on every cell of `grid`: `out` has `grid.len() * n_channels` values
-/// in dimension order (below-horizon cells 0). Parallel over cells.
+/// in dimension order (below-horizon cells 0). Parallel over cells. A material prepared for no
+/// wavelengths has nothing to write.
 pub fn eval_on_grid(m: &PreparedMaterial, grid: &AngularGrid, out: &mut [f64]) {
     let nc = m.wavelengths().len();
     debug_assert_eq!(out.len(), grid.len() * nc);
+    if nc == 0 {
+        return;
+    }
     out.par_chunks_mut(nc).enumerate().for_each(|(cell, o)| {
         let hd = grid.bin_centre_flat(cell);
         if hd.is_above_horizon() {
@@ -151,5 +160,28 @@ mod tests {
             assert!(e.contains("outside 360-1000 nm"), "{bad}: {e}");
         }
         assert!(wavelengths_of(&Channels::Rgb).is_err());
+    }
+
+    /// An empty spectral axis (the enum can be built without `Channels::spectral`'s checks) is
+    /// an error, not a dataset of 0 values or a panic; `eval_on_grid` of a material prepared
+    /// for no wavelengths writes nothing (it panicked: rayon's chunk size 0).
+    #[test]
+    fn an_empty_channel_axis_is_refused() {
+        let empty = Channels::Spectral(Vec::new());
+        let e = wavelengths_of(&empty).unwrap_err();
+        assert!(matches!(e, Error::InvalidRequest { .. }), "{e}");
+        assert!(e.to_string().contains("no wavelengths"), "{e}");
+        let grid = AngularGrid::new(2, 2, 2).unwrap();
+        let mats = crate::preset::preset(0);
+        assert!(generate(&mats[..2], grid, &empty).is_err());
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.sbrdf");
+        let options = brdf_io::StoreOptions::default();
+        let err = crate::stream::write_store(&path, &mats[..2], grid, &empty, options, 0, |_| {});
+        assert!(matches!(err, Err(Error::InvalidRequest { .. })), "{err:?}");
+        let prepared = mats[0].prepare(&[]);
+        let mut out: Vec<f64> = Vec::new();
+        eval_on_grid(&prepared, &grid, &mut out);
+        assert!(out.is_empty());
     }
 }
