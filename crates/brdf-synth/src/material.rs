@@ -683,9 +683,24 @@ impl PInterface {
     }
 }
 
+/// `v / |v|`, or `None` for a zero or non-finite vector. Vectors whose squared length under-
+/// or overflows (components below ~1e-154 or above ~1e154) are rescaled by their largest
+/// component first.
 fn normalize(v: Vec3) -> Option<Vec3> {
     let n = dot(v, v).sqrt();
-    (n > 0.0 && n.is_finite()).then(|| [v[0] / n, v[1] / n, v[2] / n])
+    if n > 0.0 && n.is_finite() {
+        return Some([v[0] / n, v[1] / n, v[2] / n]);
+    }
+    if !v.iter().all(|x| x.is_finite()) {
+        return None;
+    }
+    let m = v.iter().fold(0.0f64, |a, x| a.max(x.abs()));
+    if m == 0.0 {
+        return None;
+    }
+    let s = [v[0] / m, v[1] / m, v[2] / m];
+    let n = dot(s, s).sqrt();
+    Some([s[0] / n, s[1] / n, s[2] / n])
 }
 
 /// Directional albedo `int f(wi, wo) cos(theta_o) dwo` per prepared wavelength at incidence
@@ -770,6 +785,43 @@ mod tests {
         // Rough GGX loses energy to (missing) multiple scattering, more at grazing.
         let e_rough = ggx_albedo(0.2, 1.0, |_| 1.0);
         assert!(e_rough < 0.8, "{e_rough}");
+    }
+
+    /// Directions need not be normalised, whatever their length: vectors whose squared length
+    /// under- or overflows give the same f as unit vectors (they gave 0), and zero or
+    /// non-finite vectors give 0.
+    #[test]
+    fn directions_of_any_length() {
+        let m = crate::preset::preset_material("carpaint_metallic_silver", 0)
+            .unwrap()
+            .prepare(&[450.0, 650.0]);
+        let wi = [0.3, -0.2, 0.9];
+        let wo = [-0.5, 0.1, 0.6];
+        let mut unit = [0.0; 2];
+        m.eval(wi, wo, &mut unit);
+        assert!(unit[0] > 0.0 && unit[1] > 0.0);
+        for (a, b) in [
+            (1e-200, 1e200),
+            (1e-170, 1.0),
+            (1.0, 1e170),
+            (1e300, 1e-300),
+        ] {
+            let mut f = [0.0; 2];
+            m.eval(wi.map(|x| x * a), wo.map(|x| x * b), &mut f);
+            for (x, y) in f.iter().zip(&unit) {
+                assert!(
+                    (x - y).abs() <= 1e-12 * y,
+                    "scales {a:e}, {b:e}: {x} vs {y}"
+                );
+            }
+        }
+        for bad in [[0.0; 3], [f64::NAN, 0.0, 1.0], [0.0, f64::INFINITY, 1.0]] {
+            let mut f = [1.0; 2];
+            m.eval(bad, wo, &mut f);
+            assert_eq!(f, [0.0; 2]);
+            m.eval(wi, bad, &mut f);
+            assert_eq!(f, [0.0; 2]);
+        }
     }
 
     #[test]
