@@ -18,7 +18,8 @@ pub struct StoreOut {
     /// Angular resolution TH,TD,PD.
     #[arg(long, default_value = "90,90,180")]
     pub grid: AngularGrid,
-    /// Stored value type: f32 (exact) or f16 (half precision, half the size).
+    /// Stored value type: f32 (exact) or f16 (half precision, half the size; values up to 65504,
+    /// a larger one is refused: keep f32 for sharp peaks).
     #[arg(long, default_value = "f32")]
     pub dtype: Dtype,
     /// Compress chunks with zstd at this level (1..=22); uncompressed when absent.
