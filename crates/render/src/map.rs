@@ -33,6 +33,9 @@ pub struct MapOptions {
     /// The last `predicted_points` points are predictions, not training materials: drawn as
     /// blue rings instead of red dots.
     pub predicted_points: usize,
+    /// The model has one latent axis: the thumbnails are one row along X1 (at the middle of
+    /// the grey box), not a square whose rows would repeat the same materials.
+    pub one_axis: bool,
 }
 
 impl Default for MapOptions {
@@ -48,6 +51,7 @@ impl Default for MapOptions {
             variance_samples: 96,
             caption: String::new(),
             predicted_points: 0,
+            one_axis: false,
         }
     }
 }
@@ -184,7 +188,14 @@ pub fn latent_map(
         0
     };
     let width = left + size + margin + panel;
-    let height = margin + size + margin + 32;
+    // Tall enough for the thumbnails too (a small plot cut them off at its own height).
+    let thumb_rows = if opts.one_axis { 1 } else { opts.thumbnails };
+    let panel_height = if panel > 0 {
+        margin + thumb_rows * opts.sphere.size + margin
+    } else {
+        0
+    };
+    let height = (margin + size + margin + 32).max(panel_height);
     let mut img = Image::new(width, height, [1.0; 3]);
     // Variance on a coarse grid.
     let m = opts.variance_samples;
@@ -371,21 +382,21 @@ pub fn latent_map(
     // the square's empty margins are far from every material, where the GP's extrapolation
     // shows colours no material has (a walkthrough took them for the model's predictions).
     if let (Some(f), Some([bx0, bx1, by0, by1])) = (source_at, thumbs_box) {
-        let g = opts.thumbnails;
+        let (g, rows) = (opts.thumbnails, thumb_rows);
         let ts = opts.sphere.size;
         let ox = (left + size + margin) as i64;
-        let cells: Vec<(usize, usize)> = (0..g * g).map(|k| (k % g, k / g)).collect();
+        let cells: Vec<(usize, usize)> = (0..g * rows).map(|k| (k % g, k / g)).collect();
         let thumbs: Vec<Image> = cells
             .iter()
             .map(|&(i, j)| {
                 let p = [
                     bx0 + (bx1 - bx0) * (i as f64 + 0.5) / g as f64,
-                    by1 - (by1 - by0) * (j as f64 + 0.5) / g as f64,
+                    by1 - (by1 - by0) * (j as f64 + 0.5) / rows as f64,
                 ];
                 render_sphere(f(p)?.as_ref(), &opts.sphere)
             })
             .collect::<Result<_>>()?;
-        let bg = Image::new(g * ts, g * ts, [0.02; 3]);
+        let bg = Image::new(g * ts, rows * ts, [0.02; 3]);
         img.blit(&bg, ox, margin as i64);
         for ((i, j), th) in cells.iter().zip(&thumbs) {
             img.blit(th, ox + (i * ts) as i64, (margin + j * ts) as i64);

@@ -116,6 +116,7 @@ fn path_comparison_and_map_draw() {
         variance_samples: 16,
         caption: render::map::variance_caption("log(offset=0.01)", 5),
         predicted_points: 1,
+        one_axis: false,
     };
     // Sizes that would need a huge allocation are refused before any work.
     for bad in [
@@ -217,4 +218,54 @@ fn path_comparison_and_map_draw() {
     let step = ticks[1].0 - ticks[0].0;
     let between = (40.0 + (0.5 * step - x0) / (x1 - x0) * 160.0).round() as usize;
     assert_eq!(map.get(between, 40 + 160 + 2), [1.0; 3]);
+}
+
+/// A thumbnail panel taller than a small plot makes the image taller (it was cut off at the
+/// plot's height: specgp map --size 128 --thumbnails showed 3 of its 6 rows); a one-axis model's
+/// panel is one row (its rows repeated the same materials).
+#[test]
+fn thumbnail_panels_fit_the_image_and_one_axis_maps_have_one_row() {
+    let (a, b) = (synth("acrylic_felt_white"), synth("carpaint_solid_red"));
+    let points = vec![
+        ("WHITE".to_string(), [-1.0, 0.0]),
+        ("RED".to_string(), [1.0, 0.0]),
+    ];
+    let var = |_: [f64; 2]| -> render::Result<f64> { Ok(0.5) };
+    let src = |p: [f64; 2]| -> render::Result<Box<dyn BrdfSource + '_>> {
+        let x = ((p[0] + 1.0) / 2.0).clamp(0.0, 1.0);
+        Ok(Box::new(Mix(&b, &a, x)))
+    };
+    let opts = MapOptions {
+        size: 64,
+        thumbnails: 5,
+        sphere: SphereOptions {
+            size: 32,
+            ..SphereOptions::default()
+        },
+        variance_samples: 4,
+        ..MapOptions::default()
+    };
+    let square = latent_map(&points, &var, Some(&src), &opts).unwrap();
+    // 5 rows of 32 px between 40 px margins: 240 px, more than the plot's 64 + 112.
+    assert_eq!(square.height, 40 + 5 * 32 + 40);
+    let x0 = square.width - 40 - 5 * 32;
+    // The last row is drawn: the bottom sphere's centre is lit, not the white background.
+    let last = square.get(x0 + 16, 40 + 4 * 32 + 16);
+    assert!(last.iter().all(|c| *c < 0.95), "{last:?}");
+    let one = latent_map(
+        &points,
+        &var,
+        Some(&src),
+        &MapOptions {
+            one_axis: true,
+            ..opts.clone()
+        },
+    )
+    .unwrap();
+    assert_eq!(one.height, 40 + 64 + 40 + 32);
+    // One row of spheres; below it the image's white background.
+    let below = one.get(x0 + 16, 40 + 32 + 8);
+    assert!(below.iter().all(|c| *c > 0.99), "{below:?}");
+    let sphere = one.get(x0 + 16, 40 + 16);
+    assert!(sphere.iter().all(|c| *c < 0.95), "{sphere:?}");
 }

@@ -294,6 +294,7 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
             ..SphereOptions::default()
         },
         caption: render::map::variance_caption(&model.transform.to_string(), q),
+        one_axis: q == 1,
         ..render::MapOptions::default()
     };
     // Variance per transformed value, as `predict --variance` and the reports give it.
