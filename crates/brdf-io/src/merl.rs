@@ -193,9 +193,7 @@ impl MerlBrdf {
         }
         (out, report)
     }
-}
 
-impl MerlBrdf {
     /// Channel `c` of the MERL cell containing `hd` ([`AngularGrid::locate`]) when that cell
     /// holds a value: its bin centre is above the horizon and the value is not a negative
     /// marker. Otherwise the value of the cell with the largest weight among the cells of

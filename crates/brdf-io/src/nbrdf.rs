@@ -78,8 +78,8 @@ impl NbrdfSet {
                 ),
             });
         }
-        drop(wide);
-        let weights = arr.to_f32();
+        // In range: the f32 weights are the checked values rounded (as `to_f32` rounds them).
+        let weights: Vec<f32> = wide.into_iter().map(|w| w as f32).collect();
         let text = std::fs::read_to_string(names_path).map_err(|e| Error::io(names_path, e))?;
         // A byte-order mark (editors on Windows write one) is not part of the first name.
         let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
