@@ -503,16 +503,39 @@ pub struct ChannelSelection {
     pub channels: Channels,
     /// Per output channel: stored channels `lo`, `hi` and weight `t` of `hi`
     /// (value = (1 - t) f_lo + t f_hi).
-    pub taps: Vec<(usize, usize, f64)>,
+    taps: Vec<(usize, usize, f64)>,
+    /// The first and last stored channel the taps read (kept: lazy lookups ask for it per
+    /// cell).
+    span: (usize, usize),
 }
 
 impl ChannelSelection {
     /// All stored channels, unchanged.
     pub fn all(stored: &Channels) -> Self {
+        Self::from_taps(
+            stored.clone(),
+            (0..stored.len()).map(|c| (c, c, 0.0)).collect(),
+        )
+    }
+
+    fn from_taps(channels: Channels, taps: Vec<(usize, usize, f64)>) -> Self {
+        let first = taps.iter().map(|tap| tap.0).min().unwrap_or(0);
+        let last = taps
+            .iter()
+            .map(|&(lo, hi, t)| if t == 0.0 { lo } else { hi })
+            .max()
+            .unwrap_or(0);
         Self {
-            channels: stored.clone(),
-            taps: (0..stored.len()).map(|c| (c, c, 0.0)).collect(),
+            channels,
+            taps,
+            span: (first, last),
         }
+    }
+
+    /// Per output channel: stored channels `lo`, `hi` and weight `t` of `hi`
+    /// (value = (1 - t) f_lo + t f_hi).
+    pub fn taps(&self) -> &[(usize, usize, f64)] {
+        &self.taps
     }
 
     /// Channels `wanted` from `stored`: R, G, B from RGB channels, or wavelengths inside the
@@ -562,10 +585,7 @@ impl ChannelSelection {
                 })
             })
             .collect::<Result<_>>()?;
-        Ok(Self {
-            channels: wanted.clone(),
-            taps,
-        })
+        Ok(Self::from_taps(wanted.clone(), taps))
     }
 
     /// Whether the selection is the identity on `stored` channels.
@@ -594,14 +614,7 @@ impl ChannelSelection {
 
     /// The first and last stored channel the taps read.
     pub fn span(&self) -> (usize, usize) {
-        let first = self.taps.iter().map(|tap| tap.0).min().unwrap_or(0);
-        let last = self
-            .taps
-            .iter()
-            .map(|&(lo, hi, t)| if t == 0.0 { lo } else { hi })
-            .max()
-            .unwrap_or(0);
-        (first, last)
+        self.span
     }
 }
 

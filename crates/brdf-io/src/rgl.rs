@@ -582,7 +582,7 @@ impl RglBsdf {
         wo: Vec3,
         out: &mut [f64],
     ) -> Result<()> {
-        crate::source::check_output_len(out, sel.taps.len())?;
+        crate::source::check_output_len(out, sel.taps().len())?;
         let (Some(wi), Some(wo)) = (unit(wi), unit(wo)) else {
             return Err(Error::InvalidArgument {
                 reason: format!("directions must be finite and non-zero, got {wi:?}, {wo:?}"),
@@ -639,7 +639,7 @@ impl RglBsdf {
                 fy,
             )
         };
-        for (o, &(k0, k1, t)) in out.iter_mut().zip(&sel.taps) {
+        for (o, &(k0, k1, t)) in out.iter_mut().zip(sel.taps()) {
             let mut acc = 0.0;
             for c in 0..4 {
                 let wgt = spec_corners.weight[c];
@@ -689,7 +689,7 @@ impl RglBsdf {
         options: ResampleOptions,
     ) -> Result<(Vec<f32>, ImportReport)> {
         let sel = ChannelSelection::new(&self.path, &self.native, channels)?;
-        let n = sel.taps.len();
+        let n = sel.taps().len();
         let (values, report) = resample_cells(
             grid,
             n,
@@ -721,7 +721,7 @@ impl RglBsdf {
             grid,
             first_cell,
             out,
-            sel.taps.len(),
+            sel.taps().len(),
             options,
             PairWeights::CosOutgoingSquared,
             |wi, wo, o| self.eval_selection(&sel, wi, wo, o),

@@ -104,7 +104,7 @@ impl PredictedMaterial {
         let mask = store.validity_mask();
         let sel = self.selection().clone();
         let identity = sel.is_identity(nc);
-        let n_out = sel.taps.len();
+        let n_out = sel.taps().len();
         let n_chunks = store.n_chunks();
         let batch = (2 * rayon::current_num_threads()).max(1);
         let mut cell = vec![0.0f64; nc];
@@ -133,7 +133,7 @@ impl PredictedMaterial {
                         cell[filled] = v;
                         filled += 1;
                         if filled == nc {
-                            for &(lo, hi, t) in &sel.taps {
+                            for &(lo, hi, t) in sel.taps() {
                                 let x = if t == 0.0 {
                                     cell[lo]
                                 } else {
@@ -162,7 +162,7 @@ impl PredictedMaterial {
 
     /// Number of values of the output (cells x output channels).
     pub fn output_len(&self) -> usize {
-        self.predictor().grid().len() * self.selection().taps.len()
+        self.predictor().grid().len() * self.selection().taps().len()
     }
 
     /// Writes all values of this material to `path` (format from the extension; written to a

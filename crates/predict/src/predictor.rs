@@ -773,12 +773,12 @@ impl PredictedMaterial {
     }
 
     fn check_out(&self, out: &[f64]) -> Result<()> {
-        if out.len() != self.selection.taps.len() {
+        if out.len() != self.selection.taps().len() {
             return Err(Error::InvalidArgument {
                 reason: format!(
                     "output has {} slots for {} channels",
                     out.len(),
-                    self.selection.taps.len()
+                    self.selection.taps().len()
                 ),
             });
         }

@@ -89,7 +89,7 @@ impl StoreMaterial {
 
     /// Number of output channels (the length `eval` fills).
     pub fn n_channels(&self) -> usize {
-        self.selection.taps.len()
+        self.selection.taps().len()
     }
 
     /// Interpolated values at half/difference angles `hd` into `out` (one per output channel).
