@@ -130,8 +130,9 @@ pub fn fast_exp_m1(y: f64) -> f64 {
     if y.abs() <= 0.35 { small } else { large }
 }
 
-/// `v = scale (e^v - 1)` in place: [`fast_exp_m1`] over a slice, compiled for AVX2 + FMA when
-/// the CPU has them (selected at run time) so the loop runs 4 lanes wide.
+/// `v = scale (e^v - 1)` in place: [`fast_exp_m1`] over a slice, compiled for AVX-512 or AVX2 +
+/// FMA when the CPU has them (selected at run time) so the loop runs 8 or 4 lanes wide, a short
+/// slice's last values included (they run in a zero-padded block).
 pub fn exp_m1_scaled_in_place(values: &mut [f64], scale: f64) {
     #[cfg(target_arch = "x86_64")]
     {
@@ -160,6 +161,19 @@ pub fn exp_m1_scaled_in_place(values: &mut [f64], scale: f64) {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx2,fma")]
 unsafe fn exp_m1_scaled_avx512(values: &mut [f64], scale: f64) {
+    // SAFETY: the caller guarantees AVX-512F, which the loop needs.
+    padded_tail(values, |v| unsafe { exp_m1_scaled_loop_avx512(v, scale) });
+}
+
+/// The loop of [`exp_m1_scaled_avx512`] (not inlined: the compiler vectorises it only for a
+/// length it does not know).
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,fma")]
+#[inline(never)]
+unsafe fn exp_m1_scaled_loop_avx512(values: &mut [f64], scale: f64) {
     values.iter_mut().for_each(|v| *v = scale * fast_exp_m1(*v));
 }
 
@@ -170,7 +184,38 @@ unsafe fn exp_m1_scaled_avx512(values: &mut [f64], scale: f64) {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn exp_m1_scaled_avx2(values: &mut [f64], scale: f64) {
+    // SAFETY: the caller guarantees AVX2 and FMA, which the loop needs.
+    padded_tail(values, |v| unsafe { exp_m1_scaled_loop_avx2(v, scale) });
+}
+
+/// The loop of [`exp_m1_scaled_avx2`] (not inlined, as [`exp_m1_scaled_loop_avx512`]).
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline(never)]
+unsafe fn exp_m1_scaled_loop_avx2(values: &mut [f64], scale: f64) {
     values.iter_mut().for_each(|v| *v = scale * fast_exp_m1(*v));
+}
+
+/// Runs the element-wise `f` over `values` in whole blocks of 8 values: the last, partial block
+/// is copied into a zero-padded block first, so that a short slice (a lazy lookup's 22
+/// wavelengths) runs in vector lanes instead of a scalar tail. `f` treats every value alike,
+/// so the results are the same bits as one call on `values`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn padded_tail(values: &mut [f64], mut f: impl FnMut(&mut [f64])) {
+    let (whole, rest) = values.split_at_mut(values.len() / 8 * 8);
+    if !whole.is_empty() {
+        f(whole);
+    }
+    if !rest.is_empty() {
+        let mut padded = [0.0; 8];
+        padded[..rest.len()].copy_from_slice(rest);
+        f(&mut padded);
+        rest.copy_from_slice(&padded[..rest.len()]);
+    }
 }
 
 /// `out[i] = ln(1 + max(input[i], 0) * scale)` in f64 with relative error below 2e-15 (tested
@@ -437,6 +482,18 @@ mod tests {
             // SAFETY: as above.
             unsafe { exp(&mut inv, 0.01) };
             assert_eq!(bits(&inv), want_inv, "exp_m1, {name}");
+            // Short slices (a lazy lookup's wavelengths) run through a zero-padded last block.
+            for len in 0..=25 {
+                let at = 37 * len;
+                let mut short = ys[at..at + len].to_vec();
+                // SAFETY: as above.
+                unsafe { exp(&mut short, 0.01) };
+                assert_eq!(
+                    bits(&short),
+                    want_inv[at..at + len],
+                    "exp_m1, {name}, {len}"
+                );
+            }
         }
         let mut out = vec![0.0; xs.len()];
         ln_1p_scaled_f64(&xs, scale, &mut out);
