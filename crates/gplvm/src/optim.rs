@@ -72,7 +72,8 @@ pub struct Minimum {
     pub x: Vec<f64>,
     /// Objective value at `x`.
     pub value: f64,
-    /// Iterations of the method (pattern moves or L-BFGS steps).
+    /// Iterations of the method: exploratory sweeps about a base point (Hooke-Jeeves; the
+    /// pattern moves that follow a successful sweep are not counted) or L-BFGS steps.
     pub iterations: u64,
     /// Objective evaluations (value-and-gradient evaluations for L-BFGS).
     pub evaluations: u64,
@@ -169,17 +170,25 @@ pub fn hooke_jeeves(
         iterations += 1;
         let (mut x, mut value) = explore(&mut eval, &base, base_value, step);
         if value < base_value {
-            // Pattern moves while they keep improving.
+            // Pattern moves while they keep improving. An improvement found when the cap cut
+            // the exploration about the pattern point short is kept: the best point evaluated
+            // is returned (it used to be dropped for the previous base point, e.g. 32 instead
+            // of 2 on a quadratic with a cap of 10).
             loop {
                 let pattern: Vec<f64> = x.iter().zip(&base).map(|(a, b)| 2.0 * a - b).collect();
                 let pattern_value = eval(&pattern);
                 let (px, pv) = explore(&mut eval, &pattern, pattern_value, step);
                 base = x;
                 base_value = value;
-                if pv < base_value && (evaluations.get() as usize) < s.max_evaluations {
+                if pv < base_value {
                     x = px;
                     value = pv;
                 } else {
+                    break;
+                }
+                if evaluations.get() as usize >= s.max_evaluations {
+                    base = x;
+                    base_value = value;
                     break;
                 }
             }
@@ -716,6 +725,33 @@ mod tests {
         assert!(m.at_limit && m.evaluations == 3, "{m:?}");
         let m = hooke_jeeves(|x| x[0] * x[0], &[0.3], &HookeJeevesSettings::default()).unwrap();
         assert!(!m.at_limit, "{m:?}");
+    }
+
+    /// Hooke-Jeeves returns the best point it evaluated, whatever its evaluation cap, and the
+    /// value it reports is the objective there. (At the cap inside the exploration about a
+    /// pattern point it returned the previous base point: 32 where 2 had been evaluated.)
+    #[test]
+    fn hooke_jeeves_returns_the_best_point_evaluated_at_any_cap() {
+        for (dim, target) in [(2, 10.0), (5, 3.7)] {
+            let f = |x: &[f64]| -> f64 { x.iter().map(|a| (a - target) * (a - target)).sum() };
+            for cap in 1..400 {
+                let best = Cell::new(f64::INFINITY);
+                let counted = |x: &[f64]| {
+                    let v = f(x);
+                    best.set(best.get().min(v));
+                    v
+                };
+                let s = HookeJeevesSettings {
+                    initial_step: 1.0,
+                    max_evaluations: cap,
+                    ..Default::default()
+                };
+                let m = hooke_jeeves(counted, &vec![0.0; dim], &s).unwrap();
+                assert_eq!(m.value, best.get(), "dim {dim}, cap {cap}: {m:?}");
+                assert_eq!(f(&m.x), m.value, "dim {dim}, cap {cap}: {m:?}");
+                assert!(m.evaluations <= cap as u64, "dim {dim}, cap {cap}: {m:?}");
+            }
+        }
     }
 
     #[test]
