@@ -283,7 +283,7 @@ pub(super) fn render(
         theta_max: ENV_TABLE_MAX_DEGREES.to_radians(),
         rgb: plan
             .env
-            .iter()
+            .par_iter()
             .map(|dirs| {
                 let mut acc = [0.0; 3];
                 for (w, s) in dirs {
