@@ -348,9 +348,11 @@ fn cubic_step(a: f64, fa: f64, da: f64, b: f64, fb: f64, db: f64) -> f64 {
 
 /// Line search for the strong Wolfe conditions (Nocedal & Wright, Algorithms 3.5 and 3.6, with
 /// cubic interpolation): sufficient decrease `f(a) <= f0 + c1 a f0'` and curvature
-/// `|f'(a)| <= c2 |f0'|`. Evaluation errors and non-finite values count as "too far" (the step
-/// shrinks), so the search never leaves the region where the objective is defined. Returns the
-/// accepted trial, or `None` when no acceptable step was found within the evaluation budget.
+/// `|f'(a)| <= c2 |f0'|`. Evaluation errors and non-finite values count as "too far" (an
+/// infinite value: the zoom searches below that step), so the search never leaves the region
+/// where the objective is defined. Returns the accepted trial; when the evaluation budget runs
+/// out, the lowest trial that satisfies sufficient decrease (the curvature condition unmet), or
+/// `None` when no trial does.
 fn wolfe_search(
     f: &mut impl FnMut(&[f64]) -> Result<(f64, Vec<f64>)>,
     x: &[f64],
@@ -394,13 +396,25 @@ fn wolfe_search(
     // Bracketing phase.
     let (mut lo, mut hi) = loop {
         if used >= MAX_EVALS {
-            return None;
+            // `prev` (when it is a step) satisfies sufficient decrease and is the lowest point
+            // so far, as the zoom phase returns at its budget; it used to be dropped, so a
+            // minimum more than ~2^29 first steps away was never approached.
+            return if prev.step > 0.0 { Some(prev) } else { None };
         }
         used += 1;
         let Some(t) = eval(step, evaluations) else {
-            // Undefined or non-finite: treat as a failed decrease and shrink towards prev.
-            step = prev.step + 0.5 * (step - prev.step);
-            continue;
+            // Undefined or non-finite: a failed decrease (infinite value), so the step bounds
+            // the interval the zoom searches. (Halving it and doubling again from the next
+            // finite point re-entered the undefined region and spent the budget there.)
+            break (
+                prev,
+                Trial {
+                    step,
+                    value: f64::INFINITY,
+                    slope: f64::NAN,
+                    grad: Vec::new(),
+                },
+            );
         };
         if t.value > f0 + C1 * t.step * slope0 || (prev.step > 0.0 && t.value >= prev.value) {
             break (prev, t);
@@ -803,6 +817,30 @@ mod tests {
         let m = lbfgs(f, &[0.0], &LbfgsSettings::default()).unwrap();
         assert!(m.x[0] < 1.5 && m.x[0] > 1.4, "{m:?}");
         assert!(m.value < 0.37, "{m:?}");
+        // Non-finite values or gradients beyond it are treated alike, and the search gets to
+        // within 1e-6 of the boundary: a failed step bounds the interval searched. (It halved
+        // such a step, then doubled again from the next finite point back into the undefined
+        // region, and stopped at 1.4968.) The gradient there is still -1: not converged.
+        for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            for bad_value in [true, false] {
+                let f = |x: &[f64]| -> Result<(f64, Vec<f64>)> {
+                    let (v, g) = ((x[0] - 2.0).powi(2), 2.0 * (x[0] - 2.0));
+                    Ok(match (x[0] >= 1.5, bad_value) {
+                        (false, _) => (v, vec![g]),
+                        (true, true) => (bad, vec![g]),
+                        (true, false) => (v, vec![bad]),
+                    })
+                };
+                let m = lbfgs(f, &[0.0], &LbfgsSettings::default()).unwrap();
+                let what = format!("{bad} (value {bad_value}): {m:?}");
+                assert!(m.x[0] < 1.5 && m.x[0] > 1.5 - 1e-6, "{what}");
+                assert!(
+                    m.value == (m.x[0] - 2.0).powi(2) && m.value < 0.25 + 1e-6,
+                    "{what}"
+                );
+                assert!(m.stalled && m.evaluations < 200, "{what}");
+            }
+        }
         // An error at the start is reported, not hidden.
         let bad = |_: &[f64]| -> Result<(f64, Vec<f64>)> {
             Err(Error::Objective {
@@ -810,6 +848,27 @@ mod tests {
             })
         };
         assert!(lbfgs(bad, &[0.0], &LbfgsSettings::default()).is_err());
+    }
+
+    /// A minimum ~2^33 first steps away (f = sqrt(1 + (x - c)^2), slope ~-1 until near c):
+    /// the bracketing phase runs out of evaluations before the curvature condition holds, and
+    /// its last point, which satisfies sufficient decrease, is taken. (It was dropped: L-BFGS
+    /// stayed at 0 and reported a stall.)
+    #[test]
+    fn lbfgs_reaches_a_distant_minimum() {
+        for c in [1e3, 1e10] {
+            let f = |x: &[f64]| {
+                let d = x[0] - c;
+                let r = (1.0 + d * d).sqrt();
+                Ok((r, vec![d / r]))
+            };
+            let m = lbfgs(f, &[0.0], &LbfgsSettings::default()).unwrap();
+            assert!((m.x[0] - c).abs() < 1e-3, "{c:e}: {m:?}");
+            assert!(
+                !m.stalled && !m.at_limit && m.value < 1.0 + 1e-9,
+                "{c:e}: {m:?}"
+            );
+        }
     }
 
     #[test]
