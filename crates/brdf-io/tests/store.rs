@@ -744,6 +744,62 @@ fn header_whose_payload_size_overflows_is_refused() {
     names_file(&e, &path);
 }
 
+/// A zstd store whose header claims chunks larger than their compressed bytes can hold (a
+/// bigger grid, or more materials, than written) is refused when a chunk is read, naming the
+/// file and the chunk, before the claimed size is allocated (the reader allocated it first).
+#[test]
+fn zstd_chunk_claiming_more_than_its_frame_is_refused() {
+    let t = dir();
+    let info = info(3, 3, 4, Channels::Rgb);
+    let rows: Vec<_> = (0..3).map(|i| material(&info, 70 + i)).collect();
+    let path = t.path().join("zstd_one_chunk.sbrdf");
+    let opts = StoreOptions {
+        chunk_len: Some(1000),
+        compression: Compression::Zstd { level: 3 },
+        ..Default::default()
+    };
+    write_materials(&path, &info, &rows, opts.clone(), 1000).unwrap();
+    let mut v = Vec::new();
+    Store::open(&path).unwrap().read_chunk(0, &mut v).unwrap();
+    assert_eq!(v.len(), 3 * 108);
+    // 128 x 128 x 256 cells x 3 channels x 3 materials x 4 bytes: 151 MB claimed by one chunk
+    // of a few hundred compressed bytes (zstd encodes at most 32768 bytes per byte).
+    rewrite_header(&path, |h| {
+        h["grid"] = serde_json::json!({"n_theta_h": 128, "n_theta_d": 128, "n_phi_d": 256});
+        let d = 128u64 * 128 * 256 * 3;
+        h["d"] = serde_json::json!(d);
+        h["layout"]["chunk_len"] = serde_json::json!(d);
+    });
+    let e = Store::open(&path)
+        .unwrap()
+        .read_chunk(0, &mut v)
+        .unwrap_err();
+    assert!(matches!(e, Error::StoreCorrupt { .. }), "{e}");
+    assert!(
+        e.to_string().contains("chunk 0 (150994944 bytes): ")
+            && e.to_string().contains("compressed bytes cannot hold it"),
+        "{e}"
+    );
+    names_file(&e, &path);
+    // Within the ratio bound, the frame's own record of its size is checked: 2 x 2 x 4 cells.
+    write_materials(&path, &info, &rows, opts, 1000).unwrap();
+    rewrite_header(&path, |h| {
+        h["grid"] = serde_json::json!({"n_theta_h": 4, "n_theta_d": 4, "n_phi_d": 8});
+        h["d"] = serde_json::json!(384);
+        h["layout"]["chunk_len"] = serde_json::json!(384);
+    });
+    let e = Store::open(&path)
+        .unwrap()
+        .read_chunk(0, &mut v)
+        .unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("chunk 0 (4608 bytes): its zstd frame records 1296 bytes"),
+        "{e}"
+    );
+    names_file(&e, &path);
+}
+
 /// Headers with bad wavelengths or material names are refused on open, naming the store file
 /// (they used to open and fail later with messages naming no file).
 #[test]

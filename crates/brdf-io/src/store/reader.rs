@@ -87,6 +87,29 @@ pub struct Store {
     mask: OnceLock<Vec<bool>>,
 }
 
+/// The largest ratio of decompressed to compressed size a zstd frame can have: a block holds
+/// at most 128 KiB and takes at least 4 bytes (a 3-byte header and one RLE byte).
+const ZSTD_MAX_RATIO: usize = 32_768;
+
+/// Why the zstd frame `raw` cannot decompress to `want` bytes, if it cannot: more than zstd
+/// can encode in `raw.len()` bytes, or a frame header that records another size.
+fn check_zstd_claim(raw: &[u8], want: usize) -> std::result::Result<(), String> {
+    if want / ZSTD_MAX_RATIO > raw.len() {
+        return Err(format!(
+            "{} compressed bytes cannot hold it (zstd encodes at most {ZSTD_MAX_RATIO} bytes \
+             per byte)",
+            raw.len()
+        ));
+    }
+    match zstd::zstd_safe::get_frame_content_size(raw) {
+        Ok(Some(size)) if size != want as u64 => {
+            Err(format!("its zstd frame records {size} bytes"))
+        }
+        Ok(_) => Ok(()),
+        Err(_) => Err("not a zstd frame".into()),
+    }
+}
+
 fn corrupt(path: &Path, reason: impl Into<String>) -> Error {
     Error::StoreCorrupt {
         path: path.to_owned(),
@@ -335,25 +358,39 @@ impl Store {
         }
         let range = self.chunk_range(c);
         let count = range.len() * self.n_materials();
-        out.clear();
-        out.resize(count, 0.0);
         let raw = self.chunk_bytes(c)?;
         let dtype = self.header.layout.dtype;
         match self.header.layout.compression {
-            Compression::None => decode_values(&raw, dtype, out),
+            Compression::None => {
+                out.clear();
+                out.resize(count, 0.0);
+                decode_values(&raw, dtype, out)
+            }
             compression => {
                 let want = count * dtype.size();
-                let bytes = zstd::bulk::decompress(&raw, want)
+                // Checked before allocating: a damaged or crafted header can claim a chunk of
+                // terabytes behind a few compressed bytes.
+                check_zstd_claim(&raw, want).map_err(|reason| {
+                    corrupt(&self.path, format!("chunk {c} ({want} bytes): {reason}"))
+                })?;
+                let mut bytes = Vec::new();
+                bytes
+                    .try_reserve_exact(want)
+                    .map_err(|_| Error::StoreUsage {
+                        path: self.path.clone(),
+                        reason: format!("chunk {c} needs {want} bytes of memory, not available"),
+                    })?;
+                bytes.resize(want, 0);
+                let got = zstd::bulk::decompress_to_buffer(&raw, &mut bytes)
                     .map_err(|e| corrupt(&self.path, format!("chunk {c}: zstd: {e}")))?;
-                if bytes.len() != want {
+                if got != want {
                     return Err(corrupt(
                         &self.path,
-                        format!(
-                            "chunk {c}: {} bytes decompressed, expected {want}",
-                            bytes.len()
-                        ),
+                        format!("chunk {c}: {got} bytes decompressed, expected {want}"),
                     ));
                 }
+                out.clear();
+                out.resize(count, 0.0);
                 if let Compression::ZstdShuffle { .. } = compression {
                     decode_values(&super::unshuffle(&bytes, dtype.size()), dtype, out);
                 } else {
