@@ -510,3 +510,138 @@ fn bad_model_files_are_clear_errors() {
         );
     }
 }
+
+/// The uncentred Gram matrix of `n` pseudo-random materials with `d` values each, times
+/// `scale^2`.
+fn random_gram(n: usize, d: usize, seed: u64, scale: f64) -> Mat<f64> {
+    let mut s = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    };
+    let y = Mat::from_fn(n, d, |_, _| scale * next());
+    &y * y.transpose()
+}
+
+/// A fit with restarts has the same bits in rayon pools of 1, 2 and 3 threads, for both
+/// optimisers: the objective runs sequentially, and the PCA start's and the condition number's
+/// eigen-decompositions (faer's global parallelism, the current pool) must not depend on it.
+#[test]
+fn fits_are_identical_on_any_thread_count() {
+    let g = random_gram(51, 40, 9, 1.0);
+    for (optimizer, max_evaluations) in [
+        (OptimizerKind::Lbfgs, 200_000),
+        (OptimizerKind::HookeJeeves, 3_000),
+    ] {
+        let p = FitParams {
+            latent_dim: 3,
+            optimizer,
+            max_evaluations,
+            restarts: 2,
+            seed: 4,
+            ..FitParams::default()
+        }
+        .check()
+        .unwrap();
+        let bits: Vec<Vec<u64>> = [1, 2, 3]
+            .iter()
+            .map(|&threads| {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let f = pool
+                    .install(|| gplvm::fit_gram(g.as_ref(), 40, &p))
+                    .unwrap();
+                let mut v: Vec<u64> = (0..51)
+                    .flat_map(|i| (0..3).map(move |k| (i, k)))
+                    .map(|(i, k)| f.x[(i, k)].to_bits())
+                    .collect();
+                v.extend([f.report.log_likelihood, f.report.condition_number].map(f64::to_bits));
+                v
+            })
+            .collect();
+        assert!(bits.iter().all(|b| b == &bits[0]), "{optimizer}");
+    }
+}
+
+/// Two and three materials, one latent dimension, and q >= N: both optimisers converge by
+/// their own tests, improve on the PCA start, and a latent dimension beyond N - 1 fits exactly
+/// as N - 1 does (centred data span N - 1 dimensions; the extra PCA axes start at 0 up to
+/// rounding).
+#[test]
+fn tiny_datasets_fit_with_any_latent_dimension() {
+    for n in [2usize, 3] {
+        let g = random_gram(n, 20, 3, 1.0);
+        for optimizer in [OptimizerKind::Lbfgs, OptimizerKind::HookeJeeves] {
+            let fit = |q: usize| {
+                let p = FitParams {
+                    latent_dim: q,
+                    optimizer,
+                    ..FitParams::default()
+                };
+                gplvm::fit_gram(g.as_ref(), 20, &p.check().unwrap()).unwrap()
+            };
+            let full = fit(n - 1);
+            for q in 1..=n + 2 {
+                let f = fit(q);
+                let r = &f.report;
+                let what = format!("N {n}, q {q}, {optimizer}: {r:?}");
+                assert!(r.log_likelihood.is_finite(), "{what}");
+                assert!(r.log_likelihood >= r.initial_log_likelihood, "{what}");
+                assert!(!r.stop_reason.contains("not converged"), "{what}");
+                assert!(!r.stop_reason.contains("reached"), "{what}");
+                assert!((0..q).any(|k| f.x[(0, k)] != f.x[(1, k)]), "{what}");
+                if q >= n - 1 {
+                    let (a, b) = (r.log_likelihood, full.report.log_likelihood);
+                    assert!(
+                        (a - b).abs() <= 1e-9 * b.abs(),
+                        "{what}: {a} vs {b} at q = N - 1"
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// With unit-variance scaling the fit does not depend on the data's units: the same
+/// likelihood and the same latent configuration (pairwise distances: the objective is
+/// invariant under rotations of the latent space, so rounding may turn the points) for data
+/// scaled by 1e-150 and 1e150.
+#[test]
+fn unit_variance_fits_do_not_depend_on_the_data_scale() {
+    let p = FitParams {
+        latent_dim: 2,
+        ..FitParams::default()
+    }
+    .check()
+    .unwrap();
+    let fit = |scale: f64| gplvm::fit_gram(random_gram(10, 20, 5, scale).as_ref(), 20, &p).unwrap();
+    let dists = |x: &Mat<f64>| -> Vec<f64> {
+        (0..10)
+            .flat_map(|i| (0..i).map(move |j| (i, j)))
+            .map(|(i, j)| {
+                (0..2)
+                    .map(|k| (x[(i, k)] - x[(j, k)]).powi(2))
+                    .sum::<f64>()
+                    .sqrt()
+            })
+            .collect()
+    };
+    let one = fit(1.0);
+    let d1 = dists(&one.x);
+    for scale in [1e-150, 1e-30, 1e30, 1e150] {
+        let f = fit(scale);
+        let (a, b) = (f.report.log_likelihood, one.report.log_likelihood);
+        assert!((a - b).abs() <= 1e-9 * b.abs(), "{scale:e}: {a} vs {b}");
+        let worst = dists(&f.x)
+            .iter()
+            .zip(&d1)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(worst < 1e-5, "{scale:e}: a distance changed by {worst}");
+        assert!((f.data_scale / one.data_scale / (scale * scale) - 1.0).abs() < 1e-12);
+    }
+}
