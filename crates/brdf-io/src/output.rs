@@ -433,6 +433,7 @@ pub fn remove_unfinished_outputs() -> usize {
 pub struct StagingDir {
     dir: tempfile::TempDir,
     dest: PathBuf,
+    leftovers: Vec<PathBuf>,
     _listed: Listed,
 }
 
@@ -444,15 +445,47 @@ impl StagingDir {
         let name = dest
             .file_name()
             .map_or("out".into(), |n| n.to_string_lossy().into_owned());
+        let prefix = format!(".{}.", temp_stem(&name));
         let dir = tempfile::Builder::new()
-            .prefix(&format!(".{}.", temp_stem(&name)))
+            .prefix(&prefix)
             .suffix(".tmp")
             .tempdir_in(dest)
             .map_err(|e| Error::io(dest, e))?;
         let listed = Listed::new(dir.path());
+        // Staging directories of other runs: one running now, or one killed (SIGKILL, a power
+        // cut) before it could delete its own. Only reported: deleting a running one would
+        // break it.
+        let mut leftovers: Vec<PathBuf> = std::fs::read_dir(dest)
+            .map_err(|e| Error::io(dest, e))?
+            .filter_map(|entry| {
+                let entry = entry.ok()?;
+                let name = entry.file_name().into_string().ok()?;
+                let ours = name.starts_with(&prefix) && name.ends_with(".tmp");
+                (ours && entry.file_type().ok()?.is_dir() && entry.path() != dir.path())
+                    .then(|| entry.path())
+            })
+            .collect();
+        leftovers.sort();
+        if !leftovers.is_empty() {
+            tracing::warn!(
+                "{} holds {} staging director{} of another run of this output (running now, or \
+                 killed before it could clean up): {}; delete {} when no run is using {}",
+                dest.display(),
+                leftovers.len(),
+                if leftovers.len() == 1 { "y" } else { "ies" },
+                leftovers
+                    .iter()
+                    .map(|p| p.display().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                if leftovers.len() == 1 { "it" } else { "them" },
+                if leftovers.len() == 1 { "it" } else { "them" },
+            );
+        }
         Ok(Self {
             dir,
             dest: dest.to_owned(),
+            leftovers,
             _listed: listed,
         })
     }
@@ -460,6 +493,12 @@ impl StagingDir {
     /// The staging directory: write the run's files here.
     pub fn path(&self) -> &Path {
         self.dir.path()
+    }
+
+    /// Other staging directories of the same output found when this one was created (another
+    /// run's, running or killed; reported with a warning, never deleted).
+    pub fn leftovers(&self) -> &[PathBuf] {
+        &self.leftovers
     }
 
     /// Moves every file of the staging directory into the output directory (a rename each,
@@ -636,6 +675,28 @@ mod tests {
         assert_eq!(
             std::fs::read_to_string(out.join("notes.txt")).unwrap(),
             "mine"
+        );
+    }
+
+    /// Another run's staging directory (a killed run's) is reported by the next run of the
+    /// same output, and left alone; other hidden directories are not reported.
+    #[test]
+    fn staging_reports_other_runs_directories() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        let killed = StagingDir::create(&out).unwrap();
+        assert!(killed.leftovers().is_empty());
+        std::fs::write(killed.path().join("report.md"), "half").unwrap();
+        // What SIGKILL leaves: the directory stays (no drop).
+        let killed = killed.dir.keep();
+        std::fs::create_dir(out.join(".other.abc.tmp")).unwrap();
+        std::fs::write(out.join(".out.file.tmp"), "a file, not a run's directory").unwrap();
+        let stage = StagingDir::create(&out).unwrap();
+        assert_eq!(stage.leftovers(), std::slice::from_ref(&killed));
+        drop(stage);
+        assert_eq!(
+            std::fs::read_to_string(killed.join("report.md")).unwrap(),
+            "half"
         );
     }
 
