@@ -66,6 +66,29 @@ fn restart_rng(seed: u64, restart: usize) -> rand_chacha::ChaCha8Rng {
     rng
 }
 
+/// The start of restart `restart` (0: `theta0` itself): the first `n_latent` values (the
+/// latent coordinates) perturbed by N(0, (0.1 l)^2) each, in units of the length-scale `l`, the
+/// kernel's unit of latent distance (the same perturbation of `K` whatever `l`); drawn as
+/// `0.1 l z` with `z` standard normal from [`restart_rng`].
+fn restart_start(
+    theta0: &[f64],
+    n_latent: usize,
+    lengthscale: f64,
+    seed: u64,
+    restart: usize,
+) -> Vec<f64> {
+    const RESTART_STD: f64 = 0.1;
+    let mut theta = theta0.to_vec();
+    if restart > 0 {
+        let mut rng = restart_rng(seed, restart);
+        for v in theta.iter_mut().take(n_latent) {
+            let z: f64 = StandardNormal.sample(&mut rng);
+            *v += RESTART_STD * lengthscale * z;
+        }
+    }
+    theta
+}
+
 /// Computes the uncentred Gram matrix of the transformed data in one parallel streaming pass.
 pub fn gram_pass(store: &Store, transform: Transform) -> Result<GramPass> {
     let start = Instant::now();
@@ -245,7 +268,8 @@ pub fn fit_gram(g: MatRef<'_, f64>, d: usize, config: &FitConfig) -> Result<Fit>
     if q >= n {
         tracing::warn!(
             "latent dimension q = {q} for N = {n} materials: centred data span at most N - 1 = \
-             {} dimensions, so the PCA start leaves {} of them at 0 (a smaller q fits the same)",
+             {} dimensions, so the PCA start leaves {} of them at 0 up to rounding (a smaller q \
+             fits the same)",
             n.saturating_sub(1),
             q + 1 - n
         );
@@ -282,18 +306,8 @@ pub fn fit_gram(g: MatRef<'_, f64>, d: usize, config: &FitConfig) -> Result<Fit>
     let start = Instant::now();
     let mut best: Option<Minimum> = None;
     let (mut iterations, mut evaluations) = (0u64, 0u64);
-    // Restart perturbations: N(0, 0.1^2) per latent coordinate (0.1 z, as rand_distr's
-    // `Normal::new(0.0, 0.1)` draws them, without its fallible constructor).
-    const RESTART_STD: f64 = 0.1;
     for restart in 0..=p.restarts {
-        let mut start_theta = theta0.clone();
-        if restart > 0 {
-            let mut rng = restart_rng(p.seed, restart);
-            for v in start_theta.iter_mut().take(n * q) {
-                let z: f64 = StandardNormal.sample(&mut rng);
-                *v += RESTART_STD * z;
-            }
-        }
+        let start_theta = restart_start(&theta0, n * q, p.lengthscale, p.seed, restart);
         let run = match p.optimizer {
             OptimizerKind::HookeJeeves => {
                 let settings = HookeJeevesSettings {
@@ -525,5 +539,36 @@ mod tests {
         }
         // Deterministic.
         assert_eq!(first(7, 2), first(7, 2));
+    }
+
+    /// A restart moves the latent coordinates by the same multiple of the length-scale whatever
+    /// it is (a fixed 0.1 was 1e-3 length-scales at l = 100 and 1000 at l = 1e-4), leaves the
+    /// hyperparameters after them alone, and restart 0 is the start itself.
+    #[test]
+    fn restart_perturbations_are_in_length_scales() {
+        let theta0 = [0.5, -1.0, 2.0, 0.25, 7.0];
+        assert_eq!(restart_start(&theta0, 4, 3.0, 5, 0), theta0);
+        let unit = restart_start(&theta0, 4, 1.0, 5, 2);
+        let moved = |t: &[f64]| -> Vec<f64> { t.iter().zip(&theta0).map(|(a, b)| a - b).collect() };
+        let d1 = moved(&unit);
+        assert!(d1[..4].iter().all(|d| *d != 0.0) && d1[4] == 0.0, "{d1:?}");
+        // Standard deviation 0.1 length-scales: four draws stay within 6 of them.
+        assert!(d1.iter().all(|d| d.abs() < 0.6), "{d1:?}");
+        // From a zero start (no rounding of the sum), in length-scales.
+        let zero = [0.0, 0.0, 0.0, 0.0, 7.0];
+        let z1 = restart_start(&zero, 4, 1.0, 5, 2);
+        for l in [1e-4, 0.3, 100.0] {
+            let d = restart_start(&zero, 4, l, 5, 2);
+            for k in 0..4 {
+                let rel = (d[k] / l - z1[k]).abs() / z1[k].abs();
+                assert!(
+                    rel < 1e-14,
+                    "l = {l}, coordinate {k}: {} vs {}",
+                    d[k] / l,
+                    z1[k]
+                );
+            }
+            assert_eq!(d[4], 7.0);
+        }
     }
 }

@@ -22,7 +22,9 @@ impl Pca {
     /// PCA with `q` components of the centred Gram matrix `s`.
     ///
     /// Each component's sign is fixed so that its largest-magnitude score is positive, which
-    /// makes the result deterministic. Components beyond the rank of S get zero scores.
+    /// makes the result deterministic. Components past N get zero scores; those beyond the rank
+    /// of S but below N get scores of the size of S's rounding (~sqrt(eps) of the leading
+    /// ones; exactly 0 where the eigenvalue rounds below 0 and is clamped).
     pub fn from_centred_gram(s: MatRef<'_, f64>, q: usize) -> Result<Self> {
         let n = s.nrows();
         if n == 0 || s.ncols() != n {
