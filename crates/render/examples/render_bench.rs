@@ -277,8 +277,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         light_only.computed_cells()
     );
     println!(
-        "lazy (each touched cell once, {} wavelengths): {lazy:.3} s median of 5 with the scene's \
-         render plan cached, {cold:.3} s building it; {cells} of {} cells computed",
+        "lazy (each touched cell once, {} wavelengths): {lazy:.4} s median of 5 with the scene's \
+         render plan cached, {cold:.4} s building it; {cells} of {} cells computed",
         needed.as_ref().map_or(pred.channels().len(), |w| w.len()),
         pred.grid().len()
     );
@@ -381,8 +381,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let fast_cold = cold_median(&fast_opts)?;
     println!(
-        "with EnvTableSpec::FAST (`specgp render --env fast`): lazy {fast:.3} s, {:.1}x faster \
-         ({fast_cold:.3} s, {:.1}x, with the plan built by the render)",
+        "with EnvTableSpec::FAST (`specgp render --env fast`): lazy {fast:.4} s, {:.1}x faster \
+         ({fast_cold:.4} s, {:.1}x, with the plan built by the render)",
         mat / fast,
         mat / fast_cold
     );
