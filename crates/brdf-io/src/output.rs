@@ -467,19 +467,19 @@ impl StagingDir {
             .collect();
         leftovers.sort();
         if !leftovers.is_empty() {
+            let (dirs, them) = match leftovers.len() {
+                1 => ("a staging directory", "it"),
+                _ => ("staging directories", "them"),
+            };
             tracing::warn!(
-                "{} holds {} staging director{} of another run of this output (running now, or \
-                 killed before it could clean up): {}; delete {} when no run is using {}",
+                "{} holds {dirs} of another run of this output (running now, or killed before it \
+                 could clean up): {}; delete {them} when no run is using {them}",
                 dest.display(),
-                leftovers.len(),
-                if leftovers.len() == 1 { "y" } else { "ies" },
                 leftovers
                     .iter()
                     .map(|p| p.display().to_string())
                     .collect::<Vec<_>>()
                     .join(", "),
-                if leftovers.len() == 1 { "it" } else { "them" },
-                if leftovers.len() == 1 { "it" } else { "them" },
             );
         }
         Ok(Self {

@@ -373,13 +373,12 @@ impl Store {
                 check_zstd_claim(&raw, want).map_err(|reason| {
                     corrupt(&self.path, format!("chunk {c} ({want} bytes): {reason}"))
                 })?;
+                let no_memory = |_| Error::StoreUsage {
+                    path: self.path.clone(),
+                    reason: format!("chunk {c} ({want} bytes) does not fit in memory"),
+                };
                 let mut bytes = Vec::new();
-                bytes
-                    .try_reserve_exact(want)
-                    .map_err(|_| Error::StoreUsage {
-                        path: self.path.clone(),
-                        reason: format!("chunk {c} needs {want} bytes of memory, not available"),
-                    })?;
+                bytes.try_reserve_exact(want).map_err(no_memory)?;
                 bytes.resize(want, 0);
                 let got = zstd::bulk::decompress_to_buffer(&raw, &mut bytes)
                     .map_err(|e| corrupt(&self.path, format!("chunk {c}: zstd: {e}")))?;
@@ -390,6 +389,7 @@ impl Store {
                     ));
                 }
                 out.clear();
+                out.try_reserve_exact(count).map_err(no_memory)?;
                 out.resize(count, 0.0);
                 if let Compression::ZstdShuffle { .. } = compression {
                     decode_values(&super::unshuffle(&bytes, dtype.size()), dtype, out);
