@@ -297,26 +297,25 @@ pub fn latent_map(
         mid_y - 3
     };
     img.text(2, y_name, "X2", 1, black);
-    // The title stops short of the thumbnail panel's title (or the image's edge) on small
-    // maps, where it used to run into it and off the image.
-    let title_room = if panel > 0 {
+    // The title and the colour bar end 8 px before the thumbnail panel (or 4 px before the
+    // image's edge without one) on small maps, where they ran into it and off the image.
+    let right_edge = if panel > 0 {
         left + size + margin - 8
     } else {
         width - 4
-    }
-    .saturating_sub(l as usize);
-    let title = "LATENT SPACE, SHADED BY PREDICTIVE STANDARD DEVIATION";
-    img.text(l, 8, &font::fit(title, title_room, 1), 1, black);
+    };
+    let title_room = right_edge.saturating_sub(l as usize);
+    img.text(l, 8, map_title(title_room), 1, black);
     if !opts.caption.is_empty() {
         let caption = font::fit(&opts.caption, width.saturating_sub(l as usize + 4), 1);
         img.text(l, 20, &caption, 1, [0.3; 3]);
     }
     // Colour bar: "0", a 120-pixel ramp and the largest standard deviation, from 130 px right
     // of the frame's corner; on a map too narrow for that, from the corner with a shorter
-    // ramp (it ran off the image).
+    // ramp (it ran off the image, and with thumbnails under their panel, which hid it).
     let bar_y = b + 34;
     let top = format!("{:.3}", vmax.sqrt());
-    let room = width as i64 - 4 - font::text_width(&top, 1) as i64 - 10;
+    let room = right_edge as i64 - font::text_width(&top, 1) as i64 - 10;
     let (zero_x, bar_x, bar_len) = if l + 280 <= room {
         (l + 130, l + 160, 120)
     } else {
@@ -404,6 +403,20 @@ pub fn latent_map(
         img.text(ox, 8, panel_title, 1, black);
     }
     Ok(img)
+}
+
+/// The map's title, shortened at a word to fit `room` pixels (a cut mid-word, "... SHADED BY
+/// PRE", read on into the thumbnail panel's title beside it).
+fn map_title(room: usize) -> &'static str {
+    const TITLES: [&str; 3] = [
+        "LATENT SPACE, SHADED BY PREDICTIVE STANDARD DEVIATION",
+        "LATENT SPACE, SHADED BY PREDICTIVE STD",
+        "LATENT SPACE",
+    ];
+    TITLES
+        .into_iter()
+        .find(|t| font::text_width(t, 1) <= room)
+        .unwrap_or("")
 }
 
 /// Round tick values in `[lo, hi]`: multiples of 1, 2 or 5 times a power of ten, the smallest
@@ -522,9 +535,11 @@ const DOT_CLEARANCE: f64 = 5.5;
 /// Places one label per dot (`widths[i]`: the text width of dot i's label), greedily and
 /// deterministically: labels of dots with more neighbours go first, and each takes the first
 /// free spot among: beside its dot (right, left, above, below, then the four corners), then on
-/// rings of growing radius around it (16 directions each; drawn with a leader line). Free
-/// means inside `bounds`, over no dot's clearance square and no label placed before. Where no
-/// spot is free, the label takes the one it overlaps least.
+/// rings of growing radius around it (16 directions each; drawn with a leader line), then
+/// those ring spots moved into `bounds`. Free means inside `bounds`, over no dot's clearance
+/// square and no label placed before. Where no spot is free, the label takes the one that
+/// leaves the bounds least (a label wider than them starts at their left edge), then
+/// overlaps least.
 fn place_labels(dots: &[(f64, f64)], widths: &[usize], bounds: Rect) -> Vec<LabelSpot> {
     const RINGS: [f64; 7] = [16.0, 26.0, 38.0, 52.0, 68.0, 88.0, 112.0];
     const DIRECTIONS: usize = 16;
@@ -578,14 +593,32 @@ fn place_labels(dots: &[(f64, f64)], widths: &[usize], bounds: Rect) -> Vec<Labe
                 }
             })
         });
+        // The ring spots moved into the bounds (a label that finds no free spot takes the one
+        // it overlaps least: on a small map, with the spots above alone, that was often one
+        // far outside the plot, over the tick labels, under the thumbnail panel or off the
+        // image).
+        let inside = |s: LabelSpot| LabelSpot {
+            x: s.x.min(bounds.x1 - 1 - w).max(bounds.x0 + 1),
+            y: s.y.min(bounds.y1 - 1 - h).max(bounds.y0 + 1),
+            leader: true,
+        };
+        let moved = rings.clone().map(inside);
+        // Every pixel outside the bounds costs more than any overlap with dots and labels, one
+        // left of them twice as much (there are the y tick labels; right of the plot is a
+        // margin).
         let cost = |s: &LabelSpot| {
             let b = s.label_box(widths[i]);
-            let out = if b.inside(&bounds) { 0 } else { 1 << 20 };
+            let out = if b.inside(&bounds) {
+                0
+            } else {
+                let left = (bounds.x0 - b.x0).max(0) * (b.y1 - b.y0);
+                ((b.x1 - b.x0) * (b.y1 - b.y0) - b.overlap(&bounds) + left) << 24
+            };
             out + dot_boxes.iter().map(|d| b.overlap(d)).sum::<i64>()
                 + placed.iter().map(|p| b.overlap(p)).sum::<i64>()
         };
         let mut best = (i64::MAX, beside[0]);
-        for s in beside.into_iter().chain(rings) {
+        for s in beside.into_iter().chain(rings).chain(moved) {
             let c = cost(&s);
             if c < best.0 {
                 best = (c, s);
@@ -829,6 +862,38 @@ mod tests {
         assert!(spots.iter().any(|s| s.leader));
         // Deterministic.
         assert_eq!(place_labels(&dots, &widths, BOUNDS), spots);
+    }
+
+    /// On a plot too small for its labels (51 in 128 x 128 px, as `specgp map --size 128`),
+    /// labels that find no free spot stay in the plot; one wider than the plot starts at its
+    /// left edge (right of it is a margin, left of it the tick labels). They were put at ring
+    /// spots up to 112 px outside it (over the tick labels, under the thumbnail panel, off the
+    /// image).
+    #[test]
+    fn labels_without_a_free_spot_stay_in_a_small_plot() {
+        let bounds = Rect {
+            x0: 40,
+            y0: 40,
+            x1: 168,
+            y1: 168,
+        };
+        let dots: Vec<(f64, f64)> = (0..51)
+            .map(|k| {
+                let t = k as f64;
+                (50.0 + (t * 13.7) % 108.0, 80.0 + (t * 7.9) % 48.0)
+            })
+            .collect();
+        // 12 to 28 characters: 71 to 167 px.
+        let widths: Vec<usize> = (0..51).map(|k| 6 * (12 + k % 17) - 1).collect();
+        let spots = place_labels(&dots, &widths, bounds);
+        for (k, (b, w)) in boxes(&spots, &widths).iter().zip(&widths).enumerate() {
+            assert!(b.y0 >= 40 && b.y1 <= 168, "label {k}: {b:?}");
+            if w + 2 <= 128 {
+                assert!(b.inside(&bounds), "label {k} ({w} px): {b:?}");
+            } else {
+                assert_eq!(b.x0, 40, "label {k} ({w} px): {b:?}");
+            }
+        }
     }
 
     #[test]

@@ -269,3 +269,93 @@ fn thumbnail_panels_fit_the_image_and_one_axis_maps_have_one_row() {
     let sphere = one.get(x0 + 16, 40 + 16);
     assert!(sphere.iter().all(|c| *c < 0.95), "{sphere:?}");
 }
+
+/// `specgp map --thumbnails --size 128` on 51 materials: the colour bar is drawn left of the
+/// thumbnail panel (it was laid out against the whole image's width and drawn under the panel,
+/// leaving a lone "0"), the title is shortened at a word before the panel's title (it was cut
+/// to "... SHADED BY PRE" and read on into "PREDICTED MATERIALS ..."), and labels that find no
+/// free spot stay in the plot (they were put far outside it: over the tick labels, under the
+/// panel and off the image's left edge).
+#[test]
+fn small_maps_with_thumbnails_keep_bar_title_and_labels_in_place() {
+    let (a, b) = (synth("acrylic_felt_white"), synth("carpaint_solid_red"));
+    // 51 materials in a 3 x 1 patch, with names of 12 to 26 characters (up to 155 px, wider
+    // than the plot).
+    let points: Vec<(String, [f64; 2])> = (0..51)
+        .map(|k| {
+            let t = k as f64;
+            let name = format!("MATERIAL_{k:02}_{}", "X".repeat(k % 15));
+            (name, [-1.5 + (t * 0.37) % 3.0, -0.5 + (t * 0.61) % 1.0])
+        })
+        .collect();
+    let var = |p: [f64; 2]| -> render::Result<f64> { Ok(0.1 + p[0].abs()) };
+    let src = |p: [f64; 2]| -> render::Result<Box<dyn BrdfSource + '_>> {
+        let x = ((p[0] + 1.5) / 3.0).clamp(0.0, 1.0);
+        Ok(Box::new(Mix(&b, &a, x)))
+    };
+    let (size, g, ts) = (128usize, 6usize, 32usize);
+    let opts = MapOptions {
+        size,
+        thumbnails: g,
+        sphere: SphereOptions {
+            size: ts,
+            ..SphereOptions::default()
+        },
+        variance_samples: 8,
+        caption: render::map::variance_caption("log(offset=0.01)", 5),
+        ..MapOptions::default()
+    };
+    let map = latent_map(&points, &var, Some(&src), &opts).unwrap();
+    keep(&map, "small-map.png");
+    // Plot at x 40..168 (y tick labels fit the 40 px margin), panel from x 208.
+    let (left, panel_x) = (40usize, 40 + size + 40);
+    let dark = |x: usize, y: usize| map.get(x, y).iter().all(|c| *c < 0.3);
+    // Colour bar: its deepest blue (shade 1 = (0.05, 0.15, 0.55)) and the largest standard
+    // deviation's label are left of the panel, on the bar's rows.
+    let bar_y = 40 + size + 34;
+    let blue = (0..panel_x)
+        .filter(|&x| {
+            let c = map.get(x, bar_y + 2);
+            (c[0] - 0.05).abs() < 0.02 && (c[2] - 0.55).abs() < 0.02
+        })
+        .count();
+    assert!(
+        blue >= 1,
+        "no deep blue end of the colour bar left of the panel"
+    );
+    let bar_end = (0..panel_x)
+        .rev()
+        .find(|&x| map.get(x, bar_y + 2)[2] > 0.5 && map.get(x, bar_y + 2)[0] < 0.9)
+        .unwrap();
+    let label_ink = (bar_end + 1..panel_x)
+        .filter(|&x| (bar_y..bar_y + 7).any(|y| dark(x, y)))
+        .count();
+    assert!(
+        label_ink >= 10,
+        "{label_ink} inked columns of the bar's label"
+    );
+    // Title: "LATENT SPACE" (12 characters from x 39), then nothing up to the panel's title.
+    let title_end = 39 + render::font::text_width("LATENT SPACE", 1);
+    let title_ink: Vec<usize> = (title_end + 1..panel_x)
+        .filter(|&x| (8..15).any(|y| dark(x, y)))
+        .collect();
+    assert!(title_ink.is_empty(), "title ink at {title_ink:?}");
+    assert!((39..title_end).any(|x| (8..15).any(|y| dark(x, y))));
+    // Labels: none in the image's first columns (the axis name X2 starts at x = 2) or in the
+    // panel's margin (labels wider than the plot stick out on its right, into the 40 px
+    // margin), and the y tick labels' column left of the frame holds tick labels only: one run
+    // of ink per tick.
+    for y in 30..map.height {
+        assert!(
+            !dark(0, y) && !dark(1, y),
+            "label ink at the left edge, row {y}"
+        );
+        assert!(!dark(panel_x - 2, y), "label ink before the panel, row {y}");
+    }
+    let tick_rows: Vec<usize> = (40..40 + size).filter(|&y| dark(left - 7, y)).collect();
+    let runs = tick_rows.windows(2).filter(|w| w[1] != w[0] + 1).count() + 1;
+    assert!(
+        runs <= 7,
+        "{runs} runs of ink in the tick label column: {tick_rows:?}"
+    );
+}
