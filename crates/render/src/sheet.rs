@@ -65,6 +65,42 @@ pub fn heat_map(map: &[Option<f64>], width: usize, max: f64) -> Image {
     img
 }
 
+/// [`heat_map`] with an anti-aliased rim: a pixel both renderings cover only in part (the
+/// sphere's edge, where [`delta_e_map`] defines no value) takes the value of a covered pixel
+/// next to it (the nearest within 2 pixels) at the smaller of their coverages (the maps' edges
+/// were a hard staircase beside the anti-aliased spheres).
+fn heat_map_covered(map: &[Option<f64>], a: &Image, b: &Image, max: f64) -> Image {
+    let (w, h) = (a.width, a.height);
+    let mut img = heat_map(map, w, max);
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            let coverage = a.alpha[i].min(b.alpha[i]);
+            if map[i].is_some() || coverage <= 0.0 {
+                continue;
+            }
+            let near = (-2i64..=2)
+                .flat_map(|dy| (-2i64..=2).map(move |dx| (dx, dy)))
+                .filter_map(|(dx, dy)| {
+                    let (u, v) = (x as i64 + dx, y as i64 + dy);
+                    let inside = (0..w as i64).contains(&u) && (0..h as i64).contains(&v);
+                    let d = map[if inside {
+                        v as usize * w + u as usize
+                    } else {
+                        i
+                    }]?;
+                    inside.then_some((dx * dx + dy * dy, d))
+                })
+                .min_by_key(|&(r2, _)| r2);
+            if let Some((_, d)) = near {
+                img.rgb[i] = ramp(d / max);
+                img.alpha[i] = coverage.min(1.0);
+            }
+        }
+    }
+    img
+}
+
 /// A rendered comparison sheet and its numbers.
 #[derive(Debug, Clone)]
 pub struct ComparisonSheet {
@@ -149,7 +185,7 @@ pub fn comparison_sheet(
             let map = delta_e_map(&renders[0], r_img)?;
             let mean = mean_delta_e(&map);
             let x = cell_x(columns.len() + c - 1);
-            img.blit(&heat_map(&map, s, de_max), x, y);
+            img.blit(&heat_map_covered(&map, &renders[0], r_img, de_max), x, y);
             let t = if font::text_width("MEAN 00.00", 1) <= s {
                 format!("MEAN {mean:.2}")
             } else {

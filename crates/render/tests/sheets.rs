@@ -359,3 +359,42 @@ fn small_maps_with_thumbnails_keep_bar_title_and_labels_in_place() {
         "{runs} runs of ink in the tick label column: {tick_rows:?}"
     );
 }
+
+/// The Delta E heat maps' rims are anti-aliased like the spheres beside them: a pixel the
+/// sphere covers in part shows the map's colour at that coverage over the background (it was
+/// left as background: a staircase edge, and the map a pixel smaller than its sphere).
+#[test]
+fn heat_maps_have_the_spheres_anti_aliased_rim() {
+    let red = synth("carpaint_solid_red");
+    let opts = SphereOptions {
+        size: 40,
+        ..SphereOptions::default()
+    };
+    let rows = vec![("RED".to_string(), vec![&red as &dyn BrdfSource, &red])];
+    let sheet = comparison_sheet(&["A", "B"], &rows, &opts, 10.0).unwrap();
+    keep(&sheet.image, "rim.png");
+    let sphere = render::render_sphere(&red, &opts).unwrap();
+    // Cells: the label column (at least 40 px) and 8 px gaps; the heat map is the third.
+    let (x0, y0) = (40 + 8 + 8 + 2 * (40 + 8), 8 + render::font::GLYPH_H + 4);
+    let zero = render::image::ramp(0.0);
+    let mut rim = 0;
+    for y in 0..40 {
+        for x in 0..40 {
+            let a = sphere.alpha[y * 40 + x];
+            let want = if a <= 0.0 {
+                [0.02; 3]
+            } else {
+                zero.map(|c| a * c + (1.0 - a) * 0.02)
+            };
+            let got = sheet.image.get(x0 + x, y0 + y);
+            for k in 0..3 {
+                assert!(
+                    (got[k] - want[k]).abs() < 1e-9,
+                    "({x}, {y}) alpha {a}: {got:?} {want:?}"
+                );
+            }
+            rim += usize::from(a > 0.0 && a < 0.999);
+        }
+    }
+    assert!(rim > 40, "{rim} rim pixels");
+}
