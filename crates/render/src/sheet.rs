@@ -83,13 +83,10 @@ fn heat_map_covered(map: &[Option<f64>], a: &Image, b: &Image, max: f64) -> Imag
                 .flat_map(|dy| (-2i64..=2).map(move |dx| (dx, dy)))
                 .filter_map(|(dx, dy)| {
                     let (u, v) = (x as i64 + dx, y as i64 + dy);
-                    let inside = (0..w as i64).contains(&u) && (0..h as i64).contains(&v);
-                    let d = map[if inside {
-                        v as usize * w + u as usize
-                    } else {
-                        i
-                    }]?;
-                    inside.then_some((dx * dx + dy * dy, d))
+                    if !((0..w as i64).contains(&u) && (0..h as i64).contains(&v)) {
+                        return None;
+                    }
+                    map[v as usize * w + u as usize].map(|d| (dx * dx + dy * dy, d))
                 })
                 .min_by_key(|&(r2, _)| r2);
             if let Some((_, d)) = near {
