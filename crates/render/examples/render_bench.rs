@@ -8,7 +8,7 @@
 //!
 //! ```sh
 //! specgp synth --out /tmp/b/synth.sbrdf && specgp fit /tmp/b/synth.sbrdf --out /tmp/b/model.toml
-//! cargo run --release -p render --example render_bench -- /tmp/b/model.toml [SIZE] [--sidecar]
+//! cargo run --release -p render --example render_bench -- /tmp/b/model.toml [SIZE] [--sidecar] [--loop N]
 //! cargo run --release -p render --example render_bench -- /tmp/b/model.toml [SIZE] --stored-materials
 //! ```
 //! `--stored-materials` runs the accuracy study of the environment table instead: every stored
@@ -196,6 +196,22 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         Ok(m)
     };
+    // `--loop N`: only the mean time of N lazy renders, each of a new prediction at the same
+    // point, the scene's plan cached (a steadier number than the medians of 5 below, for
+    // comparing builds).
+    if let Some(at) = args.iter().position(|a| a == "--loop") {
+        let n: usize = args.get(at + 1).ok_or("--loop N")?.parse()?;
+        render_sphere(&lazy_material()?, &opts)?;
+        let t = Instant::now();
+        for _ in 0..n {
+            render_sphere(&lazy_material()?, &opts)?;
+        }
+        println!(
+            "lazy, plan cached: {:.4} s per render, mean of {n}",
+            t.elapsed().as_secs_f64() / n.max(1) as f64
+        );
+        return Ok(());
+    }
     // Lazy, the scene's render plan built by this render (no earlier render of this view and
     // size in the process): median of 5.
     let cold_median = |o: &SphereOptions| -> Result<f64, Box<dyn std::error::Error>> {
