@@ -120,7 +120,9 @@ pub fn thumbnail_box(points: &[LabelledPoint]) -> [f64; 4] {
 /// Draws the map: shading by the predictive standard deviation (the square root of `variance`:
 /// white = 0, deep blue = the largest sampled; a linear variance scale drew a standard
 /// deviation of half the largest, a factor of ~2 in log units, nearly white), training materials as red dots and predictions as blue rings (see
-/// [`MapOptions::predicted_points`]) with labels, axis ranges, a colour bar, an optional
+/// [`MapOptions::predicted_points`]) with labels (a training material's label that finds no
+/// free spot is left out, and a note under the colour bar counts them; predictions are
+/// always labelled), axis ranges, a colour bar, an optional
 /// caption; with
 /// `opts.thumbnails > 0` and `source_at`, a panel of spheres of the predicted materials on a
 /// regular grid over the points' bounding box ([`thumbnail_box`], outlined on the map) to the
@@ -354,14 +356,14 @@ pub fn latent_map(
         x1: (left + size) as i64,
         y1: (margin + size) as i64,
     };
-    let spots = place_labels(&dots, &widths, plot);
+    let first_predicted = dots.len().saturating_sub(opts.predicted_points);
+    let spots = place_labels(&dots, &widths, plot, first_predicted);
     for ((cx, cy), (spot, w)) in dots.iter().zip(spots.iter().zip(&widths)) {
-        if spot.leader {
+        if let Some(spot) = spot.filter(|s| s.leader) {
             let (tx, ty) = spot.label_box(*w).nearest_point(*cx, *cy);
             img.line(*cx, *cy, tx, ty, [0.25; 3], 0.8);
         }
     }
-    let first_predicted = dots.len().saturating_sub(opts.predicted_points);
     for (k, (cx, cy)) in dots.iter().enumerate() {
         img.disc(*cx, *cy, 4.5, [1.0; 3]);
         if k < first_predicted {
@@ -372,10 +374,22 @@ pub fn latent_map(
         }
     }
     for (((name, _), spot), w) in points.iter().zip(&spots).zip(&widths) {
+        let Some(spot) = spot else { continue };
         let b = spot.label_box(*w);
         let (bw, bh) = ((b.x1 - b.x0) as usize, (b.y1 - b.y0) as usize);
         img.blend_rect(b.x0, b.y0, bw, bh, [1.0; 3], 0.6);
         img.text(spot.x, spot.y, name, 1, black);
+    }
+    // Say how many labels had no room (under the colour bar).
+    let left_out = spots.iter().filter(|s| s.is_none()).count();
+    if left_out > 0 {
+        let room = right_edge.saturating_sub(l as usize);
+        let full = format!("{left_out} OF {first_predicted} LABELS LEFT OUT");
+        let note = [format!("{full}: NO ROOM AT THIS SIZE"), full]
+            .into_iter()
+            .find(|t| font::text_width(t, 1) <= room)
+            .unwrap_or_else(|| format!("{left_out} LEFT OUT"));
+        img.text(l, b + 50, &note, 1, [0.3; 3]);
     }
     // Thumbnails over the points' bounding box (drawn on the map), not the whole square plot:
     // the square's empty margins are far from every material, where the GP's extrapolation
@@ -537,10 +551,17 @@ const DOT_CLEARANCE: f64 = 5.5;
 /// free spot among: beside its dot (right, left, above, below, then the four corners), then on
 /// rings of growing radius around it (16 directions each; drawn with a leader line), then
 /// those ring spots moved into `bounds`. Free means inside `bounds`, over no dot's clearance
-/// square and no label placed before. Where no spot is free, the label takes the one that
-/// leaves the bounds least (a label wider than them starts at their left edge), then
-/// overlaps least.
-fn place_labels(dots: &[(f64, f64)], widths: &[usize], bounds: Rect) -> Vec<LabelSpot> {
+/// square and no label placed before. A label with no free spot is left out (`None`: drawn
+/// over dots and other labels it hid them and was unreadable itself), except the labels of
+/// dots `always..` (predictions and located materials, which the user asked about): they take
+/// the spot that leaves the bounds least (a label wider than them starts at their left edge),
+/// then overlaps least.
+fn place_labels(
+    dots: &[(f64, f64)],
+    widths: &[usize],
+    bounds: Rect,
+    always: usize,
+) -> Vec<Option<LabelSpot>> {
     const RINGS: [f64; 7] = [16.0, 26.0, 38.0, 52.0, 68.0, 88.0, 112.0];
     const DIRECTIONS: usize = 16;
     let h = font::GLYPH_H as i64;
@@ -554,14 +575,7 @@ fn place_labels(dots: &[(f64, f64)], widths: &[usize], bounds: Rect) -> Vec<Labe
     let mut order: Vec<usize> = (0..dots.len()).collect();
     order.sort_by_key(|&i| (std::cmp::Reverse(crowd(i)), i));
     let mut placed: Vec<Rect> = Vec::with_capacity(dots.len());
-    let mut spots = vec![
-        LabelSpot {
-            x: 0,
-            y: 0,
-            leader: false
-        };
-        dots.len()
-    ];
+    let mut spots = vec![None; dots.len()];
     for i in order {
         let (cx, cy) = dots[i];
         let (x, y, w) = (cx.round() as i64, cy.round() as i64, widths[i] as i64);
@@ -627,8 +641,10 @@ fn place_labels(dots: &[(f64, f64)], widths: &[usize], bounds: Rect) -> Vec<Labe
                 break;
             }
         }
-        spots[i] = best.1;
-        placed.push(best.1.label_box(widths[i]));
+        if best.0 == 0 || i >= always {
+            spots[i] = Some(best.1);
+            placed.push(best.1.label_box(widths[i]));
+        }
     }
     spots
 }
@@ -811,11 +827,16 @@ mod tests {
         y1: 680,
     };
 
-    fn boxes(spots: &[LabelSpot], widths: &[usize]) -> Vec<Rect> {
+    /// The boxes of the labels placed (all of them: panics on one left out).
+    fn boxes(spots: &[Option<LabelSpot>], widths: &[usize]) -> Vec<Rect> {
         spots
             .iter()
             .zip(widths)
-            .map(|(s, w)| s.label_box(*w))
+            .enumerate()
+            .map(|(i, (s, w))| {
+                s.unwrap_or_else(|| panic!("label {i} left out"))
+                    .label_box(*w)
+            })
             .collect()
     }
 
@@ -823,15 +844,15 @@ mod tests {
     fn sparse_labels_sit_right_of_their_dots() {
         let dots = [(100.0, 100.0), (300.0, 300.0), (500.0, 200.0)];
         let widths = [60, 90, 30];
-        let spots = place_labels(&dots, &widths, BOUNDS);
+        let spots = place_labels(&dots, &widths, BOUNDS, 3);
         for ((x, y), s) in dots.iter().zip(&spots) {
             assert_eq!(
                 *s,
-                LabelSpot {
+                Some(LabelSpot {
                     x: *x as i64 + 7,
                     y: *y as i64 - 3,
                     leader: false
-                }
+                })
             );
         }
     }
@@ -847,7 +868,8 @@ mod tests {
             })
             .collect();
         let widths: Vec<usize> = (0..40).map(|k| 6 * (8 + k % 13) - 1).collect();
-        let spots = place_labels(&dots, &widths, BOUNDS);
+        let spots = place_labels(&dots, &widths, BOUNDS, 40);
+        // Every one finds a free spot (none is left out).
         let b = boxes(&spots, &widths);
         for (i, bi) in b.iter().enumerate() {
             assert!(bi.inside(&BOUNDS), "label {i} leaves the plot: {bi:?}");
@@ -859,18 +881,19 @@ mod tests {
                 assert_eq!(bi.overlap(&d), 0, "label {i} covers dot {k}");
             }
         }
-        assert!(spots.iter().any(|s| s.leader));
+        assert!(spots.iter().any(|s| s.is_some_and(|s| s.leader)));
         // Deterministic.
-        assert_eq!(place_labels(&dots, &widths, BOUNDS), spots);
+        assert_eq!(place_labels(&dots, &widths, BOUNDS, 40), spots);
     }
 
     /// On a plot too small for its labels (51 in 128 x 128 px, as `specgp map --size 128`),
-    /// labels that find no free spot stay in the plot; one wider than the plot starts at its
-    /// left edge (right of it is a margin, left of it the tick labels). They were put at ring
-    /// spots up to 112 px outside it (over the tick labels, under the thumbnail panel, off the
-    /// image).
+    /// training materials' labels that find no free spot are left out, the others neither
+    /// overlap nor cover a dot; the last 3 (predictions, always labelled) stay in the plot, one
+    /// wider than the plot from its left edge (right of it is a margin, left of it the tick
+    /// labels). Labels were put at ring spots up to 112 px outside the plot (over the tick
+    /// labels, under the thumbnail panel, off the image), then drawn over each other.
     #[test]
-    fn labels_without_a_free_spot_stay_in_a_small_plot() {
+    fn labels_without_a_free_spot_are_left_out_of_a_small_plot() {
         let bounds = Rect {
             x0: 40,
             y0: 40,
@@ -885,13 +908,35 @@ mod tests {
             .collect();
         // 12 to 28 characters: 71 to 167 px.
         let widths: Vec<usize> = (0..51).map(|k| 6 * (12 + k % 17) - 1).collect();
-        let spots = place_labels(&dots, &widths, bounds);
-        for (k, (b, w)) in boxes(&spots, &widths).iter().zip(&widths).enumerate() {
-            assert!(b.y0 >= 40 && b.y1 <= 168, "label {k}: {b:?}");
+        let spots = place_labels(&dots, &widths, bounds, 48);
+        let free: Vec<(usize, Rect)> = (0..48)
+            .filter_map(|k| spots[k].map(|s| (k, s.label_box(widths[k]))))
+            .collect();
+        let left_out = 48 - free.len();
+        assert!((20..48).contains(&left_out), "{left_out} left out");
+        for (i, (k, b)) in free.iter().enumerate() {
+            assert!(b.inside(&bounds), "label {k}: {b:?}");
+            for (j, c) in free.iter().skip(i + 1) {
+                assert_eq!(b.overlap(c), 0, "labels {k} and {j} overlap");
+            }
+            for (d, &(x, y)) in dots.iter().enumerate() {
+                assert_eq!(
+                    b.overlap(&Rect::around_dot(x, y)),
+                    0,
+                    "label {k} covers dot {d}"
+                );
+            }
+        }
+        for (k, (b, w)) in boxes(&spots[48..], &widths[48..])
+            .iter()
+            .zip(&widths[48..])
+            .enumerate()
+        {
+            assert!(b.y0 >= 40 && b.y1 <= 168, "label {}: {b:?}", 48 + k);
             if w + 2 <= 128 {
-                assert!(b.inside(&bounds), "label {k} ({w} px): {b:?}");
+                assert!(b.inside(&bounds), "label {} ({w} px): {b:?}", 48 + k);
             } else {
-                assert_eq!(b.x0, 40, "label {k} ({w} px): {b:?}");
+                assert_eq!(b.x0, 40, "label {} ({w} px): {b:?}", 48 + k);
             }
         }
     }
@@ -900,7 +945,7 @@ mod tests {
     fn labels_near_the_border_stay_inside() {
         let dots = [(675.0, 45.0), (45.0, 675.0)];
         let widths = [120, 120];
-        for b in boxes(&place_labels(&dots, &widths, BOUNDS), &widths) {
+        for b in boxes(&place_labels(&dots, &widths, BOUNDS, 2), &widths) {
             assert!(b.inside(&BOUNDS), "{b:?}");
         }
     }

@@ -144,6 +144,14 @@ fn path_comparison_and_map_draw() {
     }
     let map = latent_map(&points, &var, Some(&src), &mopts).unwrap();
     keep(&map, "map.png");
+    // Every label found room: no note under the colour bar (rows 250..257, left of the panel).
+    let note = (39..240)
+        .filter(|&x| (250..257).any(|y| map.get(x, y).iter().all(|c| *c < 0.5)))
+        .count();
+    assert_eq!(
+        note, 0,
+        "a note of labels left out on a map that has room for them"
+    );
     // The panel is as wide as its title (wider than 3 spheres of 24 px), not cut to a word.
     let title = "PREDICTED MATERIALS OVER THE GREY BOX, ON THE SLICE";
     let title_w = render::font::text_width(title, 1);
@@ -358,6 +366,14 @@ fn small_maps_with_thumbnails_keep_bar_title_and_labels_in_place() {
         runs <= 7,
         "{runs} runs of ink in the tick label column: {tick_rows:?}"
     );
+    // Most of the 51 labels find no free spot in 128 px: they are left out (drawn over each
+    // other and the dots they hid them), and a grey note under the colour bar counts them.
+    let note_y = 40 + size + 50;
+    let grey = |x: usize, y: usize| map.get(x, y).iter().all(|c| *c < 0.5);
+    let note_ink = (left - 1..panel_x)
+        .filter(|&x| (note_y..note_y + 7).any(|y| grey(x, y)))
+        .count();
+    assert!(note_ink >= 20, "{note_ink} inked columns of the note");
 }
 
 /// The Delta E heat maps' rims are anti-aliased like the spheres beside them: a pixel the
