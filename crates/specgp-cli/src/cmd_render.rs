@@ -196,7 +196,8 @@ pub struct MapArgs {
     /// Thumbnails per axis (with --thumbnails; 1..=64, a panel of at most 8192 pixels).
     #[arg(long, default_value_t = 6, requires = "thumbnails", value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=64))]
     pub grid: usize,
-    /// Side of the plot area in pixels (64..=8192).
+    /// Side of the plot area in pixels (64..=8192). Labels that find no room are left out (the
+    /// map counts them); a larger size shows more.
     #[arg(long, default_value_t = 640, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(64..=8192))]
     pub size: usize,
     /// Thumbnail sphere size in pixels (with --thumbnails; 8..=1024).
