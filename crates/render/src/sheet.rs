@@ -210,7 +210,9 @@ pub fn comparison_sheet(
         1,
         TEXT,
     );
-    img.text(PAD as i64, y + 2, "CIEDE2000", 1, TEXT);
+    // The scale's name beside it (at the sheet's left edge it sat hundreds of pixels away).
+    let name_x = x0 - 8 - font::text_width("CIEDE2000", 1) as i64;
+    img.text(name_x.max(PAD as i64), y + 2, "CIEDE2000", 1, TEXT);
     Ok(ComparisonSheet {
         image: img,
         mean_delta_e: means,

@@ -63,6 +63,20 @@ fn comparison_sheet_reports_zero_for_identical_and_more_for_different() {
     assert_eq!(m[0][0], 0.0, "identical renderings");
     assert!(m[0][1] > 0.5 && m[0][1] < m[1][1], "{m:?}");
     assert!(m[1][1] > 10.0, "red vs gold {m:?}");
+    // The colour bar's name sits just left of it: the bar starts at the first heat map's column
+    // (x = 56 + 3 x 48 = 200: labels 40 + 8 px, then cells of 40 + 8 px), the name ends 8 px
+    // before it (it was at the sheet's left edge, x = 8). Text is light grey on the background.
+    let img = &sheet.image;
+    let name_w = render::font::text_width("CIEDE2000", 1);
+    let bright: Vec<usize> = (img.height - 30..img.height)
+        .flat_map(|y| (0..img.width).filter(move |&x| img.get(x, y).iter().all(|c| *c > 0.5)))
+        .collect();
+    assert!(!bright.is_empty());
+    assert!(
+        bright.iter().all(|&x| x + 8 + name_w >= 200),
+        "text left of the bar's name: {:?}",
+        bright.iter().min()
+    );
     assert!(comparison_sheet(&["A"], &rows, &opts, 10.0).is_err());
 }
 
