@@ -284,8 +284,21 @@ impl AngularGrid {
     /// low at the median, up to 74 % (an audit against Neural-BRDF networks, lower direction
     /// within 1.1 degrees of the horizon). Away from the horizon (theta_h + theta_d of the
     /// stencil's largest corner below pi/2, where every corner is valid) this costs one
-    /// comparison.
+    /// comparison; nearer the horizon, each corner's validity costs the trigonometry of its
+    /// bin centre (see [`AngularGrid::interpolation_stencil_with`] for hot loops).
     pub fn interpolation_stencil(&self, hd: &HalfDiff) -> [(usize, f64); 8] {
+        self.interpolation_stencil_with(hd, |a| self.is_valid_flat(a))
+    }
+
+    /// [`AngularGrid::interpolation_stencil`] with each cell's validity read from `is_valid`
+    /// (flat index), e.g. from a [`AngularGrid::validity_mask`] computed once: the same
+    /// stencil without the trigonometry of the bin centres near the horizon. `is_valid` must
+    /// agree with [`AngularGrid::is_valid_cell`].
+    pub fn interpolation_stencil_with(
+        &self,
+        hd: &HalfDiff,
+        is_valid: impl Fn(usize) -> bool,
+    ) -> [(usize, f64); 8] {
         let c = self.continuous_coords(hd);
         // (`as` truncates, which is the floor for the non-negative values here: cheaper than
         // `f64::floor`, a library call without SSE4.1.)
@@ -327,7 +340,7 @@ impl AngularGrid {
         }
         let mut total = 0.0;
         for (a, w) in &mut out {
-            if self.is_valid_flat(*a) {
+            if is_valid(*a) {
                 total += *w;
             } else {
                 *w = 0.0;
@@ -350,7 +363,7 @@ impl AngularGrid {
             .map(|d| (hc, d))
             .chain((0..hc).rev().map(|h| (h, 0)))
             .map(|(h, d)| self.index(h, d, pc))
-            .find(|&a| self.is_valid_flat(a));
+            .find(|&a| is_valid(a));
         if let Some(a) = nearest {
             out = [(a, 0.0); 8];
             out[0].1 = 1.0;
@@ -843,6 +856,25 @@ mod tests {
     }
 
     proptest! {
+        /// A stencil with the validity read from a precomputed mask is the stencil (the
+        /// horizon region, where the validity decides, included).
+        #[test]
+        fn stencil_with_a_validity_mask_is_the_stencil(
+            th in 0.0..FRAC_PI_2, td in 0.0..FRAC_PI_2, pd in 0.0..PI, g in 0usize..3
+        ) {
+            let grid = [
+                AngularGrid::new(8, 8, 16).unwrap(),
+                AngularGrid::new(32, 32, 64).unwrap(),
+                AngularGrid::new(5, 90, 3).unwrap(),
+            ][g];
+            let mask = grid.validity_mask();
+            let hd = HalfDiff { theta_h: th, theta_d: td, phi_d: pd };
+            prop_assert_eq!(
+                grid.interpolation_stencil_with(&hd, |a| mask[a]),
+                grid.interpolation_stencil(&hd)
+            );
+        }
+
         #[test]
         fn half_diff_round_trip(th in 0.0..1.5f64, td in 0.0..1.5f64, pd in 0.0..3.1f64) {
             let hd = HalfDiff { theta_h: th, theta_d: td, phi_d: pd };

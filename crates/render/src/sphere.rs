@@ -628,6 +628,10 @@ pub struct Shader<'a> {
     /// spectra), computed once per render; a lookup then interpolates 3 values, not every
     /// channel.
     cells: Option<(AngularGrid, Vec<OnceLock<[f64; 3]>>)>,
+    /// The grid's [`AngularGrid::validity_mask`], computed once: a lookup near the horizon
+    /// reads its corners' validity here instead of computing their bin centres' directions
+    /// (per-pixel quadratures look up hundreds of grazing directions per pixel).
+    valid: Vec<bool>,
 }
 
 impl<'a> Shader<'a> {
@@ -658,6 +662,7 @@ impl<'a> Shader<'a> {
             cells: source
                 .grid()
                 .map(|g| (g, (0..g.len()).map(|_| OnceLock::new()).collect())),
+            valid: source.grid().map_or(Vec::new(), |g| g.validity_mask()),
         };
         if let EnvMode::Table(spec) = opts.env_mode
             && opts.env_radiance > 0.0
@@ -771,7 +776,7 @@ impl<'a> Shader<'a> {
             Some(hd) if wi[2] > 0.0 && wo[2] > 0.0 => hd,
             _ => return Ok(rgb),
         };
-        for (a, w) in grid.interpolation_stencil(&hd) {
+        for (a, w) in grid.interpolation_stencil_with(&hd, |a| self.valid[a]) {
             if w == 0.0 {
                 continue;
             }
