@@ -150,13 +150,7 @@ fn gram_pass_is_deterministic_across_thread_counts() {
         let grams: Vec<Vec<u64>> = [1, 2, 3, 5]
             .iter()
             .map(|&threads| {
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(threads)
-                    .build()
-                    .unwrap();
-                let pass = pool
-                    .install(|| gplvm::gram_pass(&store, transform))
-                    .unwrap();
+                let pass = in_pool(threads, || gplvm::gram_pass(&store, transform)).unwrap();
                 (0..20)
                     .flat_map(|i| (0..20).map(move |j| (i, j)))
                     .map(|(i, j)| pass.gram[(i, j)].to_bits())
@@ -511,6 +505,15 @@ fn bad_model_files_are_clear_errors() {
     }
 }
 
+/// `f` run in a rayon pool of `threads` threads.
+fn in_pool<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap()
+        .install(f)
+}
+
 /// The uncentred Gram matrix of `n` pseudo-random materials with `d` values each, times
 /// `scale^2`.
 fn random_gram(n: usize, d: usize, seed: u64, scale: f64) -> Mat<f64> {
@@ -548,13 +551,7 @@ fn fits_are_identical_on_any_thread_count() {
         let bits: Vec<Vec<u64>> = [1, 2, 3]
             .iter()
             .map(|&threads| {
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(threads)
-                    .build()
-                    .unwrap();
-                let f = pool
-                    .install(|| gplvm::fit_gram(g.as_ref(), 40, &p))
-                    .unwrap();
+                let f = in_pool(threads, || gplvm::fit_gram(g.as_ref(), 40, &p)).unwrap();
                 let mut v: Vec<u64> = (0..51)
                     .flat_map(|i| (0..3).map(move |k| (i, k)))
                     .map(|(i, k)| f.x[(i, k)].to_bits())
