@@ -840,6 +840,21 @@ mod tests {
             .collect()
     }
 
+    /// Asserts that the labels' boxes (with their dots' indices) lie inside `bounds` and
+    /// overlap neither each other nor any dot's clearance square.
+    fn assert_free(labels: &[(usize, Rect)], dots: &[(f64, f64)], bounds: &Rect) {
+        for (i, (k, b)) in labels.iter().enumerate() {
+            assert!(b.inside(bounds), "label {k} leaves the plot: {b:?}");
+            for (j, c) in labels.iter().skip(i + 1) {
+                assert_eq!(b.overlap(c), 0, "labels {k} and {j} overlap");
+            }
+            for (d, &(x, y)) in dots.iter().enumerate() {
+                let dot = Rect::around_dot(x, y);
+                assert_eq!(b.overlap(&dot), 0, "label {k} covers dot {d}");
+            }
+        }
+    }
+
     #[test]
     fn sparse_labels_sit_right_of_their_dots() {
         let dots = [(100.0, 100.0), (300.0, 300.0), (500.0, 200.0)];
@@ -870,17 +885,8 @@ mod tests {
         let widths: Vec<usize> = (0..40).map(|k| 6 * (8 + k % 13) - 1).collect();
         let spots = place_labels(&dots, &widths, BOUNDS, 40);
         // Every one finds a free spot (none is left out).
-        let b = boxes(&spots, &widths);
-        for (i, bi) in b.iter().enumerate() {
-            assert!(bi.inside(&BOUNDS), "label {i} leaves the plot: {bi:?}");
-            for (j, bj) in b.iter().enumerate().skip(i + 1) {
-                assert_eq!(bi.overlap(bj), 0, "labels {i} and {j} overlap");
-            }
-            for (k, &(x, y)) in dots.iter().enumerate() {
-                let d = Rect::around_dot(x, y);
-                assert_eq!(bi.overlap(&d), 0, "label {i} covers dot {k}");
-            }
-        }
+        let b: Vec<(usize, Rect)> = boxes(&spots, &widths).into_iter().enumerate().collect();
+        assert_free(&b, &dots, &BOUNDS);
         assert!(spots.iter().any(|s| s.is_some_and(|s| s.leader)));
         // Deterministic.
         assert_eq!(place_labels(&dots, &widths, BOUNDS, 40), spots);
@@ -914,19 +920,7 @@ mod tests {
             .collect();
         let left_out = 48 - free.len();
         assert!((20..48).contains(&left_out), "{left_out} left out");
-        for (i, (k, b)) in free.iter().enumerate() {
-            assert!(b.inside(&bounds), "label {k}: {b:?}");
-            for (j, c) in free.iter().skip(i + 1) {
-                assert_eq!(b.overlap(c), 0, "labels {k} and {j} overlap");
-            }
-            for (d, &(x, y)) in dots.iter().enumerate() {
-                assert_eq!(
-                    b.overlap(&Rect::around_dot(x, y)),
-                    0,
-                    "label {k} covers dot {d}"
-                );
-            }
-        }
+        assert_free(&free, &dots, &bounds);
         for (k, (b, w)) in boxes(&spots[48..], &widths[48..])
             .iter()
             .zip(&widths[48..])
