@@ -306,8 +306,19 @@ pub fn latent_map(
     } else {
         width - 4
     };
-    let title_room = right_edge.saturating_sub(l as usize);
-    img.text(l, 8, map_title(title_room), 1, black);
+    let text_room = right_edge.saturating_sub(l as usize);
+    const TITLES: [&str; 3] = [
+        "LATENT SPACE, SHADED BY PREDICTIVE STANDARD DEVIATION",
+        "LATENT SPACE, SHADED BY PREDICTIVE STD",
+        "LATENT SPACE",
+    ];
+    img.text(
+        l,
+        8,
+        first_fitting(TITLES, text_room).unwrap_or(""),
+        1,
+        black,
+    );
     if !opts.caption.is_empty() {
         let caption = font::fit(&opts.caption, width.saturating_sub(l as usize + 4), 1);
         img.text(l, 20, &caption, 1, [0.3; 3]);
@@ -383,11 +394,8 @@ pub fn latent_map(
     // Say how many labels had no room (under the colour bar).
     let left_out = spots.iter().filter(|s| s.is_none()).count();
     if left_out > 0 {
-        let room = right_edge.saturating_sub(l as usize);
         let full = format!("{left_out} OF {first_predicted} LABELS LEFT OUT");
-        let note = [format!("{full}: NO ROOM AT THIS SIZE"), full]
-            .into_iter()
-            .find(|t| font::text_width(t, 1) <= room)
+        let note = first_fitting([format!("{full}: NO ROOM AT THIS SIZE"), full], text_room)
             .unwrap_or_else(|| format!("{left_out} LEFT OUT"));
         img.text(l, b + 50, &note, 1, [0.3; 3]);
     }
@@ -419,18 +427,13 @@ pub fn latent_map(
     Ok(img)
 }
 
-/// The map's title, shortened at a word to fit `room` pixels (a cut mid-word, "... SHADED BY
-/// PRE", read on into the thumbnail panel's title beside it).
-fn map_title(room: usize) -> &'static str {
-    const TITLES: [&str; 3] = [
-        "LATENT SPACE, SHADED BY PREDICTIVE STANDARD DEVIATION",
-        "LATENT SPACE, SHADED BY PREDICTIVE STD",
-        "LATENT SPACE",
-    ];
-    TITLES
+/// The first of `texts` (longest first) whose width fits `room` pixels: titles and notes
+/// shortened at a word (a cut mid-word, "... SHADED BY PRE", read on into the thumbnail
+/// panel's title beside it).
+fn first_fitting<S: AsRef<str>>(texts: impl IntoIterator<Item = S>, room: usize) -> Option<S> {
+    texts
         .into_iter()
-        .find(|t| font::text_width(t, 1) <= room)
-        .unwrap_or("")
+        .find(|t| font::text_width(t.as_ref(), 1) <= room)
 }
 
 /// Round tick values in `[lo, hi]`: multiples of 1, 2 or 5 times a power of ten, the smallest

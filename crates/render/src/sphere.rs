@@ -627,7 +627,14 @@ pub struct Shader<'a> {
     /// projection is linear, so interpolating projected cells equals projecting interpolated
     /// spectra), computed once per render; a lookup then interpolates 3 values, not every
     /// channel.
-    cells: Option<(AngularGrid, Vec<OnceLock<[f64; 3]>>)>,
+    cells: Option<GridCells>,
+}
+
+/// A grid source's cells as a [`Shader`] reads them.
+struct GridCells {
+    grid: AngularGrid,
+    /// Each touched cell's linear sRGB, computed on first use.
+    colours: Vec<OnceLock<[f64; 3]>>,
     /// The grid's [`AngularGrid::validity_mask`], computed once: a lookup near the horizon
     /// reads its corners' validity here instead of computing their bin centres' directions
     /// (per-pixel quadratures look up hundreds of grazing directions per pixel).
@@ -659,10 +666,11 @@ impl<'a> Shader<'a> {
             table: None,
             studio,
             scale: 2f64.powf(opts.exposure),
-            cells: source
-                .grid()
-                .map(|g| (g, (0..g.len()).map(|_| OnceLock::new()).collect())),
-            valid: source.grid().map_or(Vec::new(), |g| g.validity_mask()),
+            cells: source.grid().map(|grid| GridCells {
+                grid,
+                colours: (0..grid.len()).map(|_| OnceLock::new()).collect(),
+                valid: grid.validity_mask(),
+            }),
         };
         if let EnvMode::Table(spec) = opts.env_mode
             && opts.env_radiance > 0.0
@@ -767,7 +775,12 @@ impl<'a> Shader<'a> {
     /// incident slice is the view's (see the module docs). `f` is scratch of the source's
     /// channel count.
     fn rgb_of(&self, wi: Vec3, wo: Vec3, f: &mut [f64]) -> Result<[f64; 3]> {
-        let Some((grid, cells)) = &self.cells else {
+        let Some(GridCells {
+            grid,
+            colours: cells,
+            valid,
+        }) = &self.cells
+        else {
             self.source.eval(wo, wi, f)?;
             return Ok(self.to_rgb(f, 1.0));
         };
@@ -776,7 +789,7 @@ impl<'a> Shader<'a> {
             Some(hd) if wi[2] > 0.0 && wo[2] > 0.0 => hd,
             _ => return Ok(rgb),
         };
-        for (a, w) in grid.interpolation_stencil_with(&hd, |a| self.valid[a]) {
+        for (a, w) in grid.interpolation_stencil_with(&hd, |a| valid[a]) {
             if w == 0.0 {
                 continue;
             }
