@@ -112,6 +112,23 @@ pub fn dot<T: Copy + Into<f64>>(a: &[f64], b: &[T]) -> f64 {
     (part[0] + part[1]) + (part[2] + part[3]) + rest
 }
 
+/// Euclidean norm of `v` that neither overflows nor underflows: `sqrt(dot(v, v))` (the same
+/// bits) when that sum of squares is a normal number, otherwise the norm of `v` divided by its
+/// largest magnitude, times that magnitude. NaN if `v` has a NaN, infinity if it has an
+/// infinity.
+pub fn norm(v: &[f64]) -> f64 {
+    let squares = dot(v, v);
+    if squares.is_nan() || (squares.is_finite() && squares >= f64::MIN_POSITIVE / f64::EPSILON) {
+        return squares.sqrt();
+    }
+    let largest = v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    if largest == 0.0 || largest.is_infinite() {
+        return largest;
+    }
+    let scaled: Vec<f64> = v.iter().map(|x| x / largest).collect();
+    largest * dot(&scaled, &scaled).sqrt()
+}
+
 /// [`dot`] in explicit 4-lane AVX2 vectors, with `dot`'s arithmetic exactly (lane k sums the
 /// products of elements 4j + k, multiply then add; lanes and remainder combined as there), so
 /// the result has the same bits. The compiler's own vectorisation of `dot` uses 2-lane halves
@@ -275,5 +292,29 @@ mod tests {
                 "f32, length {len}"
             );
         }
+    }
+
+    /// `norm` is `sqrt(dot(v, v))` to the bit where that is safe, and right to rounding at
+    /// magnitudes whose squares overflow or underflow.
+    #[test]
+    fn norm_is_safe_at_every_magnitude() {
+        let v = [3.0, -4.0, 12.0, 0.5, -0.25];
+        let plain = dot(&v, &v).sqrt();
+        assert_eq!(norm(&v).to_bits(), plain.to_bits());
+        for scale in [1e-300, 1e-200, 1e-160, 1e160, 1e200, 1e300] {
+            let w: Vec<f64> = v.iter().map(|x| x * scale).collect();
+            let got = norm(&w);
+            assert!(
+                (got / (plain * scale) - 1.0).abs() < 4.0 * f64::EPSILON,
+                "{scale:e}: {got:e} against {:e}",
+                plain * scale
+            );
+        }
+        assert_eq!(norm(&[]), 0.0);
+        assert_eq!(norm(&[0.0, -0.0]), 0.0);
+        assert_eq!(norm(&[1.0, f64::NEG_INFINITY]), f64::INFINITY);
+        assert!(norm(&[1e300, f64::NAN]).is_nan());
+        let half = f64::MAX / 2.0;
+        assert!((norm(&[half, -half]) / (half * 2f64.sqrt()) - 1.0).abs() < 4.0 * f64::EPSILON);
     }
 }

@@ -361,7 +361,7 @@ pub fn fit_gram(g: MatRef<'_, f64>, d: usize, config: &FitConfig) -> Result<Fit>
     })?;
     let eval = flat.evaluate(&best.x, par)?;
     let (_, grad) = flat.neg_log_likelihood_and_gradient(&best.x, par)?;
-    let gradient_norm = grad.iter().map(|g| g * g).sum::<f64>().sqrt();
+    let gradient_norm = gp_core::fastmath::norm(&grad);
     if best.stalled {
         tracing::warn!(
             "the optimiser stalled before converging ({}): log-likelihood {:.6e}, |gradient| \

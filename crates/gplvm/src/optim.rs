@@ -207,7 +207,7 @@ pub fn hooke_jeeves(
     })
 }
 
-use gp_core::fastmath::dot;
+use gp_core::fastmath::{dot, norm};
 
 /// `y += a x`.
 #[inline(always)]
@@ -518,7 +518,7 @@ pub fn lbfgs(
         None
     };
     let stop_reason = loop {
-        let gnorm = dot(&grad, &grad).sqrt();
+        let gnorm = norm(&grad);
         if gnorm <= settings.gradient_tolerance {
             break format!("gradient norm {gnorm:.2e} below tolerance");
         }
@@ -552,7 +552,7 @@ pub fn lbfgs(
         value = t.value;
         grad = t.grad;
         iterations += 1;
-        if sy > 1e-12 * dot(&s, &s).sqrt() * dot(&y, &y).sqrt() {
+        if sy > 1e-12 * norm(&s) * norm(&y) {
             if pairs.len() == memory {
                 pairs.pop_front();
             }
@@ -563,7 +563,7 @@ pub fn lbfgs(
                 "value changed by {change:.2e} < {:.1e} in one step",
                 settings.cost_tolerance
             );
-            let gnorm = dot(&grad, &grad).sqrt();
+            let gnorm = norm(&grad);
             match stall(reason, gnorm, &mut pairs, &mut after_stall) {
                 Some(r) => {
                     stalled = gnorm > settings.stall_gradient;
