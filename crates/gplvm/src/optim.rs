@@ -306,7 +306,17 @@ fn two_loop_with(
         axpy(-alpha[k], y, dir);
     }
     let gamma = match pairs.back() {
-        Some((s, y, _)) => dot(s, y) / dot(y, y),
+        Some((s, y, _)) => {
+            // s'y / y'y; y'y overflows for gradients near 1e154 (and underflows near 1e-154):
+            // then (s'y / |y|) / |y| with the safe norm (gamma was 0, the direction degenerate).
+            let (sy, yy) = (dot(s, y), dot(y, y));
+            if yy.is_finite() && yy >= f64::MIN_POSITIVE / f64::EPSILON {
+                sy / yy
+            } else {
+                let ny = norm(y);
+                (sy / ny) / ny
+            }
+        }
         None => 1.0 / gnorm,
     };
     dir.iter_mut().for_each(|d| *d *= gamma);
@@ -332,10 +342,20 @@ fn cubic_step(a: f64, fa: f64, da: f64, b: f64, fb: f64, db: f64) -> f64 {
     let disc = d1 * d1 - da * db;
     let (lo, hi) = if a < b { (a, b) } else { (b, a) };
     let mid = 0.5 * (a + b);
-    if disc.is_nan() || disc < 0.0 {
+    // sqrt(disc); for slopes near 1e154 and above the squares overflow (disc inf or NaN, and
+    // the step fell back to bisection): then in units of the largest slope.
+    let root = if disc.is_finite() {
+        (disc >= 0.0).then(|| disc.sqrt())
+    } else {
+        let m = d1.abs().max(da.abs()).max(db.abs());
+        let (e1, ea, eb) = (d1 / m, da / m, db / m);
+        let scaled = e1 * e1 - ea * eb;
+        (scaled >= 0.0).then(|| m * scaled.sqrt())
+    };
+    let Some(root) = root else {
         return mid;
-    }
-    let d2 = (b - a).signum() * disc.sqrt();
+    };
+    let d2 = (b - a).signum() * root;
     let t = b - (b - a) * (db + d2 - d1) / (db - da + 2.0 * d2);
     // Keep away from the ends so the interval shrinks.
     let margin = 0.1 * (hi - lo);
@@ -702,6 +722,58 @@ mod tests {
         );
         assert!(m.evaluations < 200, "{m:?}");
         assert!(!m.at_limit, "{m:?}");
+    }
+
+    /// L-BFGS is invariant to scaling the objective (the initial Hessian s'y / y'y and the
+    /// cubic step scale with it): with both tolerances off, an ill-conditioned quadratic and
+    /// Rosenbrock scaled by 1e200 or 1e-150 take the steps of the unscaled ones. At 1e200, y'y
+    /// and the cubic's squared slopes overflowed: the quadratic took 665 evaluations for 25
+    /// steps (26 unscaled) and ended 0.99 from its minimum (0.25 unscaled), and Rosenbrock's
+    /// line search fell back to bisection.
+    #[test]
+    fn lbfgs_steps_do_not_depend_on_the_objectives_scale() {
+        let a: Vec<f64> = (0..30).map(|i| 1.0 + 0.3 * f64::from(i * i)).collect();
+        let quadratic = |c: f64| {
+            let a = a.clone();
+            move |x: &[f64]| -> Result<(f64, Vec<f64>)> {
+                let v = x
+                    .iter()
+                    .zip(&a)
+                    .map(|(x, a)| 0.5 * c * a * (x - 1.0).powi(2));
+                let g = x.iter().zip(&a).map(|(x, a)| c * a * (x - 1.0)).collect();
+                Ok((v.sum(), g))
+            }
+        };
+        let rosen = |c: f64| {
+            move |x: &[f64]| -> Result<(f64, Vec<f64>)> {
+                let (v, g) = rosenbrock(x);
+                Ok((c * v, g.iter().map(|g| c * g).collect()))
+            }
+        };
+        let settings = |max_iterations| LbfgsSettings {
+            max_iterations,
+            gradient_tolerance: 0.0,
+            cost_tolerance: 0.0,
+            ..LbfgsSettings::default()
+        };
+        let close = |m: &Minimum, base: &Minimum, what: &str| {
+            assert_eq!(m.evaluations, base.evaluations, "{what}: {m:?}");
+            for (a, b) in m.x.iter().zip(&base.x) {
+                assert!((a - b).abs() <= 1e-9 * b.abs().max(1.0), "{what}: {m:?}");
+            }
+        };
+        let (x0, s) = (vec![0.0; 30], settings(25));
+        let base = lbfgs(quadratic(1.0), &x0, &s).unwrap();
+        let (r0, s) = ([-1.2, 1.0], settings(30));
+        let base_r = lbfgs(rosen(1.0), &r0, &s).unwrap();
+        for c in [1e200, 1e-150] {
+            close(
+                &lbfgs(quadratic(c), &x0, &settings(25)).unwrap(),
+                &base,
+                "quadratic",
+            );
+            close(&lbfgs(rosen(c), &r0, &s).unwrap(), &base_r, "Rosenbrock");
+        }
     }
 
     /// Both methods say when they stop at their cap rather than by their convergence test.
