@@ -149,6 +149,15 @@ pub(crate) fn check_finite(m: faer::MatRef<'_, f64>, what: &'static str) -> Resu
     Ok(())
 }
 
+/// Checks that every entry of `m`, computed from finite inputs, is finite:
+/// [`GpError::NonFiniteResult`] naming `what` for the first that overflowed.
+pub(crate) fn check_finite_result(m: faer::MatRef<'_, f64>, what: &'static str) -> Result<()> {
+    check_finite(m, what).map_err(|e| match e {
+        GpError::NonFinite { value, .. } => GpError::NonFiniteResult { what, value },
+        e => e,
+    })
+}
+
 /// Checks that every entry of `s` is finite (reported as a column vector).
 pub(crate) fn check_finite_slice(s: &[f64], what: &'static str) -> Result<()> {
     match s.iter().position(|v| !v.is_finite()) {
@@ -175,7 +184,9 @@ fn max_abs(m: faer::MatRef<'_, f64>) -> f64 {
 
 /// Checks the necessary conditions of positive semidefiniteness that cost `O(n^2)` on a
 /// symmetric `m`: no diagonal entry below `-tol` and no 2 x 2 principal minor
-/// `(m_ii + tol)(m_jj + tol) - m_ij^2` below zero, `tol = sqrt(eps) max|m|`. (A full test, a
+/// `(m_ii + tol)(m_jj + tol) - m_ij^2` below zero, `tol = sqrt(eps) max|m|`, tested as
+/// `|m_ij| > sqrt(m_ii + tol) sqrt(m_jj + tol)` (the products overflow for entries near 1e154
+/// and underflow near 1e-154, and the check passed any matrix there). (A full test, a
 /// factorisation or an eigen-decomposition, would reject genuine centred Gram matrices, whose
 /// smallest eigenvalue is 0 computed as a rounding-level +- n eps of the *uncentred* entries,
 /// which this function cannot see.)
@@ -192,15 +203,20 @@ pub(crate) fn check_psd_minors(m: faer::MatRef<'_, f64>, what: &'static str) -> 
             });
         }
     }
+    // Square roots of the (tolerance-raised, non-negative) diagonal: no products that overflow.
+    let root: Vec<f64> = (0..n).map(|i| (m[(i, i)] + tol).max(0.0).sqrt()).collect();
     for j in 0..n {
         for i in (j + 1)..n {
-            let minor = (m[(i, i)] + tol) * (m[(j, j)] + tol) - m[(i, j)] * m[(i, j)];
-            if minor < 0.0 {
+            let a = m[(i, j)].abs();
+            if a > root[i] * root[j] {
+                // a_ii a_jj - a_ij^2 as (g - a)(g + a), g the geometric mean of the diagonal
+                // entries: -inf rather than NaN where the square overflows.
+                let g = m[(i, i)].max(0.0).sqrt() * m[(j, j)].max(0.0).sqrt();
                 return Err(GpError::NotPositiveSemidefinite {
                     what,
                     row: i,
                     col: j,
-                    value: m[(i, i)] * m[(j, j)] - m[(i, j)] * m[(i, j)],
+                    value: (g - a) * (g + a),
                 });
             }
         }

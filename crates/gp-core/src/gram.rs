@@ -3,11 +3,11 @@
 //! Keeping the *uncentred* Gram `G` of the transformed data is enough for centring, for any
 //! subset of materials (leave-one-out) and for errors of linear predictors (DESIGN.md section 3).
 
-use crate::error::{GpError, Result, check_finite, check_symmetric};
+use crate::error::{GpError, Result, check_finite, check_finite_result, check_symmetric};
 use faer::{Mat, MatRef, Par};
 
 /// `G = Y Y^T` (`N x N`) from dense data `Y` (`N x D`, rows are materials). Errors on
-/// non-finite data.
+/// non-finite data, and on products that overflow ([`GpError::NonFiniteResult`]).
 pub fn gram_from_data(y: MatRef<'_, f64>, par: Par) -> Result<Mat<f64>> {
     if y.nrows() == 0 {
         return Err(GpError::Empty { what: "data Y" });
@@ -17,12 +17,14 @@ pub fn gram_from_data(y: MatRef<'_, f64>, par: Par) -> Result<Mat<f64>> {
     let mut g = Mat::<f64>::zeros(n, n);
     faer::linalg::matmul::matmul(g.as_mut(), faer::Accum::Replace, y, y.transpose(), 1.0, par);
     symmetrise(&mut g);
+    check_finite_result(g.as_ref(), "Gram matrix Y Y^T")?;
     Ok(g)
 }
 
 /// Centres a Gram matrix: `S = C G C`, `C = I - 1 1^T / N`, i.e.
 /// `S_ij = G_ij - r_i - r_j + t` with row means `r` and grand mean `t`. Equals the Gram of the
-/// column-centred data `Y - 1 m^T` (`m` = mean row). `G` must be square, symmetric and finite.
+/// column-centred data `Y - 1 m^T` (`m` = mean row). `G` must be square, symmetric and finite;
+/// [`GpError::NonFiniteResult`] when the row sums overflow (entries near `f64::MAX / N`).
 pub fn centre_gram(g: MatRef<'_, f64>) -> Result<Mat<f64>> {
     let n = g.nrows();
     if n == 0 {
@@ -38,6 +40,7 @@ pub fn centre_gram(g: MatRef<'_, f64>) -> Result<Mat<f64>> {
     let t = r.iter().sum::<f64>() / n as f64;
     let mut s = Mat::from_fn(n, n, |i, j| g[(i, j)] - r[i] - r[j] + t);
     symmetrise(&mut s);
+    check_finite_result(s.as_ref(), "centred Gram matrix")?;
     Ok(s)
 }
 

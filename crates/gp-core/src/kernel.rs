@@ -11,7 +11,9 @@
 //! matrix `X`. Gradients of any scalar `F(K)` are obtained by [`KernelParams::backprop`] from the
 //! symmetric matrix `dF/dK`.
 
-use crate::error::{GpError, Result, check_finite, check_finite_slice, check_symmetric};
+use crate::error::{
+    GpError, Result, check_finite, check_finite_result, check_finite_slice, check_symmetric,
+};
 use faer::{Mat, MatRef, Par};
 use rayon::prelude::*;
 
@@ -683,7 +685,9 @@ impl KernelParams {
     }
 
     /// Gradient of the cross-covariance with respect to a test point:
-    /// `d k_rbf(x_i, x*) / d x*_j = k_rbf(x_i, x*) (x_ij - x*_j) / l_j^2`, returned as `N x q`.
+    /// `d k_rbf(x_i, x*) / d x*_j = k_rbf(x_i, x*) (x_ij - x*_j) / l_j^2`, returned as `N x q`
+    /// (0 where `k_rbf` is 0, whatever the distance; `0 * inf` was NaN). Errors if an entry
+    /// overflows.
     pub fn cross_gradient(&self, x: MatRef<'_, f64>, x_star: &[f64]) -> Result<Mat<f64>> {
         let rows = self.rows_of(x, "training latent points X")?;
         let q = x.ncols();
@@ -695,10 +699,17 @@ impl KernelParams {
             });
         }
         check_finite_slice(x_star, "test latent point x*")?;
-        Ok(Mat::from_fn(rows.len(), q, |i, j| {
+        let g = Mat::from_fn(rows.len(), q, |i, j| {
             let l = self.length_scale.axis(j);
-            self.rbf(&rows[i], x_star) * (rows[i][j] - x_star[j]) / (l * l)
-        }))
+            let k = self.rbf(&rows[i], x_star);
+            if k == 0.0 {
+                0.0
+            } else {
+                k * (rows[i][j] - x_star[j]) / (l * l)
+            }
+        });
+        check_finite_result(g.as_ref(), "cross-covariance gradient")?;
+        Ok(g)
     }
 }
 

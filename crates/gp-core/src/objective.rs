@@ -439,6 +439,12 @@ pub fn log_likelihood_from_data(
             }
         }
     }
+    if !v.is_finite() {
+        return Err(GpError::NonFiniteResult {
+            what: "GPLVM log-likelihood from data",
+            value: v,
+        });
+    }
     Ok(v)
 }
 

@@ -23,7 +23,7 @@
 //! `s^2 + mu + j`, so a jittered model's variance is that of the model it factors.
 
 use crate::cholesky::{CholeskyFactor, JitterPolicy};
-use crate::error::{GpError, Result, check_finite, check_finite_slice};
+use crate::error::{GpError, Result, check_finite, check_finite_result, check_finite_slice};
 use crate::kernel::KernelParams;
 use faer::{Mat, MatMut, MatRef, Par};
 use rayon::prelude::*;
@@ -163,7 +163,8 @@ impl GpRegression {
     /// `dw/dx*_j = K^-1 dk*/dx*_j` (`N x q`, column `j`), with
     /// `dk*_i/dx*_j = k_rbf(x_i, x*) (x_ij - x*_j) / l_j^2`. The delta term of the exact predictor
     /// is piecewise constant, so both predictors share this Jacobian away from training points.
-    /// Useful to place a held-out material in the latent space by gradient descent.
+    /// Useful to place a held-out material in the latent space by gradient descent. A training
+    /// point whose `k_rbf` is 0 contributes 0 (its distance may overflow: `0 * inf` was NaN).
     pub fn weights_jacobian(&self, x_star: &[f64]) -> Result<Mat<f64>> {
         self.check_point(x_star)?;
         let (n, q) = (self.n(), self.q());
@@ -171,9 +172,14 @@ impl GpRegression {
         self.fill_kstar(x_star, Predictor::Smooth, &mut k);
         let mut jac = Mat::from_fn(n, q, |i, j| {
             let l = self.params.length_scale().axis(j);
-            k[i] * (self.z[j][i] - x_star[j] / l) / l
+            if k[i] == 0.0 {
+                0.0
+            } else {
+                k[i] * (self.z[j][i] - x_star[j] / l) / l
+            }
         });
         self.solve_seq(jac.as_mut(), true);
+        check_finite_result(jac.as_ref(), "weights Jacobian")?;
         Ok(jac)
     }
 

@@ -817,3 +817,83 @@ fn the_constant_term_only_shifts_the_value() {
     assert_eq!(a.grad_x, b.grad_x);
     assert_eq!(a.grad_hyper_log, b.grad_hyper_log);
 }
+
+/// The Gram-matrix check rejects a non-PSD matrix at every magnitude and accepts a genuine one:
+/// its 2 x 2 minors were products that overflowed (NaN, not below 0) for entries near 1e200
+/// and underflowed to 0 near 1e-200, so `[[c, 2c], [2c, c]]` passed there.
+#[test]
+fn gram_check_rejects_non_psd_matrices_at_every_magnitude() {
+    for c in [1e-300, 1e-200, 1e-100, 1.0, 1e100, 1e200, 1e300] {
+        let bad = Mat::from_fn(2, 2, |i, j| if i == j { c } else { 2.0 * c });
+        match GplvmObjective::new(bad, 3) {
+            Err(GpError::NotPositiveSemidefinite {
+                row: 1,
+                col: 0,
+                value,
+                ..
+            // (-3e-600 at 1e-300 rounds to -0.)
+            }) => assert!(value.is_sign_negative(), "{c:e}: minor {value:e}"),
+            other => panic!("{c:e}: {other:?}"),
+        }
+        // |cos| = 0.5 and a rank-one pair on the boundary are Gram matrices.
+        let good = Mat::from_fn(2, 2, |i, j| if i == j { c } else { 0.5 * c });
+        GplvmObjective::new(good, 3).unwrap();
+        let opposite = Mat::from_fn(2, 2, |i, j| if i == j { c } else { -c });
+        GplvmObjective::new(opposite, 3).unwrap();
+    }
+}
+
+/// Gram quantities computed from finite inputs that overflow are errors naming them, not
+/// infinities or NaN inside an `Ok`: `Y Y^T` of data near 1e200, the centring of entries near
+/// `f64::MAX` (row sums overflow), and the likelihood of data whose squares overflow.
+#[test]
+fn overflowing_gram_quantities_are_errors() {
+    let y = Mat::from_fn(2, 3, |i, j| 1e200 * (1.0 + (i + j) as f64));
+    assert!(matches!(
+        gram_from_data(y.as_ref(), Par::Seq),
+        Err(GpError::NonFiniteResult { .. })
+    ));
+    let g = Mat::from_fn(3, 3, |i, j| if i == j { 1.5e308 } else { 1e308 });
+    assert!(matches!(
+        centre_gram(g.as_ref()),
+        Err(GpError::NonFiniteResult { .. })
+    ));
+    let x = Mat::from_fn(2, 1, |i, _| i as f64);
+    let p = KernelParams::paper();
+    assert!(matches!(
+        log_likelihood_from_data(y.as_ref(), x.as_ref(), &p, false, Par::Seq),
+        Err(GpError::NonFiniteResult { .. })
+    ));
+    // Large but representable: still values.
+    let y = Mat::from_fn(2, 3, |i, j| 1e100 * (1.0 + (i + j) as f64));
+    let g = gram_from_data(y.as_ref(), Par::Seq).unwrap();
+    assert!((g[(0, 0)] / 14e200 - 1.0).abs() < 1e-15);
+    assert!(centre_gram(g.as_ref()).is_ok());
+    assert!(log_likelihood_from_data(y.as_ref(), x.as_ref(), &p, false, Par::Seq).is_ok());
+}
+
+/// Far from a training point its kernel value is 0 and so is its share of the gradients, even
+/// where the scaled distance overflows (`0 * inf` gave NaN inside an `Ok`): the weights
+/// Jacobian at 1e301 with a length-scale of 1e-8, and the cross-covariance gradient between
+/// +-1e308. Near the points they are unchanged (finite differences elsewhere in this file).
+#[test]
+fn gradients_far_from_every_point_are_zero_not_nan() {
+    let x = Mat::from_fn(3, 1, |i, _| i as f64);
+    let p = KernelParams::isotropic(1.0, 1e-8, 1e-4).unwrap();
+    let gp = GpRegression::new(x.as_ref(), p, Par::Seq).unwrap();
+    for far in [1e301, -1e301, 1e3] {
+        let jac = gp.weights_jacobian(&[far]).unwrap();
+        assert!((0..3).all(|i| jac[(i, 0)] == 0.0), "{far:e}: {jac:?}");
+        assert_eq!(gp.weights(&[far], Predictor::Smooth).unwrap(), [0.0; 3]);
+    }
+    let x = Mat::from_fn(2, 1, |i, _| if i == 0 { 1e308 } else { 0.0 });
+    let g = KernelParams::paper()
+        .cross_gradient(x.as_ref(), &[-1e308])
+        .unwrap();
+    assert_eq!((g[(0, 0)], g[(1, 0)]), (0.0, 0.0));
+    // Near a point the gradient is the formula's.
+    let g = KernelParams::paper()
+        .cross_gradient(x.as_ref(), &[0.5])
+        .unwrap();
+    assert!((g[(1, 0)] - (-0.125f64).exp() * -0.5).abs() < 1e-16);
+}
