@@ -9,6 +9,10 @@ use faer::{Mat, MatRef, Side};
 use crate::config::InitScaling;
 use crate::error::{Error, Result};
 
+/// Below this largest entry, S is decomposed in units of a power of two near it (the squares
+/// of its entries underflow).
+const TINY: f64 = 1e-150;
+
 /// PCA of the materials: leading eigenvalues of S (descending) and scores (N x q).
 #[derive(Debug, Clone)]
 pub struct Pca {
@@ -36,6 +40,26 @@ impl Pca {
                 ),
             });
         }
+        // faer's eigen-decomposition does not converge on entries near the subnormal range
+        // (unscaled data near 1e-155, S ~ 1e-309): S is then decomposed in units of 4^k, a
+        // power of two near its largest entry (exact, and sqrt(4^k) = 2^k is too).
+        let amax = (0..n)
+            .flat_map(|j| (0..n).map(move |i| (i, j)))
+            .fold(0.0f64, |m, (i, j)| m.max(s[(i, j)].abs()));
+        // (2^k and 2^-k are normal numbers; 4^k and 4^-k need not be.)
+        let root_unit = if amax > 0.0 && amax < TINY {
+            2f64.powi((amax.log2() / 2.0).ceil() as i32)
+        } else {
+            1.0
+        };
+        let scaled;
+        let s = if root_unit == 1.0 {
+            s
+        } else {
+            let inv = 1.0 / root_unit;
+            scaled = Mat::from_fn(n, n, |i, j| s[(i, j)] * inv * inv);
+            scaled.as_ref()
+        };
         let eig = s
             .self_adjoint_eigen(Side::Lower)
             .map_err(|e| Error::InvalidData {
@@ -43,11 +67,15 @@ impl Pca {
             })?;
         let vals = eig.S().column_vector();
         let u = eig.U();
-        let eigenvalues: Vec<f64> = (0..n).rev().map(|i| vals[i].max(0.0)).collect();
+        let scaled_eigenvalues: Vec<f64> = (0..n).rev().map(|i| vals[i].max(0.0)).collect();
+        let eigenvalues: Vec<f64> = scaled_eigenvalues
+            .iter()
+            .map(|v| v * root_unit * root_unit)
+            .collect();
         let mut scores = Mat::<f64>::zeros(n, q);
         for k in 0..q.min(n) {
             let col = n - 1 - k;
-            let root = eigenvalues[k].sqrt();
+            let root = scaled_eigenvalues[k].sqrt() * root_unit;
             let mut biggest = 0.0f64;
             for i in 0..n {
                 if u[(i, col)].abs() > biggest.abs() {
@@ -136,5 +164,33 @@ mod tests {
         let x = pca.latent_start(InitScaling::Isotropic);
         let std0 = (0..6).map(|i| x[(i, 0)].powi(2)).sum::<f64>() / 6.0;
         assert!((std0.sqrt() - 1.0).abs() < 1e-12);
+    }
+
+    /// A Gram matrix near the subnormal range (unscaled data near 1e-155) has the PCA of the
+    /// same data at unit scale, scaled (faer's eigen-decomposition did not converge on it:
+    /// "NoConvergence", and an unscaled fit of such data failed).
+    #[test]
+    fn pca_of_a_tiny_gram_matrix_is_the_scaled_pca() {
+        let s = Mat::from_fn(5, 5, |i, j| {
+            let (a, b) = (i as f64 - 2.0, j as f64 - 2.0);
+            a * b + if i == j { 0.5 - 0.1 * i as f64 } else { 0.0 }
+        });
+        let base = Pca::from_centred_gram(s.as_ref(), 2).unwrap();
+        for c in [1e-155, 1e-150, 1e-120] {
+            let tiny = Mat::from_fn(5, 5, |i, j| s[(i, j)] * c * c);
+            let pca = Pca::from_centred_gram(tiny.as_ref(), 2).unwrap();
+            for (a, b) in pca.eigenvalues.iter().zip(&base.eigenvalues) {
+                assert!(
+                    (a / (c * c) - b).abs() <= 1e-9 * base.eigenvalues[0],
+                    "{c:e}"
+                );
+            }
+            for i in 0..5 {
+                for k in 0..2 {
+                    let want = base.scores[(i, k)];
+                    assert!((pca.scores[(i, k)] / c - want).abs() <= 1e-9, "{c:e}");
+                }
+            }
+        }
     }
 }

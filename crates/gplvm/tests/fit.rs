@@ -674,3 +674,25 @@ fn unscaled_fits_survive_gradients_whose_squares_overflow() {
     let ratio = huge.report.log_likelihood / big.report.log_likelihood;
     assert!((ratio / 1e100 - 1.0).abs() < 1e-6, "ratio {ratio:e}");
 }
+
+/// Unscaled data near 1e-155 (a Gram matrix near the subnormal range, 1e-309) fit like the
+/// same data near 1e-150: their PCA start used to fail ("eigen-decomposition of the Gram
+/// matrix failed: NoConvergence"). Against a noise of 1e-4 such data are nothing, so both
+/// fits are the prior's (the same likelihood).
+#[test]
+fn unscaled_fits_of_data_near_the_subnormal_range() {
+    let p = FitParams {
+        latent_dim: 2,
+        data_scaling: gplvm::DataScaling::None,
+        ..FitParams::default()
+    }
+    .check()
+    .unwrap();
+    let fit = |scale: f64| gplvm::fit_gram(random_gram(10, 20, 5, scale).as_ref(), 20, &p).unwrap();
+    let (tiny, small) = (fit(1e-155), fit(1e-150));
+    let (a, b) = (tiny.report.log_likelihood, small.report.log_likelihood);
+    assert!(
+        a.is_finite() && (a - b).abs() <= 1e-9 * b.abs(),
+        "{a} vs {b}"
+    );
+}
