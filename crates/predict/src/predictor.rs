@@ -37,7 +37,8 @@ pub struct PointSupport {
     pub nearest: String,
     /// Its distance in length-scales (each axis divided by its length-scale).
     pub distance: f64,
-    /// The smooth predictor's variance at the point over the prior variance `s^2 + mu`: near 0
+    /// The smooth predictor's variance at the point over the prior variance `s^2 + mu` (plus
+    /// any jitter the factorisation needed): near 0
     /// at a training material, near 1 far from all of them, where the prediction is close to
     /// the data mean.
     pub variance_fraction: f64,
@@ -543,7 +544,9 @@ impl Predictor {
                 point: x.to_vec(),
                 reason: "the model has no materials".into(),
             })?;
-        let prior = h.signal_variance + h.noise;
+        // What the variance tends to far from every material: s^2 + mu + the jitter (which
+        // counts as noise; see `gp_core::regression`).
+        let prior = h.signal_variance + self.inner.gp.effective_noise();
         Ok(PointSupport {
             nearest: nearest.to_string(),
             distance,

@@ -382,6 +382,35 @@ fn dense_data(n: usize, d: usize) -> Mat<f64> {
 /// peak): the Gram error keeps its relative accuracy instead of drowning in the rounding of
 /// `G_hh` (the expanded `G_hh - 2 c^T G_h + c^T G c` gave ~1e-16 G_hh of noise, here ~1e-3,
 /// against a true error of ~1e-12).
+/// A model whose K needs jitter (two materials at one latent point, noise 1e-20): far from
+/// every material the variance is the prior plus the jitter, and the support's variance
+/// fraction is 1 (it was (s^2 + mu + j) / (s^2 + mu), above 1).
+#[test]
+fn variance_fractions_count_the_jitter_as_prior() {
+    let f = fixture(6, "log");
+    let mut model = gplvm::Model::load(&f.model).unwrap();
+    model.materials[1].coords = model.materials[0].coords.clone();
+    model.hyperparameters.noise = 1e-20;
+    let path = f.model.with_file_name("jittered.toml");
+    model.save(&path).unwrap();
+    let pred = Predictor::open(&path).unwrap();
+    let h = &model.hyperparameters;
+    let far: Vec<f64> = model.materials[0].coords.iter().map(|v| v + 1e3).collect();
+    let var = pred.variance(&far).unwrap();
+    let jitter = var - (h.signal_variance + h.noise);
+    assert!(
+        jitter > 100.0 * f64::EPSILON * h.signal_variance,
+        "jitter {jitter:e}"
+    );
+    let support = pred.support(&far).unwrap();
+    assert!(
+        (support.variance_fraction - 1.0).abs() <= 4.0 * f64::EPSILON,
+        "{support:?}"
+    );
+    let at = pred.support(&model.materials[0].coords).unwrap();
+    assert!(at.variance_fraction < 1e-3, "{at:?}");
+}
+
 #[test]
 fn gram_error_of_a_near_exact_reconstruction_is_accurate_on_large_values() {
     let (n, d) = (9, 40);
