@@ -33,6 +33,10 @@ pub struct MerlBrdf {
     values: Vec<f64>,
 }
 
+/// Largest half-side, in cells, of the box around a negative marker whose measured values
+/// fill it on MERL's own grid ([`MerlBrdf::to_dataset_order`]).
+pub const MARKER_FILL_RADIUS: usize = 3;
+
 /// How [`MerlBrdf::resample`] maps MERL's cells onto another grid.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Resampling {
@@ -129,7 +133,12 @@ impl MerlBrdf {
     }
 
     /// The values in dataset order on the file's own grid (`flat * 3 + channel`), with cells
-    /// below the horizon set to 0 and negative markers set to 0 (counted).
+    /// below the horizon set to 0. A negative marker (a cell MERL did not measure) takes the
+    /// mean of the measured values of that channel among its neighbours within
+    /// [`MARKER_FILL_RADIUS`] cells along each axis, the nearest ring that has any (counted in
+    /// [`ImportReport::markers_filled`]): stored as 0 it was a hole the fit learnt as a black
+    /// spot (resampling onto other grids already skipped markers). A marker with no measured
+    /// neighbour is stored as 0 (counted in [`ImportReport::negatives_clamped`]).
     pub fn to_dataset_order(&self) -> (Vec<f32>, ImportReport) {
         let g = self.grid;
         let mask = g.validity_mask();
@@ -141,10 +150,42 @@ impl MerlBrdf {
                 continue;
             }
             for c in 0..3 {
-                out[flat * 3 + c] = report.record(self.value(c, flat), None, false) as f32;
+                let mut v = self.value(c, flat);
+                if v < 0.0
+                    && let Some(fill) = self.neighbour_mean(&mask, c, flat)
+                {
+                    report.markers_filled += 1;
+                    v = fill;
+                }
+                out[flat * 3 + c] = report.record(v, None, false) as f32;
             }
         }
         (out, report)
+    }
+
+    /// The mean of channel `c`'s measured values (valid cell, not a marker) among the cells
+    /// around `flat` within the smallest box of half-side 1 to [`MARKER_FILL_RADIUS`] that
+    /// holds any.
+    fn neighbour_mean(&self, mask: &[bool], c: usize, flat: usize) -> Option<f64> {
+        let g = self.grid;
+        let (i, j, k) = g.unindex(flat);
+        let span = |x: usize, r: usize, n: usize| x.saturating_sub(r)..=(x + r).min(n - 1);
+        (1..=MARKER_FILL_RADIUS).find_map(|r| {
+            let (mut sum, mut count) = (0.0, 0u32);
+            for a in span(i, r, g.n_theta_h) {
+                for b in span(j, r, g.n_theta_d) {
+                    for d in span(k, r, g.n_phi_d) {
+                        let f = g.index(a, b, d);
+                        let v = self.value(c, f);
+                        if mask[f] && v >= 0.0 && v.is_finite() {
+                            sum += v;
+                            count += 1;
+                        }
+                    }
+                }
+            }
+            (count > 0).then(|| sum / f64::from(count))
+        })
     }
 
     /// The values resampled onto `grid` in dataset order (see [`Resampling`]); cells below the
@@ -752,8 +793,37 @@ mod tests {
         let mask = grid.validity_mask();
         let valid = mask.iter().filter(|m| **m).count();
         assert_eq!(r.values, 3 * valid);
-        let markers = (0..grid.len()).filter(|f| f % 17 == 3 && mask[*f]).count();
-        assert_eq!(r.negatives_clamped, 3 * markers);
+        let markers: Vec<usize> = (0..grid.len())
+            .filter(|f| f % 17 == 3 && mask[*f])
+            .collect();
+        assert_eq!(r.markers_filled, 3 * markers.len());
+        assert_eq!(r.negatives_clamped, 0);
+        // A marker holds the mean of its measured neighbours in the 3 x 3 x 3 box around it
+        // (other markers there left out).
+        for &m in &markers {
+            let (i, j, k) = grid.unindex(m);
+            for c in 0..3 {
+                let (mut sum, mut count) = (0.0, 0.0);
+                for a in i.saturating_sub(1)..=(i + 1).min(5) {
+                    for b in j.saturating_sub(1)..=(j + 1).min(5) {
+                        for d in k.saturating_sub(1)..=(k + 1).min(11) {
+                            let f = grid.index(a, b, d);
+                            if mask[f] && brdf.value(c, f) >= 0.0 {
+                                sum += brdf.value(c, f);
+                                count += 1.0;
+                            }
+                        }
+                    }
+                }
+                assert!(count > 0.0);
+                assert_eq!(
+                    v[m * 3 + c],
+                    (sum / count) as f32,
+                    "marker {m}, channel {c}"
+                );
+                assert!(v[m * 3 + c] > 0.0);
+            }
+        }
         let f = mask.iter().position(|m| *m).unwrap();
         assert_eq!(v[f * 3 + 1], brdf.value(1, f) as f32);
         let bad = mask.iter().position(|m| !*m).unwrap();
@@ -771,6 +841,43 @@ mod tests {
         assert_eq!(clamped.value(1, f), 0.0);
         assert_eq!(clamped.value(2, f) as f32, v[f * 3 + 2]);
         assert_eq!(clamped.to_dataset_order().1.negatives_clamped, 0);
+    }
+
+    /// Markers take the measured values of the nearest ring that has any, up to
+    /// `MARKER_FILL_RADIUS` cells away; beyond that they are stored as 0 and counted.
+    #[test]
+    fn markers_are_filled_from_the_nearest_measured_ring() {
+        let grid = AngularGrid::new(8, 8, 16).unwrap();
+        let mask = grid.validity_mask();
+        // One measured cell, (1, 1, 8); every other cell a marker.
+        let measured = grid.index(1, 1, 8);
+        assert!(mask[measured]);
+        let mut values = vec![-1.0; 3 * grid.len()];
+        for c in 0..3 {
+            values[c * grid.len() + measured] = 0.5 + c as f64;
+        }
+        let (v, r) = MerlBrdf::new(grid, values).unwrap().to_dataset_order();
+        let (mut filled, mut zeros) = (0, 0);
+        for (f, ok) in mask.iter().enumerate() {
+            if !ok || f == measured {
+                continue;
+            }
+            let (i, j, k) = grid.unindex(f);
+            let ring = i.abs_diff(1).max(j.abs_diff(1)).max(k.abs_diff(8));
+            if ring <= MARKER_FILL_RADIUS {
+                assert_eq!(&v[f * 3..f * 3 + 3], &[0.5, 1.5, 2.5], "cell {f}");
+                filled += 3;
+            } else {
+                assert_eq!(&v[f * 3..f * 3 + 3], &[0.0; 3], "cell {f}");
+                zeros += 3;
+            }
+        }
+        assert!(filled > 0 && zeros > 0);
+        assert_eq!((r.markers_filled, r.negatives_clamped), (filled, zeros));
+        assert!(
+            r.to_string()
+                .contains(&format!("{filled} unmeasured (marker) values filled"))
+        );
     }
 
     #[test]

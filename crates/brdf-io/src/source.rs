@@ -191,8 +191,13 @@ pub struct ImportReport {
     pub values: usize,
     /// Angular cells below the horizon (written as 0.0, not evaluated).
     pub below_horizon_cells: usize,
-    /// Negative values clamped to 0 (Mitsuba's RGB interpolation and MERL's invalid markers).
+    /// Negative values clamped to 0 (Mitsuba's RGB interpolation, and MERL's invalid markers
+    /// that had no measured neighbour).
     pub negatives_clamped: usize,
+    /// MERL's invalid markers (cells it did not measure) filled with the mean of measured
+    /// neighbours (on MERL's own grid; [`crate::merl::MerlBrdf::to_dataset_order`]).
+    #[serde(default)]
+    pub markers_filled: usize,
     /// NaN or infinite values (or values beyond the f32 range), replaced by 0.
     pub non_finite: usize,
     /// Values above the source's outlier threshold (see the source's documentation).
@@ -341,6 +346,7 @@ impl ImportReport {
         self.values += other.values;
         self.below_horizon_cells += other.below_horizon_cells;
         self.negatives_clamped += other.negatives_clamped;
+        self.markers_filled += other.markers_filled;
         self.non_finite += other.non_finite;
         self.outliers += other.outliers;
         self.outliers_clamped += other.outliers_clamped;
@@ -365,6 +371,13 @@ impl std::fmt::Display for ImportReport {
             self.outliers,
             self.outliers_clamped
         )?;
+        if self.markers_filled > 0 {
+            write!(
+                f,
+                ", {} unmeasured (marker) values filled from their neighbours",
+                self.markers_filled
+            )?;
+        }
         match (self.non_reciprocity(), self.non_reciprocity_median()) {
             (Some(r), Some(m)) => write!(
                 f,
