@@ -40,6 +40,24 @@ pub enum Error {
         /// Its name.
         name: String,
     },
+    /// The transform takes a finite stored value out of the f64 range (found by the Gram
+    /// pass).
+    #[error(
+        "{path}: the transform {transform} is not finite for the value {value:e} of material \
+         {index} ({name}); use a larger log offset"
+    )]
+    TransformOverflow {
+        /// The store.
+        path: PathBuf,
+        /// Row of the material.
+        index: usize,
+        /// Its name.
+        name: String,
+        /// The transform (`log:OFFSET`).
+        transform: String,
+        /// The stored value.
+        value: f64,
+    },
     /// Fewer than two materials: a GPLVM needs at least two.
     #[error("a GPLVM needs at least 2 materials, got {n}")]
     TooFewMaterials {

@@ -96,11 +96,7 @@ pub fn gram_pass(store: &Store, transform: Transform) -> Result<GramPass> {
     let g = store.gram_with(&transform)?;
     // A non-finite value of material i makes its diagonal entry non-finite.
     if let Some(i) = (0..n).find(|&i| !g[i * n + i].is_finite()) {
-        return Err(Error::NonFiniteData {
-            path: store.path().to_owned(),
-            index: i,
-            name: store.names().get(i).copied().unwrap_or("?").to_owned(),
-        });
+        return Err(non_finite_material(store, transform, i));
     }
     let gram = Mat::from_fn(n, n, |i, j| g[i * n + j]);
     let valid = store.validity_mask().iter().filter(|v| **v).count();
@@ -109,6 +105,46 @@ pub fn gram_pass(store: &Store, transform: Transform) -> Result<GramPass> {
         d_effective: valid * store.channels().len(),
         seconds: start.elapsed().as_secs_f64(),
     })
+}
+
+/// Why material `i`'s Gram entry is not finite: a stored value that is not
+/// ([`Error::NonFiniteData`]: a damaged store), or a finite one that the transform takes out of
+/// range ([`Error::TransformOverflow`]: e.g. `log` with an offset below ~1e-270, where
+/// `f / offset` overflows). Read again on this error path only.
+fn non_finite_material(store: &Store, transform: Transform, i: usize) -> Error {
+    let (n, name) = (store.n_materials(), store.names()[i].to_owned());
+    let mut culprit = None;
+    let mut out = Vec::new();
+    let scan = store.for_each_chunk(|_, block| {
+        if culprit.is_some() {
+            return;
+        }
+        let values: Vec<f32> = block.iter().skip(i).step_by(n).copied().collect();
+        if let Some(v) = values.iter().find(|v| !v.is_finite()) {
+            culprit = Some(Err(*v));
+            return;
+        }
+        out.resize(values.len(), 0.0);
+        transform.forward_batch(&values, &mut out);
+        if let Some(k) = out.iter().position(|y| !y.is_finite()) {
+            culprit = Some(Ok(values[k]));
+        }
+    });
+    match (scan, culprit) {
+        (Err(e), _) => e.into(),
+        (Ok(()), Some(Ok(value))) => Error::TransformOverflow {
+            path: store.path().to_owned(),
+            index: i,
+            name,
+            transform: transform.to_string(),
+            value: f64::from(value),
+        },
+        _ => Error::NonFiniteData {
+            path: store.path().to_owned(),
+            index: i,
+            name,
+        },
+    }
 }
 
 /// The centred Gram matrix divided by the data scale, and that scale.

@@ -346,7 +346,12 @@ impl fmt::Display for Transform {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Self::Raw => write!(f, "raw"),
-            Self::Log { offset } => write!(f, "log(offset={offset})"),
+            // Plain decimals in the usual range, the exponent form outside it (an offset of
+            // 1e-300 was written with 300 zeros).
+            Self::Log { offset } if (1e-4..1e6).contains(offset) => {
+                write!(f, "log(offset={offset})")
+            }
+            Self::Log { offset } => write!(f, "log(offset={offset:e})"),
         }
     }
 }
@@ -390,6 +395,14 @@ mod tests {
         assert_eq!(
             Transform::Log { offset: 0.5 }.to_string(),
             "log(offset=0.5)"
+        );
+        assert_eq!(
+            Transform::Log { offset: 1e-300 }.to_string(),
+            "log(offset=1e-300)"
+        );
+        assert_eq!(
+            Transform::Log { offset: 2.5e7 }.to_string(),
+            "log(offset=2.5e7)"
         );
     }
 

@@ -255,6 +255,20 @@ fn small_and_degenerate_datasets() {
         "{err}"
     );
     assert!(err.to_string().contains("bad.sbrdf"), "{err}");
+    // Finite data that the transform takes out of range (f / offset overflows for an offset
+    // of 1e-306) are not called damaged: the error names the transform and the value.
+    let good = synth_store(dir.path(), "good.sbrdf", &[3, 40, 12]);
+    let tiny: gplvm::Transform = "log:1e-306".parse().unwrap();
+    let err = gplvm::gram_pass(&Store::open(&good).unwrap(), tiny).unwrap_err();
+    match &err {
+        gplvm::Error::TransformOverflow { value, .. } => assert!(*value > 0.17, "{err}"),
+        _ => panic!("{err}"),
+    }
+    let msg = err.to_string();
+    assert!(
+        msg.contains("good.sbrdf") && msg.contains("log(offset=1e-306)"),
+        "{msg}"
+    );
     // All materials identical: nothing to fit, a clear error, however many copies (centring
     // leaves rounding of either sign: 16 copies leave +1.2e-10 of 7.8e5, which a test for a
     // positive total variance let through to a nonsense fit).
