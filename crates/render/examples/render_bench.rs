@@ -24,12 +24,12 @@ use brdf_io::{AngularGrid, BrdfSource, Channels, Vec3};
 use render::cache::predicted;
 use render::{EnvMode, EnvTableSpec, SphereOptions, render_sphere};
 
-/// A predicted material that counts the cells evaluated (one relaxed atomic add per cell);
-/// everything else, the prefetch hint included, is the material's own.
-struct Counted(predict::PredictedMaterial, AtomicUsize);
+/// A grid source (a predicted or stored material) that counts the cells evaluated (one relaxed
+/// atomic add per cell); everything else, the prefetch hint included, is the material's own.
+struct Counted<S>(S, AtomicUsize);
 
-impl Counted {
-    fn new(m: predict::PredictedMaterial) -> Self {
+impl<S: BrdfSource> Counted<S> {
+    fn new(m: S) -> Self {
         Self(m, AtomicUsize::new(0))
     }
     fn computed_cells(&self) -> usize {
@@ -37,7 +37,7 @@ impl Counted {
     }
 }
 
-impl BrdfSource for Counted {
+impl<S: BrdfSource> BrdfSource for Counted<S> {
     fn channels(&self) -> Channels {
         BrdfSource::channels(&self.0)
     }
@@ -74,34 +74,25 @@ fn stored_materials_study(
     store: std::sync::Arc<brdf_io::store::Store>,
     size: usize,
 ) -> Result<(), Box<dyn std::error::Error>> {
+    let spec = |nodes, rings, azimuths| EnvTableSpec {
+        nodes,
+        rings,
+        azimuths,
+    };
     let specs = [
         EnvTableSpec::FAST,
-        EnvTableSpec {
-            nodes: 16,
-            rings: 64,
-            azimuths: 4,
-        },
-        EnvTableSpec {
-            nodes: 16,
-            rings: 128,
-            azimuths: 8,
-        },
+        spec(16, 64, 4),
+        spec(16, 128, 8),
         EnvTableSpec::default(),
-        EnvTableSpec {
-            nodes: 32,
-            rings: 256,
-            azimuths: 8,
-        },
-        EnvTableSpec {
-            nodes: 32,
-            rings: 64,
-            azimuths: 2,
-        },
-        EnvTableSpec {
-            nodes: 24,
-            rings: 64,
-            azimuths: 2,
-        },
+        spec(32, 256, 8),
+        spec(32, 64, 2),
+        spec(24, 64, 2),
+        spec(12, 128, 8),
+        spec(16, 128, 4),
+        spec(16, 96, 4),
+        spec(20, 128, 8),
+        spec(24, 128, 8),
+        spec(24, 96, 4),
     ];
     let opts = |spec| SphereOptions {
         size,
@@ -119,6 +110,15 @@ fn stored_materials_study(
             .collect::<Vec<_>>()
             .join(" | ")
     );
+    // Cells each table touches (with the light): the scene's, the same for every grid source.
+    let first = brdf_io::store::StoreMaterial::by_index(store.clone(), 0)?;
+    let mut cells = Vec::with_capacity(specs.len());
+    for spec in &specs {
+        render::sphere::clear_plans();
+        let counted = Counted::new(first.clone());
+        render_sphere(&counted, &opts(*spec))?;
+        cells.push(counted.computed_cells());
+    }
     let mut worst = vec![(0.0f64, 0.0f64, 0u8); specs.len()];
     let names: Vec<String> = store.names().into_iter().map(String::from).collect();
     for (index, name) in names.into_iter().enumerate() {
@@ -133,9 +133,9 @@ fn stored_materials_study(
         }
         println!("{line}");
     }
-    for (s, w) in specs.iter().zip(&worst) {
+    for ((s, w), c) in specs.iter().zip(&worst).zip(&cells) {
         println!(
-            "({}, {}, {}): worst max {:.2e}, worst mean {:.2e}, worst code difference {}",
+            "({}, {}, {}): worst max {:.2e}, worst mean {:.2e}, worst code difference {}, {c} cells at {size} px",
             s.nodes, s.rings, s.azimuths, w.0, w.1, w.2
         );
     }
