@@ -657,6 +657,19 @@ fn unit_variance_fits_do_not_depend_on_the_data_scale() {
     }
 }
 
+/// A q = 2 fit with `data_scaling = none` of 10 random materials (20 values each) scaled by
+/// `scale`.
+fn unscaled_fit(scale: f64) -> gplvm::Fit {
+    let p = FitParams {
+        latent_dim: 2,
+        data_scaling: gplvm::DataScaling::None,
+        ..FitParams::default()
+    }
+    .check()
+    .unwrap();
+    gplvm::fit_gram(random_gram(10, 20, 5, scale).as_ref(), 20, &p).unwrap()
+}
+
 /// Unscaled data with a Gram matrix near 1e200 (gradients near 1e204, whose squares
 /// overflow): L-BFGS still optimises. Against such data the log-determinant term is
 /// negligible and the points spread without bound, the same way as for the same data at 1e100
@@ -665,15 +678,7 @@ fn unit_variance_fits_do_not_depend_on_the_data_scale() {
 /// start with an infinite norm.)
 #[test]
 fn unscaled_fits_survive_gradients_whose_squares_overflow() {
-    let p = FitParams {
-        latent_dim: 2,
-        data_scaling: gplvm::DataScaling::None,
-        ..FitParams::default()
-    }
-    .check()
-    .unwrap();
-    let fit = |scale: f64| gplvm::fit_gram(random_gram(10, 20, 5, scale).as_ref(), 20, &p).unwrap();
-    let (huge, big) = (fit(1e100), fit(1e50));
+    let (huge, big) = (unscaled_fit(1e100), unscaled_fit(1e50));
     for f in [&huge, &big] {
         let r = &f.report;
         assert!(r.gradient_norm.is_finite() && r.gradient_norm > 0.0);
@@ -695,15 +700,7 @@ fn unscaled_fits_survive_gradients_whose_squares_overflow() {
 /// fits are the prior's (the same likelihood).
 #[test]
 fn unscaled_fits_of_data_near_the_subnormal_range() {
-    let p = FitParams {
-        latent_dim: 2,
-        data_scaling: gplvm::DataScaling::None,
-        ..FitParams::default()
-    }
-    .check()
-    .unwrap();
-    let fit = |scale: f64| gplvm::fit_gram(random_gram(10, 20, 5, scale).as_ref(), 20, &p).unwrap();
-    let (tiny, small) = (fit(1e-155), fit(1e-150));
+    let (tiny, small) = (unscaled_fit(1e-155), unscaled_fit(1e-150));
     let (a, b) = (tiny.report.log_likelihood, small.report.log_likelihood);
     assert!(
         a.is_finite() && (a - b).abs() <= 1e-9 * b.abs(),
