@@ -852,9 +852,12 @@ fn sphere_sight(size: usize) -> impl Fn(usize, usize) -> Option<Sight> + Sync {
 type Sight = (Vec3, Vec3, f64);
 
 /// Renders the scene whose pixels see `sight(px, py)` (`None`: empty): grid sources under the
-/// pre-integrated environment through a (cached) render plan ([`plan`]; cells numbered in u32),
-/// other sources and the per-pixel environment through a [`Shader`] per pixel. `opts` must be
-/// checked.
+/// pre-integrated environment, in images small enough for the plan cache, through a (cached)
+/// render plan ([`plan`]; cells numbered in u32); larger images, other sources and the
+/// per-pixel environment through a [`Shader`] per pixel (the same pixels). A plan pays off
+/// when it is reused; one of a larger image, never cached, made a single render slower and took
+/// ~190 B per pixel: 4096 px took 3.2 GB and 8.5-10 s, and take 0.86 GB and 3.8-4.1 s without
+/// (BENCHMARKS.md "render", session 17). `opts` must be checked.
 fn render_scene(
     source: &dyn BrdfSource,
     opts: &SphereOptions,
@@ -863,6 +866,7 @@ fn render_scene(
 ) -> Result<Image> {
     if let (Some(grid), EnvMode::Table(spec)) = (source.grid(), opts.env_mode)
         && u32::try_from(grid.len()).is_ok()
+        && opts.size * opts.size <= plan::MAX_CACHED_PIXELS
     {
         return plan::render(source, opts, grid, spec, scene, &sight);
     }

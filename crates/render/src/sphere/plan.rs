@@ -9,8 +9,9 @@
 //! then evaluates exactly those cells once ([`BrdfSource::eval_cell`], in index order, in
 //! parallel), projects them to linear sRGB and combines them: a few multiply-adds per pixel.
 //!
-//! Plans of recent scenes (up to [`CACHED_PLANS`], images up to [`MAX_CACHED_PIXELS`] pixels)
-//! are kept for the process, so rendering another material of the same scene (latent-map
+//! Only images up to [`MAX_CACHED_PIXELS`] pixels are rendered through plans (larger ones are
+//! shaded directly, faster and in a fraction of the memory), and the plans of recent scenes (up
+//! to [`CACHED_PLANS`]) are kept for the process, so rendering another material of the same scene (latent-map
 //! thumbnails, comparison sheets, moving through the latent space) skips the geometry. A plan
 //! holds no BRDF value: every render evaluates its material's cells afresh. The arithmetic is
 //! the per-pixel shader's, in the same order: planned and unplanned renders are identical.
@@ -98,21 +99,20 @@ struct Plan {
 
 static CACHE: Mutex<Vec<Arc<Plan>>> = Mutex::new(Vec::new());
 
-/// The cached plan of `key`, or a new one from `build` (cached when small enough).
+/// The cached plan of `key`, or a new one from `build`, cached (the renderer plans only images
+/// up to [`MAX_CACHED_PIXELS`]).
 fn plan_for(key: Key, build: impl FnOnce() -> Plan) -> Arc<Plan> {
     let cached = |cache: &Vec<Arc<Plan>>| cache.iter().find(|p| p.key == key).cloned();
     if let Some(p) = cached(&CACHE.lock().unwrap_or_else(PoisonError::into_inner)) {
         return p;
     }
     let plan = Arc::new(build());
-    if key.size * key.size <= MAX_CACHED_PIXELS {
-        let mut cache = CACHE.lock().unwrap_or_else(PoisonError::into_inner);
-        if cached(&cache).is_none() {
-            if cache.len() == CACHED_PLANS {
-                cache.remove(0);
-            }
-            cache.push(plan.clone());
+    let mut cache = CACHE.lock().unwrap_or_else(PoisonError::into_inner);
+    if cached(&cache).is_none() {
+        if cache.len() == CACHED_PLANS {
+            cache.remove(0);
         }
+        cache.push(plan.clone());
     }
     plan
 }
