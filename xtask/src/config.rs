@@ -281,6 +281,8 @@ pub struct PredictConfig {
 pub struct PipelineConfig {
     /// The config file it came from.
     pub path: PathBuf,
+    /// The directory its relative paths were resolved against (the project root).
+    pub root: PathBuf,
     /// The parameters as written (recorded in `results.json`).
     pub params: PipelineParams,
     /// Data settings.
@@ -584,6 +586,7 @@ impl PipelineParams {
         }
         Ok(PipelineConfig {
             path: path.to_owned(),
+            root: root.to_owned(),
             data: DataConfig {
                 source,
                 grid,

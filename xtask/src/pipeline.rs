@@ -203,10 +203,26 @@ pub struct Results {
     pub total_seconds: f64,
 }
 
-/// The project root: the parent of the xtask crate.
+/// The project root: the parent of the xtask crate's directory, as this process runs it. That is
+/// `CARGO_MANIFEST_DIR` of the environment, which `cargo run` (so `cargo xtask`) and `cargo
+/// test` set to the checkout they run, and only without it the directory the binary was
+/// compiled in (`env!`): a binary built from another checkout (a shared `CARGO_TARGET_DIR`)
+/// would otherwise read that checkout's configs and write its `out/`.
 pub fn project_root() -> PathBuf {
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
-    manifest.parent().unwrap_or(manifest).to_owned()
+    root_of(std::env::var_os("CARGO_MANIFEST_DIR"))
+}
+
+/// [`project_root`] for the xtask crate's directory `manifest_dir` (`None` or empty: the one
+/// the binary was compiled in).
+fn root_of(manifest_dir: Option<std::ffi::OsString>) -> PathBuf {
+    let manifest = manifest_dir
+        .filter(|d| !d.is_empty())
+        .map_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")), PathBuf::from);
+    match manifest.parent() {
+        Some(parent) if parent.as_os_str().is_empty() => PathBuf::from("."),
+        Some(parent) => parent.to_owned(),
+        None => manifest,
+    }
 }
 
 /// Writes `bytes` to `path` atomically ([`brdf_io::output::write_file_atomic`]).
@@ -244,7 +260,7 @@ pub fn is_pipeline_output(name: &str) -> bool {
 fn inputs(config: &PipelineConfig) -> Vec<PathBuf> {
     let mut v = vec![config.path.clone()];
     if let Some(f) = &config.params.fit_config {
-        v.push(project_root().join(f));
+        v.push(config.root.join(f));
     }
     match &config.data.source {
         crate::config::DataSource::Synth { .. } => {}
@@ -294,7 +310,7 @@ fn check_inputs(config: &PipelineConfig) -> Result<()> {
         let relative = if given.is_relative() {
             format!(
                 " (a relative path in a config is relative to the project root {})",
-                project_root().display()
+                config.root.display()
             )
         } else {
             String::new()
@@ -615,4 +631,23 @@ fn run_in(config: &PipelineConfig, out: &Path, published: &Path) -> Result<Resul
         report::markdown(&results).as_bytes(),
     )?;
     Ok(results)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The root comes from the run-time `CARGO_MANIFEST_DIR` (a binary built in another
+    /// checkout used the compile-time one), falling back to the compile-time one.
+    #[test]
+    fn project_root_is_resolved_at_run_time() {
+        assert_eq!(
+            root_of(Some("/elsewhere/checkout/xtask".into())),
+            Path::new("/elsewhere/checkout")
+        );
+        let compiled = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();
+        assert_eq!(root_of(None), compiled);
+        assert_eq!(root_of(Some("".into())), compiled);
+        assert_eq!(root_of(Some("xtask".into())), Path::new("."));
+    }
 }

@@ -729,3 +729,38 @@ fn bench_outputs_are_published_as_a_set() {
     assert!(e.contains("is not a directory"), "{e}");
     assert_eq!(entries(dir.path()), ["new", "tiny.toml"]);
 }
+
+/// The binary resolves the project root at run time from `CARGO_MANIFEST_DIR` (as `cargo
+/// xtask` sets it): a binary built in another checkout read that checkout's `configs/` and
+/// resolved the config's relative paths there.
+#[test]
+fn the_binary_takes_the_project_root_of_its_environment() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("checkout");
+    std::fs::create_dir_all(root.join("configs")).unwrap();
+    std::fs::create_dir_all(root.join("xtask")).unwrap();
+    std::fs::write(
+        root.join("configs/elsewhere.toml"),
+        "name = \"elsewhere\"\n[data]\nkind = \"rgl\"\ngrid = \"4,4,8\"\n\
+         files = [\"a.bsdf\", \"b.bsdf\", \"c.bsdf\"]\n",
+    )
+    .unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_xtask"))
+        .args(["pipeline", "configs/elsewhere.toml"])
+        .env("CARGO_MANIFEST_DIR", root.join("xtask"))
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains(&format!(
+            "data.files[0]: {} does not exist (a relative path in a config is relative to the \
+             project root {})",
+            root.join("a.bsdf").display(),
+            root.display()
+        )),
+        "{err}"
+    );
+    assert!(!root.join("out").exists());
+}
