@@ -764,3 +764,26 @@ fn the_binary_takes_the_project_root_of_its_environment() {
     );
     assert!(!root.join("out").exists());
 }
+
+/// A pipeline creates no output directory (nor files) inside a directory whose mode bits say
+/// read-only, even run as root (it created one there), and says which directory.
+#[cfg(unix)]
+#[test]
+fn nothing_is_created_inside_a_read_only_directory() {
+    use std::os::unix::fs::PermissionsExt;
+    let root = project_root();
+    let config = load(&root, "configs/quick.toml");
+    let dir = tempfile::tempdir().unwrap();
+    let ro = dir.path().join("ro");
+    std::fs::create_dir(&ro).unwrap();
+    std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o555)).unwrap();
+    for out in [ro.join("out"), ro.join("a/b"), ro.clone()] {
+        let e = xtask::run(&config, &out).unwrap_err().to_string();
+        assert!(
+            e.contains(&format!("{}: the directory is read-only", ro.display())),
+            "{e}"
+        );
+    }
+    assert!(entries(&ro).is_empty());
+    std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o755)).unwrap();
+}

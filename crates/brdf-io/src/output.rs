@@ -13,6 +13,11 @@
 //!   symbolic link to a regular file is followed: the file it points to is replaced, the link
 //!   stays. A regular file without write permission (`chmod a-w`, or none for this user) is
 //!   refused with a permission error, as `File::create` refuses it, rather than renamed over.
+//! - **read-only directories**: nothing is created inside a directory whose mode bits say
+//!   read-only (no write bit, or none for this user): no temporary file (so no new or replaced
+//!   file), no staging directory, no missing output directory. Root, whom the system lets write
+//!   there, is refused as well ([`ensure_dir_writable`]), as for read-only files; the error names
+//!   the directory.
 //! - **target exists and is not a regular file** (`/dev/stdout`, `/dev/null`, a FIFO, a
 //!   terminal, a character device; symlinks followed): the data is written straight into it,
 //!   since renaming would replace the special file by a regular one. Such output is not atomic.
@@ -135,9 +140,11 @@ pub fn ensure_space(path: &Path, bytes: u64, what: &str) -> Result<()> {
     }
 }
 
-/// Checks that a file can be created in directory `dir` (by creating and dropping an unnamed
-/// temporary file there), so that a command can refuse an unwritable output before its work.
+/// Checks that a file can be created in directory `dir` (its mode bits allow it,
+/// [`ensure_dir_writable`], and an unnamed temporary file can be created and dropped there), so
+/// that a command can refuse an unwritable output before its work.
 pub fn check_writable_dir(dir: &Path) -> Result<()> {
+    ensure_dir_writable(dir, None)?;
     tempfile::tempfile_in(dir)
         .map(drop)
         .map_err(|e| Error::io(dir, e))
@@ -176,9 +183,10 @@ fn is_append_mode(file: &File) -> bool {
     }
 }
 
-/// Whether the existing regular file `path` (`meta` its metadata, symbolic links followed) may
-/// be written: it has a write permission bit, and this process may write it (`access(2)`:
-/// the owner's, group's or others' bit that applies; root may write any file with a bit).
+/// Whether the existing regular file or directory `path` (`meta` its metadata, symbolic links
+/// followed) may be written: it has a write permission bit, and this process may write it
+/// (`access(2)`: the owner's, group's or others' bit that applies; root may write anything with
+/// a bit).
 fn writable(path: &Path, meta: &std::fs::Metadata) -> bool {
     if meta.permissions().readonly() {
         return false;
@@ -192,6 +200,50 @@ fn writable(path: &Path, meta: &std::fs::Metadata) -> bool {
         let _ = path;
         true
     }
+}
+
+/// Refuses to create anything in the existing directory `dir` (`output`, when given, is what
+/// would be created) when its mode bits say read-only ([`writable`]): root may create files
+/// there, but an output is not put where the bits say no, as a read-only file is not replaced.
+/// The error ([`Error::Io`], permission denied) names the directory. A `dir` that is missing or
+/// not a directory passes: creating in it fails with its own error.
+pub fn ensure_dir_writable(dir: &Path, output: Option<&Path>) -> Result<()> {
+    match std::fs::metadata(dir) {
+        Ok(meta) if meta.is_dir() && !writable(dir, &meta) => {
+            let what = output.map_or_else(
+                || "no output is written there".to_owned(),
+                |o| format!("{} is not written there", o.display()),
+            );
+            Err(Error::io(
+                dir,
+                std::io::Error::new(
+                    std::io::ErrorKind::PermissionDenied,
+                    format!(
+                        "the directory is read-only (no write permission), so {what}; make it \
+                         writable (chmod u+w) or choose another output"
+                    ),
+                ),
+            ))
+        }
+        _ => Ok(()),
+    }
+}
+
+/// `std::fs::create_dir_all(dir)`, refused ([`ensure_dir_writable`]) when the existing directory
+/// that the first missing one would be created in is read-only.
+fn create_dir_all_checked(dir: &Path) -> Result<()> {
+    let mut base = dir;
+    while std::fs::metadata(base).is_err() {
+        base = match base.parent() {
+            Some(p) if p.as_os_str().is_empty() => Path::new("."),
+            Some(p) => p,
+            None => break,
+        };
+    }
+    if base != dir {
+        ensure_dir_writable(base, Some(dir))?;
+    }
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))
 }
 
 impl AtomicOutput {
@@ -259,6 +311,7 @@ impl AtomicOutput {
         builder.permissions(
             <std::fs::Permissions as std::os::unix::fs::PermissionsExt>::from_mode(0o666),
         );
+        ensure_dir_writable(&dir, Some(&path))?;
         let tmp = builder.tempfile_in(&dir).map_err(io)?;
         let listed = Listed::new(tmp.path());
         if let Some(perm) = existing {
@@ -438,10 +491,13 @@ pub struct StagingDir {
 }
 
 impl StagingDir {
-    /// A new staging directory inside `dest` (created if missing).
+    /// A new staging directory inside `dest` (created if missing). Refused when `dest`, or the
+    /// directory its first missing part would be created in, is read-only
+    /// ([`ensure_dir_writable`]).
     pub fn create(dest: impl AsRef<Path>) -> Result<Self> {
         let dest = dest.as_ref();
-        std::fs::create_dir_all(dest).map_err(|e| Error::io(dest, e))?;
+        create_dir_all_checked(dest)?;
+        ensure_dir_writable(dest, None)?;
         let name = dest
             .file_name()
             .map_or("out".into(), |n| n.to_string_lossy().into_owned());
@@ -810,6 +866,51 @@ mod tests {
         write_file_atomic(&p, b"new").unwrap();
         assert_eq!(std::fs::read(&p).unwrap(), b"new");
         assert_eq!(mode(&p), 0o644);
+    }
+
+    /// Nothing is created in a directory whose mode bits say read-only, even by root (root
+    /// created a pipeline's output directory inside one): no new or replaced file, no staging
+    /// directory, no missing output directory; the error names the directory, and the
+    /// directory is left as it was.
+    #[cfg(unix)]
+    #[test]
+    fn read_only_directories_get_no_outputs() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let ro = dir.path().join("ro");
+        std::fs::create_dir(&ro).unwrap();
+        std::fs::write(ro.join("old.txt"), b"old").unwrap();
+        std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o555)).unwrap();
+        let refused = |e: Error| {
+            let msg = e.to_string();
+            let Error::Io { path, error } = e else {
+                panic!("{msg}")
+            };
+            assert_eq!(path, ro, "{msg}");
+            assert_eq!(error.kind(), std::io::ErrorKind::PermissionDenied, "{msg}");
+            assert!(msg.contains("the directory is read-only"), "{msg}");
+            msg
+        };
+        let msg = refused(write_file_atomic(ro.join("new.txt"), b"new").unwrap_err());
+        assert!(msg.contains("new.txt is not written there"), "{msg}");
+        refused(write_file_atomic(ro.join("old.txt"), b"new").unwrap_err());
+        refused(StagingDir::create(&ro).unwrap_err());
+        refused(StagingDir::create(ro.join("out/deeper")).unwrap_err());
+        refused(check_writable_dir(&ro).unwrap_err());
+        let names: Vec<_> = std::fs::read_dir(&ro)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, ["old.txt"]);
+        assert_eq!(std::fs::read(ro.join("old.txt")).unwrap(), b"old");
+        // Writable again, outputs are created as usual.
+        std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o755)).unwrap();
+        write_file_atomic(ro.join("old.txt"), b"new").unwrap();
+        check_writable_dir(&ro).unwrap();
+        let stage = StagingDir::create(ro.join("out/deeper")).unwrap();
+        std::fs::write(stage.path().join("a.txt"), b"a").unwrap();
+        stage.publish(|_| false).unwrap();
+        assert_eq!(std::fs::read(ro.join("out/deeper/a.txt")).unwrap(), b"a");
     }
 
     #[cfg(unix)]

@@ -171,6 +171,28 @@ mod tests {
         assert!(ensure_output_is_not_an_input(Path::new("-"), &[&data]).is_ok());
     }
 
+    /// An output inside a directory whose mode bits say read-only is refused before any work,
+    /// even for root (who may write there), naming the directory.
+    #[cfg(unix)]
+    #[test]
+    fn outputs_in_read_only_directories_are_refused() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let ro = dir.path().join("ro");
+        std::fs::create_dir(&ro).unwrap();
+        std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o555)).unwrap();
+        let err = ensure_output_directory(&ro.join("x.png"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains(&format!("{}: the directory is read-only", ro.display())),
+            "{err}"
+        );
+        assert_eq!(std::fs::read_dir(&ro).unwrap().count(), 0);
+        std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o755)).unwrap();
+        ensure_output_directory(&ro.join("x.png")).unwrap();
+    }
+
     #[test]
     fn output_extensions_must_name_the_format() {
         assert!(ensure_extension(Path::new("a/b.png"), "png", "a PNG image").is_ok());
