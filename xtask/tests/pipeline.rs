@@ -787,3 +787,43 @@ fn nothing_is_created_inside_a_read_only_directory() {
     assert!(entries(&ro).is_empty());
     std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o755)).unwrap();
 }
+
+/// Log lines written into a pipe or a file are plain text, as specgp's: no ANSI colour codes
+/// (they came out as `^[[2m...`).
+#[test]
+fn logs_into_a_pipe_have_no_colour_codes() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // Input files that exist (checked before the run) but hold no data: the run logs its data
+    // stage, then fails there.
+    let files: Vec<String> = ["a", "b", "c"]
+        .iter()
+        .map(|n| {
+            let p = d.join(format!("{n}.bsdf"));
+            std::fs::write(&p, "").unwrap();
+            format!("{:?}", p.display().to_string())
+        })
+        .collect();
+    let config = d.join("t.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "name = \"t\"\n[data]\nkind = \"rgl\"\ngrid = \"4,4,8\"\nfiles = [{}]\n",
+            files.join(", ")
+        ),
+    )
+    .unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_xtask"))
+        .arg("pipeline")
+        .arg(&config)
+        .arg("--out")
+        .arg(d.join("out"))
+        .arg("-v")
+        .env_remove("RUST_LOG")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(err.contains("INFO") && err.contains("data"), "{err}");
+    assert!(!err.contains('\u{1b}'), "{err:?}");
+}
