@@ -512,6 +512,13 @@ impl Predictor {
         Ok(self.variance_of(x, kind)? * self.inner.model.data_scale)
     }
 
+    /// The prior variance in model units, which [`variance`](Self::variance) tends to far from
+    /// every material: `s^2 + mu` plus any jitter the factorisation needed (it counts as noise;
+    /// see `gp_core::regression`).
+    pub fn prior_variance(&self) -> f64 {
+        self.inner.model.hyperparameters.signal_variance + self.inner.gp.effective_noise()
+    }
+
     /// How well the training materials support a prediction at `x`: the nearest material, its
     /// distance in length-scales, and the share of the prior variance left at `x`.
     pub fn support(&self, x: &[f64]) -> Result<PointSupport> {
@@ -544,9 +551,7 @@ impl Predictor {
                 point: x.to_vec(),
                 reason: "the model has no materials".into(),
             })?;
-        // What the variance tends to far from every material: s^2 + mu + the jitter (which
-        // counts as noise; see `gp_core::regression`).
-        let prior = h.signal_variance + self.inner.gp.effective_noise();
+        let prior = self.prior_variance();
         Ok(PointSupport {
             nearest: nearest.to_string(),
             distance,

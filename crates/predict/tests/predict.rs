@@ -398,6 +398,7 @@ fn variance_fractions_count_the_jitter_as_prior() {
     let far: Vec<f64> = model.materials[0].coords.iter().map(|v| v + 1e3).collect();
     let var = pred.variance(&far).unwrap();
     let jitter = var - (h.signal_variance + h.noise);
+    assert_eq!(pred.prior_variance(), var);
     assert!(
         jitter > 100.0 * f64::EPSILON * h.signal_variance,
         "jitter {jitter:e}"

@@ -104,6 +104,17 @@ impl Image {
         self.blend_rect(x0, y0, w, h, rgb, 1.0);
     }
 
+    /// Draws the one-pixel border of the rectangle [x0, x0 + w) x [y0, y0 + h) (clipped).
+    pub fn outline_rect(&mut self, x0: i64, y0: i64, w: usize, h: usize, rgb: [f64; 3]) {
+        if w == 0 || h == 0 {
+            return;
+        }
+        self.fill_rect(x0, y0, w, 1, rgb);
+        self.fill_rect(x0, y0 + h as i64 - 1, w, 1, rgb);
+        self.fill_rect(x0, y0, 1, h, rgb);
+        self.fill_rect(x0 + w as i64 - 1, y0, 1, h, rgb);
+    }
+
     /// Blends `rgb` with opacity `a` over the rectangle [x0, x0 + w) x [y0, y0 + h) (clipped).
     pub fn blend_rect(&mut self, x0: i64, y0: i64, w: usize, h: usize, rgb: [f64; 3], a: f64) {
         for y in y0..y0 + h as i64 {

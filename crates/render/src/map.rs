@@ -36,6 +36,11 @@ pub struct MapOptions {
     /// The model has one latent axis: the thumbnails are one row along X1 (at the middle of
     /// the grey box), not a square whose rows would repeat the same materials.
     pub one_axis: bool,
+    /// A variance (in the units of `latent_map`'s `variance`) above which a thumbnail's point
+    /// counts as far from every material: its sphere is framed in orange and a line under the
+    /// panel says so (there the prediction is mostly the GP's extrapolation, which in log
+    /// space can show colours no material has). `None`: no marking.
+    pub far_variance: Option<f64>,
 }
 
 impl Default for MapOptions {
@@ -52,6 +57,7 @@ impl Default for MapOptions {
             caption: String::new(),
             predicted_points: 0,
             one_axis: false,
+            far_variance: None,
         }
     }
 }
@@ -241,16 +247,8 @@ pub fn latent_map(
     };
     // Frame and axis ranges.
     let black = [0.0; 3];
-    let (l, t, r, b) = (
-        left as i64 - 1,
-        margin as i64 - 1,
-        (left + size) as i64,
-        (margin + size) as i64,
-    );
-    img.fill_rect(l, t, size + 2, 1, black);
-    img.fill_rect(l, b, size + 2, 1, black);
-    img.fill_rect(l, t, 1, size + 2, black);
-    img.fill_rect(r, t, 1, size + 2, black);
+    let (l, t, b) = (left as i64 - 1, margin as i64 - 1, (margin + size) as i64);
+    img.outline_rect(l, t, size + 2, size + 2, black);
     // Ticks at round coordinates (so a point can be read off the map, e.g. for
     // `render MODEL.toml@X1,X2,...`), with faint grid lines across the plot.
     // A label that would run into the previous one or off the image is left out (its tick
@@ -407,15 +405,18 @@ pub fn latent_map(
         let ts = opts.sphere.size;
         let ox = (left + size + margin) as i64;
         let cells: Vec<(usize, usize)> = (0..g * rows).map(|k| (k % g, k / g)).collect();
-        let thumbs: Vec<Image> = cells
+        let points_of_cells: Vec<[f64; 2]> = cells
             .iter()
             .map(|&(i, j)| {
-                let p = [
+                [
                     bx0 + (bx1 - bx0) * (i as f64 + 0.5) / g as f64,
                     by1 - (by1 - by0) * (j as f64 + 0.5) / rows as f64,
-                ];
-                render_sphere(f(p)?.as_ref(), &opts.sphere)
+                ]
             })
+            .collect();
+        let thumbs: Vec<Image> = points_of_cells
+            .iter()
+            .map(|&p| render_sphere(f(p)?.as_ref(), &opts.sphere))
             .collect::<Result<_>>()?;
         let bg = Image::new(g * ts, rows * ts, [0.02; 3]);
         img.blit(&bg, ox, margin as i64);
@@ -423,6 +424,34 @@ pub fn latent_map(
             img.blit(th, ox + (i * ts) as i64, (margin + j * ts) as i64);
         }
         img.text(ox, 8, panel_title, 1, black);
+        if let Some(limit) = opts.far_variance {
+            let orange = [1.0, 0.45, 0.0];
+            let mut far = 0;
+            for ((i, j), p) in cells.iter().zip(&points_of_cells) {
+                if variance(*p)? > limit {
+                    far += 1;
+                    // Two pixels wide, inside the thumbnail.
+                    let (x, y) = (ox + (i * ts) as i64, (margin + j * ts) as i64);
+                    img.outline_rect(x, y, ts, ts, orange);
+                    img.outline_rect(x + 1, y + 1, ts - 2, ts - 2, orange);
+                }
+            }
+            if far > 0 {
+                let y = (margin + rows * ts + 8) as i64;
+                let room = panel - margin;
+                let note = first_fitting(
+                    [
+                        format!("ORANGE: {far} FAR FROM EVERY MATERIAL (EXTRAPOLATED)"),
+                        format!("ORANGE: {far} FAR FROM EVERY MATERIAL"),
+                        format!("ORANGE: {far} FAR"),
+                    ],
+                    room,
+                );
+                if let Some(note) = note {
+                    img.text(ox, y, &note, 1, [0.3; 3]);
+                }
+            }
+        }
     }
     Ok(img)
 }

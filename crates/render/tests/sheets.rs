@@ -131,6 +131,7 @@ fn path_comparison_and_map_draw() {
         caption: render::map::variance_caption("log(offset=0.01)", 5),
         predicted_points: 1,
         one_axis: false,
+        far_variance: None,
     };
     // Sizes that would need a huge allocation are refused before any work.
     for bad in [
@@ -217,6 +218,46 @@ fn path_comparison_and_map_draw() {
         right[0] > 2.0 * right[2] && (left[0] - left[2]).abs() < 0.2 * left[0],
         "{left:?} {right:?}"
     );
+    // With a far limit of 0.5 the middle column (x = 0, variance >= 1 there; the others 0.12 to
+    // 0.29) is framed in orange (2 px inside each thumbnail), and a note under the panel counts
+    // them; without one nothing is framed.
+    let far_map = latent_map(
+        &points,
+        &var,
+        Some(&src),
+        &MapOptions {
+            far_variance: Some(0.5),
+            ..mopts.clone()
+        },
+    )
+    .unwrap();
+    keep(&far_map, "map_far.png");
+    let orange = |m: &render::Image, x: usize, y: usize| {
+        let p = m.get(x, y);
+        p[0] > 0.9 && (0.3..0.6).contains(&p[1]) && p[2] < 0.1
+    };
+    let panel_x = 40 + 160 + 40;
+    for j in 0..3 {
+        let y = 40 + j * 24 + 12;
+        for (i, framed) in [(0, false), (1, true), (2, false)] {
+            for dx in [0, 1, 22, 23] {
+                let x = panel_x + i * 24 + dx;
+                assert_eq!(
+                    orange(&far_map, x, y),
+                    framed,
+                    "thumbnail {i},{j}, column {x}"
+                );
+                assert!(!orange(&map, x, y), "unframed map, thumbnail {i},{j}");
+            }
+        }
+    }
+    let note_ink = |m: &render::Image| {
+        (panel_x..panel_x + 72)
+            .flat_map(|x| (40 + 72 + 8..40 + 72 + 15).map(move |y| (x, y)))
+            .filter(|&(x, y)| m.get(x, y)[0] < 0.5)
+            .count()
+    };
+    assert!(note_ink(&far_map) > 20 && note_ink(&map) == 0);
     // The box is outlined in grey on the map, 6 px outside the points.
     let (bx, by) = (
         40.0 + (-1.0 - x0) / (x1 - x0) * 160.0 - 6.0,
