@@ -128,14 +128,25 @@ pub const MAX_COORDINATE: f64 = 1e100;
 impl Model {
     /// Where the dataset store is, for the model read from `model_file`: the recorded path,
     /// taken relative to the model file's directory when it is relative (`fit` records
-    /// absolute paths; an edited or moved model may hold a relative one).
+    /// absolute paths; an edited or moved model may hold a relative one). When nothing is at
+    /// that path but a file of the same name is beside the model (a model moved or copied
+    /// together with its store), that file. (Whichever is used, the recorded checksum is
+    /// checked against it when it is opened.)
     pub fn dataset_path(&self, model_file: &Path) -> PathBuf {
         let p = &self.dataset.path;
-        if p.is_relative() {
-            model_file.parent().unwrap_or(Path::new(".")).join(p)
+        let dir = model_file.parent().unwrap_or(Path::new("."));
+        let recorded = if p.is_relative() {
+            dir.join(p)
         } else {
             p.clone()
+        };
+        if !recorded.exists()
+            && let Some(beside) = p.file_name().map(|name| dir.join(name))
+            && beside.is_file()
+        {
+            return beside;
         }
+        recorded
     }
 
     /// Latent coordinates as an N x q matrix.

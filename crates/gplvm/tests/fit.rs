@@ -382,6 +382,38 @@ fn reported_likelihood_matches_an_independent_recomputation() {
     }
 }
 
+/// A model moved together with its store finds the store beside it when the recorded
+/// (absolute) path is gone; the recorded path wins while it exists.
+#[test]
+fn a_moved_model_finds_its_store_beside_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let before = dir.path().join("before");
+    std::fs::create_dir(&before).unwrap();
+    let data = synth_store(&before, "few.sbrdf", &[1, 6, 11]);
+    let p = FitParams {
+        latent_dim: 2,
+        ..FitParams::default()
+    };
+    let model = fit_store(&data, &p.check().unwrap()).unwrap();
+    assert!(model.dataset.path.is_absolute());
+    model.save(&before.join("m.toml")).unwrap();
+    let after = dir.path().join("after");
+    std::fs::rename(&before, &after).unwrap();
+    let moved = Model::load(&after.join("m.toml")).unwrap();
+    assert_eq!(
+        moved.dataset_path(&after.join("m.toml")),
+        after.join("few.sbrdf")
+    );
+    // The recorded path is used while it exists, even with a store of that name beside.
+    std::fs::create_dir(&before).unwrap();
+    std::fs::copy(after.join("few.sbrdf"), &data).unwrap();
+    assert_eq!(moved.dataset_path(&after.join("m.toml")), data);
+    // Nothing at either place: the recorded path (the error names it).
+    std::fs::remove_file(after.join("few.sbrdf")).unwrap();
+    std::fs::remove_file(&data).unwrap();
+    assert_eq!(moved.dataset_path(&after.join("m.toml")), data);
+}
+
 #[test]
 fn bad_model_files_are_clear_errors() {
     let dir = tempfile::tempdir().unwrap();
