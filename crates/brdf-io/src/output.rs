@@ -594,24 +594,51 @@ impl StagingDir {
 
 /// Installs the process's handler of SIGINT, SIGTERM and SIGHUP (for binaries; a library must
 /// not call it): it calls [`remove_unfinished_outputs`], says so on stderr as `program`, and
-/// exits with status 130, as a shell reports an interrupted command. Fails when the process
-/// already has such a handler; a run interrupted then leaves its temporary files behind.
+/// exits with status 128 + the signal's number (130 for SIGINT, 143 for SIGTERM, 129 for
+/// SIGHUP), as a shell reports a command the signal ended. Where there are no such signals
+/// (not Unix) it handles Ctrl-C and exits with 130. Fails when it was installed already; a
+/// run interrupted then leaves its temporary files behind.
 pub fn remove_unfinished_outputs_on_signal(program: &'static str) -> Result<()> {
-    ctrlc::set_handler(move || {
-        let removed = remove_unfinished_outputs();
-        // Best effort: a closed stderr must not keep the handler from exiting (`eprintln!`
-        // would panic the handler's thread).
-        let _ = writeln!(
-            std::io::stderr(),
-            "{program}: interrupted; removed {removed} unfinished output file(s)"
-        );
-        std::process::exit(130);
-    })
-    .map_err(|e| Error::InvalidArgument {
+    static INSTALLED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    let failed = |reason: String| Error::InvalidArgument {
         reason: format!(
-            "cannot install the signal handler that cleans up interrupted outputs: {e}"
+            "cannot install the signal handler that cleans up interrupted outputs: {reason}"
         ),
-    })
+    };
+    if INSTALLED.swap(true, std::sync::atomic::Ordering::SeqCst) {
+        return Err(failed("it is installed already".into()));
+    }
+    #[cfg(unix)]
+    {
+        use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
+        let mut signals = signal_hook::iterator::Signals::new([SIGINT, SIGTERM, SIGHUP])
+            .map_err(|e| failed(e.to_string()))?;
+        std::thread::Builder::new()
+            .name("signals".into())
+            .spawn(move || {
+                if let Some(signal) = signals.forever().next() {
+                    exit_interrupted(program, 128 + signal);
+                }
+            })
+            .map_err(|e| failed(e.to_string()))?;
+    }
+    #[cfg(not(unix))]
+    ctrlc::set_handler(move || exit_interrupted(program, 130))
+        .map_err(|e| failed(e.to_string()))?;
+    Ok(())
+}
+
+/// What the handler of [`remove_unfinished_outputs_on_signal`] does: removes the unfinished
+/// outputs, says so as `program` and exits with `code`.
+fn exit_interrupted(program: &str, code: i32) -> ! {
+    let removed = remove_unfinished_outputs();
+    // Best effort: a closed stderr must not keep the handler from exiting (`eprintln!` would
+    // panic the handler's thread).
+    let _ = writeln!(
+        std::io::stderr(),
+        "{program}: interrupted; removed {removed} unfinished output file(s)"
+    );
+    std::process::exit(code);
 }
 
 /// Writes `bytes` to `path` atomically (see the [module docs](self)).
