@@ -287,11 +287,12 @@ pub fn warn_if_far(pred: &Predictor, x: &[f64]) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Says once, on stderr, that lookups read the sidecar `side` (every command that reads one):
-/// its f32 transformed values move results by ~1e-6 relative, so an output that changes after
-/// `predict --sidecar` has a visible cause.
+/// Logs (info, `-v`) that lookups read the sidecar `side` (every command that reads one): its
+/// f32 transformed values move results by ~1e-6 relative, so an output that changes after
+/// `predict --sidecar` has a visible cause. Not a progress message: opening it reads only its
+/// header, and errors in its values name it anyway.
 fn announce_sidecar(side: &Path) {
-    errln!(
+    tracing::info!(
         "reading the sidecar {} (transformed values in f32: ~1e-6 relative)",
         side.display()
     );
