@@ -81,9 +81,9 @@ fn run(cli: &Cli) -> anyhow::Result<()> {
             let results = xtask::run(&config, &out)
                 .with_context(|| format!("pipeline {}", path.display()))?;
             eprintln!(
-                "pipeline {}: {} materials, log-likelihood {:.6e}, {:.1} s; report {}",
+                "pipeline {}: {}, log-likelihood {:.6e}, {:.1} s; report {}",
                 results.name,
-                results.data.n_materials,
+                xtask::report::quantity(results.data.n_materials, "material"),
                 results.fit.log_likelihood,
                 results.total_seconds,
                 out.join("report.md").display()

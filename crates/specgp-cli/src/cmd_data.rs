@@ -4,6 +4,7 @@ use std::fs::File;
 use std::io::{Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
+use crate::console::quantity;
 use anyhow::{Context, bail};
 use brdf_io::store::{Compression, Dtype};
 use brdf_io::{AngularGrid, Channels, ImportReport, Store, StoreInfo, StoreOptions, StoreWriter};
@@ -197,11 +198,11 @@ fn import_each(
     // Status goes to stderr like every command's (stdout is for machine-readable output).
     errln!("total: {total}");
     errln!(
-        "wrote {}: {} materials, grid {}, {} channels, D = {}",
+        "wrote {}: {}, grid {}, {}, D = {}",
         store.out.display(),
-        header.n_materials(),
+        quantity(header.n_materials(), "material"),
         header.grid,
-        header.channels.len(),
+        quantity(header.channels.len(), "channel"),
         header.d
     );
     Ok(())
@@ -595,10 +596,10 @@ fn model_info(args: &InfoArgs) -> anyhow::Result<()> {
     outln!("dataset        {} ({dataset})", ds_path.display());
     outln!("checksum       {}", ds.checksum);
     outln!(
-        "data           {} materials, grid {}, {} channels, D {} ({} with data)",
-        ds.n_materials,
+        "data           {}, grid {}, {}, D {} ({} with data)",
+        quantity(ds.n_materials, "material"),
         ds.grid,
-        ds.channels.len(),
+        quantity(ds.channels.len(), "channel"),
         ds.d,
         ds.d_effective
     );

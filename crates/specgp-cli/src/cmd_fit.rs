@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
+use crate::console::quantity;
 use anyhow::Context;
 use gplvm::{FitParams, Model, OptimizerKind};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -138,9 +139,9 @@ pub fn fit(args: &FitArgs) -> anyhow::Result<()> {
     model.save(&args.out)?;
     let f = &model.fit;
     errln!(
-        "fitted {} materials, q = {}, transform {}: log-likelihood {:.6e} (PCA start {:.6e}), \
+        "fitted {}, q = {}, transform {}: log-likelihood {:.6e} (PCA start {:.6e}), \
          |grad| {:.2e}, {} evaluations, Gram pass {:.2} s, optimiser {:.3} s -> {}",
-        model.materials.len(),
+        quantity(model.materials.len(), "material"),
         model.latent_dim,
         model.transform,
         f.log_likelihood,

@@ -5,6 +5,7 @@ use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
+use crate::console::quantity;
 use anyhow::{Context, bail};
 use brdf_io::Channels;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -584,8 +585,11 @@ pub fn evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
     let mut table = crate::console::table_output(args.json.as_deref());
     writeln!(
         table,
-        "{} materials, transform {}, q = {}, Eq. 22 RMSE (divided by {} angular cells)",
-        ev.n_materials, ev.transform, ev.latent_dim, ev.n_angles
+        "{}, transform {}, q = {}, Eq. 22 RMSE (divided by {} angular cells)",
+        quantity(ev.n_materials, "material"),
+        ev.transform,
+        ev.latent_dim,
+        ev.n_angles
     )?;
     writeln!(
         table,

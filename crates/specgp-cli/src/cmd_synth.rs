@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
+use crate::console::quantity;
 use anyhow::Context as _;
 use brdf_io::store::{Compression, Dtype};
 use brdf_io::{AngularGrid, Channels, StoreOptions};
@@ -81,11 +82,11 @@ pub fn synth(args: &SynthArgs) -> anyhow::Result<()> {
     let bytes = brdf_io::output::output_len(&args.out)
         .map_or_else(|| "size unknown".to_owned(), |b| format!("{b} bytes"));
     errln!(
-        "wrote {}: {} materials, grid {}, {} channels, D = {}, {}, {:.1} s",
+        "wrote {}: {}, grid {}, {}, D = {}, {}, {:.1} s",
         args.out.display(),
-        header.n_materials(),
+        quantity(header.n_materials(), "material"),
         args.grid,
-        channels.len(),
+        quantity(channels.len(), "channel"),
         args.grid.len() * channels.len(),
         bytes,
         start.elapsed().as_secs_f64()

@@ -980,7 +980,7 @@ fn imports_of_real_data_and_a_broken_network() {
     // A real RGL file through `import rgl`.
     let bsdf = shared.join("rgl-rgb/paper_white_rgb.bsdf");
     let bsdf = bsdf.to_str().unwrap();
-    specgp(
+    let (_, err) = specgp_outputs(
         &[
             "import",
             "rgl",
@@ -994,6 +994,11 @@ fn imports_of_real_data_and_a_broken_network() {
     );
     let store = brdf_io::store::Store::open(d.join("rgl.sbrdf")).unwrap();
     assert_eq!(store.names(), ["paper_white_rgb"]);
+    // One material is "1 material" (it was "1 materials").
+    assert!(
+        err.contains("wrote rgl.sbrdf: 1 material, grid 8,8,16, 3 channels, D = "),
+        "{err}"
+    );
 }
 
 /// A run ended by SIGTERM or SIGINT removes its temporary output and exits with 128 + the
