@@ -25,8 +25,9 @@ pub struct PredictArgs {
         required_unless_present = "lerp"
     )]
     pub at: Option<String>,
-    /// The paper's linear interpolation NAME1,NAME2,A: a y1 + (1 - a) y2 of two training
-    /// materials, in the model's transformed space. Names may contain commas (A, a number, is
+    /// Linear interpolation NAME1,NAME2,A: a y1 + (1 - a) y2 of two training materials'
+    /// values in the model's transformed space (the paper's blend of BRDF values for a `raw`
+    /// model, a blend of log values for a `log` one). Names may contain commas (A, a number, is
     /// the last field; the rest must split into two of the model's names in exactly one way);
     /// a name is matched as given, else without spaces at its ends.
     #[arg(long)]

@@ -304,6 +304,12 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
         // Thumbnails are lazy predictions: read an existing sidecar like `render` does.
         let pred = crate::cmd_predict::with_existing_sidecar(pred)?;
         let needed = render::colour::needed_wavelengths(pred.channels(), opts.sphere.illuminant)?;
+        // Thumbnails where the materials explain less than a tenth of the prior variance are
+        // framed as far from every material (as `predict` warns about such points).
+        let opts = render::MapOptions {
+            far_variance: Some(predict::PointSupport::FAR * pred.prior_variance() * scale),
+            ..opts
+        };
         let variance = |p: [f64; 2]| -> render::Result<f64> {
             pred.variance(&full(p))
                 .map(|v| v * scale)
