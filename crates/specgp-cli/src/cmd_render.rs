@@ -117,11 +117,23 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
         opts.illuminant,
         crate::cmd_sample::predictor_kind(args.smooth),
     )?;
+    // The studio and per-pixel environments integrate hundreds of directions per pixel (a
+    // 256 px studio sphere takes 2-3 s, 1024 px about a minute): a spinner on a terminal.
+    let slow = matches!(
+        env_mode,
+        render::EnvMode::Studio | render::EnvMode::PerPixel
+    ) || args.size > 1024;
+    let spinner = indicatif::ProgressBar::new_spinner();
+    if slow {
+        spinner.set_message(format!("rendering {} ({} px)", args.source, args.size));
+        spinner.enable_steady_tick(std::time::Duration::from_millis(120));
+    }
     let img = match &plane {
         None => render::render_sphere(source.as_ref(), &opts),
         Some(p) => render::render_plane(source.as_ref(), &opts, p),
-    }
-    .with_context(|| format!("rendering {}", args.source))?;
+    };
+    spinner.finish_and_clear();
+    let img = img.with_context(|| format!("rendering {}", args.source))?;
     finish(args, img, start)
 }
 
