@@ -610,6 +610,48 @@ pub fn evaluate(args: &EvaluateArgs) -> anyhow::Result<()> {
                 .map_or(String::new(), |k| format!("{k}/{}", ev.n_materials))
         )?;
     }
+    // Per material (the contract's "RMSE per material"): BRDF-space RMSE of each method.
+    let loo_methods: Vec<String> = ev
+        .loo
+        .as_ref()
+        .and_then(|rows| rows.first())
+        .map(|r| {
+            r.methods
+                .iter()
+                .map(|m| format!("loo {}", m.method.name()))
+                .collect()
+        })
+        .unwrap_or_default();
+    let width = ev
+        .reconstruction
+        .iter()
+        .map(|r| r.name.len())
+        .max()
+        .unwrap_or(0)
+        .max("material".len());
+    write!(table, "\nper material, brdf RMSE\n{:<width$}", "material")?;
+    for head in ["exact", "smooth"]
+        .iter()
+        .copied()
+        .chain(loo_methods.iter().map(String::as_str))
+    {
+        write!(table, " {head:>16}")?;
+    }
+    writeln!(table)?;
+    for r in &ev.reconstruction {
+        write!(
+            table,
+            "{:<width$} {:>16.5e} {:>16.5e}",
+            r.name, r.exact_rmse, r.smooth_rmse
+        )?;
+        let loo = ev.loo.iter().flatten().find(|row| row.name == r.name);
+        if let Some(row) = loo {
+            for m in &row.methods {
+                write!(table, " {:>16.5e}", m.brdf_rmse)?;
+            }
+        }
+        writeln!(table)?;
+    }
     if args.loo {
         writeln!(
             table,

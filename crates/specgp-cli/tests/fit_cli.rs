@@ -692,9 +692,26 @@ fn dash_outputs_write_into_redirected_standard_output() {
     assert_eq!(std::fs::read(d.join("q3.npy")).unwrap(), q);
     let perr = std::fs::read_to_string(d.join("perr.txt")).unwrap();
     assert!(perr.starts_with("variance "), "{perr}");
-    let json = specgp(&["evaluate", "m.toml", "--json", "-"], d);
+    let (json, table) = specgp_outputs(&["evaluate", "m.toml", "--json", "-"], d);
     let v: serde_json::Value = serde_json::from_str(&json).expect("standard output is the JSON");
     assert_eq!(v["n_materials"], 51, "{json}");
+    // The table (on standard error here) gives every material's RMSE, as the JSON does.
+    let rows = v["reconstruction"].as_array().unwrap();
+    assert_eq!(rows.len(), 51);
+    for r in rows {
+        let name = r["name"].as_str().unwrap();
+        let line = (table.lines())
+            .find(|l| l.split_whitespace().next() == Some(name))
+            .unwrap_or_else(|| panic!("no row for {name}: {table}"));
+        let field = |k: usize| -> f64 { line.split_whitespace().nth(k).unwrap().parse().unwrap() };
+        for (k, key) in [(1, "exact_rmse"), (2, "smooth_rmse")] {
+            let want = r[key].as_f64().unwrap();
+            assert!(
+                (field(k) - want).abs() <= 1e-5 * want.abs(),
+                "{key}: {line}"
+            );
+        }
+    }
     assert!(!d.join("-").exists());
 }
 
