@@ -422,13 +422,20 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
         (Some(x), _) => {
             warn_if_far(&pred, &x)?;
             if args.variance {
+                // Per transformed value first (the units of the data), then the share of the
+                // prior variance (how much the materials constrain the point).
                 let v = pred.variance_of(&x, kind)?;
+                let per_value = v * pred.model().data_scale;
+                let share = 100.0 * v / pred.prior_variance();
+                // Three significant digits (0.0312 %, 45.3 %, 100 %).
+                let digits = (2.0 - share.log10().floor()).clamp(0.0, 6.0) as usize;
                 let line = format!(
-                    "variance {v:e} of the {kind} predictor (model units: centred transformed \
-                     data / sqrt(data_scale)); {:e} per transformed value (std {:e}, transform {})",
-                    v * pred.model().data_scale,
-                    (v * pred.model().data_scale).sqrt(),
-                    pred.transform()
+                    "variance {per_value:e} per transformed value of the {kind} predictor (std \
+                     {:e}, transform {}); {share:.digits$} % of the prior variance (in model \
+                     units {v:e} of {:e})",
+                    per_value.sqrt(),
+                    pred.transform(),
+                    pred.prior_variance()
                 );
                 // On standard error when the .npy goes to standard output (`--out -`).
                 if args.out == Path::new(brdf_io::output::STDOUT) {

@@ -820,6 +820,14 @@ fn unwritable_standard_streams_neither_panic_nor_lose_outputs() {
     };
     let variance = specgp(&predict("ref.npy"), d);
     assert!(variance.starts_with("variance "), "{variance}");
+    // The share of the prior variance, in (0, 100] % between materials.
+    let share: f64 = variance
+        .split(" % of the prior variance")
+        .next()
+        .and_then(|head| head.rsplit(' ').next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("{variance}"));
+    assert!(share > 0.0 && share <= 100.0, "{variance}");
     specgp(&["evaluate", "m.toml", "--json", "ref-ev.json"], d);
     let locate = |json: &'static str| ["locate", "m.toml", "data.sbrdf:metal_gold", "--json", json];
     specgp(&locate("ref-loc.json"), d);
