@@ -104,7 +104,9 @@ pub fn open_source(
         return Ok(Box::new(m));
     }
     let path = Path::new(spec);
-    match path.extension().and_then(|e| e.to_str()) {
+    // Any case: `PW.BSDF` is an RGL file too.
+    let ext = path.extension().and_then(|e| e.to_str());
+    match ext.map(str::to_ascii_lowercase).as_deref() {
         Some("bsdf") => {
             let mut bsdf = brdf_io::rgl::RglBsdf::open(path)?;
             if let Some(ch) = wavelengths {

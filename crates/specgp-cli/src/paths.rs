@@ -18,13 +18,15 @@ pub fn source_file(source: &str) -> PathBuf {
 }
 
 /// Refuses an output name whose extension says another format than the one written (`render
-/// --out x.jpg` would write PNG data under a JPEG name): `out` must end in `.ext` (any case)
-/// or be `-` (standard output). `what` names the format in the message.
+/// --out x.jpg` would write PNG data under a JPEG name): `out` must end in `.ext` (any case),
+/// be `-` (standard output) or an existing special file (`/dev/null`, a FIFO: written into as
+/// it is, see `brdf_io::output`). `what` names the format in the message.
 pub fn ensure_extension(out: &Path, ext: &str, what: &str) -> anyhow::Result<()> {
     let matches = out
         .extension()
         .is_some_and(|e| e.to_string_lossy().eq_ignore_ascii_case(ext));
-    if !matches && out != Path::new(brdf_io::output::STDOUT) {
+    let special = std::fs::metadata(out).is_ok_and(|m| !m.is_file() && !m.is_dir());
+    if !matches && !special && out != Path::new(brdf_io::output::STDOUT) {
         bail!(
             "{}: the output is {what}; its name must end in .{ext} (or be - for standard output)",
             out.display()
@@ -198,6 +200,8 @@ mod tests {
         assert!(ensure_extension(Path::new("a/b.png"), "png", "a PNG image").is_ok());
         assert!(ensure_extension(Path::new("B.PNG"), "png", "a PNG image").is_ok());
         assert!(ensure_extension(Path::new("-"), "png", "a PNG image").is_ok());
+        #[cfg(unix)]
+        assert!(ensure_extension(Path::new("/dev/null"), "png", "a PNG image").is_ok());
         for bad in ["x.jpg", "x", "png"] {
             let e = ensure_extension(Path::new(bad), "png", "a PNG image")
                 .unwrap_err()

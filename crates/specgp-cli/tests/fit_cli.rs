@@ -1005,6 +1005,20 @@ fn imports_of_real_data_and_a_broken_network() {
     // A real RGL file through `import rgl`.
     let bsdf = shared.join("rgl-rgb/paper_white_rgb.bsdf");
     let bsdf = bsdf.to_str().unwrap();
+    // A SOURCE's extension in any case; a special file as output whatever its name.
+    std::fs::copy(bsdf, d.join("PW.BSDF")).unwrap();
+    std::fs::write(d.join("dirs1.csv"), "0.3,0,0.954,-0.3,0,0.954\n").unwrap();
+    let sample = |source: &str, out: &str| {
+        specgp(&["sample", source, "--dirs", "dirs1.csv", "--out", out], d);
+    };
+    sample("PW.BSDF", "pw.csv");
+    sample(bsdf, "pw-lower.csv");
+    assert_eq!(
+        std::fs::read(d.join("pw.csv")).unwrap(),
+        std::fs::read(d.join("pw-lower.csv")).unwrap()
+    );
+    #[cfg(unix)]
+    sample("PW.BSDF", "/dev/null");
     let (_, err) = specgp_outputs(
         &[
             "import",
