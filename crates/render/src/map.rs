@@ -158,8 +158,10 @@ pub fn latent_map(
         {
             return Err(Error::InvalidArgument {
                 reason: format!(
-                    "thumbnails: {k} per axis (at most {MAX_THUMBNAILS}) of {px} px (8..=1024), \
-                     a panel of at most {MAX_MAP_PIXELS} px"
+                    "thumbnails: {k} per axis of {px} px make a panel of {} px; allowed are at \
+                     most {MAX_THUMBNAILS} per axis, 8..=1024 px each, a panel of at most \
+                     {MAX_MAP_PIXELS} px",
+                    k * px
                 ),
             });
         }

@@ -156,6 +156,10 @@ fn path_comparison_and_map_draw() {
             .unwrap_err()
             .to_string();
         assert!(err.contains("8192"), "{err}");
+        // The thumbnail case says how large the panel would be.
+        if bad.thumbnails == 64 {
+            assert!(err.contains("make a panel of 65536 px"), "{err}");
+        }
     }
     let map = latent_map(&points, &var, Some(&src), &mopts).unwrap();
     keep(&map, "map.png");
