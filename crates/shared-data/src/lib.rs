@@ -1,5 +1,6 @@
-//! The team's shared reference data for tests: `../shared/data` beside the project root (real
-//! RGL files, Neural-BRDF networks, CIE tables, measured spectra; see its `SOURCES.md`).
+//! The team's shared reference data for tests: `../shared/data` beside the project root, or the
+//! folder [`ROOT_VARIABLE`] names (real RGL files, Neural-BRDF networks, CIE tables, measured
+//! spectra; see its `SOURCES.md`).
 //!
 //! Tests that check against real data must not pass without it: a missing file **fails** the
 //! test with a message naming it. To run the tests on a machine without the folder on purpose,
@@ -11,9 +12,22 @@ use std::path::{Path, PathBuf};
 /// Environment variable that turns a missing shared file into a skipped test.
 pub const SKIP_VARIABLE: &str = "SPECGP_SKIP_SHARED_DATA";
 
-/// The shared data folder (it may not exist).
+/// Environment variable naming the shared data folder, for a checkout that does not sit beside
+/// `shared/` (default: `../shared/data` beside the project root).
+pub const ROOT_VARIABLE: &str = "SPECGP_SHARED_DATA";
+
+/// The shared data folder (it may not exist): [`ROOT_VARIABLE`] when set and not empty, else
+/// `../shared/data` beside the project root.
 pub fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data")
+    root_from(std::env::var_os(ROOT_VARIABLE))
+}
+
+/// [`root`] for the value `variable` of [`ROOT_VARIABLE`].
+fn root_from(variable: Option<std::ffi::OsString>) -> PathBuf {
+    match variable {
+        Some(v) if !v.is_empty() => PathBuf::from(v),
+        _ => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"),
+    }
 }
 
 /// The file or folder `relative` under the shared data folder. Missing: `None` when
@@ -32,7 +46,7 @@ pub fn path(relative: &str) -> Option<PathBuf> {
     }
     panic!(
         "{} is absent: this test needs the shared reference data (../shared/data beside the \
-         project root); set {SKIP_VARIABLE}=1 to skip such tests",
+         project root, or where {ROOT_VARIABLE} says); set {SKIP_VARIABLE}=1 to skip such tests",
         p.display()
     );
 }
@@ -56,6 +70,14 @@ mod tests {
         let t = read_to_string("SOURCES.md").unwrap();
         assert!(!t.is_empty());
         assert!(path("rgl-rgb").unwrap().is_dir());
+    }
+
+    #[test]
+    fn the_root_variable_moves_the_folder() {
+        let default = root_from(None);
+        assert!(default.ends_with("shared/data"), "{}", default.display());
+        assert_eq!(root_from(Some("".into())), default);
+        assert_eq!(root_from(Some("/data/x".into())), PathBuf::from("/data/x"));
     }
 
     #[test]
