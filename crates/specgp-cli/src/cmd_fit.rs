@@ -26,10 +26,12 @@ pub struct FitArgs {
     #[arg(long)]
     optimizer: Option<OptimizerKind>,
     /// RBF length-scale l [default: 1].
-    #[arg(long)]
+    // Values may start with '-' (then refused by the fit's own check, not by clap with advice
+    // to write `-- -1`).
+    #[arg(long, allow_hyphen_values = true)]
     lengthscale: Option<f64>,
     /// Noise mu [default: 0.0001].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     noise: Option<f64>,
     /// Learn amplitude and noise with the latent points (the length-scale stays: the latent
     /// points' own scale makes it redundant, docs/CONVENTIONS.md).

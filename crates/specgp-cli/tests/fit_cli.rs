@@ -218,6 +218,23 @@ fn fit_errors_name_the_file() {
         err.contains("zero.toml") && err.contains("latent_dim = 0: must be in 1..=64"),
         "{err}"
     );
+    // A negative flag value is the fit's error, not clap's advice to write `-- -1e-4`.
+    for (flag, value, says) in [
+        (
+            "--noise",
+            "-1e-4",
+            "noise = -0.0001: must be finite and > 0",
+        ),
+        (
+            "--lengthscale",
+            "-1",
+            "lengthscale = -1: must be finite and > 0",
+        ),
+    ] {
+        let args = ["fit", "missing.sbrdf", "--out", "m.toml", flag, value];
+        let err = specgp_fails(&args, dir.path());
+        assert!(err.contains(says), "{err}");
+    }
     // A dataset path the model file cannot record (not UTF-8) is refused before the fit.
     #[cfg(unix)]
     {
