@@ -321,7 +321,7 @@ pub fn latent_map(
     );
     if !opts.caption.is_empty() {
         let caption = font::fit(&opts.caption, width.saturating_sub(l as usize + 4), 1);
-        img.text(l, 20, &caption, 1, [0.3; 3]);
+        img.text(l, 20, &caption, 1, NOTE_GREY);
     }
     // Colour bar: "0", a 120-pixel ramp and the largest standard deviation, from 130 px right
     // of the frame's corner; on a map too narrow for that, from the corner with a shorter
@@ -397,7 +397,7 @@ pub fn latent_map(
         let full = format!("{left_out} OF {first_predicted} LABELS LEFT OUT");
         let note = first_fitting([format!("{full}: NO ROOM AT THIS SIZE"), full], text_room)
             .unwrap_or_else(|| format!("{left_out} LEFT OUT"));
-        img.text(l, b + 50, &note, 1, [0.3; 3]);
+        img.text(l, b + 50, &note, 1, NOTE_GREY);
     }
     // Thumbnails over the points' bounding box (drawn on the map), not the whole square plot:
     // the square's empty margins are far from every material, where the GP's extrapolation
@@ -450,7 +450,7 @@ pub fn latent_map(
                     room,
                 );
                 if let Some(note) = note {
-                    img.text(ox, y, &note, 1, [0.3; 3]);
+                    img.text(ox, y, &note, 1, NOTE_GREY);
                 }
             }
         }
@@ -576,6 +576,10 @@ impl LabelSpot {
         }
     }
 }
+
+/// Linear RGB of the map's secondary text (the caption and the notes): a dark grey, 89 of 255
+/// in sRGB (0.3, 149 of 255, was hard to read on white).
+const NOTE_GREY: [f64; 3] = [0.1; 3];
 
 /// Half the side of the square a dot keeps free of labels, in pixels.
 const DOT_CLEARANCE: f64 = 5.5;
