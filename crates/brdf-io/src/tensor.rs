@@ -319,6 +319,20 @@ impl Cursor<'_> {
     }
 }
 
+/// What a file that is not a tensor file is, when its first bytes say so (a file renamed or
+/// given in the wrong place): a specgp dataset store, a NumPy array or a PNG image.
+fn known_format(bytes: &[u8]) -> Option<&'static str> {
+    if bytes.starts_with(&crate::store::MAGIC) {
+        Some("a specgp dataset store, .sbrdf")
+    } else if bytes.starts_with(b"\x93NUMPY") {
+        Some("a NumPy array, .npy")
+    } else if bytes.starts_with(b"\x89PNG") {
+        Some("a PNG image")
+    } else {
+        None
+    }
+}
+
 impl TensorFile {
     /// Reads and validates the tensor file at `path`.
     pub fn open(path: impl AsRef<Path>) -> Result<Self> {
@@ -339,13 +353,15 @@ impl TensorFile {
             pos: 0,
             path,
         };
-        let magic = cur.take(12, "the magic bytes")?;
-        if magic != MAGIC {
+        if !bytes.starts_with(MAGIC) {
+            let what = known_format(bytes).map_or_else(String::new, |w| format!(" (it is {w})"));
             return Err(bad(format!(
-                "not a tensor file: the first 12 bytes are {:?}, expected \"tensor_file\\0\"",
-                String::from_utf8_lossy(magic)
+                "not a tensor file{what}: the first 12 bytes are {:?}, expected \
+                 \"tensor_file\\0\"",
+                String::from_utf8_lossy(&bytes[..bytes.len().min(12)])
             )));
         }
+        cur.take(12, "the magic bytes")?;
         let version = cur.take(2, "the version")?;
         if version != [1, 0] {
             return Err(bad(format!(
@@ -594,6 +610,20 @@ mod tests {
             e.contains("x.bsdf") && e.contains("not a tensor file"),
             "{e}"
         );
+        // A file of another known format is named as such.
+        let mut store = crate::store::MAGIC.to_vec();
+        store.extend_from_slice(&[0; 32]);
+        let e = TensorFile::from_bytes(&store, "s.bsdf")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("not a tensor file (it is a specgp dataset store, .sbrdf)"),
+            "{e}"
+        );
+        let e = TensorFile::from_bytes(b"tens", "short.bsdf")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not a tensor file:"), "{e}");
         let mut bad_version = good.clone();
         bad_version[12] = 2;
         let e = TensorFile::from_bytes(&bad_version, "x.bsdf")
