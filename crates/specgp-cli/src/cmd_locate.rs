@@ -219,9 +219,16 @@ pub fn locate_command(args: &LocateArgs) -> anyhow::Result<()> {
         pred.transform(),
         pred.latent_dim()
     )?;
+    // Name columns as wide as their longest entry (at least 28), so long names keep the
+    // columns aligned.
+    let wide = |names: &mut dyn Iterator<Item = usize>| names.max().unwrap_or(0).max(28);
+    let (w1, w2) = (
+        wide(&mut located.iter().map(|l| l.name.chars().count())),
+        wide(&mut located.iter().map(|l| l.nearest.chars().count())),
+    );
     writeln!(
         table,
-        "{:<28} {:>11} {:>11}  {:<28} {:>11} {:>11} {:>8}  point",
+        "{:<w1$} {:>11} {:>11}  {:<w2$} {:>11} {:>11} {:>8}  point",
         "target",
         "brdf rmse",
         "model rmse",
@@ -233,7 +240,7 @@ pub fn locate_command(args: &LocateArgs) -> anyhow::Result<()> {
     for l in &located {
         writeln!(
             table,
-            "{:<28} {:>11.4e} {:>11.4e}  {:<28} {:>11.4e} {:>11.4e} {:>8.3}  {}",
+            "{:<w1$} {:>11.4e} {:>11.4e}  {:<w2$} {:>11.4e} {:>11.4e} {:>8.3}  {}",
             l.name,
             l.brdf_rmse,
             l.model_rmse,

@@ -2060,6 +2060,26 @@ fn locate_places_real_files_and_store_materials_and_explains_mismatches() {
     // its own point, where the exact predictor returns it.
     let (table, _) = specgp_outputs(&["locate", "m.toml", &new, "--json", "a.json"], d);
     assert!(table.contains("satin_rosaline_rgb"), "{table}");
+    // A name longer than the usual column keeps the columns aligned.
+    let long = "satin_rosaline_with_a_name_longer_than_the_column_rgb.bsdf";
+    std::fs::copy(&new, d.join(long)).unwrap();
+    let (table, _) = specgp_outputs(&["locate", "m.toml", long, "--json", "long.json"], d);
+    let nearest = serde_json::from_str::<serde_json::Value>(
+        &std::fs::read_to_string(d.join("long.json")).unwrap(),
+    )
+    .unwrap()["locations"][0]["nearest"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    let header = table.lines().find(|l| l.starts_with("target")).unwrap();
+    let row = (table.lines())
+        .find(|l| l.starts_with(long.trim_end_matches(".bsdf")))
+        .unwrap_or_else(|| panic!("{table}"));
+    assert_eq!(
+        header.find("closest material"),
+        row.find(&format!("  {nearest} ")).map(|i| i + 2),
+        "{table}"
+    );
     specgp(
         &[
             "locate",
