@@ -112,13 +112,19 @@ pub fn dot<T: Copy + Into<f64>>(a: &[f64], b: &[T]) -> f64 {
     (part[0] + part[1]) + (part[2] + part[3]) + rest
 }
 
+/// Whether a computed sum of squares is usable as it is: finite and far enough above the
+/// subnormal range that no square in it underflowed to matter (else [`norm`]'s rescaled path).
+pub fn is_safe_sum_of_squares(squares: f64) -> bool {
+    squares.is_finite() && squares >= f64::MIN_POSITIVE / f64::EPSILON
+}
+
 /// Euclidean norm of `v` that neither overflows nor underflows: `sqrt(dot(v, v))` (the same
 /// bits) when that sum of squares is a normal number, otherwise the norm of `v` divided by its
 /// largest magnitude, times that magnitude. NaN if `v` has a NaN, infinity if it has an
 /// infinity.
 pub fn norm(v: &[f64]) -> f64 {
     let squares = dot(v, v);
-    if squares.is_nan() || (squares.is_finite() && squares >= f64::MIN_POSITIVE / f64::EPSILON) {
+    if squares.is_nan() || is_safe_sum_of_squares(squares) {
         return squares.sqrt();
     }
     let largest = v.iter().fold(0.0f64, |m, x| m.max(x.abs()));

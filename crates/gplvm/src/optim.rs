@@ -310,7 +310,7 @@ fn two_loop_with(
             // s'y / y'y; y'y overflows for gradients near 1e154 (and underflows near 1e-154):
             // then (s'y / |y|) / |y| with the safe norm (gamma was 0, the direction degenerate).
             let (sy, yy) = (dot(s, y), dot(y, y));
-            if yy.is_finite() && yy >= f64::MIN_POSITIVE / f64::EPSILON {
+            if gp_core::fastmath::is_safe_sum_of_squares(yy) {
                 sy / yy
             } else {
                 let ny = norm(y);
