@@ -942,6 +942,27 @@ pub struct PlaneOptions {
     pub distance: f64,
 }
 
+/// How far (degrees) [`PlaneOptions::sheen_light`] sits short of the mirror direction of the
+/// view at the sample's centre: close enough that glossy samples show their forward-scattering
+/// sheen and Fresnel brightening across the sample, far enough that the specular peak of the
+/// embedded metals and car paints does not clip to white at exposure 0 (at the mirror direction
+/// itself, and 12 degrees short of it, gold renders as a white band).
+pub const PLANE_SHEEN_OFFSET_DEGREES: f64 = 26.0;
+
+impl PlaneOptions {
+    /// The light the plane preview uses unless told otherwise, as `(theta, phi)` degrees in
+    /// the camera frame (see [`SphereOptions::light`]): behind the sample, in the plane of the
+    /// view and the normal, [`PLANE_SHEEN_OFFSET_DEGREES`] short of the mirror direction of
+    /// the view at the sample's centre (theta = 2 view - 26, at least 0; phi = 90, up). A
+    /// light in front of a grazing sample, like the sphere's (45, 135), shows no highlight.
+    pub fn sheen_light(&self) -> (f64, f64) {
+        (
+            (2.0 * self.view - PLANE_SHEEN_OFFSET_DEGREES).clamp(0.0, 180.0),
+            90.0,
+        )
+    }
+}
+
 impl Default for PlaneOptions {
     /// A grazing view of 78 degrees from 6 half-sides away (the view angle spans ~70-83
     /// degrees from the near to the far edge).
@@ -1798,6 +1819,59 @@ mod tests {
         assert!((t.at(0.0)[0] - theta_max).abs() < 1e-12);
         assert!(
             EnvTable::theta(1, n, theta_max) > theta_max - EnvTable::theta(n - 2, n, theta_max)
+        );
+    }
+
+    /// The plane's own light shows a glossy sample's sheen, which the sphere's light (in
+    /// front of a grazing sample) cannot: brighter overall, and brightest towards the near
+    /// (lower) edge, whose view angle is closest to the light's mirror direction.
+    #[test]
+    fn sheen_light_shows_a_glossy_plane_highlight() {
+        let plane = PlaneOptions::default();
+        assert_eq!(plane.sheen_light(), (130.0, 90.0));
+        let near_normal = PlaneOptions {
+            view: 5.0,
+            ..plane.clone()
+        };
+        assert_eq!(near_normal.sheen_light(), (0.0, 90.0));
+        let glossy = Glossy(0.1, 1.0, 100.0);
+        let render = |light| {
+            let opts = SphereOptions {
+                size: 64,
+                light,
+                ..SphereOptions::default()
+            };
+            render_plane(&glossy, &opts, &plane).unwrap()
+        };
+        let (sheen, front) = (render(plane.sheen_light()), render((45.0, 135.0)));
+        let luminance = |img: &Image| mean_colour(img).0.iter().sum::<f64>();
+        assert!(
+            luminance(&sheen) > 3.0 * luminance(&front),
+            "{} vs {}",
+            luminance(&sheen),
+            luminance(&front)
+        );
+        // Mean over the covered pixels of a row.
+        let row = |img: &Image, y: usize| {
+            let (mut sum, mut n) = (0.0, 0);
+            for x in 0..64 {
+                if img.alpha[y * 64 + x] >= 1.0 {
+                    sum += img.get(x, y).iter().sum::<f64>();
+                    n += 1;
+                }
+            }
+            sum / n.max(1) as f64
+        };
+        let rows: Vec<usize> = (0..64)
+            .filter(|&y| (0..64).any(|x| sheen.alpha[y * 64 + x] >= 1.0))
+            .collect();
+        let (top, bottom) = (rows[0], rows[rows.len() - 1]);
+        assert!(bottom - top >= 6, "rows {top}..{bottom}");
+        assert!(
+            row(&sheen, bottom) > 1.5 * row(&sheen, top),
+            "near {} far {}",
+            row(&sheen, bottom),
+            row(&sheen, top)
         );
     }
 

@@ -24,9 +24,11 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 256, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=render::map::MAX_MAP_PIXELS as u64))]
     pub size: usize,
     /// Direction of the light THETA,PHI in degrees: THETA from the view axis, PHI from the
-    /// right towards up.
-    #[arg(long, default_value = "45,135")]
-    pub light: String,
+    /// right towards up. Default: 45,135 (upper left) for a sphere; for a plane, behind the
+    /// sample 26 degrees short of the mirror direction of the view at its centre (130,90 at
+    /// --view 78), so that glossy samples show their sheen.
+    #[arg(long)]
+    pub light: Option<String>,
     /// Illuminant of spectral sources: D65, D50 or A. Colours are white-balanced to D65 (Bradford),
     /// as a camera would: a white material looks white under each; coloured ones shift.
     #[arg(long, default_value = "D65")]
@@ -105,7 +107,11 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
     };
     let opts = SphereOptions {
         size: args.size,
-        light: parse_light(&args.light)?,
+        light: match (&args.light, &plane) {
+            (Some(light), _) => parse_light(light)?,
+            (None, Some(plane)) => plane.sheen_light(),
+            (None, None) => SphereOptions::default().light,
+        },
         illuminant: args.illuminant.parse::<Illuminant>()?,
         exposure: args.exposure,
         env_mode,
@@ -389,7 +395,7 @@ mod tests {
             source: file.to_str().unwrap().into(),
             out: out.clone(),
             size: 32,
-            light: "45,135".into(),
+            light: None,
             illuminant: "D65".into(),
             exposure: 0.0,
             background: "0.5".into(),
@@ -423,6 +429,21 @@ mod tests {
             px[i] > px[i + 1] && px[i + 1] > px[i + 2],
             "{:?}",
             &px[i..i + 4]
+        );
+        // The plane's default light is its sheen light, not the sphere's (45,135) in front
+        // of the sample: the glossy paint's centre is brighter under it.
+        let sum = |p: &[u8]| p[..3].iter().map(|&c| c as u32).sum::<u32>();
+        let sheen = sum(&px[i..i + 4]);
+        render(&RenderArgs {
+            light: Some("45,135".into()),
+            ..plane.clone()
+        })
+        .unwrap();
+        let (_, _, front) = render::image::read_png_rgba8(&out).unwrap();
+        assert!(
+            sheen > sum(&front[i..i + 4]) + 30,
+            "{sheen} vs {:?}",
+            &front[i..i + 4]
         );
         for (field, bad) in [
             (
