@@ -426,6 +426,36 @@ pub fn latent_map(
             img.blit(th, ox + (i * ts) as i64, (margin + j * ts) as i64);
         }
         img.text(ox, 8, panel_title, 1, black);
+        // The latent coordinates of the spheres (to type as `render MODEL.toml@X1,X2,...`):
+        // X1 of each column above the panel, X2 of each row right of it; a label that would
+        // run into the previous one or off the image is left out.
+        let label_y = margin as i64 - 9;
+        let mut end = ox - 18;
+        img.text(end, label_y, "X1", 1, black);
+        end += font::text_width("X1", 1) as i64;
+        for (i, label) in cell_centre_labels(bx0, bx1, g).iter().enumerate() {
+            let w = font::text_width(label, 1) as i64;
+            let a = ox + (i * ts + ts / 2) as i64 - w / 2;
+            if a >= end + 6 && a + w <= width as i64 - 2 {
+                img.text(a, label_y, label, 1, black);
+                end = a + w;
+            }
+        }
+        if !opts.one_axis {
+            let x = ox + (g * ts) as i64 + 4;
+            let fits = |label: &str| x + font::text_width(label, 1) as i64 <= width as i64 - 2;
+            // Rows run from the top (largest X2) down.
+            let mut labels = cell_centre_labels(by0, by1, rows);
+            labels.reverse();
+            if fits("X2") && end + 6 <= x {
+                img.text(x, label_y, "X2", 1, black);
+            }
+            for (j, label) in labels.iter().enumerate() {
+                if fits(label) {
+                    img.text(x, (margin + j * ts + ts / 2) as i64 - 3, label, 1, black);
+                }
+            }
+        }
         if let Some(limit) = opts.far_variance {
             let orange = [1.0, 0.45, 0.0];
             let mut far = 0;
@@ -497,6 +527,34 @@ pub fn nice_ticks(lo: f64, hi: f64, target: usize) -> Vec<(f64, String)> {
                 format!("{v:.decimals$}")
             };
             (v, label)
+        })
+        .collect()
+}
+
+/// Labels of the centres of `n` equal cells across `[lo, hi]`, with two significant digits
+/// of the cell width (`-1, 1, 4` -> `-0.75 -0.25 0.25 0.75`); in exponent form (`1.2E5`)
+/// where plain digits would run long (values of 1e5 or more, or cells under 1e-4).
+pub fn cell_centre_labels(lo: f64, hi: f64, n: usize) -> Vec<String> {
+    let step = (hi - lo) / n.max(1) as f64;
+    let largest = lo.abs().max(hi.abs());
+    (0..n)
+        .map(|i| {
+            let v = lo + step * (i as f64 + 0.5);
+            if !(step > 0.0) || !v.is_finite() {
+                format!("{v}")
+            } else if largest >= 1e5 || step < 1e-4 {
+                let digits = (1.0 + largest.log10().floor() - step.log10().floor()).clamp(1.0, 8.0);
+                format!("{v:.*E}", digits as usize)
+            } else {
+                let decimals = (1.0 - step.log10().floor()).max(0.0) as usize;
+                let label = format!("{v:.decimals$}");
+                // No "-0.00" for a centre that rounds to zero.
+                if label.trim_start_matches(['-', '0', '.']).is_empty() {
+                    label.trim_start_matches('-').to_owned()
+                } else {
+                    label
+                }
+            }
         })
         .collect()
 }
@@ -849,6 +907,35 @@ impl Layout<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cell_centre_labels_tell_the_cells_apart() {
+        assert_eq!(
+            cell_centre_labels(-1.0, 1.0, 4),
+            ["-0.75", "-0.25", "0.25", "0.75"]
+        );
+        // The default map's box: cells 0.44 wide get two decimals.
+        assert_eq!(
+            cell_centre_labels(-1.4, 1.24, 6),
+            ["-1.18", "-0.74", "-0.30", "0.14", "0.58", "1.02"]
+        );
+        assert_eq!(cell_centre_labels(-1.0, 1.0, 3), ["-0.67", "0.00", "0.67"]);
+        assert_eq!(cell_centre_labels(-0.3, 0.3, 1), ["0.00"]);
+        assert_eq!(cell_centre_labels(0.0, 3e6, 3), ["5.0E5", "1.5E6", "2.5E6"]);
+        assert_eq!(
+            cell_centre_labels(1.0, 1.0 + 3e-6, 3),
+            ["1.00000050E0", "1.00000150E0", "1.00000250E0"]
+        );
+        for labels in [
+            cell_centre_labels(-1e-300, 1e-300, 5),
+            cell_centre_labels(123.0, 456.0, 7),
+            cell_centre_labels(-2e5, -1e5, 10),
+        ] {
+            let mut unique = labels.clone();
+            unique.dedup();
+            assert_eq!(unique.len(), labels.len(), "{labels:?}");
+        }
+    }
 
     #[test]
     fn ticks_are_round_and_inside_the_range() {
