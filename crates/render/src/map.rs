@@ -540,7 +540,7 @@ pub fn cell_centre_labels(lo: f64, hi: f64, n: usize) -> Vec<String> {
     (0..n)
         .map(|i| {
             let v = lo + step * (i as f64 + 0.5);
-            if !(step > 0.0) || !v.is_finite() {
+            if step.is_nan() || step <= 0.0 || !v.is_finite() {
                 format!("{v}")
             } else if largest >= 1e5 || step < 1e-4 {
                 let digits = (1.0 + largest.log10().floor() - step.log10().floor()).clamp(1.0, 8.0);
