@@ -86,10 +86,10 @@ pub const ENV_CAP_DEGREES: [f64; 3] = [2.0, 7.0, 25.0];
 pub const ENV_SAMPLES: usize = ENV_COSINE + ENV_CAP * ENV_CAP_DEGREES.len();
 
 /// Half-vector rings per pixel of the studio environment ([`EnvMode::Studio`],
-/// [`HalfVectorQuadrature::for_each_both_sides`]).
+/// [`HalfVectorQuadrature::for_each_pair`]).
 pub const STUDIO_RINGS: usize = 64;
 /// Azimuths per ring and side of the studio environment (with the rings: 512 directions per
-/// pixel).
+/// pixel, in 256 mirror pairs that share one BRDF lookup).
 pub const STUDIO_AZIMUTHS: usize = 4;
 
 /// View angles (nodes) of the pre-integrated environment table.
@@ -401,18 +401,60 @@ impl EnvQuadrature {
 /// direction; BENCHMARKS.md "render", session 13). Limitation: a lobe that is narrow and round
 /// about the mirror direction in wi (Phong), unlike microfacet lobes (round in h), stretches
 /// over the azimuths of h at grazing views and needs more azimuths there.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct HalfVectorQuadrature {
-    rings: usize,
     azimuths: usize,
+    /// The uncut rings, which do not depend on the view (computed once: a studio pixel visits
+    /// 64 of them).
+    rings: Vec<Ring>,
+}
+
+/// One band `[u0, u1]` of [`HalfVectorQuadrature`] and its ring.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Ring {
+    u0: f64,
+    u1: f64,
+    /// sin and cos of the ring's theta_h.
+    st: f64,
+    ct: f64,
+    /// The band's solid angle of h per radian of azimuth.
+    band: f64,
+}
+
+impl Ring {
+    /// The ring of band `[u0, u1]`: at the band's centroid in u under its measure (~u^3 du
+    /// near the normal, where the sharpest lobes live), so that a value linear in u across the
+    /// band, as a grid source's interpolation is, is integrated exactly; the band's solid
+    /// angle of h is cos theta_h(u0) - cos theta_h(u1) per radian of azimuth (exact: the
+    /// measure grows like u^3 from the normal).
+    fn new(u0: f64, u1: f64) -> Self {
+        use std::f64::consts::FRAC_PI_2;
+        let u = 0.8 * (u1.powi(5) - u0.powi(5)) / (u1.powi(4) - u0.powi(4));
+        let (st, ct) = (u * u * FRAC_PI_2).sin_cos();
+        let band = (u0 * u0 * FRAC_PI_2).cos() - (u1 * u1 * FRAC_PI_2).cos();
+        Self {
+            u0,
+            u1,
+            st,
+            ct,
+            band,
+        }
+    }
 }
 
 impl HalfVectorQuadrature {
     /// `rings` rings of `azimuths` directions each (both at least 1).
     pub fn new(rings: usize, azimuths: usize) -> Self {
+        let n = rings.max(1);
+        let step = 1.0 / n as f64;
         Self {
-            rings: rings.max(1),
             azimuths: azimuths.max(1),
+            rings: (0..n)
+                .map(|j| {
+                    let u0 = j as f64 * step;
+                    Ring::new(u0, (u0 + step).min(1.0))
+                })
+                .collect(),
         }
     }
 
@@ -420,19 +462,20 @@ impl HalfVectorQuadrature {
     /// view direction `wo` (z = normal, unit, wo.z > 0; any azimuth): `sum weight * f(wi, wo)`
     /// estimates the integral of f cos over the hemisphere (per unit environment radiance) for
     /// an isotropic f (the directions cover one side of the plane of incidence).
-    pub fn for_each(&self, wo: Vec3, visit: impl FnMut(Vec3, f64)) {
-        self.visit(wo, false, visit);
+    pub fn for_each(&self, wo: Vec3, mut visit: impl FnMut(Vec3, f64)) {
+        self.visit(wo, |wi, _, w| visit(wi, w));
     }
 
-    /// As [`HalfVectorQuadrature::for_each`], each direction with its mirror image about the
-    /// plane of incidence (half the weight each): twice the directions, for any f, and for a
-    /// non-uniform environment (`sum weight * f(wi, wo) L(wi)`).
-    pub fn for_each_both_sides(&self, wo: Vec3, visit: impl FnMut(Vec3, f64)) {
-        self.visit(wo, true, visit);
+    /// As [`HalfVectorQuadrature::for_each`], each direction `wi` with its mirror image `wm`
+    /// about the plane of incidence: `visit(wi, wm, weight)`. An isotropic f has the same value
+    /// at both, so `sum weight * f(wi, wo) (L(wi) + L(wm)) / 2` integrates f cos L for a
+    /// non-uniform environment L at one lookup of f per pair.
+    pub fn for_each_pair(&self, wo: Vec3, visit: impl FnMut(Vec3, Vec3, f64)) {
+        self.visit(wo, visit);
     }
 
-    fn visit(&self, wo: Vec3, both_sides: bool, mut visit: impl FnMut(Vec3, f64)) {
-        use std::f64::consts::{FRAC_PI_2, PI};
+    fn visit(&self, wo: Vec3, mut visit: impl FnMut(Vec3, Vec3, f64)) {
+        use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
         // The frame where wo = (so, 0, co): rotate the samples back by wo's azimuth.
         let so = wo[0].hypot(wo[1]);
         let co = wo[2];
@@ -443,8 +486,7 @@ impl HalfVectorQuadrature {
         };
         // On the ring theta_h, wi.z = 2 (wo.h) cos theta_h - co > 0 exactly where
         // cos(phi_h) > kappa.
-        let kappa = |u: f64| -> f64 {
-            let (st, ct) = (u * u * FRAC_PI_2).sin_cos();
+        let kappa = |st: f64, ct: f64| -> f64 {
             let lhs = co * (1.0 - 2.0 * ct * ct);
             if so * st * ct > 0.0 {
                 lhs / (2.0 * ct * st * so)
@@ -454,42 +496,26 @@ impl HalfVectorQuadrature {
                 2.0
             }
         };
-        // u_max: the ring where the valid arc closes (kappa grows with theta_h).
-        let u_max = if kappa(1.0) < 1.0 {
-            1.0
-        } else {
-            let (mut lo, mut hi) = (0.0f64, 1.0f64);
-            for _ in 0..60 {
-                let mid = 0.5 * (lo + hi);
-                if kappa(mid) < 1.0 {
-                    lo = mid;
-                } else {
-                    hi = mid;
-                }
-            }
-            lo
-        };
-        let mut samples = Vec::with_capacity(self.rings * self.azimuths * 2);
+        // u_max: the ring where the valid arc closes, kappa = 1, i.e. cos(2 theta_h - theta_o)
+        // = 0: theta_h = pi/4 + theta_o / 2 (wi on the horizon in the plane of incidence).
+        let u_max = ((FRAC_PI_4 + 0.5 * so.atan2(co)) / FRAC_PI_2)
+            .sqrt()
+            .min(1.0);
+        let mut samples = Vec::with_capacity(self.rings.len() * self.azimuths);
         let mut total = 0.0;
-        let step = 1.0 / self.rings as f64;
-        for j in 0..self.rings {
-            // The ring's interval [u0, u1] of u, cut at u_max.
-            let u0 = j as f64 * step;
-            if u0 >= u_max {
+        for full in &self.rings {
+            if full.u0 >= u_max {
                 break;
             }
-            let u1 = (u0 + step).min(u_max);
-            // The band's centroid in u under its measure (~u^3 du near the normal, where the
-            // sharpest lobes live): a value linear in u across the band, as a grid source's
-            // interpolation is, is integrated exactly.
-            let u = 0.8 * (u1.powi(5) - u0.powi(5)) / (u1.powi(4) - u0.powi(4));
-            let (st, ct) = (u * u * FRAC_PI_2).sin_cos();
-            let arc = kappa(u).clamp(-1.0, 1.0).acos();
-            // The band's solid angle of h, cos theta_h(u0) - cos theta_h(u1) per radian of
-            // azimuth (exact: the measure grows like u^3 from the normal), over both mirror
-            // halves of the arc.
-            let band = (u0 * u0 * FRAC_PI_2).cos() - (u1 * u1 * FRAC_PI_2).cos();
-            let patch = band * (2.0 * arc / self.azimuths as f64);
+            let ring = if full.u1 > u_max {
+                Ring::new(full.u0, u_max)
+            } else {
+                *full
+            };
+            let (st, ct) = (ring.st, ring.ct);
+            let arc = kappa(st, ct).clamp(-1.0, 1.0).acos();
+            // Over both mirror halves of the arc.
+            let patch = ring.band * (2.0 * arc / self.azimuths as f64);
             for k in 0..self.azimuths {
                 let phi = (k as f64 + 0.5) * arc / self.azimuths as f64;
                 let (sp, cp) = phi.sin_cos();
@@ -502,18 +528,13 @@ impl HalfVectorQuadrature {
                 let w = patch * 4.0 * c * wi[2];
                 total += w;
                 let rotate = |y: f64| [ca * wi[0] - sa * y, sa * wi[0] + ca * y, wi[2]];
-                if both_sides {
-                    samples.push((rotate(wi[1]), 0.5 * w));
-                    samples.push((rotate(-wi[1]), 0.5 * w));
-                } else {
-                    samples.push((rotate(wi[1]), w));
-                }
+                samples.push((rotate(wi[1]), rotate(-wi[1]), w));
             }
         }
         if total > 0.0 {
             let scale = PI / total;
-            for (wi, w) in samples {
-                visit(wi, w * scale);
+            for (wi, wm, w) in samples {
+                visit(wi, wm, w * scale);
             }
         }
     }
@@ -743,24 +764,24 @@ impl<'a> Shader<'a> {
         }
         if self.env.0 > 0.0 {
             let mut err = Ok(());
-            let mut add = |wi: Vec3, w: f64| {
+            // `radiance`: the environment's radiance towards the surface along -wi.
+            let mut add = |wi: Vec3, w: f64, radiance: f64| {
                 if err.is_ok() {
-                    let radiance = if self.studio.is_some() {
-                        // Height of the direction in the camera frame (y up).
-                        let y = t[1] * wi[0] + b[1] * wi[1] + n[1] * wi[2];
-                        self.env.0 * studio_radiance(y)
-                    } else {
-                        self.env.0
-                    };
                     match self.rgb_of(wi, wo, f) {
                         Ok(rgb) => (0..3).for_each(|c| acc[c] += w * radiance * rgb[c]),
                         Err(e) => err = Err(e),
                     }
                 }
             };
+            let l = self.env.0;
             match &self.studio {
-                Some(q) => q.for_each_both_sides(wo, &mut add),
-                None => self.env.1.for_each(wo, &mut add),
+                Some(q) => {
+                    // Height of a direction in the camera frame (y up).
+                    let sky =
+                        |wi: Vec3| studio_radiance(t[1] * wi[0] + b[1] * wi[1] + n[1] * wi[2]);
+                    q.for_each_pair(wo, |wi, wm, w| add(wi, w, 0.5 * l * (sky(wi) + sky(wm))));
+                }
+                None => self.env.1.for_each(wo, |wi, w| add(wi, w, l)),
             }
             err?;
         }
@@ -1279,11 +1300,19 @@ mod tests {
                 glossy.eval(wi, wo, &mut f).unwrap();
                 lobe_one += w * f[0];
             });
-            q.for_each_both_sides(wo, |wi, w| {
-                assert!(wi[2] > 0.0 && (dot(wi, wi) - 1.0).abs() < 1e-9, "{wi:?}");
-                both = (both.0 + w, both.1 + 1);
-                glossy.eval(wi, wo, &mut f).unwrap();
-                lobe_both += w * f[0];
+            q.for_each_pair(wo, |wi, wm, w| {
+                for d in [wi, wm] {
+                    assert!(d[2] > 0.0 && (dot(d, d) - 1.0).abs() < 1e-9, "{d:?}");
+                    both = (both.0 + 0.5 * w, both.1 + 1);
+                    glossy.eval(d, wo, &mut f).unwrap();
+                    lobe_both += 0.5 * w * f[0];
+                }
+                // Mirror images about the plane of incidence: the same angle to wo and to the
+                // normal, the mirror plane holding wo and the normal.
+                assert!((dot(wi, wo) - dot(wm, wo)).abs() < 1e-12);
+                assert!((wi[2] - wm[2]).abs() < 1e-12);
+                let between = [wi[0] - wm[0], wi[1] - wm[1], wi[2] - wm[2]];
+                assert!(dot(between, wo).abs() < 1e-12 && between[2].abs() < 1e-12);
             });
             // The weights sum to the integral of cos theta_i, pi (normalised), on either side.
             assert!(

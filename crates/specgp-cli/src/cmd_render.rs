@@ -124,7 +124,7 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
         crate::cmd_sample::predictor_kind(args.smooth),
     )?;
     // The studio and per-pixel environments integrate hundreds of directions per pixel (a
-    // 256 px studio sphere takes 2-3 s, 1024 px about a minute): a spinner on a terminal.
+    // 256 px studio sphere takes ~1 s, 1024 px ~17 s): a spinner on a terminal.
     let slow = matches!(
         env_mode,
         render::EnvMode::Studio | render::EnvMode::PerPixel
