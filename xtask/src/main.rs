@@ -51,12 +51,18 @@ fn main() -> std::process::ExitCode {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
         tracing_subscriber::EnvFilter::new(if cli.verbose { "info" } else { "warn" })
     });
-    // Colours only on a terminal, as specgp's: redirected logs stay plain text.
-    tracing_subscriber::fmt()
+    // As specgp's: colours only on a terminal (redirected logs stay plain text), and without
+    // --verbose only warnings, as "WARN message" (no timestamp or module path).
+    let fmt = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .init();
+        .log_internal_errors(false);
+    if cli.verbose {
+        fmt.init();
+    } else {
+        fmt.without_time().with_target(false).init();
+    }
     if let Err(err) = brdf_io::output::remove_unfinished_outputs_on_signal("xtask") {
         tracing::warn!("{err}");
     }
