@@ -327,6 +327,34 @@ fn lazy_renders_of_model_points_read_an_existing_sidecar() {
         let worst = a.iter().zip(b).map(|(x, y)| x.abs_diff(*y)).max().unwrap();
         assert!(worst <= 1, "max 8-bit difference {worst}");
     }
+    // Studio thumbnails: the same panel under a sky over a dark floor, so other pixels.
+    let studio = [
+        "map",
+        "m.toml",
+        "--thumbnails",
+        "--grid",
+        "2",
+        "--thumbnail-size",
+        "32",
+        "--size",
+        "160",
+        "--env",
+        "studio",
+        "--out",
+        "map-studio.png",
+    ];
+    specgp(&studio, d);
+    let (w, h, studio) = png_rgba(&d.join("map-studio.png"));
+    assert_eq!((w, h), (after.1.0, after.1.1));
+    let changed = studio
+        .chunks(4)
+        .zip(after.1.2.chunks(4))
+        .filter(|(a, b)| a.iter().zip(*b).any(|(x, y)| x.abs_diff(*y) > 8))
+        .count();
+    assert!(
+        changed > 500,
+        "{changed} pixels differ from the uniform environment's thumbnails"
+    );
     let sphere = &after.0.2;
     let covered = sphere.chunks(4).filter(|p| p[3] == 255).count();
     assert!(
@@ -1451,6 +1479,24 @@ fn source_mistakes_say_how_to_fix_them() {
     // Options that would be ignored are refused.
     let e = specgp_fails(&["map", "m.toml", "--grid", "3", "--out", "x.png"], d);
     assert!(e.contains("--thumbnails"), "{e}");
+    let e = specgp_fails(&["map", "m.toml", "--env", "studio", "--out", "x.png"], d);
+    assert!(e.contains("--thumbnails"), "{e}");
+    let e = specgp_fails(
+        &[
+            "map",
+            "m.toml",
+            "--thumbnails",
+            "--env",
+            "mc",
+            "--out",
+            "x.png",
+        ],
+        d,
+    );
+    assert!(
+        e.contains("expected `table`, `fast`, `per-pixel` or `studio`"),
+        "{e}"
+    );
     let e = specgp_fails(
         &[
             "render",
