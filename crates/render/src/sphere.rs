@@ -86,7 +86,7 @@ pub const ENV_CAP_DEGREES: [f64; 3] = [2.0, 7.0, 25.0];
 pub const ENV_SAMPLES: usize = ENV_COSINE + ENV_CAP * ENV_CAP_DEGREES.len();
 
 /// Half-vector rings per pixel of the studio environment ([`EnvMode::Studio`],
-/// [`HalfVectorQuadrature::for_each_pair`]).
+/// [`HalfVectorQuadrature::for_each_pair_with_angles`]).
 pub const STUDIO_RINGS: usize = 64;
 /// Azimuths per ring and side of the studio environment (with the rings: 512 directions per
 /// pixel, in 256 mirror pairs that share one BRDF lookup).
@@ -414,7 +414,8 @@ pub struct HalfVectorQuadrature {
 struct Ring {
     u0: f64,
     u1: f64,
-    /// sin and cos of the ring's theta_h.
+    /// The ring's theta_h, its sine and cosine.
+    theta_h: f64,
     st: f64,
     ct: f64,
     /// The band's solid angle of h per radian of azimuth.
@@ -430,11 +431,13 @@ impl Ring {
     fn new(u0: f64, u1: f64) -> Self {
         use std::f64::consts::FRAC_PI_2;
         let u = 0.8 * (u1.powi(5) - u0.powi(5)) / (u1.powi(4) - u0.powi(4));
-        let (st, ct) = (u * u * FRAC_PI_2).sin_cos();
+        let theta_h = u * u * FRAC_PI_2;
+        let (st, ct) = theta_h.sin_cos();
         let band = (u0 * u0 * FRAC_PI_2).cos() - (u1 * u1 * FRAC_PI_2).cos();
         Self {
             u0,
             u1,
+            theta_h,
             st,
             ct,
             band,
@@ -463,18 +466,31 @@ impl HalfVectorQuadrature {
     /// estimates the integral of f cos over the hemisphere (per unit environment radiance) for
     /// an isotropic f (the directions cover one side of the plane of incidence).
     pub fn for_each(&self, wo: Vec3, mut visit: impl FnMut(Vec3, f64)) {
-        self.visit(wo, |wi, _, w| visit(wi, w));
+        self.visit::<false>(wo, |wi, _, _, w| visit(wi, w));
     }
 
     /// As [`HalfVectorQuadrature::for_each`], each direction `wi` with its mirror image `wm`
-    /// about the plane of incidence: `visit(wi, wm, weight)`. An isotropic f has the same value
-    /// at both, so `sum weight * f(wi, wo) (L(wi) + L(wm)) / 2` integrates f cos L for a
-    /// non-uniform environment L at one lookup of f per pair.
-    pub fn for_each_pair(&self, wo: Vec3, visit: impl FnMut(Vec3, Vec3, f64)) {
-        self.visit(wo, visit);
+    /// about the plane of incidence and the pair's half/difference angles `hd`:
+    /// `visit(wi, wm, hd, weight)`. An isotropic f has the same value at both, so
+    /// `sum weight * f(hd) (L(wi) + L(wm)) / 2` integrates f cos L for a non-uniform
+    /// environment L at one lookup of f per pair. `hd` (`wi`'s; `wm`'s phi_d is pi - phi_d)
+    /// is read off the quadrature's own half vector: theta_h is the ring's, cos theta_d = wo.h,
+    /// so a grid lookup skips [`HalfDiff::from_dirs`] (normalisations and an `acos`, a fifth
+    /// of a studio render).
+    pub fn for_each_pair_with_angles(
+        &self,
+        wo: Vec3,
+        visit: impl FnMut(Vec3, Vec3, &HalfDiff, f64),
+    ) {
+        self.visit::<true>(wo, visit);
     }
 
-    fn visit(&self, wo: Vec3, mut visit: impl FnMut(Vec3, Vec3, f64)) {
+    /// The samples; their angles (`ANGLES`) or a placeholder.
+    fn visit<const ANGLES: bool>(
+        &self,
+        wo: Vec3,
+        mut visit: impl FnMut(Vec3, Vec3, &HalfDiff, f64),
+    ) {
         use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
         // The frame where wo = (so, 0, co): rotate the samples back by wo's azimuth.
         let so = wo[0].hypot(wo[1]);
@@ -527,14 +543,37 @@ impl HalfVectorQuadrature {
                 }
                 let w = patch * 4.0 * c * wi[2];
                 total += w;
+                let hd = if ANGLES {
+                    // d = R_y(-theta_h) R_z(-phi_h) wi, as `HalfDiff::from_dirs`.
+                    let v0 = wi[0] * cp + wi[1] * sp;
+                    let v1 = wi[1] * cp - wi[0] * sp;
+                    let mut phi_d = v1.atan2(v0 * ct - wi[2] * st);
+                    if phi_d < 0.0 {
+                        phi_d += PI;
+                    }
+                    if phi_d >= PI {
+                        phi_d -= PI;
+                    }
+                    HalfDiff {
+                        theta_h: ring.theta_h,
+                        theta_d: c.min(1.0).acos(),
+                        phi_d,
+                    }
+                } else {
+                    HalfDiff {
+                        theta_h: 0.0,
+                        theta_d: 0.0,
+                        phi_d: 0.0,
+                    }
+                };
                 let rotate = |y: f64| [ca * wi[0] - sa * y, sa * wi[0] + ca * y, wi[2]];
-                samples.push((rotate(wi[1]), rotate(-wi[1]), w));
+                samples.push((rotate(wi[1]), rotate(-wi[1]), hd, w));
             }
         }
         if total > 0.0 {
             let scale = PI / total;
-            for (wi, wm, w) in samples {
-                visit(wi, wm, w * scale);
+            for (wi, wm, hd, w) in samples {
+                visit(wi, wm, &hd, w * scale);
             }
         }
     }
@@ -765,11 +804,13 @@ impl<'a> Shader<'a> {
         if self.env.0 > 0.0 {
             let mut err = Ok(());
             // `radiance`: the environment's radiance towards the surface along -wi.
-            let mut add = |wi: Vec3, w: f64, radiance: f64| {
-                if err.is_ok() {
-                    match self.rgb_of(wi, wo, f) {
-                        Ok(rgb) => (0..3).for_each(|c| acc[c] += w * radiance * rgb[c]),
-                        Err(e) => err = Err(e),
+            // `rgb`: the BRDF's colour; `radiance`: the environment's towards the surface. After
+            // a failed lookup the pixel's result is that error (the others add nothing).
+            let mut add = |rgb: Result<[f64; 3]>, w: f64, radiance: f64| match rgb {
+                Ok(rgb) => (0..3).for_each(|c| acc[c] += w * radiance * rgb[c]),
+                Err(e) => {
+                    if err.is_ok() {
+                        err = Err(e);
                     }
                 }
             };
@@ -779,9 +820,14 @@ impl<'a> Shader<'a> {
                     // Height of a direction in the camera frame (y up).
                     let sky =
                         |wi: Vec3| studio_radiance(t[1] * wi[0] + b[1] * wi[1] + n[1] * wi[2]);
-                    q.for_each_pair(wo, |wi, wm, w| add(wi, w, 0.5 * l * (sky(wi) + sky(wm))));
+                    q.for_each_pair_with_angles(wo, |wi, wm, hd, w| {
+                        add(self.rgb_at(wi, wo, hd, f), w, 0.5 * l * (sky(wi) + sky(wm)))
+                    });
                 }
-                None => self.env.1.for_each(wo, |wi, w| add(wi, w, l)),
+                None => self
+                    .env
+                    .1
+                    .for_each(wo, |wi, w| add(self.rgb_of(wi, wo, f), w, l)),
             }
             err?;
         }
@@ -796,6 +842,19 @@ impl<'a> Shader<'a> {
     /// incident slice is the view's (see the module docs). `f` is scratch of the source's
     /// channel count.
     fn rgb_of(&self, wi: Vec3, wo: Vec3, f: &mut [f64]) -> Result<[f64; 3]> {
+        if self.cells.is_none() {
+            self.source.eval(wo, wi, f)?;
+            return Ok(self.to_rgb(f, 1.0));
+        }
+        match HalfDiff::from_dirs(wi, wo) {
+            Some(hd) if wi[2] > 0.0 && wo[2] > 0.0 => self.rgb_at(wi, wo, &hd, f),
+            _ => Ok([0.0; 3]),
+        }
+    }
+
+    /// [`Shader::rgb_of`] of a pair above the horizon whose half/difference angles `hd` are
+    /// known: a grid source interpolates its cells at `hd` (no [`HalfDiff::from_dirs`]).
+    fn rgb_at(&self, wi: Vec3, wo: Vec3, hd: &HalfDiff, f: &mut [f64]) -> Result<[f64; 3]> {
         let Some(GridCells {
             grid,
             colours: cells,
@@ -806,11 +865,7 @@ impl<'a> Shader<'a> {
             return Ok(self.to_rgb(f, 1.0));
         };
         let mut rgb = [0.0; 3];
-        let hd = match HalfDiff::from_dirs(wi, wo) {
-            Some(hd) if wi[2] > 0.0 && wo[2] > 0.0 => hd,
-            _ => return Ok(rgb),
-        };
-        for (a, w) in grid.interpolation_stencil_with(&hd, |a| valid[a]) {
+        for (a, w) in grid.interpolation_stencil_with(hd, |a| valid[a]) {
             if w == 0.0 {
                 continue;
             }
@@ -1324,7 +1379,15 @@ mod tests {
                 glossy.eval(wi, wo, &mut f).unwrap();
                 lobe_one += w * f[0];
             });
-            q.for_each_pair(wo, |wi, wm, w| {
+            q.for_each_pair_with_angles(wo, |wi, wm, hd, w| {
+                // The angles are those of the directions.
+                let expect = HalfDiff::from_dirs(wi, wo).unwrap();
+                assert!(
+                    (hd.theta_h - expect.theta_h).abs() < 1e-9
+                        && (hd.theta_d - expect.theta_d).abs() < 1e-9
+                        && (hd.phi_d - expect.phi_d).abs() < 1e-9,
+                    "{hd:?} vs {expect:?}"
+                );
                 for d in [wi, wm] {
                     assert!(d[2] > 0.0 && (dot(d, d) - 1.0).abs() < 1e-9, "{d:?}");
                     both = (both.0 + 0.5 * w, both.1 + 1);
