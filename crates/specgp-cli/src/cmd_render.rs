@@ -228,7 +228,7 @@ pub struct MapArgs {
     pub thumbnail_size: usize,
     /// The thumbnails' environment, as `render --env`: `table`, `fast`, `per-pixel`, or
     /// `studio` (a sky over a dark floor, in which metals show what they reflect; slower: 36
-    /// thumbnails of 64 px take about 3 s instead of 0.4 s).
+    /// thumbnails of 64 px take about 2 s instead of 0.4 s).
     #[arg(long, default_value = "table", requires = "thumbnails")]
     pub env: String,
     /// With --thumbnails or --locate (the only parts of a map that read the data): the dataset
@@ -359,7 +359,7 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
             }
             Ok(Box::new(m))
         };
-        // Studio and per-pixel thumbnails take seconds (36 of 64 px: ~3 s): a spinner.
+        // Studio and per-pixel thumbnails take seconds (36 of 64 px: ~2 s): a spinner.
         let spinner = indicatif::ProgressBar::new_spinner();
         if matches!(
             env_mode,
