@@ -171,6 +171,11 @@ pub struct RenderParams {
     /// At most this many training materials in the comparison sheet (1..=64).
     #[serde(default = "default_sheet")]
     pub sheet_materials: usize,
+    /// The spheres' environment, as `specgp render --env`: `table` (the default), `fast`,
+    /// `per-pixel` or `studio` (a sky over a dark floor, in which metals show what they
+    /// reflect; slower).
+    #[serde(default = "default_env")]
+    pub env: String,
 }
 
 impl Default for RenderParams {
@@ -179,7 +184,21 @@ impl Default for RenderParams {
             enabled: true,
             size: default_size(),
             sheet_materials: default_sheet(),
+            env: default_env(),
         }
+    }
+}
+
+impl RenderParams {
+    /// The environment of `env` (checked by the config's validation).
+    pub fn env_mode(&self) -> std::result::Result<render::EnvMode, String> {
+        self.env.parse().map_err(|_| {
+            format!(
+                "render.env {:?}: expected {}",
+                self.env,
+                render::ENV_MODE_NAMES
+            )
+        })
     }
 }
 
@@ -191,6 +210,9 @@ fn default_size() -> u32 {
 }
 fn default_sheet() -> usize {
     8
+}
+fn default_env() -> String {
+    "table".into()
 }
 
 /// Where the materials come from (validated).
@@ -535,6 +557,7 @@ impl PipelineParams {
                 self.render.size
             )));
         }
+        self.render.env_mode().map_err(bad)?;
         if !(1..=64).contains(&self.render.sheet_materials) {
             return Err(bad(format!(
                 "render.sheet_materials must be in 1..=64, got {}",

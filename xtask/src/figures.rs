@@ -99,6 +99,7 @@ pub fn render_figures(
     let (size, sheet_materials) = (render.size as usize, render.sheet_materials);
     let opts = SphereOptions {
         size,
+        env_mode: render.env_mode().map_err(|reason| err(out, reason))?,
         ..SphereOptions::default()
     };
     let model = pred.model();
@@ -177,6 +178,12 @@ pub fn render_figures(
     sheet
         .save_png(&sheet_path)
         .map_err(|e| err(&sheet_path, e))?;
+    // Every sphere's lighting, when it is not the default directional light plus uniform
+    // environment (the Delta E values depend on it).
+    let env_note = match render.env.as_str() {
+        "table" => String::new(),
+        env => format!(" Spheres rendered with `render.env = \"{env}\"`."),
+    };
     let held_out_caption = if held_out_delta_e.is_empty() {
         String::new()
     } else {
@@ -192,7 +199,7 @@ pub fn render_figures(
             "Top: the dataset's materials as stored (measured, synthetic or network-approximated, \
              as the data section says); {} (`rec`): the smooth GP prediction at each material's \
              own latent point (a reconstruction), with the mean CIE Delta E 2000 over the \
-             sphere{held_out_caption}.",
+             sphere{held_out_caption}.{env_note}",
             if held_out_delta_e.is_empty() {
                 "bottom"
             } else {

@@ -268,6 +268,10 @@ fn unknown_keys_and_bad_values_are_named() {
             "render.sheet_materials",
         ),
         (
+            base.replace("sheet_materials = 2", "sheet_materials = 2\nenv = \"sky\""),
+            "render.env \"sky\": expected `table`, `fast`, `per-pixel` or `studio`",
+        ),
+        (
             base.replace("grid = \"8,8,16\"", "grid = \"512,512,512\""),
             "would take 191.7 GB",
         ),
@@ -686,6 +690,41 @@ fn by_kind_table_without_leave_one_out_says_it_was_not_run() {
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
     assert!(json["by_kind"][0]["loo_gp"].is_null());
+}
+
+/// `[render] env = "studio"` renders the figures' spheres under the studio sky: another
+/// sheet than the default environment's, and the report says which.
+#[test]
+fn render_env_studio_lights_the_figures() {
+    let root = project_root();
+    let dir = tempfile::tempdir().unwrap();
+    let sheet = |env: &str| {
+        let path = dir.path().join(format!("{env}.toml"));
+        std::fs::write(
+            &path,
+            format!(
+                "name = \"{env}\"\n[data]\nkind = \"synth\"\ngrid = \"4,4,8\"\nwavelengths = \
+                 \"400:700:100\"\nonly = [\"metal_gold\", \"metal_chromium\", \"paper_white\"]\n\
+                 [fit]\nlatent_dim = 2\nmax_iterations = 20\n[evaluate]\nloo = false\n\
+                 [render]\nsize = 16\nsheet_materials = 3\nenv = \"{env}\"\n"
+            ),
+        )
+        .unwrap();
+        let config = PipelineConfig::load(&path, &root).unwrap();
+        let out = dir.path().join(env);
+        xtask::run(&config, &out).unwrap();
+        let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+        let png = std::fs::read(out.join("sheet.png")).unwrap();
+        (report, png)
+    };
+    let (table_report, table_png) = sheet("table");
+    let (studio_report, studio_png) = sheet("studio");
+    assert!(!table_report.contains("render.env"));
+    assert!(
+        studio_report.contains("Spheres rendered with `render.env = \"studio\"`."),
+        "{studio_report}"
+    );
+    assert_ne!(table_png, studio_png);
 }
 
 /// `cargo xtask bench` publishes bench.json, bench.md and bench.png together: into a new nested

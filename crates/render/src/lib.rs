@@ -22,6 +22,6 @@ pub use image::{Image, ImageDifference};
 pub use map::{MapOptions, latent_map};
 pub use sheet::{ComparisonSheet, comparison_sheet, path_comparison, sphere_rows};
 pub use sphere::{
-    EnvMode, EnvTableSpec, PlaneOptions, SphereOptions, clear_plans, render_plane, render_sphere,
-    studio_radiance,
+    ENV_MODE_NAMES, EnvMode, EnvTableSpec, PlaneOptions, SphereOptions, clear_plans, render_plane,
+    render_sphere, studio_radiance,
 };

@@ -188,6 +188,29 @@ impl Default for EnvMode {
     }
 }
 
+/// The names [`EnvMode`] parses from, for messages.
+pub const ENV_MODE_NAMES: &str = "`table`, `fast`, `per-pixel` or `studio`";
+
+impl std::str::FromStr for EnvMode {
+    type Err = Error;
+
+    /// `table` (the default table), `fast` ([`EnvTableSpec::FAST`]), `per-pixel` or `studio`,
+    /// as `specgp render --env` and a pipeline's `render.env` name them.
+    fn from_str(s: &str) -> Result<Self> {
+        Ok(match s {
+            "table" => Self::default(),
+            "fast" => Self::Table(EnvTableSpec::FAST),
+            "per-pixel" => Self::PerPixel,
+            "studio" => Self::Studio,
+            _ => {
+                return Err(Error::InvalidArgument {
+                    reason: format!("environment {s:?}: expected {ENV_MODE_NAMES}"),
+                });
+            }
+        })
+    }
+}
+
 /// How to render a sphere.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SphereOptions {

@@ -82,13 +82,8 @@ pub fn parse_light(s: &str) -> anyhow::Result<(f64, f64)> {
 
 /// Parses `--env`: `table`, `fast`, `per-pixel` or `studio`.
 pub fn parse_env(s: &str) -> anyhow::Result<render::EnvMode> {
-    Ok(match s {
-        "table" => render::EnvMode::default(),
-        "fast" => render::EnvMode::Table(render::EnvTableSpec::FAST),
-        "per-pixel" => render::EnvMode::PerPixel,
-        "studio" => render::EnvMode::Studio,
-        e => bail!("--env {e:?}: expected `table`, `fast`, `per-pixel` or `studio`"),
-    })
+    s.parse()
+        .map_err(|_| anyhow::anyhow!("--env {s:?}: expected {}", render::ENV_MODE_NAMES))
 }
 
 /// Runs `specgp render`.
