@@ -826,7 +826,6 @@ impl<'a> Shader<'a> {
         }
         if self.env.0 > 0.0 {
             let mut err = Ok(());
-            // `radiance`: the environment's radiance towards the surface along -wi.
             // `rgb`: the BRDF's colour; `radiance`: the environment's towards the surface. After
             // a failed lookup the pixel's result is that error (the others add nothing).
             let mut add = |rgb: Result<[f64; 3]>, w: f64, radiance: f64| match rgb {
