@@ -190,10 +190,26 @@ pub fn latent_map(
     } else {
         "PREDICTED MATERIALS OVER THE GREY BOX"
     };
+    let with_thumbnails = opts.thumbnails > 0 && source_at.is_some();
+    // X2 of each thumbnail row, top (largest) first, for the panel's right margin.
+    let row_labels = if with_thumbnails && !opts.one_axis {
+        let [_, _, by0, by1] = thumbnail_box(points);
+        let mut labels = cell_centre_labels(by0, by1, opts.thumbnails);
+        labels.reverse();
+        labels
+    } else {
+        Vec::new()
+    };
+    let row_label_room = row_labels
+        .iter()
+        .map(|label| font::text_width(label, 1) + 8)
+        .max()
+        .unwrap_or(0);
     // The panel is as wide as its spheres, or as its title where that is wider (small
-    // thumbnails used to cut the title to a word).
-    let panel = if opts.thumbnails > 0 && source_at.is_some() {
-        (opts.thumbnails * opts.sphere.size).max(font::text_width(panel_title, 1)) + margin
+    // thumbnails used to cut the title to a word), plus a margin that holds the row labels.
+    let panel = if with_thumbnails {
+        (opts.thumbnails * opts.sphere.size).max(font::text_width(panel_title, 1))
+            + margin.max(row_label_room)
     } else {
         0
     };
@@ -441,19 +457,15 @@ pub fn latent_map(
                 end = a + w;
             }
         }
-        if !opts.one_axis {
+        if !row_labels.is_empty() {
             let x = ox + (g * ts) as i64 + 4;
-            let fits = |label: &str| x + font::text_width(label, 1) as i64 <= width as i64 - 2;
-            // Rows run from the top (largest X2) down.
-            let mut labels = cell_centre_labels(by0, by1, rows);
-            labels.reverse();
-            if fits("X2") && end + 6 <= x {
+            if end + 6 <= x {
                 img.text(x, label_y, "X2", 1, black);
             }
-            for (j, label) in labels.iter().enumerate() {
-                if fits(label) {
-                    img.text(x, (margin + j * ts + ts / 2) as i64 - 3, label, 1, black);
-                }
+            // Every row's label where rows are at least 10 px apart, else every k-th row.
+            let every = 10usize.div_ceil(ts);
+            for (j, label) in row_labels.iter().enumerate().step_by(every) {
+                img.text(x, (margin + j * ts + ts / 2) as i64 - 3, label, 1, black);
             }
         }
         if let Some(limit) = opts.far_variance {

@@ -433,6 +433,24 @@ fn small_maps_with_thumbnails_keep_bar_title_and_labels_in_place() {
         .filter(|&x| (note_y..note_y + 7).any(|y| grey(x, y)))
         .count();
     assert!(note_ink >= 20, "{note_ink} inked columns of the note");
+    // The thumbnails' coordinates: X1 above the columns, X2 right of each row (negative ones
+    // too: the panel's right margin is as wide as the widest).
+    let labels_x = panel_x + g * ts + 4;
+    for j in 0..g {
+        let y = 40 + j * ts + ts / 2 - 3;
+        let ink = (labels_x..map.width)
+            .filter(|&x| (y..y + 7).any(|y| dark(x, y)))
+            .count();
+        assert!(ink >= 10, "row {j}: {ink} inked columns of its X2 label");
+    }
+    // Labels wider than a 32 px column: every other one, the others left out.
+    for i in (0..g).step_by(2) {
+        let x = panel_x + i * ts + ts / 2;
+        let ink = (x - 8..x + 8)
+            .filter(|&x| (31..38).any(|y| dark(x, y)))
+            .count();
+        assert!(ink >= 4, "column {i}: {ink} inked columns of its X1 label");
+    }
 }
 
 /// The Delta E heat maps' rims are anti-aliased like the spheres beside them: a pixel the
