@@ -280,26 +280,32 @@ fn lazy_renders_of_model_points_read_an_existing_sidecar() {
         "the default fit is log"
     );
     let point = "m.toml@0.1,-0.2";
+    // A small map with 2 x 2 thumbnails, and `extra` arguments.
+    let map = |out: &str, extra: &[&str]| {
+        let mut args = vec![
+            "map",
+            "m.toml",
+            "--thumbnails",
+            "--grid",
+            "2",
+            "--thumbnail-size",
+            "32",
+            "--size",
+            "160",
+            "--out",
+            out,
+        ];
+        args.extend_from_slice(extra);
+        specgp(&args, d);
+        png_rgba(&d.join(out))
+    };
     let renders = |tag: &str| {
-        let (sphere, map) = (format!("sphere-{tag}.png"), format!("map-{tag}.png"));
+        let sphere = format!("sphere-{tag}.png");
         specgp(&["render", point, "--size", "40", "--out", &sphere], d);
-        specgp(
-            &[
-                "map",
-                "m.toml",
-                "--thumbnails",
-                "--grid",
-                "2",
-                "--thumbnail-size",
-                "32",
-                "--size",
-                "160",
-                "--out",
-                &map,
-            ],
-            d,
-        );
-        (png_rgba(&d.join(sphere)), png_rgba(&d.join(map)))
+        (
+            png_rgba(&d.join(sphere)),
+            map(&format!("map-{tag}.png"), &[]),
+        )
     };
     let before = renders("plain");
     // Build the sidecar (stored f32 log values instead of logarithms per lookup).
@@ -328,23 +334,7 @@ fn lazy_renders_of_model_points_read_an_existing_sidecar() {
         assert!(worst <= 1, "max 8-bit difference {worst}");
     }
     // Studio thumbnails: the same panel under a sky over a dark floor, so other pixels.
-    let studio = [
-        "map",
-        "m.toml",
-        "--thumbnails",
-        "--grid",
-        "2",
-        "--thumbnail-size",
-        "32",
-        "--size",
-        "160",
-        "--env",
-        "studio",
-        "--out",
-        "map-studio.png",
-    ];
-    specgp(&studio, d);
-    let (w, h, studio) = png_rgba(&d.join("map-studio.png"));
+    let (w, h, studio) = map("map-studio.png", &["--env", "studio"]);
     assert_eq!((w, h), (after.1.0, after.1.1));
     let changed = studio
         .chunks(4)
