@@ -80,7 +80,19 @@ impl NbrdfSet {
         }
         // In range: the f32 weights are the checked values rounded (as `to_f32` rounds them).
         let weights: Vec<f32> = wide.into_iter().map(|w| w as f32).collect();
-        let text = std::fs::read_to_string(names_path).map_err(|e| Error::io(names_path, e))?;
+        let bytes = std::fs::read(names_path).map_err(|e| Error::io(names_path, e))?;
+        let text = String::from_utf8(bytes).map_err(|e| {
+            let at = e.utf8_error().valid_up_to();
+            let bytes = e.as_bytes();
+            Error::Format {
+                path: names_path.to_path_buf(),
+                reason: format!(
+                    "not a UTF-8 text file of names (byte 0x{:02x} at offset {at}, line {})",
+                    bytes[at],
+                    1 + bytes[..at].iter().filter(|&&b| b == b'\n').count()
+                ),
+            }
+        })?;
         // A byte-order mark (editors on Windows write one) is not part of the first name.
         let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
         let names: Vec<String> = text

@@ -128,6 +128,23 @@ impl Store {
     /// checksum; see [`Store::verify_checksum`]).
     pub fn open_with(path: impl AsRef<Path>, options: OpenOptions) -> Result<Self> {
         let path = path.as_ref().to_owned();
+        // Checked before opening: opening a FIFO blocks until something writes to it, and a
+        // pipe (`<(...)`) has length 0, which read as "the file is empty".
+        let meta = std::fs::metadata(&path).map_err(|e| Error::io(&path, e))?;
+        if !meta.is_file() {
+            let what = if meta.is_dir() {
+                "a directory"
+            } else {
+                "not a regular file (a pipe, socket or device)"
+            };
+            return Err(Error::StoreUsage {
+                path,
+                reason: format!(
+                    "{what}: a dataset store is read at offsets (memory-mapped), so it must be \
+                     a regular file"
+                ),
+            });
+        }
         let file = File::open(&path).map_err(|e| Error::io(&path, e))?;
         let file_len = file.metadata().map_err(|e| Error::io(&path, e))?.len();
         let mut prefix = [0u8; PREFIX_LEN];
