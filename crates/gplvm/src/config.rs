@@ -72,6 +72,9 @@ pub enum InitScaling {
     Likelihood,
 }
 
+/// Upper bound of [`FitParams::latent_dim`] (and of a model file's latent dimension).
+pub const MAX_LATENT_DIM: usize = 64;
+
 /// Upper bound of [`FitParams::restarts`]: each restart is a whole optimisation.
 pub const MAX_RESTARTS: usize = 1000;
 
@@ -180,8 +183,12 @@ impl FitParams {
                 expected,
             })
         };
-        if self.latent_dim == 0 || self.latent_dim > 64 {
-            return bad("latent_dim", &self.latent_dim, "in 1..=64".into());
+        if self.latent_dim == 0 || self.latent_dim > MAX_LATENT_DIM {
+            return bad(
+                "latent_dim",
+                &self.latent_dim,
+                format!("in 1..={MAX_LATENT_DIM}"),
+            );
         }
         if self.restarts > MAX_RESTARTS {
             return bad(

@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::FitParams;
+use crate::config::{FitConfig, FitParams, MAX_LATENT_DIM};
 use crate::error::{Error, Result};
 use crate::transform::Transform;
 
@@ -183,6 +183,13 @@ impl Model {
                 model.format, model.version
             )));
         }
+        // Before any size is compared with it: q comes from the file.
+        if !(1..=MAX_LATENT_DIM).contains(&model.latent_dim) {
+            return Err(err(format!(
+                "latent_dim = {}: must be in 1..={MAX_LATENT_DIM} (as a fit allows)",
+                model.latent_dim
+            )));
+        }
         let n = model.materials.len();
         if n != model.dataset.n_materials
             || model.gram.len() != n
@@ -285,6 +292,29 @@ impl Model {
                 model.latent_dim
             )));
         }
+        // The kernel's own bounds (length-scales within 1e-150..1e150): such a model used to
+        // load and fail when a predictor was built, in an error naming no file.
+        let length_scale = match h.length_scale.as_slice() {
+            [l] => gp_core::kernel::LengthScale::Isotropic(*l),
+            many => gp_core::kernel::LengthScale::Ard(many.to_vec()),
+        };
+        gp_core::KernelParams::new(h.signal_variance, length_scale, h.noise)
+            .map_err(|e| err(format!("hyperparameters: {e}")))?;
+        // The recorded configuration is the fit's (a fit writes its q and prior into both):
+        // a leave-one-out refit uses it, so an edit of one without the other would refit
+        // another model.
+        if model.config.latent_dim != model.latent_dim {
+            return Err(err(format!(
+                "latent_dim {} disagrees with the fit configuration's latent_dim = {}",
+                model.latent_dim, model.config.latent_dim
+            )));
+        }
+        if model.config.prior != model.prior {
+            return Err(err(format!(
+                "prior = {} disagrees with the fit configuration's prior = {}",
+                model.prior, model.config.prior
+            )));
+        }
         let d_eff = model.dataset.d_effective;
         if d_eff == 0 || d_eff > model.dataset.d {
             return Err(err(format!(
@@ -312,6 +342,17 @@ impl Model {
             )));
         }
         Ok(model)
+    }
+
+    /// The recorded fit configuration, validated as a fit validates it (for refits such as
+    /// leave-one-out); an invalid one is an error naming `model_file`, the file this model was
+    /// read from. (Not checked by [`Model::load`]: files written before a rule was added still
+    /// load and predict.)
+    pub fn fit_config(&self, model_file: &Path) -> Result<FitConfig> {
+        self.config.clone().check().map_err(|e| Error::File {
+            path: model_file.to_owned(),
+            reason: format!("fit configuration: {e}"),
+        })
     }
 
     /// Writes the model as TOML, atomically ([`brdf_io::output::write_file_atomic`]).

@@ -860,7 +860,8 @@ pub fn evaluate(
 
     let t0 = Instant::now();
     let loo = if options.loo {
-        let mut config = model.config.clone().check()?;
+        // Named: the configuration is read from the model file.
+        let mut config = model.fit_config(pred.model_path())?;
         if let Some(cap) = options.refit_iterations {
             let p = &mut config.params;
             p.max_iterations = p.max_iterations.min(cap);

@@ -383,6 +383,11 @@ impl Predictor {
         &self.inner.model
     }
 
+    /// The model file the model was read from (named in errors).
+    pub(crate) fn model_path(&self) -> &Path {
+        &self.inner.model_path
+    }
+
     /// The dataset store.
     pub fn store(&self) -> &Arc<Store> {
         &self.inner.store

@@ -649,6 +649,31 @@ fn a_huge_refit_cap_leaves_the_refits_configured_budget() {
     );
 }
 
+/// A model whose recorded fit configuration a fit refuses (edited by hand, or written before a
+/// rule was added) still predicts; a leave-one-out refit, which uses the configuration, is an
+/// error naming the model file (it named no file).
+#[test]
+fn an_invalid_fit_configuration_is_an_error_naming_the_model_file() {
+    let f = fixture(5, "log");
+    let mut model = Model::load(&f.model).unwrap();
+    model.config.min_step = 10.0;
+    let store = Arc::new(Store::open(&f.store).unwrap());
+    let pred = Predictor::with_store(model, &f.model, store).unwrap();
+    evaluate(&pred, &EvalOptions::default(), &|_, _, _| {}).unwrap();
+    let options = EvalOptions {
+        loo: true,
+        ..EvalOptions::default()
+    };
+    let e = evaluate(&pred, &options, &|_, _, _| {})
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.starts_with(&format!("{}: fit configuration: ", f.model.display()))
+            && e.contains("min_step = 10: must be at most initial_step"),
+        "{e}"
+    );
+}
+
 /// A leave-one-out refit that cannot be done (holding out the one distinct material of
 /// three leaves two identical ones: nothing to fit) is an error naming the held-out material;
 /// the refit's own message ("the 2 materials are identical") counted materials the user never
