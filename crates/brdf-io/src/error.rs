@@ -35,6 +35,19 @@ pub enum Error {
         /// Bytes free for this user.
         available: u64,
     },
+    /// Working memory that could not be allocated (a store of very many materials).
+    #[error(
+        "{path}: not enough memory for {what}: it needs {needed} bytes ({:.1} GB)",
+        *needed as f64 / 1e9
+    )]
+    OutOfMemory {
+        /// The store being processed.
+        path: PathBuf,
+        /// What the memory is for.
+        what: String,
+        /// Bytes asked for.
+        needed: u64,
+    },
     /// A grid or channel specification that cannot be used.
     #[error("invalid grid or channels: {reason}")]
     InvalidGrid {

@@ -822,6 +822,29 @@ mod store {
         }
     }
 
+    /// A header whose payload size disagrees with the prefix (hash fixed up) is refused on
+    /// open, naming the file and both numbers.
+    #[test]
+    fn header_payload_size_must_match_the_prefix() {
+        let t = dir();
+        let p = t.path().join("sized.sbrdf");
+        small_store(&p, Compression::None, Dtype::F32);
+        let bytes = std::fs::read(&p).unwrap();
+        let payload_len = u64::from_le_bytes(bytes[24..32].try_into().unwrap());
+        let edited = with_header(&bytes, |h| {
+            assert_eq!(h["payload_bytes"], serde_json::json!(payload_len));
+            h["payload_bytes"] = serde_json::json!(payload_len + 8);
+        });
+        std::fs::write(&p, &edited).unwrap();
+        let e = Store::open(&p).unwrap_err().to_string();
+        assert!(e.contains(&p.display().to_string()), "{e}");
+        assert!(
+            e.contains(&format!("payload_bytes = {}", payload_len + 8))
+                && e.contains(&format!("payload length {payload_len}")),
+            "{e}"
+        );
+    }
+
     /// Type-correct header values that disagree with the payload or with each other.
     fn header_edit() -> impl Strategy<Value = (&'static str, serde_json::Value)> {
         use serde_json::json;

@@ -92,16 +92,27 @@ pub(crate) struct GramAccumulator<'t, T: ?Sized> {
 }
 
 impl<'t, T: GramTransform + ?Sized> GramAccumulator<'t, T> {
-    pub(crate) fn new(n: usize, transform: &'t T) -> Self {
+    /// An empty accumulator for `n` materials, or `None` when its `np x np` matrix cannot be
+    /// allocated (the caller names the store).
+    pub(crate) fn new(n: usize, transform: &'t T) -> Option<Self> {
         let size = n.div_ceil(8) * 8;
-        Self {
+        Some(Self {
             n,
             transform,
-            g: vec![0.0; size * size],
+            g: zeroed(size.checked_mul(size)?)?,
             size,
-            wide: vec![0.0; F64_BLOCK * n + 8],
+            wide: zeroed(F64_BLOCK.checked_mul(n)?.checked_add(8)?)?,
             filled: 0,
-        }
+        })
+    }
+
+    /// Bytes one accumulator for `n` materials holds (its matrix and block).
+    pub(crate) fn bytes(n: usize) -> u64 {
+        let size = n.div_ceil(8) as u64 * 8;
+        let values = (size.saturating_mul(size))
+            .saturating_add((F64_BLOCK as u64).saturating_mul(n as u64))
+            .saturating_add(8);
+        values.saturating_mul(8)
     }
 
     /// Adds one index-major chunk (`block[(d - range.start) * n + m]`) of a store whose
@@ -185,6 +196,14 @@ impl<'t, T: GramTransform + ?Sized> GramAccumulator<'t, T> {
         }
         out
     }
+}
+
+/// `len` zeros, or `None` when they cannot be allocated.
+fn zeroed(len: usize) -> Option<Vec<f64>> {
+    let mut v = Vec::new();
+    v.try_reserve_exact(len).ok()?;
+    v.resize(len, 0.0);
+    Some(v)
 }
 
 /// Indices per block of the f64 kernel: 48 x 56 f64 values (21 KiB) stay in the L1 cache.
@@ -546,14 +565,33 @@ mod tests {
         g
     }
 
+    #[test]
+    fn an_accumulator_too_large_to_allocate_is_none() {
+        // 1.2e9 materials: 1.15e19 bytes, beyond any address space (refused without
+        // allocating).
+        let n = 1_200_000_000;
+        assert!(GramAccumulator::new(n, &Identity).is_none());
+        let bytes = GramAccumulator::<Identity>::bytes(n) as f64;
+        assert!((1.15e19..1.16e19).contains(&bytes), "{bytes}");
+        // Sizes beyond u64 saturate.
+        assert_eq!(GramAccumulator::<Identity>::bytes(usize::MAX / 2), u64::MAX);
+        // An ordinary one: 56 x 56 matrix, block of F64_BLOCK x 51 values and 8 of slack.
+        let acc = GramAccumulator::new(51, &Identity).unwrap();
+        assert_eq!((acc.g.len(), acc.wide.len()), (56 * 56, F64_BLOCK * 51 + 8));
+        assert_eq!(
+            GramAccumulator::<Identity>::bytes(51),
+            8 * (56 * 56 + F64_BLOCK as u64 * 51 + 8)
+        );
+    }
+
     fn run(n: usize, values: &[f32], chunk: usize) -> Vec<f64> {
         // Cells of 3 indices, every seventh invalid.
         let cells: Vec<bool> = (0..values.len().div_ceil(3 * n))
             .map(|c| c % 7 != 3)
             .collect();
-        let mut acc = GramAccumulator::new(n, &Identity);
+        let mut acc = GramAccumulator::new(n, &Identity).unwrap();
         let d = values.len() / n;
-        let mut other = GramAccumulator::new(n, &Identity);
+        let mut other = GramAccumulator::new(n, &Identity).unwrap();
         for start in (0..d).step_by(chunk) {
             let end = (start + chunk).min(d);
             let target = if start < d / 2 { &mut acc } else { &mut other };
@@ -705,7 +743,7 @@ mod tests {
                 }
             }
         }
-        let mut acc = GramAccumulator::new(n, &Square);
+        let mut acc = GramAccumulator::new(n, &Square).unwrap();
         acc.push_chunk(0..300, &values, &[true; 300], 1);
         assert!(max_rel(&acc.finish(), &want) < 1e-13);
     }
