@@ -17,15 +17,7 @@ pub fn num(v: f64) -> String {
     }
 }
 
-/// `n` and the noun (given in the singular) as a message says them: "1 material", "51
-/// materials", "0 materials".
-pub fn quantity(n: usize, noun: &str) -> String {
-    if n == 1 {
-        format!("1 {noun}")
-    } else {
-        format!("{n} {noun}s")
-    }
-}
+pub use brdf_io::error::quantity;
 
 /// Bytes as KiB/MiB/GiB.
 pub fn bytes(b: u64) -> String {
@@ -486,14 +478,7 @@ fn paper_table(s: &mut String, r: &Results) {
 
 #[cfg(test)]
 mod tests {
-    use super::{quantity, shell_word};
-
-    /// "1 material", never "1 materials".
-    #[test]
-    fn quantities_are_singular_for_one() {
-        assert_eq!(quantity(1, "material"), "1 material");
-        assert_eq!(quantity(51, "material"), "51 materials");
-    }
+    use super::shell_word;
 
     #[test]
     fn shell_words_quote_what_the_shell_would_split_or_expand() {

@@ -218,6 +218,16 @@ impl Error {
     }
 }
 
+/// `n` and the noun (given in the singular) as a message says them: "1 material", "51
+/// materials", "0 materials".
+pub fn quantity(n: usize, noun: &str) -> String {
+    if n == 1 {
+        format!("1 {noun}")
+    } else {
+        format!("{n} {noun}s")
+    }
+}
+
 /// `"; did you mean \"NAME\"?"` for a close name, else nothing.
 pub fn did_you_mean(closest: &Option<String>) -> String {
     closest
@@ -257,6 +267,14 @@ pub fn closest_name<'a>(name: &str, candidates: &[&'a str]) -> Option<&'a str> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// "1 material", never "1 materials".
+    #[test]
+    fn quantities_are_singular_for_one() {
+        assert_eq!(quantity(1, "material"), "1 material");
+        assert_eq!(quantity(51, "material"), "51 materials");
+        assert_eq!(quantity(0, "channel"), "0 channels");
+    }
 
     #[test]
     fn closest_names_catch_typos_case_and_parts_but_not_strangers() {

@@ -17,15 +17,7 @@
 use std::io::Write as _;
 use std::sync::Mutex;
 
-/// `n` and the noun (given in the singular) as a message says them: "1 material", "51
-/// materials", "0 materials".
-pub fn quantity(n: usize, noun: &str) -> String {
-    if n == 1 {
-        format!("1 {noun}")
-    } else {
-        format!("{n} {noun}s")
-    }
-}
+pub use brdf_io::error::quantity;
 
 /// What happened to standard output so far.
 enum StdoutState {
@@ -135,15 +127,4 @@ macro_rules! errln {
     ($($t:tt)*) => {
         $crate::console::stderr_line(format_args!($($t)*))
     };
-}
-
-#[cfg(test)]
-mod tests {
-    /// "1 material", never "1 materials".
-    #[test]
-    fn quantities_are_singular_for_one() {
-        assert_eq!(super::quantity(1, "material"), "1 material");
-        assert_eq!(super::quantity(51, "material"), "51 materials");
-        assert_eq!(super::quantity(0, "channel"), "0 channels");
-    }
 }
