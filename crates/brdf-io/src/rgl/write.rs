@@ -443,13 +443,22 @@ pub fn rgl_fields(
         }
         None => source,
     };
-    let pairs = check_pairs();
+    // The source's side of the checks, the same for every candidate file: made once, after the
+    // first candidate's tables (whose errors come first).
+    let reference = std::sync::OnceLock::new();
     let build = |opts: &RglWriteOptions| -> Result<(Vec<Field>, RglWriteSummary)> {
         let (fields, mut summary) = fixed_fields(source, opts)?;
         let file = TensorFile::from_fields(fields, "written.bsdf");
         let bsdf = RglBsdf::from_tensor_file(&file)?;
-        summary.check_rms = check_error(&bsdf, source, &pairs)?;
-        summary.albedo_error = albedo_error(&bsdf, source)?;
+        let reference = match reference.get() {
+            Some(r) => r,
+            None => {
+                let r = SourceReference::new(source)?;
+                reference.get_or_init(|| r)
+            }
+        };
+        summary.check_rms = check_error(&bsdf, reference)?;
+        summary.albedo_error = albedo_error(&bsdf, reference)?;
         tracing::info!(
             albedo_error = summary.albedo_error,
             mirror_share = opts.mirror_share,
@@ -569,47 +578,121 @@ fn check_pairs() -> Vec<([f64; 3], [f64; 3])> {
     pairs
 }
 
+/// What the checks compare a written file with: the source at the check pairs
+/// ([`check_error`]) and its directional albedo at [`ALBEDO_THETAS_DEG`] with the quadrature
+/// nodes ([`albedo_error`]). The source is the same for every candidate file of a write, so
+/// this is evaluated once.
+struct SourceReference {
+    /// Channels per value.
+    nc: usize,
+    /// Luminance weights of the channels.
+    lum_w: Vec<f64>,
+    /// The seeded direction pairs ([`check_pairs`]).
+    pairs: Vec<([f64; 3], [f64; 3])>,
+    /// The source at `pairs`, clamped at 0, `nc` values per pair.
+    pair_values: Vec<f64>,
+    /// Per elevation of [`ALBEDO_THETAS_DEG`]: the incident direction, the quadrature's
+    /// outgoing directions with their weights, and the source's albedo.
+    albedo: Vec<AlbedoNodes>,
+}
+
+/// One elevation of [`SourceReference::albedo`].
+struct AlbedoNodes {
+    wi: [f64; 3],
+    /// (wo, weight): weight = cos theta_o x 4 (wi . m) dm.
+    nodes: Vec<([f64; 3], f64)>,
+    /// The source's luminance-weighted albedo over `nodes`.
+    source: f64,
+}
+
+impl SourceReference {
+    /// The quadrature nodes: for each elevation, m on a midpoint grid in the format's
+    /// coordinates (u = sqrt(2 theta_m / pi), phi_m), kept where wo = the reflection of wi about
+    /// m lies above the horizon.
+    fn new(source: &dyn BrdfSource) -> Result<Self> {
+        const N_U: usize = 96;
+        const N_PHI: usize = 96;
+        let channels = source.channels();
+        let nc = channels.len();
+        let lum_w = luminance_weights(&channels);
+        let albedo = ALBEDO_THETAS_DEG
+            .par_iter()
+            .map(|deg| {
+                let wi = direction(deg.to_radians(), 0.0);
+                let mut g = vec![0.0; nc];
+                let (mut nodes, mut a_source) = (Vec::new(), 0.0);
+                let (du, dphi) = (1.0 / N_U as f64, 2.0 * PI / N_PHI as f64);
+                for i in 0..N_U {
+                    let u = (i as f64 + 0.5) * du;
+                    let tm = u2theta(u);
+                    // dm = sin(theta_m) dtheta_m dphi, dtheta_m = pi u du.
+                    let dm = tm.sin() * PI * u * du * dphi;
+                    for j in 0..N_PHI {
+                        let m = direction(tm, (j as f64 + 0.5) * dphi);
+                        let (dot, wo) = reflect(wi, m);
+                        if !(dot > 0.0 && wo[2] > 0.0) {
+                            continue;
+                        }
+                        source.eval(wi, wo, &mut g)?;
+                        let w = wo[2] * 4.0 * dot * dm;
+                        for (b, l) in g.iter().zip(&lum_w) {
+                            a_source += w * l * b.max(0.0);
+                        }
+                        nodes.push((wo, w));
+                    }
+                }
+                Ok(AlbedoNodes {
+                    wi,
+                    nodes,
+                    source: a_source,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let pairs = check_pairs();
+        let mut pair_values = vec![0.0; pairs.len() * nc];
+        pair_values
+            .par_chunks_mut(256 * nc)
+            .zip(pairs.par_chunks(256))
+            .try_for_each(|(out, chunk)| {
+                for (g, &(wi, wo)) in out.chunks_exact_mut(nc).zip(chunk) {
+                    source.eval(wi, wo, g)?;
+                    g.iter_mut().for_each(|b| *b = b.max(0.0));
+                }
+                Ok::<_, Error>(())
+            })?;
+        Ok(Self {
+            nc,
+            lum_w,
+            pairs,
+            pair_values,
+            albedo,
+        })
+    }
+}
+
 /// Largest relative error of `file`'s directional albedo (luminance-weighted over the
-/// channels) against `source`'s, over [`ALBEDO_THETAS_DEG`]. Both are integrated over the same
+/// channels) against the source's in `reference`, over [`ALBEDO_THETAS_DEG`]. Both are
+/// integrated over the same
 /// nodes in half-vector space: wo = the reflection of wi about m, dwo = 4 (wi . m) dm, with m
 /// on a midpoint grid in the format's coordinates (u = sqrt(2 theta_m / pi), phi_m), whose
 /// nodes crowd towards the mirror direction (the first is 0.003 degrees from it), so a sharp
 /// lobe is integrated as well as a broad one. Errors are relative to the largest albedo over
 /// the elevations when an albedo is below a thousandth of it (a black material does not
 /// divide by 0).
-fn albedo_error(file: &RglBsdf, source: &dyn BrdfSource) -> Result<f64> {
-    const N_U: usize = 96;
-    const N_PHI: usize = 96;
-    let channels = source.channels();
-    let lum_w = luminance_weights(&channels);
-    let albedos = ALBEDO_THETAS_DEG
+fn albedo_error(file: &RglBsdf, reference: &SourceReference) -> Result<f64> {
+    let albedos = reference
+        .albedo
         .par_iter()
-        .map(|deg| {
-            let wi = direction(deg.to_radians(), 0.0);
-            let (mut f, mut g) = (vec![0.0; channels.len()], vec![0.0; channels.len()]);
-            let (mut a_file, mut a_source) = (0.0, 0.0);
-            let (du, dphi) = (1.0 / N_U as f64, 2.0 * PI / N_PHI as f64);
-            for i in 0..N_U {
-                let u = (i as f64 + 0.5) * du;
-                let tm = u2theta(u);
-                // dm = sin(theta_m) dtheta_m dphi, dtheta_m = pi u du.
-                let dm = tm.sin() * PI * u * du * dphi;
-                for j in 0..N_PHI {
-                    let m = direction(tm, (j as f64 + 0.5) * dphi);
-                    let (dot, wo) = reflect(wi, m);
-                    if !(dot > 0.0 && wo[2] > 0.0) {
-                        continue;
-                    }
-                    file.eval(wi, wo, &mut f)?;
-                    source.eval(wi, wo, &mut g)?;
-                    let w = wo[2] * 4.0 * dot * dm;
-                    for ((a, b), l) in f.iter().zip(&g).zip(&lum_w) {
-                        a_file += w * l * a;
-                        a_source += w * l * b.max(0.0);
-                    }
+        .map(|e| {
+            let mut f = vec![0.0; reference.nc];
+            let mut a_file = 0.0;
+            for &(wo, w) in &e.nodes {
+                file.eval(e.wi, wo, &mut f)?;
+                for (a, l) in f.iter().zip(&reference.lum_w) {
+                    a_file += w * l * a;
                 }
             }
-            Ok((a_file, a_source))
+            Ok((a_file, e.source))
         })
         .collect::<Result<Vec<(f64, f64)>>>()?;
     let largest = albedos.iter().map(|a| a.1).fold(0.0, f64::max);
@@ -626,25 +709,21 @@ fn albedo_error(file: &RglBsdf, source: &dyn BrdfSource) -> Result<f64> {
         .fold(0.0, f64::max))
 }
 
-/// Relative RMS error of `file` against `source` over `pairs`, each value weighted by
-/// cos theta_i cos theta_o (0 when the source is 0 everywhere and so is the file).
-fn check_error(
-    file: &RglBsdf,
-    source: &dyn BrdfSource,
-    pairs: &[([f64; 3], [f64; 3])],
-) -> Result<f64> {
-    let nc = source.channels().len();
-    let (num, den) = pairs
+/// Relative RMS error of `file` against the source over the check pairs, each value weighted
+/// by cos theta_i cos theta_o (0 when the source is 0 everywhere and so is the file).
+fn check_error(file: &RglBsdf, reference: &SourceReference) -> Result<f64> {
+    let nc = reference.nc;
+    let (num, den) = reference
+        .pairs
         .par_chunks(256)
-        .map(|chunk| {
-            let (mut f, mut g) = (vec![0.0; nc], vec![0.0; nc]);
+        .zip(reference.pair_values.par_chunks(256 * nc))
+        .map(|(chunk, values)| {
+            let mut f = vec![0.0; nc];
             let (mut num, mut den) = (0.0, 0.0);
-            for &(wi, wo) in chunk {
+            for (&(wi, wo), g) in chunk.iter().zip(values.chunks_exact(nc)) {
                 file.eval(wi, wo, &mut f)?;
-                source.eval(wi, wo, &mut g)?;
                 let w = wi[2] * wo[2];
-                for (a, b) in f.iter().zip(&g) {
-                    let b = b.max(0.0);
+                for (a, &b) in f.iter().zip(g) {
                     num += (w * (a - b)).powi(2);
                     den += (w * b).powi(2);
                 }
@@ -764,22 +843,35 @@ fn fixed_fields(
     let d_at = |u: f64| ndf_table.eval([u, 0.0]);
 
     // 2. sigma(theta_i) by a midpoint rule over (u_m, phi_m), symmetric in phi_m.
+    // The nodes' sines and cosines do not depend on theta_i: computed once (m = direction(tm,
+    // phi) = [sin tm cos phi, sin tm sin phi, cos tm], of which wi, in the xz plane, needs x, z).
     const SIGMA_NODES: usize = 256;
+    let cos_phi: Vec<f64> = (0..SIGMA_NODES / 2)
+        .map(|b| ((b as f64 + 0.5) / SIGMA_NODES as f64 * 2.0 * PI - PI).cos())
+        .collect();
+    // Per u_m node: sin tm, cos tm, the Jacobian, D.
+    let rings: Vec<[f64; 4]> = (0..SIGMA_NODES)
+        .map(|a| {
+            let u = (a as f64 + 0.5) / SIGMA_NODES as f64;
+            let tm = u2theta(u);
+            let (st, ct) = tm.sin_cos();
+            [
+                st,
+                ct,
+                2.0 * PI * PI * u * tm.sin() / SIGMA_NODES as f64,
+                d_at(u),
+            ]
+        })
+        .collect();
     let sigma: Vec<f64> = (0..nw)
         .into_par_iter()
         .map(|k| {
             let ti = u2theta(u_at(k, nw));
             let wi = direction(ti, 0.0);
             let mut acc = 0.0;
-            for a in 0..SIGMA_NODES {
-                let u = (a as f64 + 0.5) / SIGMA_NODES as f64;
-                let tm = u2theta(u);
-                let jac = 2.0 * PI * PI * u * tm.sin() / SIGMA_NODES as f64;
-                let d = d_at(u);
-                for b in 0..SIGMA_NODES / 2 {
-                    let phi = (b as f64 + 0.5) / SIGMA_NODES as f64 * 2.0 * PI - PI;
-                    let m = direction(tm, phi);
-                    let c = (wi[0] * m[0] + wi[2] * m[2]).max(0.0);
+            for &[st, ct, jac, d] in &rings {
+                for cp in &cos_phi {
+                    let c = (wi[0] * (st * cp) + wi[2] * ct).max(0.0);
                     acc += 2.0 * d * c * jac / SIGMA_NODES as f64;
                 }
             }
@@ -798,6 +890,22 @@ fn fixed_fields(
     // Per slice: the table, and the sums and share that make its density
     // (1 - w) geo / sum_geo + w lobe / sum_lobe (for the luminance table below).
     let lobe_share = options.lobe_warp.unwrap_or(0.0);
+    // The half vectors of the table do not depend on theta_i: computed once (as `direction`
+    // does), with each column's D and Jacobian.
+    let row_phi: Vec<(f64, f64)> = (0..nw)
+        .map(|row| {
+            let phi = u2phi(u_at(row, nw));
+            (phi.cos(), phi.sin())
+        })
+        .collect();
+    let col_theta: Vec<[f64; 4]> = (0..nw)
+        .map(|col| {
+            let u = u_at(col, nw);
+            let tm = u2theta(u);
+            let (st, ct) = tm.sin_cos();
+            [st, ct, u * tm.sin(), d_at(u)]
+        })
+        .collect();
     let warps: Vec<(Vec<f32>, [f64; 3])> = (0..nt)
         .into_par_iter()
         .map(|k| -> Result<(Vec<f32>, [f64; 3])> {
@@ -805,16 +913,12 @@ fn fixed_fields(
             let mut geo = vec![0.0f64; nw * nw];
             let mut lobe = vec![0.0f64; nw * nw];
             let mut f = vec![0.0; nc];
-            for row in 0..nw {
-                let phi = u2phi(u_at(row, nw));
-                for col in 0..nw {
-                    let u = u_at(col, nw);
-                    let tm = u2theta(u);
-                    let m = direction(tm, phi);
+            for (row, &(cp, sp)) in row_phi.iter().enumerate() {
+                for (col, &[st, ct, jac, d]) in col_theta.iter().enumerate() {
+                    let m = [st * cp, st * sp, ct];
                     let (dot, wo) = reflect(wi, m);
                     let c = dot.max(0.0);
-                    let jac = u * tm.sin();
-                    geo[row * nw + col] = d_at(u) * c * jac;
+                    geo[row * nw + col] = d * c * jac;
                     if lobe_share > 0.0 && c > 0.0 && wo[2] > 0.0 {
                         eval_finite(source, name, wi, wo, &mut f)?;
                         lobe[row * nw + col] = lum(&f) * wo[2] * 4.0 * c * jac;
@@ -1163,8 +1267,11 @@ mod tests {
         }
         let (bsdf, summary) = written(&Analytic::new(0.2), &RglWriteOptions::default());
         assert!(summary.albedo_error < 0.02, "{summary:?}");
-        assert_eq!(albedo_error(&bsdf, &Scaled(&bsdf, 1.0)).unwrap(), 0.0);
-        let e = albedo_error(&bsdf, &Scaled(&bsdf, 1.1)).unwrap();
+        assert_eq!(
+            albedo_error(&bsdf, &SourceReference::new(&Scaled(&bsdf, 1.0)).unwrap()).unwrap(),
+            0.0
+        );
+        let e = albedo_error(&bsdf, &SourceReference::new(&Scaled(&bsdf, 1.1)).unwrap()).unwrap();
         assert!((e - 0.1 / 1.1).abs() < 1e-12, "{e}");
     }
 
