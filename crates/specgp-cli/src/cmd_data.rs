@@ -494,13 +494,14 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
         };
         outln!("file           {}", args.path.display());
         outln!("materials      {}", h.n_materials());
+        let width = name_width(h.materials.iter().map(|m| m.name.as_str()));
         for m in &h.materials {
             let flushed = match m.stats.flushed_to_zero {
                 0 => String::new(),
                 n => format!("  flushed to 0 by {} {n}", h.layout.dtype.name()),
             };
             outln!(
-                "  {:<24} mean {:.4e}  min {:.4e}  max {:.4e}  negatives {}{flushed}  from {}",
+                "  {:<width$} mean {:.4e}  min {:.4e}  max {:.4e}  negatives {}{flushed}  from {}",
                 m.name,
                 m.stats.mean,
                 m.stats.min,
@@ -641,9 +642,10 @@ fn model_info(args: &InfoArgs) -> anyhow::Result<()> {
         f.optimize_seconds
     );
     outln!("materials      (see `specgp latent`)");
+    let width = name_width(model.materials.iter().map(|m| m.name.as_str()));
     for m in &model.materials {
         let coords: Vec<String> = m.coords.iter().map(|c| format!("{c:+.4}")).collect();
-        outln!("  {:<32} {}", m.name, coords.join(" "));
+        outln!("  {:<width$} {}", m.name, coords.join(" "));
     }
     verdict
 }
@@ -786,9 +788,24 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The column width that lines up material names: the longest name's (in characters), at
+/// least 24.
+fn name_width<'a>(names: impl Iterator<Item = &'a str>) -> usize {
+    names.map(|n| n.chars().count()).fold(24, usize::max)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Names longer than 24 characters widen the column (counted in characters, not bytes).
+    #[test]
+    fn name_columns_fit_the_longest_name() {
+        assert_eq!(name_width(["paper", "satin"].into_iter()), 24);
+        let long = ["paper", "laika_ceiling_paint_18_gray"];
+        assert_eq!(name_width(long.into_iter()), 27);
+        assert_eq!(name_width(["é".repeat(30).as_str()].into_iter()), 30);
+    }
 
     #[test]
     fn repeated_material_names_are_refused_up_front() {
