@@ -501,7 +501,7 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
                 n => format!("  flushed to 0 by {} {n}", h.layout.dtype.name()),
             };
             outln!(
-                "  {:<width$} mean {:.4e}  min {:.4e}  max {:.4e}  negatives {}{flushed}  from {}",
+                "  {:<width$} mean {:<10.4e}  min {:<10.4e}  max {:<10.4e}  negatives {}{flushed}  from {}",
                 m.name,
                 m.stats.mean,
                 m.stats.min,
