@@ -562,8 +562,8 @@ impl ChannelSelection {
             (Channels::Rgb, Channels::Spectral(_)) => {
                 return Err(Error::InvalidArgument {
                     reason: format!(
-                        "{}: RGB data has no wavelengths; leave out --wavelengths (its R, G, B \
-                         channels are read as they are)",
+                        "{}: RGB data has no wavelengths; give none (its R, G, B channels are \
+                         read as they are)",
                         path.display()
                     ),
                 });
