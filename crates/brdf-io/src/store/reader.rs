@@ -995,7 +995,11 @@ mod tests {
         }
         w.finish().unwrap();
         let store = Store::open(&p).unwrap();
-        assert!(store.n_chunks() > 2 * PAR_FOLD_SEGMENTS, "{}", store.n_chunks());
+        assert!(
+            store.n_chunks() > 2 * PAR_FOLD_SEGMENTS,
+            "{}",
+            store.n_chunks()
+        );
         let n = store.n_materials();
         let mask = store.validity_mask();
         let gram = |wave| {
