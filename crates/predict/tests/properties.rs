@@ -1,0 +1,664 @@
+//! Property tests of the prediction service over small random datasets: tiny grids, a few
+//! materials with values spanning several decades (and duplicates or near-duplicates), models
+//! fitted through `gplvm`, and invariants checked against independent computations.
+#![allow(clippy::needless_range_loop)]
+
+use std::path::{Path, PathBuf};
+
+use brdf_io::store::Store;
+use brdf_io::{AngularGrid, Channels, StoreInfo, StoreOptions, StoreWriter};
+use gplvm::{FitParams, Transform};
+use predict::{Predictor, PredictorKind};
+use proptest::prelude::*;
+use rand::{Rng, SeedableRng};
+
+/// A random dataset and its fitted model in a temporary directory.
+struct Case {
+    dir: tempfile::TempDir,
+    model: PathBuf,
+    /// Every stored value, material-major (`values[m][d]`).
+    values: Vec<Vec<f32>>,
+}
+
+#[derive(Debug, Clone, Copy)]
+enum Duplicate {
+    None,
+    /// The last material is a copy of the first (another name).
+    Exact,
+    /// The last material is the first times 1 + 1e-6 u, u in [-1, 1].
+    Near,
+}
+
+#[derive(Debug, Clone)]
+struct Spec {
+    seed: u64,
+    n: usize,
+    q: usize,
+    log: bool,
+    rgb: bool,
+    duplicate: Duplicate,
+}
+
+fn spec() -> impl Strategy<Value = Spec> {
+    (
+        any::<u64>(),
+        3usize..=5,
+        1usize..=2,
+        any::<bool>(),
+        any::<bool>(),
+        prop_oneof![
+            2 => Just(Duplicate::None),
+            1 => Just(Duplicate::Exact),
+            1 => Just(Duplicate::Near)
+        ],
+    )
+        .prop_map(|(seed, n, q, log, rgb, duplicate)| Spec {
+            seed,
+            n,
+            q,
+            log,
+            rgb,
+            duplicate,
+        })
+}
+
+fn grid() -> AngularGrid {
+    AngularGrid::new(4, 4, 8).unwrap()
+}
+
+/// Writes `values` (material-major) to a store at `path`.
+fn write_values(path: &Path, channels: &Channels, values: &[Vec<f32>]) {
+    let info = StoreInfo {
+        grid: grid(),
+        channels: channels.clone(),
+    };
+    let mut w = StoreWriter::create(path, info, StoreOptions::default()).unwrap();
+    for (m, v) in values.iter().enumerate() {
+        w.add_material(&format!("m{m}"), "random", v).unwrap();
+    }
+    w.finish().unwrap();
+}
+
+/// Random positive values over ~1e-2..1e4: a per-material level and contrast on a shared
+/// per-index shape, with per-value noise; 0 below the horizon (as the store keeps them).
+fn random_values(spec: &Spec, d: usize, nc: usize) -> Vec<Vec<f32>> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(spec.seed);
+    let mask = grid().validity_mask();
+    let shape: Vec<f64> = (0..d).map(|_| rng.random_range(0.0..1.0)).collect();
+    let mut values: Vec<Vec<f32>> = (0..spec.n)
+        .map(|_| {
+            let a = rng.random_range(-2.0..1.0);
+            let b = rng.random_range(0.0..3.0);
+            (0..d)
+                .map(|i| {
+                    if !mask[i / nc] {
+                        return 0.0;
+                    }
+                    let e: f64 = a + b * shape[i] + rng.random_range(-0.2..0.2);
+                    10f64.powf(e) as f32
+                })
+                .collect()
+        })
+        .collect();
+    let last = spec.n - 1;
+    match spec.duplicate {
+        Duplicate::None => {}
+        Duplicate::Exact => values[last] = values[0].clone(),
+        Duplicate::Near => {
+            values[last] = values[0]
+                .iter()
+                .map(|v| v * (1.0 + 1e-6 * rng.random_range(-1.0f32..1.0)))
+                .collect();
+        }
+    }
+    values
+}
+
+fn channels_of(spec: &Spec) -> Channels {
+    if spec.rgb {
+        Channels::Rgb
+    } else if spec.seed.is_multiple_of(2) {
+        Channels::parse_wavelengths("400:600:100").unwrap()
+    } else {
+        Channels::parse_wavelengths("450:650:50").unwrap()
+    }
+}
+
+fn make_case(spec: &Spec) -> Case {
+    let dir = tempfile::tempdir().unwrap();
+    let store = dir.path().join("data.sbrdf");
+    let channels = channels_of(spec);
+    let nc = channels.len();
+    let d = grid().len() * nc;
+    let values = random_values(spec, d, nc);
+    write_values(&store, &channels, &values);
+    let params = FitParams {
+        latent_dim: spec.q,
+        transform: if spec.log { "log" } else { "raw" }.into(),
+        max_iterations: 60,
+        ..FitParams::default()
+    };
+    let model = gplvm::fit_store(&store, &params.check().unwrap()).unwrap();
+    let model_path = dir.path().join("model.toml");
+    model.save(&model_path).unwrap();
+    Case {
+        dir,
+        model: model_path,
+        values,
+    }
+}
+
+/// Dense solve of a small system by Gaussian elimination with partial pivoting.
+fn dense_solve(a: &[Vec<f64>], b: &[f64]) -> Vec<f64> {
+    let n = b.len();
+    let mut m: Vec<Vec<f64>> = (0..n)
+        .map(|i| {
+            let mut r = a[i].clone();
+            r.push(b[i]);
+            r
+        })
+        .collect();
+    for k in 0..n {
+        let p = (k..n)
+            .max_by(|&x, &y| m[x][k].abs().total_cmp(&m[y][k].abs()))
+            .unwrap();
+        m.swap(k, p);
+        for i in k + 1..n {
+            let f = m[i][k] / m[k][k];
+            for j in k..=n {
+                m[i][j] -= f * m[k][j];
+            }
+        }
+    }
+    let mut x = vec![0.0; n];
+    for i in (0..n).rev() {
+        let s: f64 = (i + 1..n).map(|j| m[i][j] * x[j]).sum();
+        x[i] = (m[i][n] - s) / m[i][i];
+    }
+    x
+}
+
+/// The model's latent points.
+fn points(pred: &Predictor) -> Vec<Vec<f64>> {
+    pred.model()
+        .materials
+        .iter()
+        .map(|m| m.coords.clone())
+        .collect()
+}
+
+/// The length-scale of axis `j`.
+fn length_scale(pred: &Predictor, j: usize) -> f64 {
+    let l = &pred.model().hyperparameters.length_scale;
+    *l.get(j).unwrap_or(&l[0])
+}
+
+/// The dense GP weights `K^-1 k*` computed here from the hyperparameters (the jitter, if the
+/// factorisation needed one, counted as noise as `gp_core` does), and `K` itself.
+fn dense_weights(pred: &Predictor, x: &[f64], kind: PredictorKind) -> Vec<f64> {
+    let h = &pred.model().hyperparameters;
+    let s2 = h.signal_variance;
+    let mu = pred.gp().effective_noise();
+    let pts = points(pred);
+    let k = |a: &[f64], b: &[f64]| {
+        let r2: f64 = (0..a.len())
+            .map(|j| ((a[j] - b[j]) / length_scale(pred, j)).powi(2))
+            .sum();
+        s2 * (-0.5 * r2).exp()
+    };
+    let n = pts.len();
+    let kk: Vec<Vec<f64>> = (0..n)
+        .map(|i| {
+            (0..n)
+                .map(|j| k(&pts[i], &pts[j]) + if i == j { mu } else { 0.0 })
+                .collect()
+        })
+        .collect();
+    let kstar: Vec<f64> = pts
+        .iter()
+        .map(|p| {
+            k(p, x)
+                + if kind == PredictorKind::Exact && p == x {
+                    mu
+                } else {
+                    0.0
+                }
+        })
+        .collect();
+    dense_solve(&kk, &kstar)
+}
+
+/// Random latent points: convex combinations of the training points (inside their hull),
+/// a little beyond it, and the training points themselves.
+fn latent_points(pred: &Predictor, seed: u64) -> Vec<Vec<f64>> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5eed);
+    let pts = points(pred);
+    let (n, q) = (pts.len(), pts[0].len());
+    let mut out = Vec::new();
+    for _ in 0..3 {
+        let w: Vec<f64> = (0..n).map(|_| rng.random_range(0.0..1.0)).collect();
+        let s: f64 = w.iter().sum();
+        out.push(
+            (0..q)
+                .map(|j| (0..n).map(|i| w[i] / s * pts[i][j]).sum())
+                .collect(),
+        );
+    }
+    let l = length_scale(pred, 0);
+    out.push(pts[0].iter().map(|v| v + 0.7 * l).collect());
+    out.push(pts[n - 1].clone());
+    out
+}
+
+/// `|a - b|` within `tol` of the larger magnitude (plus `abs`).
+fn close(a: f64, b: f64, tol: f64, abs: f64) -> bool {
+    (a - b).abs() <= tol * a.abs().max(b.abs()) + abs
+}
+
+fn kinds() -> [PredictorKind; 2] {
+    [PredictorKind::Exact, PredictorKind::Smooth]
+}
+
+fn is_coinciding(pred: &Predictor, i: usize) -> bool {
+    let pts = points(pred);
+    pts.iter().enumerate().any(|(j, p)| j != i && *p == pts[i])
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 20, max_shrink_iters: 32, ..ProptestConfig::default() })]
+
+    /// Lazy lookups, the dense posterior mean, training reproduction and materialised files.
+    #[test]
+    fn predictions_agree_with_the_dense_posterior_and_their_files(spec in spec()) {
+        let case = make_case(&spec);
+        let pred = Predictor::open(&case.model).unwrap();
+        let t = pred.transform();
+        let nc = pred.channels().len();
+        let d = pred.store().d();
+        let n = pred.n_materials();
+        let mask = pred.grid().validity_mask();
+        let offset = match t {
+            Transform::Raw => 0.0,
+            Transform::Log { offset } => offset,
+        };
+        // Independent transforms (the standard library's).
+        let fwd = |f: f64| match t {
+            Transform::Raw => f,
+            Transform::Log { offset } => (f.max(0.0) / offset).ln_1p(),
+        };
+        let inv = |y: f64| match t {
+            Transform::Raw => y,
+            Transform::Log { offset } => offset * y.exp_m1(),
+        };
+        let ty: Vec<Vec<f64>> = case
+            .values
+            .iter()
+            .map(|row| row.iter().map(|v| fwd(f64::from(*v))).collect())
+            .collect();
+        let mut cell = vec![0.0; nc];
+        for (k, x) in latent_points(&pred, spec.seed).iter().enumerate() {
+            for kind in kinds() {
+                let m = pred.predict(x, kind).unwrap();
+                // Dense posterior mean in the transformed space, then the inverse.
+                let w = dense_weights(&pred, x, kind);
+                let got_w = pred.gp_weights(x, kind).unwrap();
+                let cond = pred.gp().factor().condition_estimate();
+                let wscale: f64 = w.iter().map(|v| v.abs()).sum::<f64>().max(1.0);
+                for i in 0..n {
+                    prop_assert!(
+                        close(got_w[i], w[i], 0.0, 1e-12 * cond * wscale),
+                        "w[{i}] {} vs dense {} (cond {cond:e})", got_w[i], w[i]
+                    );
+                }
+                for a in 0..pred.grid().len() {
+                    m.eval_cell(a, &mut cell).unwrap();
+                    for c in 0..nc {
+                        let di = a * nc + c;
+                        // Bit-identical: value_at and eval_cell run the one arithmetic.
+                        prop_assert_eq!(cell[c].to_bits(), m.value_at(di).unwrap().to_bits());
+                        let mean = (0..n).map(|i| ty[i][di]).sum::<f64>() / n as f64;
+                        let ystar = mean
+                            + (0..n).map(|i| got_w[i] * (ty[i][di] - mean)).sum::<f64>();
+                        let scale: f64 = (0..n)
+                            .map(|i| (got_w[i].abs() + 1.0 / n as f64) * ty[i][di].abs())
+                            .sum();
+                        let want = inv(ystar);
+                        // Rounding of the sums (~n eps of the terms) through the inverse,
+                        // whose derivative is f + offset.
+                        let allowed = 64.0 * f64::EPSILON * scale
+                            * if spec.log { want.abs() + offset } else { 1.0 };
+                        prop_assert!(
+                            (cell[c] - want).abs() <= allowed + 1e-300,
+                            "point {k} {kind} index {di}: {} vs {want} (allowed {allowed:e})",
+                            cell[c]
+                        );
+                        if !mask[a] {
+                            prop_assert_eq!(cell[c], 0.0);
+                        }
+                    }
+                }
+            }
+        }
+        // The exact predictor returns each training material at its own point (unless another
+        // material shares the point bit for bit: the delta term is then shared).
+        for i in 0..n {
+            if is_coinciding(&pred, i) {
+                continue;
+            }
+            let m = pred.predict(&points(&pred)[i], PredictorKind::Exact).unwrap();
+            prop_assert!(m.coefficients().iter().enumerate().all(|(j, c)| *c == f64::from(u8::from(i == j))));
+            for di in 0..d {
+                let (got, stored) = (m.value_at(di).unwrap(), f64::from(case.values[i][di]));
+                if spec.log {
+                    // ln_1p then exp_m1: a few ulps.
+                    prop_assert!(close(got, stored, 1e-13, 0.0), "{got} vs {stored}");
+                } else {
+                    prop_assert_eq!(got, stored);
+                }
+            }
+        }
+
+        // Materialised files equal the lazy values rounded to f32, bit for bit.
+        let x = &latent_points(&pred, spec.seed)[0];
+        for kind in kinds() {
+            let m = pred.predict(x, kind).unwrap();
+            let lazy: Vec<f32> = (0..d).map(|di| m.value_at(di).unwrap() as f32).collect();
+            let npy = case.dir.path().join("p.npy");
+            let report = m.materialize(&npy, |_, _| {}).unwrap();
+            let arr = brdf_io::npy::read(&npy).unwrap().to_f32();
+            prop_assert_eq!(arr.len(), d);
+            for di in 0..d {
+                prop_assert_eq!(arr[di].to_bits(), lazy[di].to_bits(), "npy index {}", di);
+            }
+            prop_assert_eq!(report.negatives, lazy.iter().filter(|v| **v < 0.0).count());
+            let sbrdf = case.dir.path().join("p.sbrdf");
+            m.materialize(&sbrdf, |_, _| {}).unwrap();
+            let written = Store::open(&sbrdf).unwrap();
+            prop_assert_eq!(written.n_materials(), 1);
+            prop_assert_eq!(written.channels(), pred.channels());
+            let mut row = vec![0f32; d];
+            written.material_row(0, 0..d, &mut row).unwrap();
+            for di in 0..d {
+                prop_assert_eq!(row[di].to_bits(), lazy[di].to_bits(), "sbrdf index {}", di);
+            }
+            if spec.rgb && kind == PredictorKind::Smooth {
+                check_merl(&case, &m)?;
+            }
+        }
+    }
+}
+
+/// The MERL file of an RGB prediction holds, at each MERL bin centre, the lazy prediction
+/// interpolated there (negative values as 0), to f32 rounding.
+fn check_merl(case: &Case, m: &predict::PredictedMaterial) -> Result<(), TestCaseError> {
+    let path = case.dir.path().join("p.binary");
+    m.materialize(&path, |_, _| {}).unwrap();
+    let merl = brdf_io::merl::read_merl(&path).unwrap();
+    let g = AngularGrid::MERL;
+    prop_assert_eq!(*merl.grid(), g);
+    let (mut rgb, mut cell) = ([0.0; 3], [0.0; 3]);
+    for flat in (0..g.len()).step_by(997) {
+        let hd = g.bin_centre_flat(flat);
+        for c in 0..3 {
+            let v = merl.value(c, flat);
+            if !hd.is_above_horizon() {
+                prop_assert_eq!(v, 0.0);
+                continue;
+            }
+            m.eval_half_diff(&hd, &mut rgb).unwrap();
+            let want = rgb[c].max(0.0);
+            // The file interpolates the f32-rounded cell values and rounds the sum to f32:
+            // a few f32 ulps of sum_a w_a |v_a| (the sum can cancel when values are negative).
+            let mut size = 0.0;
+            for (a, w) in m.predictor().grid().interpolation_stencil(&hd) {
+                m.eval_cell(a, &mut cell).unwrap();
+                size += w.abs() * cell[c].abs();
+            }
+            prop_assert!(
+                (v - want).abs() <= 4.0 * f64::from(f32::EPSILON) * size + 1e-30,
+                "MERL cell {flat} channel {c}: {v} vs {want} (size {size})"
+            );
+        }
+    }
+    Ok(())
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, max_shrink_iters: 32, ..ProptestConfig::default() })]
+
+    /// Variance: non-negative, between mu and 2 mu at a training point (a new noisy
+    /// observation there), the prior far away (finite at 1e6 length-scales), 0 for the exact
+    /// predictor at a training point; locate inverts predict inside the hull.
+    #[test]
+    fn variance_and_locate_behave(spec in spec()) {
+        let case = make_case(&spec);
+        let pred = Predictor::open(&case.model).unwrap();
+        let n = pred.n_materials();
+        let h = &pred.model().hyperparameters;
+        let mu = pred.gp().effective_noise();
+        let prior = pred.prior_variance();
+        prop_assert_eq!(prior, h.signal_variance + mu);
+        let pts = points(&pred);
+        for i in 0..n {
+            let v = pred.variance(&pts[i]).unwrap();
+            prop_assert!(v >= mu * (1.0 - 1e-9) && v <= 2.0 * mu * (1.0 + 1e-6) + 1e-12 * prior,
+                "variance at training point {i}: {v:e} (mu {mu:e})");
+            if !is_coinciding(&pred, i) {
+                prop_assert_eq!(pred.variance_of(&pts[i], PredictorKind::Exact).unwrap(), 0.0);
+            }
+        }
+        for x in latent_points(&pred, spec.seed) {
+            for kind in kinds() {
+                let v = pred.variance_of(&x, kind).unwrap();
+                prop_assert!((0.0..=prior).contains(&v), "{v} (prior {prior})");
+            }
+        }
+        for scale in [1e3, 1e6] {
+            // Beyond every material along every axis.
+            let far: Vec<f64> = (0..pred.latent_dim())
+                .map(|j| pts.iter().map(|p| p[j]).fold(f64::MIN, f64::max) + scale * length_scale(&pred, j))
+                .collect();
+            for kind in kinds() {
+                prop_assert_eq!(pred.variance_of(&far, kind).unwrap(), prior);
+                // Far from every material the prediction is the data mean.
+                let c = pred.coefficients(&far, kind).unwrap();
+                prop_assert!(c.iter().all(|v| *v == 1.0 / n as f64), "{:?}", c);
+            }
+            let s = pred.support(&far).unwrap();
+            prop_assert!(s.is_far() && s.distance.is_finite() && s.distance >= scale * 0.999, "{s:?} scale {scale} l {:?}", h.length_scale);
+        }
+
+        // Locate: a smooth prediction inside the hull is found where the GP predicts it, to the
+        // precision of the latent search (Hooke-Jeeves down to steps of 1e-5 of the points'
+        // spread: ~1e-5 of the target's size in an ill-conditioned valley; not necessarily at
+        // the point it was made, since the prediction can be reached elsewhere, e.g. near the
+        // mean far from the materials).
+        let x = &latent_points(&pred, spec.seed)[0];
+        let m = pred.predict(x, PredictorKind::Smooth).unwrap();
+        let d = pred.store().d();
+        let values: Vec<f32> = (0..d).map(|di| m.value_at(di).unwrap() as f32).collect();
+        let target = predict::locate::Target { name: "p".into(), source: "test".into(), values };
+        let targets = std::slice::from_ref(&target);
+        let loc = &predict::locate::locate(&pred, targets, 3, &|_, _| {}).unwrap()[0];
+        let (_, norms) = predict::locate::cross_products(&pred, targets, &|_, _| {}).unwrap();
+        let typical = (norms[0] / pred.grid().len() as f64).sqrt();
+        prop_assert!(
+            loc.model_rmse <= 1e-4 * typical && loc.model_rmse <= loc.nearest_model_rmse,
+            "{loc:?} (typical {typical:e})"
+        );
+    }
+}
+
+/// Leave-one-out from the Gram matrix equals brute force on raw data: refitting on a store
+/// without the held-out material (cold, as `warm_start: false` refits) gives the same latent
+/// space, the GP's prediction at the reported point from that refit equals the reported
+/// coefficients' combination of the stored rows, and every method's errors equal the errors
+/// computed directly from the values.
+#[test]
+fn leave_one_out_equals_brute_force_refits_on_raw_data() {
+    for seed in [3u64, 11] {
+        let spec = Spec {
+            seed,
+            n: 4,
+            q: 1,
+            log: false,
+            rgb: seed % 2 == 1,
+            duplicate: Duplicate::None,
+        };
+        let case = make_case(&spec);
+        let pred = Predictor::open(&case.model).unwrap();
+        let options = predict::evaluate::EvalOptions {
+            loo: true,
+            starts: 3,
+            warm_start: false,
+            refit_iterations: None,
+        };
+        let ev = predict::evaluate::evaluate(&pred, &options, &|_, _, _| {}).unwrap();
+        let (n, d) = (pred.n_materials(), pred.store().d());
+        let n_angles = pred.grid().len() as f64;
+        let channels = pred.channels().clone();
+        let y = |i: usize, di: usize| f64::from(case.values[i][di]);
+        for (h, row) in ev.loo.as_ref().unwrap().iter().enumerate() {
+            // Errors of every method, directly from the values.
+            for entry in &row.methods {
+                assert!(
+                    close(
+                        entry.brdf_rmse,
+                        entry.model_rmse,
+                        1e-6,
+                        1e-9 * entry.brdf_rmse.max(1.0)
+                    ),
+                    "{h} {:?}: {} vs {}",
+                    entry.method,
+                    entry.brdf_rmse,
+                    entry.model_rmse
+                );
+            }
+            let c = &row.gp_coefficients;
+            assert_eq!(c[h], 0.0);
+            let sq: f64 = (0..d)
+                .map(|di| (y(h, di) - (0..n).map(|i| c[i] * y(i, di)).sum::<f64>()).powi(2))
+                .sum();
+            let gp = &row.methods[0];
+            assert!(
+                close(gp.brdf_rmse, (sq / n_angles).sqrt(), 1e-9, 1e-12),
+                "{h}"
+            );
+
+            // Brute force: the store without h, fitted from scratch with the same settings.
+            let others: Vec<usize> = (0..n).filter(|&i| i != h).collect();
+            let values: Vec<Vec<f32>> = others.iter().map(|&i| case.values[i].clone()).collect();
+            let dir = case.dir.path().join(format!("without{h}"));
+            std::fs::create_dir(&dir).unwrap();
+            let store = dir.join("data.sbrdf");
+            write_values(&store, &channels, &values);
+            let config = pred.model().fit_config(&case.model).unwrap();
+            let model = gplvm::fit_store(&store, &config).unwrap();
+            let model_path = dir.join("model.toml");
+            model.save(&model_path).unwrap();
+            let refit = Predictor::open(&model_path).unwrap();
+            let m = refit.predict(&row.gp_point, PredictorKind::Smooth).unwrap();
+            for di in 0..d {
+                let via_c: f64 = (0..n).map(|i| c[i] * y(i, di)).sum();
+                let brute = m.value_at(di).unwrap();
+                assert!(
+                    close(brute, via_c, 1e-6, 1e-9),
+                    "held out {h}, index {di}: refit {brute} vs leave-one-out {via_c}"
+                );
+            }
+        }
+    }
+}
+
+/// Evaluation (with leave-one-out), locate and materialised files are bit-identical in rayon
+/// pools of 1, 2 and 3 threads.
+#[test]
+fn results_do_not_depend_on_the_thread_count() {
+    let spec = Spec {
+        seed: 5,
+        n: 5,
+        q: 2,
+        log: true,
+        rgb: false,
+        duplicate: Duplicate::Near,
+    };
+    let case = make_case(&spec);
+    let pred = Predictor::open(&case.model).unwrap();
+    let d = pred.store().d();
+    let x = latent_points(&pred, spec.seed)[1].clone();
+    let target_values: Vec<f32> = {
+        let m = pred.predict(&x, PredictorKind::Smooth).unwrap();
+        (0..d)
+            .map(|di| 1.1 * m.value_at(di).unwrap() as f32)
+            .collect()
+    };
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let options = predict::evaluate::EvalOptions {
+                loo: true,
+                refit_iterations: Some(30),
+                ..Default::default()
+            };
+            let mut ev = predict::evaluate::evaluate(&pred, &options, &|_, _, _| {}).unwrap();
+            (ev.loo_seconds, ev.pass_seconds) = (0.0, 0.0);
+            let target = predict::locate::Target {
+                name: "t".into(),
+                source: "test".into(),
+                values: target_values.clone(),
+            };
+            let loc = predict::locate::locate(&pred, &[target], 3, &|_, _| {}).unwrap();
+            let out = case.dir.path().join(format!("p{threads}.npy"));
+            pred.predict(&x, PredictorKind::Exact)
+                .unwrap()
+                .materialize(&out, |_, _| {})
+                .unwrap();
+            (
+                format!("{ev:?}"),
+                format!("{:?} {:?}", loc, loc[0].coefficients),
+                std::fs::read(&out).unwrap(),
+            )
+        })
+    };
+    let one = run(1);
+    for threads in [2, 3] {
+        let other = run(threads);
+        assert_eq!(one.0, other.0, "evaluation, {threads} threads");
+        assert_eq!(one.1, other.1, "locate, {threads} threads");
+        assert!(one.2 == other.2, "materialised file, {threads} threads");
+    }
+}
+
+/// A materialisation that fails part-way (a blend that overflows) leaves an existing output
+/// file as it was, in every format, and leaves no temporary file beside it.
+#[test]
+fn a_failed_materialisation_leaves_the_existing_file_untouched() {
+    let spec = Spec {
+        seed: 9,
+        n: 3,
+        q: 1,
+        log: true,
+        rgb: true,
+        duplicate: Duplicate::None,
+    };
+    let case = make_case(&spec);
+    let pred = Predictor::open(&case.model).unwrap();
+    let good = pred.predict(&[0.0], PredictorKind::Smooth).unwrap();
+    let bad = pred.lerp("m0", "m1", 1e6).unwrap();
+    let out = case.dir.path().join("out");
+    std::fs::create_dir(&out).unwrap();
+    for name in ["p.npy", "p.sbrdf", "p.binary"] {
+        let path = out.join(name);
+        good.materialize(&path, |_, _| {}).unwrap();
+        let before = std::fs::read(&path).unwrap();
+        let e = bad.materialize(&path, |_, _| {}).unwrap_err().to_string();
+        assert!(e.contains("overflowed"), "{name}: {e}");
+        assert!(std::fs::read(&path).unwrap() == before, "{name} changed");
+        let files: Vec<_> = std::fs::read_dir(&out).unwrap().collect();
+        assert_eq!(files.len(), 1, "{name}: {files:?}");
+        std::fs::remove_file(&path).unwrap();
+    }
+}
