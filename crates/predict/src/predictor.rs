@@ -141,6 +141,43 @@ pub fn transformed_store_path(dataset: &Path, transform: Transform) -> PathBuf {
     dataset.with_file_name(name)
 }
 
+/// The sizes [`Model::load`] checks, for a model built or edited in memory: `latent_dim` in
+/// `1..=MAX_LATENT_DIM`, one coordinate per latent axis for every material, and an N x N
+/// finite Gram matrix. Without this a material with too few coordinates panicked (an index
+/// out of bounds building the latent matrix), one with too many was silently cut to q, and a
+/// Gram matrix of the wrong size gave wrong transformed-space errors without a word.
+fn check_model_sizes(model: &Model, model_path: &Path) -> Result<()> {
+    let invalid = |reason: String| {
+        Err(Error::Model(gplvm::Error::File {
+            path: model_path.to_owned(),
+            reason,
+        }))
+    };
+    let (n, q) = (model.materials.len(), model.latent_dim);
+    if !(1..=gplvm::config::MAX_LATENT_DIM).contains(&q) {
+        return invalid(format!(
+            "latent_dim = {q}: must be in 1..={}",
+            gplvm::config::MAX_LATENT_DIM
+        ));
+    }
+    if let Some(m) = model.materials.iter().find(|m| m.coords.len() != q) {
+        return invalid(format!(
+            "material {:?} has {} latent coordinates; the model's latent_dim is {q}",
+            m.name,
+            m.coords.len()
+        ));
+    }
+    if model.gram.len() != n || model.gram.iter().any(|r| r.len() != n) {
+        return invalid(format!(
+            "the Gram matrix is not {n} x {n} (one row and column per material)"
+        ));
+    }
+    if model.gram.iter().flatten().any(|v| !v.is_finite()) {
+        return invalid("the Gram matrix holds a NaN or infinite entry".into());
+    }
+    Ok(())
+}
+
 impl Predictor {
     /// Loads the model file at `model_path` and opens the dataset store it records.
     ///
@@ -170,7 +207,9 @@ impl Predictor {
     }
 
     /// Binds an in-memory `model` (read from `model_path`, used in messages) to `store`,
-    /// validating that they belong together.
+    /// validating that they belong together and that the model's sizes agree (as
+    /// [`Model::load`] checks them: a model built or edited in memory may not), with errors
+    /// naming `model_path`.
     pub fn with_store(model: Model, model_path: &Path, store: Arc<Store>) -> Result<Self> {
         let mismatch = |what: String| Error::DatasetMismatch {
             model: model_path.to_owned(),
@@ -239,11 +278,16 @@ impl Predictor {
                 ),
             });
         }
-        let gp = GpRegression::new(
-            model.latent_matrix().as_ref(),
-            kernel_params(&model)?,
-            Par::Seq,
-        )?;
+        check_model_sizes(&model, model_path)?;
+        let invalid = |reason: String| {
+            Error::Model(gplvm::Error::File {
+                path: model_path.to_owned(),
+                reason,
+            })
+        };
+        let params = kernel_params(&model).map_err(|e| invalid(format!("hyperparameters: {e}")))?;
+        let gp = GpRegression::new(model.latent_matrix().as_ref(), params, Par::Seq)
+            .map_err(|e| invalid(format!("its latent points and hyperparameters: {e}")))?;
         Ok(Self {
             inner: Arc::new(Inner {
                 forward_store: None,
@@ -464,18 +508,25 @@ impl Predictor {
                 ),
             });
         }
-        if x.iter().any(|v| !v.is_finite()) {
+        if let Some(j) = x.iter().position(|v| !v.is_finite()) {
             return Err(Error::InvalidPoint {
                 point: x.to_vec(),
-                reason: "coordinates must be finite".into(),
+                reason: format!(
+                    "coordinate {} is {}: a point in the latent space of model {} must have \
+                     finite coordinates",
+                    j + 1,
+                    x[j],
+                    self.inner.model_path.display()
+                ),
             });
         }
         if let Some(v) = x.iter().find(|v| v.abs() > gplvm::model::MAX_COORDINATE) {
             return Err(Error::InvalidPoint {
                 point: x.to_vec(),
                 reason: format!(
-                    "coordinate {v:e} is beyond +-{:e} (the bound of model files)",
-                    gplvm::model::MAX_COORDINATE
+                    "coordinate {v:e} is beyond +-{:e} (the bound of model files, such as {})",
+                    gplvm::model::MAX_COORDINATE,
+                    self.inner.model_path.display()
                 ),
             });
         }
@@ -800,8 +851,23 @@ impl PredictedMaterial {
 
     /// Values at half/difference angles `hd`: multilinear interpolation of predicted cell values
     /// with [`AngularGrid::interpolation_stencil`] (as `DATA.sbrdf:MATERIAL` sources do).
+    ///
+    /// Non-finite angles are an error: the stencil of a NaN angle has NaN weights, and the
+    /// lookup returned NaN values as if they were a prediction.
     pub fn eval_half_diff(&self, hd: &HalfDiff, out: &mut [f64]) -> Result<()> {
         self.check_out(out)?;
+        if ![hd.theta_h, hd.theta_d, hd.phi_d]
+            .iter()
+            .all(|v| v.is_finite())
+        {
+            return Err(Error::InvalidArgument {
+                reason: format!(
+                    "half/difference angles of a lookup of the prediction {} must be finite, \
+                     got theta_h {}, theta_d {}, phi_d {}",
+                    self.label, hd.theta_h, hd.theta_d, hd.phi_d
+                ),
+            });
+        }
         let stencil = self.pred.inner.grid.interpolation_stencil(hd);
         out.iter_mut().for_each(|o| *o = 0.0);
         let mut cell = [0.0f64; 8];

@@ -470,9 +470,11 @@ proptest! {
 
         // Locate: a smooth prediction inside the hull is found where the GP predicts it, to the
         // precision of the latent search (Hooke-Jeeves down to steps of 1e-5 of the points'
-        // spread: ~1e-5 of the target's size in an ill-conditioned valley; not necessarily at
-        // the point it was made, since the prediction can be reached elsewhere, e.g. near the
-        // mean far from the materials).
+        // spread: typically 1e-6..1e-5 of the target's size, up to ~1e-3 in a flat valley
+        // (seen with N = 3, q = 1, raw); not necessarily at the point it was made, since the
+        // prediction can be reached elsewhere (e.g. near the mean far from the materials).
+        // Before the search also started from midpoints, a point between two materials was
+        // missed for another material's basin (2.4 % error, N = 5, q = 1).
         let x = &latent_points(&pred, spec.seed)[0];
         let m = pred.predict(x, PredictorKind::Smooth).unwrap();
         let d = pred.store().d();
@@ -483,7 +485,7 @@ proptest! {
         let (_, norms) = predict::locate::cross_products(&pred, targets, &|_, _| {}).unwrap();
         let typical = (norms[0] / pred.grid().len() as f64).sqrt();
         prop_assert!(
-            loc.model_rmse <= 1e-4 * typical && loc.model_rmse <= loc.nearest_model_rmse,
+            loc.model_rmse <= 5e-3 * typical && loc.model_rmse <= loc.nearest_model_rmse,
             "{loc:?} (typical {typical:e})"
         );
     }
@@ -661,4 +663,158 @@ fn a_failed_materialisation_leaves_the_existing_file_untouched() {
         assert_eq!(files.len(), 1, "{name}: {files:?}");
         std::fs::remove_file(&path).unwrap();
     }
+}
+
+/// Inputs that panicked or passed silently are errors naming the model: a model built or
+/// edited in memory with a material's coordinates too few (an index panic in the latent
+/// matrix) or too many (silently cut to q), a Gram matrix of the wrong size (wrong errors
+/// without a word) or a length-scale per axis too many; NaN or infinite latent points (the
+/// message named no model); non-finite half/difference angles (NaN values returned as a
+/// lookup, or a finite value for a NaN theta_h); latent search points of the wrong dimension
+/// ("the objective is not finite at the starting point").
+#[test]
+fn bad_models_points_and_angles_are_errors_naming_the_model() {
+    use std::sync::Arc;
+    let spec = Spec {
+        seed: 2,
+        n: 4,
+        q: 2,
+        log: true,
+        rgb: false,
+        duplicate: Duplicate::None,
+    };
+    let case = make_case(&spec);
+    let pred = Predictor::open(&case.model).unwrap();
+    let store = pred.store().clone();
+    let model_name = case.model.display().to_string();
+    type Edit = (&'static str, fn(&mut gplvm::Model), &'static str);
+    let edits: [Edit; 6] = [
+        (
+            "short coords",
+            |m| {
+                m.materials[1].coords.pop();
+            },
+            "material \"m1\" has 1 latent coordinates; the model's latent_dim is 2",
+        ),
+        (
+            "long coords",
+            |m| m.materials[2].coords.push(0.5),
+            "material \"m2\" has 3 latent coordinates",
+        ),
+        (
+            "gram rows",
+            |m| {
+                m.gram.pop();
+            },
+            "the Gram matrix is not 4 x 4",
+        ),
+        (
+            "gram columns",
+            |m| {
+                m.gram[3].pop();
+            },
+            "the Gram matrix is not 4 x 4",
+        ),
+        (
+            "latent_dim 0",
+            |m| m.latent_dim = 0,
+            "latent_dim = 0: must be in 1..=64",
+        ),
+        (
+            "3 length-scales",
+            |m| m.hyperparameters.length_scale = vec![1.0; 3],
+            "expected 2, got 3",
+        ),
+    ];
+    for (what, edit, want) in edits {
+        let mut model = pred.model().clone();
+        edit(&mut model);
+        let e = Predictor::with_store(model, &case.model, Arc::clone(&store))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with(&format!("{model_name}: ")) && e.contains(want),
+            "{what}: {e}"
+        );
+    }
+    let mut model = pred.model().clone();
+    model.gram[1][2] = f64::NAN;
+    let e = Predictor::with_store(model, &case.model, Arc::clone(&store))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains(&model_name) && e.contains("NaN or infinite"),
+        "{e}"
+    );
+
+    for x in [
+        [f64::NAN, 0.0],
+        [0.0, f64::INFINITY],
+        [f64::NEG_INFINITY, 1.0],
+    ] {
+        let calls: [(&str, predict::Result<()>); 5] = [
+            (
+                "predict",
+                pred.predict(&x, PredictorKind::Smooth).map(|_| ()),
+            ),
+            (
+                "weights",
+                pred.gp_weights(&x, PredictorKind::Exact).map(|_| ()),
+            ),
+            ("variance", pred.variance(&x).map(|_| ())),
+            (
+                "variance_of",
+                pred.variance_of(&x, PredictorKind::Exact).map(|_| ()),
+            ),
+            ("support", pred.support(&x).map(|_| ())),
+        ];
+        for (what, r) in calls {
+            let e = r.unwrap_err().to_string();
+            assert!(
+                e.contains(&model_name) && e.contains("finite coordinates"),
+                "{what}: {e}"
+            );
+        }
+    }
+
+    let m = pred.predict(&[0.1, 0.2], PredictorKind::Exact).unwrap();
+    let mut out = vec![0.0; pred.channels().len()];
+    for hd in [
+        brdf_io::HalfDiff {
+            theta_h: f64::NAN,
+            theta_d: 0.3,
+            phi_d: 0.2,
+        },
+        brdf_io::HalfDiff {
+            theta_h: 0.2,
+            theta_d: 0.3,
+            phi_d: f64::INFINITY,
+        },
+    ] {
+        let e = m.eval_half_diff(&hd, &mut out).unwrap_err().to_string();
+        assert!(
+            e.contains("must be finite") && e.contains("gp-exact@0.1,0.2"),
+            "{e}"
+        );
+    }
+    m.eval_half_diff(
+        &brdf_io::HalfDiff {
+            theta_h: 0.2,
+            theta_d: 0.3,
+            phi_d: 0.4,
+        },
+        &mut out,
+    )
+    .unwrap();
+    assert!(out.iter().all(|v| v.is_finite() && *v > 0.0), "{out:?}");
+
+    let g = pred.model().gram_matrix();
+    let flat = vec![vec![0.0]; 4];
+    let e = predict::evaluate::best_latent_point(pred.gp(), &flat, g.as_ref(), &[0.0; 4], 1.0, 2)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("point 0 has 1 coordinates; the GP's latent space has 2"),
+        "{e}"
+    );
 }
