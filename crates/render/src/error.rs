@@ -14,6 +14,28 @@ pub enum Error {
     /// A BRDF source failed to evaluate (its own message: it names the file and the problem).
     #[error(transparent)]
     Source(#[from] brdf_io::Error),
+    /// A BRDF source returned a NaN or infinite value for a channel the colour needs (such a
+    /// value rendered as black, or as NaN pixels that the 8-bit encoding turned black, without
+    /// a word).
+    #[error(
+        "the BRDF source returned {value} for channel {channel} at {at}: BRDF values must be \
+         finite"
+    )]
+    NonFiniteValue {
+        /// The value.
+        value: f64,
+        /// The channel (`600 nm`, or `R`, `G`, `B`).
+        channel: String,
+        /// Where it was looked up (the directions, or the grid cell and its angles).
+        at: String,
+    },
+    /// Finite values whose rendering overflowed to NaN (a source's values near the largest
+    /// f64, or a huge exposure of them).
+    #[error("rendering overflowed: {reason}")]
+    Overflow {
+        /// What overflowed.
+        reason: String,
+    },
     /// A picture could not be written.
     #[error("writing {path}: {reason}")]
     Write {

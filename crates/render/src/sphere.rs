@@ -633,6 +633,80 @@ fn project(weights: &[Vec<f64>; 3], needed: &[usize], acc: &[f64], k: f64) -> [f
     })
 }
 
+/// The name of channel `k` of `channels` in messages: `600 nm`, or `R`, `G`, `B`.
+fn channel_name(channels: &Channels, k: usize) -> String {
+    match channels {
+        Channels::Spectral(wl) => wl
+            .get(k)
+            .map_or_else(|| format!("{k}"), |w| format!("{w} nm")),
+        Channels::Rgb => ["R", "G", "B"]
+            .get(k)
+            .map_or_else(|| format!("{k}"), |c| c.to_string()),
+    }
+}
+
+/// Checks the values `f` a source returned for the `needed` channels: a NaN or infinite one is
+/// an [`Error::NonFiniteValue`] naming the channel and where it was looked up (`at`). Unchecked,
+/// NaN counted as 0 in [`project`] (a black sphere) and infinity gave NaN pixels (black in the
+/// PNG), without a word.
+fn check_finite(
+    f: &[f64],
+    needed: &[usize],
+    channels: &Channels,
+    at: impl FnOnce() -> String,
+) -> Result<()> {
+    match needed.iter().find(|&&k| !f[k].is_finite()) {
+        None => Ok(()),
+        Some(&k) => Err(Error::NonFiniteValue {
+            value: f[k],
+            channel: channel_name(channels, k),
+            at: at(),
+        }),
+    }
+}
+
+/// Where a lookup of `eval(wo, wi)` was made, for messages.
+fn directions_place(wi: Vec3, wo: Vec3) -> String {
+    format!(
+        "view ({:.4}, {:.4}, {:.4}), light ({:.4}, {:.4}, {:.4}) (local frame, z = normal)",
+        wo[0], wo[1], wo[2], wi[0], wi[1], wi[2]
+    )
+}
+
+/// Grid cell `a` and its bin centre's angles, for messages.
+fn cell_place(grid: &AngularGrid, a: usize) -> String {
+    let hd = grid.bin_centre_flat(a);
+    format!(
+        "grid cell {a} (theta_h {:.2}, theta_d {:.2}, phi_d {:.2} degrees)",
+        hd.theta_h.to_degrees(),
+        hd.theta_d.to_degrees(),
+        hd.phi_d.to_degrees()
+    )
+}
+
+/// `img`, unless a pixel is NaN: with finite BRDF values ([`check_finite`]) and options, only
+/// an overflow makes one (values near the largest f64, or a huge exposure of them: infinity
+/// minus infinity in the colour matrix or the environment table's interpolation), and the PNG
+/// would show it black.
+fn refuse_nan_pixels(img: Image, opts: &SphereOptions) -> Result<Image> {
+    let nan = img
+        .rgb
+        .iter()
+        .filter(|p| p.iter().any(|v| v.is_nan()))
+        .count();
+    if nan == 0 {
+        return Ok(img);
+    }
+    Err(Error::Overflow {
+        reason: format!(
+            "{nan} of {} pixels are NaN (at exposure {} stops): the BRDF values are too large \
+             for f64 arithmetic",
+            img.rgb.len(),
+            opts.exposure
+        ),
+    })
+}
+
 fn dot(a: Vec3, b: Vec3) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
@@ -696,6 +770,8 @@ pub struct Shader<'a> {
     weights: [Vec<f64>; 3],
     /// Channels with a non-zero weight.
     needed: Vec<usize>,
+    /// The source's channels (for messages) and their number.
+    channels: Channels,
     n_channels: usize,
     /// Light directions (camera frame) and their irradiance at normal incidence.
     lights: Vec<(Vec3, f64)>,
@@ -743,6 +819,7 @@ impl<'a> Shader<'a> {
             source,
             weights,
             needed,
+            channels,
             n_channels,
             lights,
             env,
@@ -865,13 +942,20 @@ impl<'a> Shader<'a> {
     /// channel count.
     fn rgb_of(&self, wi: Vec3, wo: Vec3, f: &mut [f64]) -> Result<[f64; 3]> {
         if self.cells.is_none() {
-            self.source.eval(wo, wi, f)?;
-            return Ok(self.to_rgb(f, 1.0));
+            return self.eval_rgb(wi, wo, f);
         }
         match HalfDiff::from_dirs(wi, wo) {
             Some(hd) if wi[2] > 0.0 && wo[2] > 0.0 => self.rgb_at(wi, wo, &hd, f),
             _ => Ok([0.0; 3]),
         }
+    }
+
+    /// Linear sRGB (before exposure) of the source's `eval(wo, wi)` (view first), its values
+    /// checked ([`check_finite`]).
+    fn eval_rgb(&self, wi: Vec3, wo: Vec3, f: &mut [f64]) -> Result<[f64; 3]> {
+        self.source.eval(wo, wi, f)?;
+        check_finite(f, &self.needed, &self.channels, || directions_place(wi, wo))?;
+        Ok(self.to_rgb(f, 1.0))
     }
 
     /// [`Shader::rgb_of`] of a pair above the horizon whose half/difference angles `hd` are
@@ -883,8 +967,7 @@ impl<'a> Shader<'a> {
             valid,
         }) = &self.cells
         else {
-            self.source.eval(wo, wi, f)?;
-            return Ok(self.to_rgb(f, 1.0));
+            return self.eval_rgb(wi, wo, f);
         };
         let mut rgb = [0.0; 3];
         for (a, w) in grid.interpolation_stencil_with(hd, |a| valid[a]) {
@@ -895,6 +978,7 @@ impl<'a> Shader<'a> {
                 Some(c) => c,
                 None => {
                     self.source.eval_cell(a, f)?;
+                    check_finite(f, &self.needed, &self.channels, || cell_place(grid, a))?;
                     let c = self.to_rgb(f, 1.0);
                     // Another thread may have filled it meanwhile: both computed the same.
                     cells[a].get_or_init(|| c)
@@ -966,15 +1050,16 @@ fn render_scene(
         && u32::try_from(grid.len()).is_ok()
         && opts.size * opts.size <= plan::MAX_CACHED_PIXELS
     {
-        return plan::render(source, opts, grid, spec, scene, &sight);
+        return refuse_nan_pixels(plan::render(source, opts, grid, spec, scene, &sight)?, opts);
     }
     let shader = Shader::new(source, opts)?;
-    rasterize(opts.size, shader.n_channels, |px, py, f| {
+    let img = rasterize(opts.size, shader.n_channels, |px, py, f| {
         Ok(match sight(px, py) {
             Some((n, view, cov)) => Some((shader.shade(n, view, f)?, cov)),
             None => None,
         })
-    })
+    })?;
+    refuse_nan_pixels(img, opts)
 }
 
 /// Coverage of an edge pixel and the centroid of its covered part: `inside(u, v)` maps the

@@ -22,8 +22,8 @@ use brdf_io::{AngularGrid, BrdfSource, HalfDiff, Vec3};
 use rayon::prelude::*;
 
 use super::{
-    ENV_TABLE_MAX_DEGREES, EnvTable, EnvTableSpec, Sight, SphereOptions, basis, colour_weights,
-    dot, project,
+    ENV_TABLE_MAX_DEGREES, EnvTable, EnvTableSpec, Sight, SphereOptions, basis, cell_place,
+    check_finite, colour_weights, dot, project,
 };
 use crate::error::Result;
 use crate::image::Image;
@@ -273,6 +273,7 @@ pub(super) fn render(
                         source.prefetch_cell(next as usize);
                     }
                     source.eval_cell(a as usize, &mut f)?;
+                    check_finite(&f, &needed, &channels, || cell_place(&grid, a as usize))?;
                     Ok(project(&weights, &needed, &f, 1.0))
                 })
                 .collect::<Result<Vec<_>>>()
