@@ -14,6 +14,9 @@ use crate::sphere::{SphereOptions, render_sphere};
 pub const MAX_MAP_PIXELS: usize = 8192;
 /// Most thumbnails per axis of a map's panel.
 pub const MAX_THUMBNAILS: usize = 64;
+/// Most variance samples per axis of a map's background ([`MapOptions::variance_samples`]): as
+/// many as the largest plot has pixels.
+pub const MAX_VARIANCE_SAMPLES: usize = MAX_MAP_PIXELS;
 
 /// How to draw a latent map.
 #[derive(Debug, Clone, PartialEq)]
@@ -25,7 +28,8 @@ pub struct MapOptions {
     pub thumbnails: usize,
     /// Sphere options of the thumbnails (their `size` is the thumbnail size).
     pub sphere: SphereOptions,
-    /// Variance samples per axis of the background (bilinearly interpolated).
+    /// Variance samples per axis of the background (bilinearly interpolated; 2..=
+    /// [`MAX_VARIANCE_SAMPLES`]).
     pub variance_samples: usize,
     /// A line under the title saying what the shading is (its units; for q > 2 the slice the
     /// map shows); empty: none.
@@ -139,14 +143,18 @@ pub fn latent_map(
     source_at: Option<&SourceAt<'_>>,
     opts: &MapOptions,
 ) -> Result<Image> {
-    if points.is_empty() || !(64..=MAX_MAP_PIXELS).contains(&opts.size) || opts.variance_samples < 2
+    if points.is_empty()
+        || !(64..=MAX_MAP_PIXELS).contains(&opts.size)
+        || !(2..=MAX_VARIANCE_SAMPLES).contains(&opts.variance_samples)
     {
         return Err(Error::InvalidArgument {
             reason: format!(
-                "a map needs points, a size in 64..={MAX_MAP_PIXELS} and >= 2 variance samples \
-                 (got {} points, size {})",
+                "a map needs points, a size in 64..={MAX_MAP_PIXELS} and \
+                 2..={MAX_VARIANCE_SAMPLES} variance samples per axis (got {} points, size {}, \
+                 {} variance samples)",
                 points.len(),
-                opts.size
+                opts.size,
+                opts.variance_samples
             ),
         });
     }
@@ -175,6 +183,21 @@ pub fn latent_map(
         });
     }
     let [x0, x1, y0, y1] = extent(points);
+    if ![x0, x1, y0, y1, x1 - x0, y1 - y0]
+        .iter()
+        .all(|v| v.is_finite())
+    {
+        let largest = points
+            .iter()
+            .flat_map(|(_, p)| p.map(f64::abs))
+            .fold(0.0, f64::max);
+        return Err(Error::InvalidArgument {
+            reason: format!(
+                "latent coordinates up to {largest:e} in magnitude are too large to plot (the \
+                 map's extent overflows f64)"
+            ),
+        });
+    }
     let size = opts.size;
     let margin = 40usize;
     let (xt, yt) = (nice_ticks(x0, x1, 5), nice_ticks(y0, y1, 5));
@@ -233,7 +256,7 @@ pub fn latent_map(
     };
     let grid: Vec<f64> = (0..m * m)
         .into_par_iter()
-        .map(|k| variance(at(k % m, k / m)))
+        .map(|k| checked_variance(variance, at(k % m, k / m)))
         .collect::<Result<_>>()?;
     let vmax = grid.iter().copied().fold(0.0, f64::max).max(1e-300);
     let shade = |t: f64| {
@@ -472,7 +495,7 @@ pub fn latent_map(
             let orange = [1.0, 0.45, 0.0];
             let mut far = 0;
             for ((i, j), p) in cells.iter().zip(&points_of_cells) {
-                if variance(*p)? > limit {
+                if checked_variance(variance, *p)? > limit {
                     far += 1;
                     // Two pixels wide, inside the thumbnail.
                     let (x, y) = (ox + (i * ts) as i64, (margin + j * ts) as i64);
@@ -500,6 +523,27 @@ pub fn latent_map(
     Ok(img)
 }
 
+/// `variance` at latent point `p`, which must not be NaN or infinite: a NaN sample drew white
+/// (no uncertainty), an infinite one scaled every other sample to white and labelled the
+/// colour bar `inf`, without a word. Negative values (rounding below 0) are clamped where drawn.
+fn checked_variance(
+    variance: &(dyn Fn([f64; 2]) -> Result<f64> + Sync),
+    p: [f64; 2],
+) -> Result<f64> {
+    let v = variance(p)?;
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(Error::InvalidArgument {
+            reason: format!(
+                "the predictive variance at latent point ({}, {}) is {v}: a map needs finite \
+                 variances",
+                p[0], p[1]
+            ),
+        })
+    }
+}
+
 /// The first of `texts` (longest first) whose width fits `room` pixels: titles and notes
 /// shortened at a word (a cut mid-word, "... SHADED BY PRE", read on into the thumbnail
 /// panel's title beside it).
@@ -514,7 +558,8 @@ fn first_fitting<S: AsRef<str>>(texts: impl IntoIterator<Item = S>, room: usize)
 /// the step needs; "0" for zero; with an exponent, as `2.5E6` or `-1E100`, when the step is
 /// 1e5 or more, where plain digits ran to a hundred characters across the map).
 pub fn nice_ticks(lo: f64, hi: f64, target: usize) -> Vec<(f64, String)> {
-    if !(lo.is_finite() && hi.is_finite() && hi > lo) {
+    // (A range wider than the largest f64, -1e308..1e308, gave one tick at 0 x inf = NaN.)
+    if !(lo.is_finite() && hi.is_finite() && hi > lo && (hi - lo).is_finite()) {
         return Vec::new();
     }
     let raw = (hi - lo) / target.max(1) as f64;

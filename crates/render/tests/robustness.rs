@@ -99,7 +99,7 @@ fn non_finite_brdf_values_are_errors_naming_the_channel() {
                             };
                             let what =
                                 format!("{bad} {channels:?} {grid:?} {below} {mode} {plane}");
-                            let err = r.expect_err(&what);
+                            let err = error_of(r, &what);
                             assert!(matches!(err, Error::NonFiniteValue { .. }), "{what}: {err}");
                             let msg = err.to_string();
                             assert!(msg.contains(name), "{what}: {msg}");
@@ -186,15 +186,17 @@ fn huge_brdf_values_render_white_or_are_an_overflow_error() {
         }
     }
     // The table's interpolation between two infinite nodes was NaN: an error now.
-    let err = render_sphere(
-        &Faulty::new(Channels::Rgb, 1e308, 0),
-        &SphereOptions {
-            size: 10,
-            exposure: 10.0,
-            ..SphereOptions::default()
-        },
-    )
-    .unwrap_err();
+    let err = error_of(
+        render_sphere(
+            &Faulty::new(Channels::Rgb, 1e308, 0),
+            &SphereOptions {
+                size: 10,
+                exposure: 10.0,
+                ..SphereOptions::default()
+            },
+        ),
+        "1e308",
+    );
     assert!(matches!(err, Error::Overflow { .. }), "{err}");
 }
 
@@ -210,4 +212,179 @@ fn negative_brdf_values_render_as_zero_in_every_mode() {
             }
         }
     }
+}
+
+type Points = Vec<(String, [f64; 2])>;
+
+/// The error of a render that must fail (a picture in the panic message would be megabytes).
+fn error_of(r: render::Result<render::Image>, what: &str) -> Error {
+    match r {
+        Ok(img) => panic!("{what}: rendered a {}x{} picture", img.width, img.height),
+        Err(e) => e,
+    }
+}
+
+fn map_opts() -> render::MapOptions {
+    render::MapOptions {
+        size: 64,
+        variance_samples: 4,
+        ..render::MapOptions::default()
+    }
+}
+
+/// Red dot cores on a map (the training materials' colour, [0.8, 0.05, 0.02]).
+fn red_pixels(img: &render::Image) -> usize {
+    img.rgb
+        .iter()
+        .filter(|p| p[0] > 0.6 && p[1] < 0.15 && p[2] < 0.15)
+        .count()
+}
+
+/// A NaN or infinite predictive variance is an error naming the latent point, whether the
+/// background's samples or a thumbnail's far-from-every-material test meets it. A NaN drew
+/// white (no uncertainty) and an infinite variance turned the whole map white with a colour
+/// bar labelled `inf`, silently. Negative variances (rounding below zero) are clamped.
+#[test]
+fn non_finite_map_variances_are_errors_naming_the_point() {
+    let points: Points = vec![("A".into(), [0.0, 0.0]), ("B".into(), [1.0, 1.0])];
+    for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+        let variance = |p: [f64; 2]| Ok(if p[0] > 0.5 { bad } else { 1.0 });
+        let err = error_of(
+            render::latent_map(&points, &variance, None, &map_opts()),
+            &format!("{bad}"),
+        );
+        let msg = err.to_string();
+        assert!(
+            msg.contains("predictive variance at latent point (")
+                && msg.contains(&format!("is {bad}")),
+            "{msg}"
+        );
+    }
+    // Only at the one thumbnail's point (the box's centre, no background sample): met by the
+    // far-from-every-material test.
+    let variance = |p: [f64; 2]| Ok(if p == [0.5, 0.5] { f64::NAN } else { 1.0 });
+    let source = |_: [f64; 2]| -> render::Result<Box<dyn BrdfSource>> {
+        Ok(Box::new(Faulty::new(Channels::Rgb, 0.2, 0)))
+    };
+    let thumbs = render::MapOptions {
+        thumbnails: 1,
+        sphere: SphereOptions {
+            size: 8,
+            ..SphereOptions::default()
+        },
+        far_variance: Some(0.5),
+        ..map_opts()
+    };
+    let err = error_of(
+        render::latent_map(&points, &variance, Some(&source), &thumbs),
+        "NaN at the thumbnail",
+    );
+    assert!(err.to_string().contains("(0.5, 0.5) is NaN"), "{err}");
+    // Without the far test the thumbnail's variance is not read.
+    let no_far = render::MapOptions {
+        far_variance: None,
+        ..thumbs
+    };
+    assert!(render::latent_map(&points, &variance, Some(&source), &no_far).is_ok());
+    // Negative and zero variances draw (clamped to 0: white).
+    let variance = |p: [f64; 2]| Ok(-p[0]);
+    let img = render::latent_map(&points, &variance, None, &map_opts()).unwrap();
+    assert!(red_pixels(&img) > 0);
+}
+
+/// Degenerate latent maps draw their dots: one or two materials, all at one point, a tiny
+/// range, coordinates up to 1e300, non-ASCII and overlong names, one latent axis with
+/// thumbnails. Coordinates whose plot extent overflows f64 (1e308 apart, f64::MAX) are an
+/// error saying so: the map drew no dot at all (every position NaN), silently.
+#[test]
+fn degenerate_latent_maps_draw_or_are_refused_clearly() {
+    let variance = |_: [f64; 2]| Ok(1.0);
+    let source = |_: [f64; 2]| -> render::Result<Box<dyn BrdfSource>> {
+        Ok(Box::new(Faulty::new(Channels::Rgb, 0.2, 0)))
+    };
+    let cases: Vec<Points> = vec![
+        vec![("A".into(), [0.0, 0.0])],
+        vec![("A".into(), [0.3, -2.0]), ("B".into(), [0.3, -2.0])],
+        vec![("A".into(), [1e-300, 0.0]), ("B".into(), [-1e-300, 0.0])],
+        vec![("A".into(), [1e300, -1e300]), ("B".into(), [-1e300, 1e300])],
+        vec![("A".into(), [7e307, 0.0]), ("B".into(), [7e307, 1.0])],
+        vec![
+            ("ÄÖÜ größe ★".into(), [0.0, 0.0]),
+            ("日本語".into(), [0.1, 0.0]),
+            ("X".repeat(400), [0.2, 0.0]),
+        ],
+    ];
+    for points in &cases {
+        for one_axis in [false, true] {
+            for (thumbnails, src) in [(0, None), (2, Some(&source))] {
+                let opts = render::MapOptions {
+                    thumbnails,
+                    one_axis,
+                    sphere: SphereOptions {
+                        size: 8,
+                        ..SphereOptions::default()
+                    },
+                    ..map_opts()
+                };
+                let src = src.map(|s| s as &render::map::SourceAt<'_>);
+                let img = render::latent_map(points, &variance, src, &opts)
+                    .unwrap_or_else(|e| panic!("{points:?}: {e}"));
+                assert!(red_pixels(&img) >= 1, "{points:?}: no dot drawn");
+                assert!(img.rgb.iter().flatten().all(|v| v.is_finite()));
+            }
+        }
+    }
+    for points in [
+        vec![
+            ("A".to_owned(), [1e308, 1e308]),
+            ("B".to_owned(), [-1e308, -1e308]),
+        ],
+        vec![("A".to_owned(), [f64::MAX, 0.0])],
+        vec![
+            ("A".to_owned(), [0.0, -f64::MAX]),
+            ("B".to_owned(), [0.0, 0.0]),
+        ],
+    ] {
+        let err = error_of(
+            render::latent_map(&points, &variance, None, &map_opts()),
+            &format!("{points:?}"),
+        );
+        assert!(
+            err.to_string().contains("too large to plot"),
+            "{points:?}: {err}"
+        );
+    }
+    // Non-finite coordinates and variance sample counts out of range are refused up front
+    // (a count of 10^6 per axis allocated 10^12 samples and aborted).
+    let points: Points = vec![("A".into(), [f64::NAN, 0.0])];
+    error_of(
+        render::latent_map(&points, &variance, None, &map_opts()),
+        "NaN",
+    );
+    let points: Points = vec![("A".into(), [0.0, 0.0])];
+    for samples in [0, 1, render::map::MAX_VARIANCE_SAMPLES + 1, 1 << 40] {
+        let opts = render::MapOptions {
+            variance_samples: samples,
+            ..map_opts()
+        };
+        let err = error_of(
+            render::latent_map(&points, &variance, None, &opts),
+            &format!("{samples} samples"),
+        );
+        assert!(
+            err.to_string().contains("variance samples"),
+            "{samples}: {err}"
+        );
+    }
+}
+
+/// Ticks over a range wider than the largest f64 (-1e308..1e308) are none, not one at NaN.
+#[test]
+fn ticks_of_an_overflowing_range_are_empty() {
+    assert!(render::map::nice_ticks(-1e308, 1e308, 5).is_empty());
+    let t = render::map::nice_ticks(-1e307, 1e307, 5);
+    assert!(
+        !t.is_empty() && t.iter().all(|(v, _)| v.is_finite()),
+        "{t:?}"
+    );
 }
