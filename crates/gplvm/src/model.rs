@@ -177,6 +177,21 @@ impl Model {
         })?;
         let model: Model =
             toml::from_str(&text).map_err(|e| err(format!("not a model file: {e}")))?;
+        model.check(path)?;
+        Ok(model)
+    }
+
+    /// Validates a model read from (or standing for) the file `path`, as [`Model::load`] does:
+    /// format and version, sizes (materials, latent coordinates, Gram matrix), finite values, a
+    /// Gram matrix of real data, the transform, hyperparameters the kernel accepts, the fit
+    /// configuration's q and prior, and the data scale. Errors name `path`. A model built or
+    /// edited in memory is checked with this before it predicts.
+    pub fn check(&self, path: &Path) -> Result<()> {
+        let err = |reason: String| Error::File {
+            path: path.to_owned(),
+            reason,
+        };
+        let model = self;
         if model.format != MODEL_FORMAT || model.version != MODEL_VERSION {
             return Err(err(format!(
                 "format {} version {} is not {MODEL_FORMAT} version {MODEL_VERSION}",
@@ -190,19 +205,25 @@ impl Model {
                 model.latent_dim
             )));
         }
-        let n = model.materials.len();
-        if n != model.dataset.n_materials
-            || model.gram.len() != n
-            || model.gram.iter().any(|r| r.len() != n)
-            || model
-                .materials
-                .iter()
-                .any(|m| m.coords.len() != model.latent_dim)
-        {
-            return Err(err(format!(
-                "inconsistent sizes: {n} materials, dataset says {}, latent_dim {}",
-                model.dataset.n_materials, model.latent_dim
-            )));
+        let (n, q) = (model.materials.len(), model.latent_dim);
+        let sizes = |what: String| Err(err(format!("inconsistent sizes: {what}")));
+        if n != model.dataset.n_materials {
+            return sizes(format!(
+                "{n} materials, the dataset record says {}",
+                model.dataset.n_materials
+            ));
+        }
+        if let Some(m) = model.materials.iter().find(|m| m.coords.len() != q) {
+            return sizes(format!(
+                "material {:?} has {} latent coordinates; the model's latent_dim is {q}",
+                m.name,
+                m.coords.len()
+            ));
+        }
+        if model.gram.len() != n || model.gram.iter().any(|r| r.len() != n) {
+            return sizes(format!(
+                "the Gram matrix is not {n} x {n} (one row and column per material)"
+            ));
         }
         let finite = model
             .materials
@@ -210,7 +231,9 @@ impl Model {
             .flat_map(|m| &m.coords)
             .chain(model.gram.iter().flatten());
         if finite.into_iter().any(|v| !v.is_finite()) {
-            return Err(err("non-finite coordinates or Gram entries".into()));
+            return Err(err(
+                "non-finite coordinates or Gram entries (NaN or infinite)".into(),
+            ));
         }
         // Squared latent distances must stay finite (64 axes of (2e100)^2 do).
         if let Some(v) = model
@@ -341,7 +364,7 @@ impl Model {
                 model.data_scale, model.config.data_scaling
             )));
         }
-        Ok(model)
+        Ok(())
     }
 
     /// The recorded fit configuration, validated as a fit validates it (for refits such as

@@ -141,43 +141,6 @@ pub fn transformed_store_path(dataset: &Path, transform: Transform) -> PathBuf {
     dataset.with_file_name(name)
 }
 
-/// The sizes [`Model::load`] checks, for a model built or edited in memory: `latent_dim` in
-/// `1..=MAX_LATENT_DIM`, one coordinate per latent axis for every material, and an N x N
-/// finite Gram matrix. Without this a material with too few coordinates panicked (an index
-/// out of bounds building the latent matrix), one with too many was silently cut to q, and a
-/// Gram matrix of the wrong size gave wrong transformed-space errors without a word.
-fn check_model_sizes(model: &Model, model_path: &Path) -> Result<()> {
-    let invalid = |reason: String| {
-        Err(Error::Model(gplvm::Error::File {
-            path: model_path.to_owned(),
-            reason,
-        }))
-    };
-    let (n, q) = (model.materials.len(), model.latent_dim);
-    if !(1..=gplvm::config::MAX_LATENT_DIM).contains(&q) {
-        return invalid(format!(
-            "latent_dim = {q}: must be in 1..={}",
-            gplvm::config::MAX_LATENT_DIM
-        ));
-    }
-    if let Some(m) = model.materials.iter().find(|m| m.coords.len() != q) {
-        return invalid(format!(
-            "material {:?} has {} latent coordinates; the model's latent_dim is {q}",
-            m.name,
-            m.coords.len()
-        ));
-    }
-    if model.gram.len() != n || model.gram.iter().any(|r| r.len() != n) {
-        return invalid(format!(
-            "the Gram matrix is not {n} x {n} (one row and column per material)"
-        ));
-    }
-    if model.gram.iter().flatten().any(|v| !v.is_finite()) {
-        return invalid("the Gram matrix holds a NaN or infinite entry".into());
-    }
-    Ok(())
-}
-
 impl Predictor {
     /// Loads the model file at `model_path` and opens the dataset store it records.
     ///
@@ -278,7 +241,10 @@ impl Predictor {
                 ),
             });
         }
-        check_model_sizes(&model, model_path)?;
+        // As Model::load checks a file: a model built or edited in memory may not hold (a
+        // material with too few coordinates panicked building the latent matrix, too many
+        // were silently cut to q, a Gram matrix of the wrong size gave wrong errors).
+        model.check(model_path)?;
         let invalid = |reason: String| {
             Error::Model(gplvm::Error::File {
                 path: model_path.to_owned(),

@@ -723,7 +723,7 @@ fn bad_models_points_and_angles_are_errors_naming_the_model() {
         (
             "3 length-scales",
             |m| m.hyperparameters.length_scale = vec![1.0; 3],
-            "expected 2, got 3",
+            "3 length-scales for latent_dim 2",
         ),
     ];
     for (what, edit, want) in edits {
