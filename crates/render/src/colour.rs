@@ -173,15 +173,26 @@ impl SpectralWeights {
             .collect()
     }
 
-    /// XYZ of a spectrum given at the weights' wavelengths.
-    pub fn xyz(&self, spectrum: &[f64]) -> [f64; 3] {
+    /// XYZ of a spectrum given at the weights' wavelengths: one value per wavelength (a shorter
+    /// spectrum used to count its missing values as 0 and a longer one to lose its tail, a wrong
+    /// colour without a word).
+    pub fn xyz(&self, spectrum: &[f64]) -> Result<[f64; 3]> {
+        if spectrum.len() != self.len() {
+            return Err(Error::InvalidArgument {
+                reason: format!(
+                    "a spectrum of {} values for {} wavelengths",
+                    spectrum.len(),
+                    self.len()
+                ),
+            });
+        }
         let mut o = [0.0; 3];
-        for (k, &v) in spectrum.iter().enumerate().take(self.len()) {
+        for (k, &v) in spectrum.iter().enumerate() {
             o[0] += self.x[k] * v;
             o[1] += self.y[k] * v;
             o[2] += self.z[k] * v;
         }
-        o
+        Ok(o)
     }
 }
 
@@ -358,10 +369,10 @@ impl ColourPipeline {
         }
     }
 
-    /// Linear sRGB of a reflectance spectrum sampled at `wavelengths`.
+    /// Linear sRGB of a reflectance spectrum sampled at `wavelengths` (one value each).
     pub fn reflectance_to_rgb(&self, wavelengths: &[f64], spectrum: &[f64]) -> Result<[f64; 3]> {
         let w = SpectralWeights::new(wavelengths, self.illuminant)?;
-        Ok(mat_vec(&self.to_rgb, w.xyz(spectrum)))
+        Ok(mat_vec(&self.to_rgb, w.xyz(spectrum)?))
     }
 }
 
@@ -535,7 +546,7 @@ mod tests {
             let rgb = ColourPipeline::new(ill)
                 .reflectance_to_rgb(&wl, &red)
                 .unwrap();
-            let direct = mat_vec(&want, w.xyz(&red));
+            let direct = mat_vec(&want, w.xyz(&red).unwrap());
             assert_eq!(rgb, direct);
             assert!(rgb[0] > 2.0 * rgb[2], "{ill:?}: {rgb:?}");
         }
