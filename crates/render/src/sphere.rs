@@ -1039,7 +1039,9 @@ type Sight = (Vec3, Vec3, f64);
 /// per-pixel environment through a [`Shader`] per pixel (the same pixels). A plan pays off
 /// when it is reused; one of a larger image, never cached, made a single render slower and took
 /// ~190 B per pixel: 4096 px took 3.2 GB and 8.5-10 s, and take 0.86 GB and 3.8-4.1 s without
-/// (BENCHMARKS.md "render", session 17). `opts` must be checked.
+/// (BENCHMARKS.md "render", session 17). Nor are tables of more than
+/// [`plan::MAX_PLANNED_TABLE_DIRECTIONS`] directions planned ([`planned`]). `opts` must be
+/// checked.
 fn render_scene(
     source: &dyn BrdfSource,
     opts: &SphereOptions,
@@ -1047,8 +1049,7 @@ fn render_scene(
     sight: impl Fn(usize, usize) -> Option<Sight> + Sync,
 ) -> Result<Image> {
     if let (Some(grid), EnvMode::Table(spec)) = (source.grid(), opts.env_mode)
-        && u32::try_from(grid.len()).is_ok()
-        && opts.size * opts.size <= plan::MAX_CACHED_PIXELS
+        && planned(&grid, opts.size, &spec)
     {
         return refuse_nan_pixels(plan::render(source, opts, grid, spec, scene, &sight)?, opts);
     }
@@ -1060,6 +1061,22 @@ fn render_scene(
         })
     })?;
     refuse_nan_pixels(img, opts)
+}
+
+/// Whether a render of a grid source on `grid` in a `size` px image under the table `spec` goes
+/// through a render plan: cells numbered in u32, an image up to [`plan::MAX_CACHED_PIXELS`],
+/// and a table of at most [`plan::MAX_PLANNED_TABLE_DIRECTIONS`] directions in all. A plan
+/// stores every table direction's weight and stencil (144 B each), so the specs that
+/// [`SphereOptions`] accepts (up to 2^16 nodes of 2^20 directions) asked for up to 10 TB and
+/// aborted; the shader streams the table instead, to the same values.
+fn planned(grid: &AngularGrid, size: usize, spec: &EnvTableSpec) -> bool {
+    let directions = spec
+        .nodes
+        .saturating_mul(spec.rings)
+        .saturating_mul(spec.azimuths);
+    u32::try_from(grid.len()).is_ok()
+        && size.saturating_mul(size) <= plan::MAX_CACHED_PIXELS
+        && directions <= plan::MAX_PLANNED_TABLE_DIRECTIONS
 }
 
 /// Coverage of an edge pixel and the centroid of its covered part: `inside(u, v)` maps the
@@ -1586,6 +1603,51 @@ mod tests {
         let (m, _) = mean_colour(&img);
         assert!((m[1] - 0.1).abs() < 0.004, "{m:?}");
         assert!(render_sphere(&src, &SphereOptions { size: 0, ..env }).is_err());
+    }
+
+    /// Tables whose plan would not fit in memory are shaded without one (a plan of the largest
+    /// accepted table, 2^36 directions, asked for 10 TB), and render like a planned table.
+    #[test]
+    fn huge_environment_tables_are_not_planned() {
+        let grid = AngularGrid::new(8, 8, 16).unwrap();
+        let spec = |nodes, rings, azimuths| EnvTableSpec {
+            nodes,
+            rings,
+            azimuths,
+        };
+        assert!(planned(&grid, 256, &EnvTableSpec::default()));
+        assert!(planned(&grid, 64, &EnvTableSpec::FAST));
+        assert!(planned(&grid, 256, &spec(1, 1 << 10, 1 << 10)));
+        assert!(!planned(&grid, 257, &EnvTableSpec::FAST));
+        for (n, r, a) in [
+            (2, 1 << 10, 1 << 10),
+            (1 << 16, 1 << 10, 1 << 10),
+            (1 << 16, 16, 16),
+        ] {
+            assert!(!planned(&grid, 16, &spec(n, r, a)), "{n} {r} {a}");
+        }
+        // Above the bound the shader renders (here 2^21 directions of a cheap grid source),
+        // equal to the planned render of the same table to rounding.
+        let src = Tabulated::new(1.0);
+        let big = spec(2, 1 << 10, 1 << 10);
+        let opts = |spec| SphereOptions {
+            size: 6,
+            env_mode: EnvMode::Table(spec),
+            ..SphereOptions::default()
+        };
+        let unplanned = render_sphere(&src, &opts(big)).unwrap();
+        let reference = plan::render(
+            &src,
+            &opts(big),
+            src.grid,
+            big,
+            plan::Scene::Sphere,
+            &sphere_sight(6),
+        )
+        .unwrap();
+        assert_eq!(unplanned.alpha, reference.alpha);
+        assert!(max_rel_diff(&unplanned, &reference) < 1e-9);
+        assert!(mean_colour(&unplanned).0[1] > 0.01);
     }
 
     #[test]

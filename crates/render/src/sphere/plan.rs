@@ -35,9 +35,13 @@ const PREFETCH_AHEAD: usize = 2;
 
 /// Scenes kept by the plan cache (least recently built first out).
 pub const CACHED_PLANS: usize = 4;
-/// Largest image (pixels) whose plan is cached (a 256 x 256 sphere's plan takes ~10 MB: 184 B per
-/// covered pixel; so the cache holds at most ~40 MB).
+/// Largest image (pixels) whose plan is cached (a 256 x 256 sphere's pixels take ~10 MB of it:
+/// 184 B per covered pixel).
 pub const MAX_CACHED_PIXELS: usize = 256 * 256;
+/// Most environment-table directions (nodes x rings x azimuths) a plan records, 144 B each
+/// (~150 MB; the default table has 2^15, the fast one 2^11): so the cache holds at most
+/// ~0.6 GB. Larger tables are shaded without a plan, to the same values.
+pub const MAX_PLANNED_TABLE_DIRECTIONS: usize = 1 << 20;
 
 /// The shape a scene renders (with the parameters that change its geometry, as bits).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
