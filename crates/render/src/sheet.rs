@@ -52,9 +52,18 @@ pub fn mean_delta_e(map: &[Option<f64>]) -> f64 {
 }
 
 /// A Delta E map as a heat-map image (0 -> dark, `max` and above -> bright yellow; undefined
-/// pixels transparent).
-pub fn heat_map(map: &[Option<f64>], width: usize, max: f64) -> Image {
-    let height = map.len() / width.max(1);
+/// pixels transparent). `map` holds whole rows of `width` pixels (a partial row, or a width of
+/// 0 with values, indexed past the image and panicked).
+pub fn heat_map(map: &[Option<f64>], width: usize, max: f64) -> Result<Image> {
+    if !map.len().is_multiple_of(width) {
+        return Err(Error::InvalidArgument {
+            reason: format!(
+                "a heat map of {} values is not made of rows of {width} pixels",
+                map.len()
+            ),
+        });
+    }
+    let height = map.len().checked_div(width).unwrap_or(0);
     let mut img = Image::new(width, height, [0.0; 3]);
     for (i, v) in map.iter().enumerate() {
         match v {
@@ -62,16 +71,16 @@ pub fn heat_map(map: &[Option<f64>], width: usize, max: f64) -> Image {
             None => img.alpha[i] = 0.0,
         }
     }
-    img
+    Ok(img)
 }
 
 /// [`heat_map`] with an anti-aliased rim: a pixel both renderings cover only in part (the
 /// sphere's edge, where [`delta_e_map`] defines no value) takes the value of a covered pixel
 /// next to it (the nearest within 2 pixels) at the smaller of their coverages (the maps' edges
 /// were a hard staircase beside the anti-aliased spheres).
-fn heat_map_covered(map: &[Option<f64>], a: &Image, b: &Image, max: f64) -> Image {
+fn heat_map_covered(map: &[Option<f64>], a: &Image, b: &Image, max: f64) -> Result<Image> {
     let (w, h) = (a.width, a.height);
-    let mut img = heat_map(map, w, max);
+    let mut img = heat_map(map, w, max)?;
     for y in 0..h {
         for x in 0..w {
             let i = y * w + x;
@@ -95,7 +104,7 @@ fn heat_map_covered(map: &[Option<f64>], a: &Image, b: &Image, max: f64) -> Imag
             }
         }
     }
-    img
+    Ok(img)
 }
 
 /// A rendered comparison sheet and its numbers.
@@ -147,7 +156,11 @@ pub fn comparison_sheet(
     let s = opts.size;
     let n_cells = 2 * columns.len() - 1;
     let label_w = label_width(rows);
-    let width = label_w + PAD + n_cells * (s + PAD) + PAD;
+    // The colour bar under the heat maps is at least 60 px wide: small spheres get a sheet wide
+    // enough for it (it ran off the image, and its top label with it).
+    let bar_w = ((columns.len() - 1) * (s + PAD)).max(60);
+    let width = (label_w + PAD + n_cells * (s + PAD) + PAD)
+        .max(label_w + PAD + columns.len() * (s + PAD) + bar_w + PAD);
     let header = PAD + LINE;
     let row_h = s + LINE + PAD;
     let height = header + rows.len() * row_h + LINE * 2 + PAD * 2;
@@ -182,7 +195,7 @@ pub fn comparison_sheet(
             let map = delta_e_map(&renders[0], r_img)?;
             let mean = mean_delta_e(&map);
             let x = cell_x(columns.len() + c - 1);
-            img.blit(&heat_map_covered(&map, &renders[0], r_img, de_max), x, y);
+            img.blit(&heat_map_covered(&map, &renders[0], r_img, de_max)?, x, y);
             let t = if font::text_width("MEAN 00.00", 1) <= s {
                 format!("MEAN {mean:.2}")
             } else {
@@ -196,13 +209,21 @@ pub fn comparison_sheet(
     // Colour bar.
     let y = (header + rows.len() * row_h + PAD) as i64;
     let x0 = cell_x(columns.len());
-    let bar_w = ((columns.len() - 1) * (s + PAD)).max(60);
     for i in 0..bar_w {
         let col = ramp(i as f64 / (bar_w - 1).max(1) as f64);
         img.fill_rect(x0 + i as i64, y, 1, LINE, col);
     }
     img.text(x0 - 12, y + LINE as i64 + 2, "0", 1, TEXT);
-    let top = format!("{de_max}");
+    // The scale's top, plainly where it fits the bar (a Delta E scale of 1e300 was 301 digits
+    // drawn from far left of the image across the bar's name and its "0").
+    let top = [
+        format!("{de_max}"),
+        format!("{de_max:.3e}"),
+        format!("{de_max:.0e}"),
+    ]
+    .into_iter()
+    .find(|t| font::text_width(t, 1) <= bar_w)
+    .unwrap_or_default();
     img.text(
         x0 + bar_w as i64 - font::text_width(&top, 1) as i64,
         y + LINE as i64 + 2,

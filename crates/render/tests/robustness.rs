@@ -388,3 +388,59 @@ fn ticks_of_an_overflowing_range_are_empty() {
         "{t:?}"
     );
 }
+
+/// A heat map of values that do not make whole rows is an error (it indexed past the image and
+/// panicked); whole rows draw.
+#[test]
+fn heat_maps_of_partial_rows_are_refused() {
+    let map = vec![Some(1.0), None, Some(3.0), Some(0.5), None];
+    for width in [0, 2, 3, 4] {
+        let err = render::sheet::heat_map(&map, width, 5.0)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("5 values is not made of rows"),
+            "{width}: {err}"
+        );
+    }
+    let img = render::sheet::heat_map(&map, 5, 5.0).unwrap();
+    assert_eq!((img.width, img.height), (5, 1));
+    assert_eq!(img.alpha, [1.0, 0.0, 1.0, 1.0, 0.0]);
+    let empty = render::sheet::heat_map(&[], 0, 5.0).unwrap();
+    assert_eq!((empty.width, empty.height), (0, 0));
+}
+
+/// The colour bar and its top label of a comparison sheet stay on the image, the label over
+/// the bar however long the number: with small spheres the 60 px bar ran off the image's
+/// right edge, taking the label with it, and a scale of 1e300 was written as 301 digits from
+/// far left of the image, over the bar's "0" and its name.
+#[test]
+fn sheet_scale_labels_fit_over_their_bar() {
+    let src = Faulty::new(Channels::Rgb, 0.2, 0);
+    let rows = vec![("R".to_owned(), vec![&src as &dyn BrdfSource, &src])];
+    for de_max in [10.0, 2.5, 1e300, 123456789.0, 1e-7] {
+        let sheet = render::comparison_sheet(&["A", "B"], &rows, &opts(16, "table"), de_max)
+            .unwrap_or_else(|e| panic!("{de_max}: {e}"));
+        let img = &sheet.image;
+        // Label column 40 + 8 px, cells of 16 + 8 px: the bar starts at x0 = 56 + 2 x 24 and
+        // is 60 px wide; its labels sit 13 px below its top (y = 19 + 35 + 8 + 13).
+        let (x0, y) = (104usize, 75usize);
+        assert_eq!(img.width, x0 + 60 + 8, "{de_max}");
+        assert!(
+            img.get(x0 + 59, y - 5) != img.get(x0 + 59, 0),
+            "no bar at its end"
+        );
+        let ink: Vec<usize> = (y..y + 7)
+            .flat_map(|y| (0..img.width).filter(move |&x| img.get(x, y)[0] > 0.5))
+            .collect();
+        assert!(ink.iter().any(|&x| x >= x0), "{de_max}: no top label");
+        for x in ink {
+            let on_zero = (x0 - 12..x0 - 12 + 5).contains(&x);
+            assert!(
+                on_zero || (x0..x0 + 60).contains(&x),
+                "{de_max}: ink at x = {x}"
+            );
+        }
+        assert_eq!(sheet.mean_delta_e, [[0.0]]);
+    }
+}
