@@ -36,6 +36,14 @@ pub enum Error {
         /// What overflowed.
         reason: String,
     },
+    /// A thumbnail of a latent map failed (the source made for its point, or its render).
+    #[error("the thumbnail at latent point ({}, {}): {source}", point[0], point[1])]
+    Thumbnail {
+        /// Its latent point (the map's first two axes).
+        point: [f64; 2],
+        /// What failed.
+        source: Box<Error>,
+    },
     /// A picture could not be written.
     #[error("writing {path}: {reason}")]
     Write {

@@ -455,9 +455,17 @@ pub fn latent_map(
                 ]
             })
             .collect();
+        // A failure names the thumbnail's latent point (a NaN in a predicted material said
+        // which cell and channel, but not where on the map).
         let thumbs: Vec<Image> = points_of_cells
             .iter()
-            .map(|&p| render_sphere(f(p)?.as_ref(), &opts.sphere))
+            .map(|&p| {
+                f(p).and_then(|src| render_sphere(src.as_ref(), &opts.sphere))
+                    .map_err(|e| Error::Thumbnail {
+                        point: p,
+                        source: Box::new(e),
+                    })
+            })
             .collect::<Result<_>>()?;
         let bg = Image::new(g * ts, rows * ts, [0.02; 3]);
         img.blit(&bg, ox, margin as i64);

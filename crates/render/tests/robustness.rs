@@ -444,3 +444,39 @@ fn sheet_scale_labels_fit_over_their_bar() {
         assert_eq!(sheet.mean_delta_e, [[0.0]]);
     }
 }
+
+/// A thumbnail that fails names its latent point, with the cause.
+#[test]
+fn failed_thumbnails_name_their_latent_point() {
+    let points: Points = vec![("A".into(), [0.0, 0.0]), ("B".into(), [1.0, 1.0])];
+    let variance = |_: [f64; 2]| Ok(1.0);
+    let source = |p: [f64; 2]| -> render::Result<Box<dyn BrdfSource>> {
+        let bad = if p[0] > 0.5 && p[1] > 0.5 {
+            f64::NAN
+        } else {
+            0.2
+        };
+        Ok(Box::new(Faulty::new(Channels::Rgb, bad, 1)))
+    };
+    let opts = render::MapOptions {
+        thumbnails: 2,
+        sphere: SphereOptions {
+            size: 8,
+            ..SphereOptions::default()
+        },
+        ..map_opts()
+    };
+    let err = error_of(
+        render::latent_map(&points, &variance, Some(&source), &opts),
+        "NaN thumbnail",
+    );
+    let msg = err.to_string();
+    assert!(
+        msg.starts_with("the thumbnail at latent point (0.75, 0.75): the BRDF source returned NaN"),
+        "{msg}"
+    );
+    assert!(matches!(
+        err,
+        Error::Thumbnail { point: [0.75, 0.75], ref source } if matches!(**source, Error::NonFiniteValue { .. })
+    ));
+}
