@@ -1,6 +1,9 @@
 //! Accuracy and bad-input tests of the prediction service on small synthetic stores.
 #![allow(clippy::needless_range_loop)]
 
+mod common;
+
+use common::dense_solve;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -63,36 +66,6 @@ fn fixture(n: usize, transform: &str) -> Fixture {
     }
 }
 
-/// Dense solve of a small SPD system by Gaussian elimination with partial pivoting.
-fn dense_solve(a: &Mat<f64>, b: &[f64]) -> Vec<f64> {
-    let n = b.len();
-    let mut m: Vec<Vec<f64>> = (0..n)
-        .map(|i| {
-            let mut r: Vec<f64> = (0..n).map(|j| a[(i, j)]).collect();
-            r.push(b[i]);
-            r
-        })
-        .collect();
-    for k in 0..n {
-        let p = (k..n)
-            .max_by(|&x, &y| m[x][k].abs().total_cmp(&m[y][k].abs()))
-            .unwrap();
-        m.swap(k, p);
-        for i in k + 1..n {
-            let f = m[i][k] / m[k][k];
-            for j in k..=n {
-                m[i][j] -= f * m[k][j];
-            }
-        }
-    }
-    let mut x = vec![0.0; n];
-    for i in (0..n).rev() {
-        let s: f64 = (i + 1..n).map(|j| m[i][j] * x[j]).sum();
-        x[i] = (m[i][n] - s) / m[i][i];
-    }
-    x
-}
-
 fn rel(a: f64, b: f64) -> f64 {
     (a - b).abs() / a.abs().max(b.abs()).max(1e-300)
 }
@@ -121,7 +94,7 @@ fn posterior_mean_and_variance_equal_a_dense_reference() {
         .map(|(a, b)| 0.6 * a + 0.4 * b)
         .collect();
     let kstar: Vec<f64> = (0..n).map(|i| k(&row(i), &x)).collect();
-    let w_ref = dense_solve(&kk, &kstar);
+    let w_ref = dense_solve(|i, j| kk[(i, j)], &kstar);
     let w = pred.gp_weights(&x, PredictorKind::Smooth).unwrap();
     for i in 0..n {
         assert!(
@@ -152,7 +125,7 @@ fn posterior_mean_and_variance_equal_a_dense_reference() {
     let exact = pred.variance_of(&x2, PredictorKind::Exact).unwrap();
     assert!(exact <= 1e-9 * (s2 + mu), "{exact}");
     let k2: Vec<f64> = (0..n).map(|i| k(&row(i), &x2)).collect();
-    let w2 = dense_solve(&kk, &k2);
+    let w2 = dense_solve(|i, j| kk[(i, j)], &k2);
     let smooth_ref = s2 + mu - k2.iter().zip(&w2).map(|(a, b)| a * b).sum::<f64>();
     let smooth = pred.variance_of(&x2, PredictorKind::Smooth).unwrap();
     assert!(

@@ -3,6 +3,9 @@
 //! fitted through `gplvm`, and invariants checked against independent computations.
 #![allow(clippy::needless_range_loop)]
 
+mod common;
+
+use common::dense_solve;
 use std::path::{Path, PathBuf};
 
 use brdf_io::store::Store;
@@ -148,36 +151,6 @@ fn make_case(spec: &Spec) -> Case {
     }
 }
 
-/// Dense solve of a small system by Gaussian elimination with partial pivoting.
-fn dense_solve(a: &[Vec<f64>], b: &[f64]) -> Vec<f64> {
-    let n = b.len();
-    let mut m: Vec<Vec<f64>> = (0..n)
-        .map(|i| {
-            let mut r = a[i].clone();
-            r.push(b[i]);
-            r
-        })
-        .collect();
-    for k in 0..n {
-        let p = (k..n)
-            .max_by(|&x, &y| m[x][k].abs().total_cmp(&m[y][k].abs()))
-            .unwrap();
-        m.swap(k, p);
-        for i in k + 1..n {
-            let f = m[i][k] / m[k][k];
-            for j in k..=n {
-                m[i][j] -= f * m[k][j];
-            }
-        }
-    }
-    let mut x = vec![0.0; n];
-    for i in (0..n).rev() {
-        let s: f64 = (i + 1..n).map(|j| m[i][j] * x[j]).sum();
-        x[i] = (m[i][n] - s) / m[i][i];
-    }
-    x
-}
-
 /// The model's latent points.
 fn points(pred: &Predictor) -> Vec<Vec<f64>> {
     pred.model()
@@ -225,7 +198,7 @@ fn dense_weights(pred: &Predictor, x: &[f64], kind: PredictorKind) -> Vec<f64> {
                 }
         })
         .collect();
-    dense_solve(&kk, &kstar)
+    dense_solve(|i, j| kk[i][j], &kstar)
 }
 
 /// Random latent points: convex combinations of the training points (inside their hull),
