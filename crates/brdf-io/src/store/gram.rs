@@ -95,24 +95,32 @@ impl<'t, T: GramTransform + ?Sized> GramAccumulator<'t, T> {
     /// An empty accumulator for `n` materials, or `None` when its `np x np` matrix cannot be
     /// allocated (the caller names the store).
     pub(crate) fn new(n: usize, transform: &'t T) -> Option<Self> {
-        let size = n.div_ceil(8) * 8;
+        let (size, [g, wide]) = Self::lengths(n);
         Some(Self {
             n,
             transform,
-            g: zeroed(size.checked_mul(size)?)?,
+            g: zeroed(usize::try_from(g).ok()?)?,
             size,
-            wide: zeroed(F64_BLOCK.checked_mul(n)?.checked_add(8)?)?,
+            wide: zeroed(usize::try_from(wide).ok()?)?,
             filled: 0,
         })
     }
 
     /// Bytes one accumulator for `n` materials holds (its matrix and block).
     pub(crate) fn bytes(n: usize) -> u64 {
-        let size = n.div_ceil(8) as u64 * 8;
-        let values = (size.saturating_mul(size))
-            .saturating_add((F64_BLOCK as u64).saturating_mul(n as u64))
+        let (_, [g, wide]) = Self::lengths(n);
+        g.saturating_add(wide).saturating_mul(8)
+    }
+
+    /// The matrix order np (n rounded up to a multiple of 8) and the values of the matrix
+    /// (np x np) and of the block (F64_BLOCK x n plus 8 of slack), saturating.
+    fn lengths(n: usize) -> (usize, [u64; 2]) {
+        let size = n.div_ceil(8) * 8;
+        let np = size as u64;
+        let block = (F64_BLOCK as u64)
+            .saturating_mul(n as u64)
             .saturating_add(8);
-        values.saturating_mul(8)
+        (size, [np.saturating_mul(np), block])
     }
 
     /// Adds one index-major chunk (`block[(d - range.start) * n + m]`) of a store whose
