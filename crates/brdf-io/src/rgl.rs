@@ -240,6 +240,92 @@ impl Warp {
         }
         [x, y]
     }
+
+    /// The `u.y` whose row [`Warp::invert`] maps to `s_y`: the smallest `u.y` at which the
+    /// marginal part of `invert` (which depends on `u.y` only) reaches `s_y`, in closed form
+    /// (a binary search of the marginal CDF, then the quadratic of its cell).
+    fn forward_y(&self, s_y: f64, c: &Corners) -> f64 {
+        let (w, h) = (self.w, self.h);
+        let (n_cond, n_marg) = ((w - 1) * h, h - 1);
+        let cell = first_reaching(h - 1, s_y, |k| c.lookup(&self.marg, n_marg, k));
+        let Some(py) = cell else { return 1.0 };
+        let base = if py > 0 {
+            c.lookup(&self.marg, n_marg, py - 1)
+        } else {
+            0.0
+        };
+        let r0 = c.lookup(&self.cond, n_cond, py * (w - 1) + (w - 1) - 1);
+        let r1 = c.lookup(&self.cond, n_cond, (py + 1) * (w - 1) + (w - 1) - 1);
+        let sy = cell_root(r0, r1, (s_y - base) * (h - 1) as f64);
+        (py as f64 + sy) / (h - 1) as f64
+    }
+
+    /// The `u.x` that [`Warp::invert`] maps to `s_x` on the row of `u_y` (the conditional part:
+    /// the smallest such `u.x`, in closed form as [`Warp::forward_y`]); rows without density,
+    /// which `invert` leaves as they are, give `s_x` back.
+    fn forward_x(&self, s_x: f64, u_y: f64, c: &Corners) -> f64 {
+        let (w, h) = (self.w, self.h);
+        let ([_, py], [_, sy]) = patch([0.0, u_y], w, h);
+        let (n_data, n_cond) = (w * h, (w - 1) * h);
+        let row = py * (w - 1);
+        let cdf = |k: usize| {
+            lerp(
+                c.lookup(&self.cond, n_cond, row + k),
+                c.lookup(&self.cond, n_cond, row + k + (w - 1)),
+                sy,
+            )
+        };
+        let row_mass = cdf(w - 2);
+        if row_mass.is_nan() || row_mass <= 0.0 {
+            return s_x;
+        }
+        let target = s_x * row_mass;
+        let Some(px) = first_reaching(w - 1, target, cdf) else {
+            return 1.0;
+        };
+        let base = if px > 0 { cdf(px - 1) } else { 0.0 };
+        let i = py * w + px;
+        let density = |i: usize| {
+            lerp(
+                c.lookup(&self.data, n_data, i),
+                c.lookup(&self.data, n_data, i + w),
+                sy,
+            )
+        };
+        let sx = cell_root(density(i), density(i + 1), (target - base) * (w - 1) as f64);
+        (px as f64 + sx) / (w - 1) as f64
+    }
+}
+
+/// The first of the `cells` cumulative values `cdf(0..cells)` (non-decreasing) that reaches
+/// `target`, by binary search; `None` when even the last one falls short.
+fn first_reaching(cells: usize, target: f64, cdf: impl Fn(usize) -> f64) -> Option<usize> {
+    let (mut lo, mut hi) = (0, cells);
+    while lo < hi {
+        let mid = (lo + hi) / 2;
+        if cdf(mid) < target {
+            lo = mid + 1;
+        } else {
+            hi = mid;
+        }
+    }
+    (lo < cells).then_some(lo)
+}
+
+/// The smallest `s` in [0, 1] with `s (d0 + s (d1 - d0) / 2) = mass`: where the integral of a
+/// density rising linearly from `d0` to `d1` (>= 0) across a cell reaches `mass` (in units of
+/// the cell's width). The root in the form without cancellation, `2 mass / (d0 + sqrt(d0^2 +
+/// 2 (d1 - d0) mass))`, holds for a flat density (`d1 = d0`) too.
+fn cell_root(d0: f64, d1: f64, mass: f64) -> f64 {
+    if mass.is_nan() || mass <= 0.0 {
+        return 0.0;
+    }
+    let disc = (d0 * d0 + 2.0 * (d1 - d0) * mass).max(0.0);
+    let denom = d0 + disc.sqrt();
+    if denom.is_nan() || denom <= 0.0 {
+        return 0.0;
+    }
+    (2.0 * mass / denom).clamp(0.0, 1.0)
 }
 
 /// An isotropic RGL `.bsdf` file (spectral `*_spec.bsdf` or RGB `*_rgb.bsdf`), ready to evaluate.
@@ -806,6 +892,94 @@ mod tests {
             (s[0] - 0.5).abs() < 1e-12 && (s[1] - 1.0).abs() < 1e-12,
             "{s:?}"
         );
+    }
+
+    /// The smallest `u` in [0, 1] with `at(u) >= target`, by bisection: the reference for the
+    /// closed-form forward warp.
+    fn bisect(target: f64, at: impl Fn(f64) -> f64) -> f64 {
+        let (mut lo, mut hi) = (0.0f64, 1.0f64);
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            if at(mid) < target {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        0.5 * (lo + hi)
+    }
+
+    #[test]
+    fn forward_warp_inverts_invert_and_matches_bisection() {
+        // Random densities on 3 x 2 slices of 7 x 6 tables, with empty cells, an empty row
+        // pair and an all-empty slice's neighbour, blended between slices as lookups blend them.
+        let (w, h, slices) = (7, 6, 6);
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut raw: Vec<f64> = (0..slices * w * h)
+            .map(|_| {
+                let v = next();
+                if v < 0.25 {
+                    0.0
+                } else {
+                    10f64.powf(4.0 * v - 2.0)
+                }
+            })
+            .collect();
+        // Slice 1: rows 0-2 empty (no density between them: `invert` keeps x there).
+        raw[w * h..w * h + 3 * w].iter_mut().for_each(|v| *v = 0.0);
+        let warp = Warp::new(&raw, slices, w, h, Path::new("t")).unwrap();
+        let corners = [
+            Corners::new((0, 0.0), (0, 0.0), 0, 1),
+            Corners::new((0, 0.0), (1, 0.0), 0, 1),
+            Corners::new((0, 0.0), (1, 0.3), 0, 1),
+            Corners::new((0, 0.7), (1, 0.4), 3, 1),
+        ];
+        let (mut checked, mut exact) = (0, 0);
+        for c in &corners {
+            for iy in 0..=40 {
+                let s_y = iy as f64 / 40.0;
+                let u_y = warp.forward_y(s_y, c);
+                let want_y = bisect(s_y, |y| warp.invert([0.5, y], c)[1]);
+                let back_y = warp.invert([0.5, u_y], c)[1];
+                assert!(
+                    (back_y - s_y).abs() < 1e-13,
+                    "s.y {s_y} -> {u_y} -> {back_y}"
+                );
+                // The same point as the bisection, or another preimage of s.y: where the
+                // density vanishes the CDF is flat to rounding over a stretch.
+                let flat = (warp.invert([0.5, want_y], c)[1] - s_y).abs() < 1e-13;
+                assert!(
+                    (u_y - want_y).abs() < 1e-12 || flat,
+                    "u.y {u_y} vs bisection {want_y}"
+                );
+                for ix in 0..=40 {
+                    let s_x = ix as f64 / 40.0;
+                    let u_x = warp.forward_x(s_x, u_y, c);
+                    let want_x = bisect(s_x, |x| warp.invert([x, u_y], c)[0]);
+                    let flat = (warp.invert([want_x, u_y], c)[0] - s_x).abs() < 1e-13;
+                    assert!(
+                        (u_x - want_x).abs() < 1e-12 || flat,
+                        "u.x {u_x} vs bisection {want_x} (s {s_x}, {s_y})"
+                    );
+                    exact += usize::from((u_x - want_x).abs() < 1e-12);
+                    let back = warp.invert([u_x, u_y], c);
+                    assert!(
+                        (back[0] - s_x).abs() < 1e-13 && (back[1] - s_y).abs() < 1e-13,
+                        "s ({s_x}, {s_y}) -> ({u_x}, {u_y}) -> {back:?}"
+                    );
+                    checked += 1;
+                }
+            }
+        }
+        assert_eq!(checked, 4 * 41 * 41);
+        // Nearly every point is the bisection's to 1e-12; the rest sit on flat stretches.
+        assert!(exact * 100 >= checked * 99, "{exact} of {checked}");
     }
 
     #[test]

@@ -25,7 +25,8 @@
 //!    positive warp is valid: readers invert the stored one, and renderers' sampling pdfs come
 //!    from the same tables);
 //! 4. for each point of the regular grid of the warped square, finds the half vector the warp
-//!    maps it to (inverting the evaluator's own warp inversion by bisection, so a lookup of the
+//!    maps it to (the exact inverse of the evaluator's own warp inversion, in closed form: a
+//!    binary search of the warp's CDFs and the quadratic of one cell, so a lookup of the
 //!    written file at that half vector lands exactly on the grid point), reflects `w_i` about it
 //!    and stores `f(w_i, w_o) cos(theta_o) 4 sigma / D` with the tables' own interpolated D and
 //!    sigma: the file then reproduces the source exactly (to f32 rounding) at every stored point
@@ -339,33 +340,6 @@ fn eval_finite(
         });
     }
     Ok(())
-}
-
-/// Root of the continuous, non-decreasing `at` on [0, 1] at `target`, by 46 halvings (to
-/// 1.4e-14: a lookup at the result lands on the stored point to far below f32 rounding).
-fn bisect(target: f64, at: impl Fn(f64) -> f64) -> f64 {
-    let (mut lo, mut hi) = (0.0f64, 1.0f64);
-    for _ in 0..46 {
-        let mid = 0.5 * (lo + hi);
-        if at(mid) < target {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    0.5 * (lo + hi)
-}
-
-/// The `u.y` of the half-vector square whose row the warp slice `c` maps to `s_y` (the
-/// marginal part of [`Warp::invert`] depends on `u.y` only).
-fn warp_forward_y(warp: &Warp, c: &Corners, s_y: f64) -> f64 {
-    bisect(s_y, |y| warp.invert([0.5, y], c)[1])
-}
-
-/// The point `u` of the half-vector square that the warp slice `c` maps to `s` (the inverse of
-/// [`Warp::invert`]), given `u.y` = [`warp_forward_y`] of `s[1]`: the conditional part.
-fn warp_forward_x(warp: &Warp, c: &Corners, s_x: f64, u_y: f64) -> [f64; 2] {
-    [bisect(s_x, |x| warp.invert([x, u_y], c)[0]), u_y]
 }
 
 /// A grid source ([`BrdfSource::grid`]) whose cells are evaluated once each, when first
@@ -961,9 +935,9 @@ fn fixed_fields(
             let mut f = vec![0.0; nc];
             let mut summary = RglWriteSummary::empty(nt, res, nw);
             for row in 0..res {
-                let u_y = warp_forward_y(&warp, &c, u_at(row, res));
+                let u_y = warp.forward_y(u_at(row, res), &c);
                 for col in 0..res {
-                    let u = warp_forward_x(&warp, &c, u_at(col, res), u_y);
+                    let u = [warp.forward_x(u_at(col, res), u_y, &c), u_y];
                     let m = direction(u2theta(u[0]), u2phi(u[1]));
                     let (dot, wo) = reflect(wi, m);
                     summary.values += nc;
@@ -1170,8 +1144,8 @@ mod tests {
             for row in 0..options.resolution {
                 for col in 0..options.resolution {
                     let n = (options.resolution - 1) as f64;
-                    let u_y = warp_forward_y(&bsdf.vndf, &c, row as f64 / n);
-                    let u = warp_forward_x(&bsdf.vndf, &c, col as f64 / n, u_y);
+                    let u_y = bsdf.vndf.forward_y(row as f64 / n, &c);
+                    let u = [bsdf.vndf.forward_x(col as f64 / n, u_y, &c), u_y];
                     let m = direction(u2theta(u[0]), u2phi(u[1]));
                     let (_, wo) = reflect(wi, m);
                     if wo[2] < 1e-3 {
