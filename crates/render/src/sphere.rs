@@ -107,7 +107,7 @@ pub const STUDIO_AZIMUTHS: usize = 4;
 /// the quadrature converges. The w-weighted mean over all directions instead counts a glossy
 /// lobe's peak and overcorrects (a mirror-like lobe went from 1.9 % to 28 % off); a floor
 /// from 0.45 or 0.3 rad corrects diffuse materials a little better and broad lobes a little
-/// worse (BENCHMARKS.md "render", session 20).
+/// worse (BENCHMARKS.md "render", "the studio sky's control variate", 2026-12-03).
 pub const STUDIO_FLOOR_THETA_H: f64 = 0.6;
 
 /// View angles (nodes) of the pre-integrated environment table.
