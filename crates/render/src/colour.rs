@@ -239,6 +239,32 @@ pub const XYZ_TO_SRGB: [[f64; 3]; 3] = [
     [0.0556434, -0.2040259, 1.0572252],
 ];
 
+/// The white of [`XYZ_TO_SRGB`]: the XYZ it takes to linear sRGB (1, 1, 1), its inverse applied
+/// to (1, 1, 1) (Cramer's rule): (0.95047, 1, 1.08883) to the matrix's 7 decimals. The 5 nm CIE
+/// tables' D65 ([`Illuminant::white_xyz`]) is up to 2e-4 away from it, so a white diffuser
+/// under D65 rendered 1.6e-4 off neutral before [`ColourPipeline`] adapted D65 as well.
+pub fn srgb_white() -> [f64; 3] {
+    mat_vec(&inverse(&XYZ_TO_SRGB), [1.0; 3])
+}
+
+/// The inverse of a regular 3 x 3 matrix (cofactors over the determinant).
+fn inverse(m: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
+    let c = |i: usize, j: usize| {
+        let (i1, i2) = ((i + 1) % 3, (i + 2) % 3);
+        let (j1, j2) = ((j + 1) % 3, (j + 2) % 3);
+        m[i1][j1] * m[i2][j2] - m[i1][j2] * m[i2][j1]
+    };
+    let det = m[0][0] * c(0, 0) + m[0][1] * c(0, 1) + m[0][2] * c(0, 2);
+    // The inverse is the transposed cofactor matrix over the determinant.
+    let mut o = [[0.0; 3]; 3];
+    for (i, row) in o.iter_mut().enumerate() {
+        for (j, v) in row.iter_mut().enumerate() {
+            *v = c(j, i) / det;
+        }
+    }
+    o
+}
+
 /// Linear sRGB -> XYZ (D65 white), the inverse of [`XYZ_TO_SRGB`].
 pub const SRGB_TO_XYZ: [[f64; 3]; 3] = [
     [0.4124564, 0.3575761, 0.1804375],
@@ -264,17 +290,14 @@ fn mat_mul(a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
     o
 }
 
-/// Bradford chromatic adaptation matrix from white `from` to white `to` (XYZ).
+/// Bradford chromatic adaptation matrix from white `from` to white `to` (XYZ): it takes
+/// `from` to `to` to rounding (the cone matrix's exact inverse, not the 7-decimal one that
+/// Lindbloom tabulates, which left `to` 1e-7 off).
 pub fn bradford(from: [f64; 3], to: [f64; 3]) -> [[f64; 3]; 3] {
     const M: [[f64; 3]; 3] = [
         [0.8951, 0.2664, -0.1614],
         [-0.7502, 1.7135, 0.0367],
         [0.0389, -0.0685, 1.0296],
-    ];
-    const M_INV: [[f64; 3]; 3] = [
-        [0.9869929, -0.1470543, 0.1599627],
-        [0.4323053, 0.5183603, 0.0492912],
-        [-0.0085287, 0.0400428, 0.9684867],
     ];
     let s = mat_vec(&M, from);
     let d = mat_vec(&M, to);
@@ -283,7 +306,7 @@ pub fn bradford(from: [f64; 3], to: [f64; 3]) -> [[f64; 3]; 3] {
         [0.0, d[1] / s[1], 0.0],
         [0.0, 0.0, d[2] / s[2]],
     ];
-    mat_mul(&M_INV, &mat_mul(&diag, &M))
+    mat_mul(&inverse(&M), &mat_mul(&diag, &M))
 }
 
 /// XYZ -> linear sRGB.
@@ -321,9 +344,11 @@ pub fn to_srgb8(v: f64) -> u8 {
     (srgb_encode(v) * 255.0).round() as u8
 }
 
-/// How spectra become linear sRGB: an illuminant, with Bradford adaptation of its white to D65
-/// (so a white diffuser stays neutral under A or D50; the illuminant changes colour rendition,
-/// not white balance).
+/// How spectra become linear sRGB: an illuminant, with Bradford adaptation of its white (from
+/// the CIE tables, [`Illuminant::white_xyz`]) to the white of [`XYZ_TO_SRGB`] ([`srgb_white`]),
+/// so a white diffuser is neutral, R = G = B = 1 to rounding, under every illuminant, D65
+/// included (the tables' D65 is 2e-4 from the matrix's; the illuminant changes colour
+/// rendition, not white balance).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ColourPipeline {
     /// The illuminant.
@@ -335,15 +360,10 @@ pub struct ColourPipeline {
 impl ColourPipeline {
     /// The pipeline for `illuminant`.
     pub fn new(illuminant: Illuminant) -> Self {
-        let m = if illuminant == Illuminant::D65 {
-            XYZ_TO_SRGB
-        } else {
-            let adapt = bradford(illuminant.white_xyz(), Illuminant::D65.white_xyz());
-            mat_mul(&XYZ_TO_SRGB, &adapt)
-        };
+        let adapt = bradford(illuminant.white_xyz(), srgb_white());
         Self {
             illuminant,
-            to_rgb: m,
+            to_rgb: mat_mul(&XYZ_TO_SRGB, &adapt),
         }
     }
 
@@ -535,8 +555,8 @@ mod tests {
                 }
             }
         }
-        for ill in [Illuminant::A, Illuminant::D50] {
-            let adapt = bradford(ill.white_xyz(), Illuminant::D65.white_xyz());
+        for ill in [Illuminant::A, Illuminant::D50, Illuminant::D65] {
+            let adapt = bradford(ill.white_xyz(), srgb_white());
             let want = mat_mul(&XYZ_TO_SRGB, &adapt);
             assert_eq!(ColourPipeline::new(ill).to_rgb, want);
             // A chromatic spectrum (a red ramp) goes through that matrix.
@@ -549,6 +569,42 @@ mod tests {
             let direct = mat_vec(&want, w.xyz(&red).unwrap());
             assert_eq!(rgb, direct);
             assert!(rgb[0] > 2.0 * rgb[2], "{ill:?}: {rgb:?}");
+        }
+    }
+
+    /// A perfect white diffuser is neutral, R = G = B = 1 to rounding, under every illuminant
+    /// and sampling: the pipeline adapts the CIE tables' white (D65's too, 2e-4 from the
+    /// matrix's) to the white of the XYZ -> sRGB matrix, which is the published D65 white to
+    /// the matrix's 7 decimals. Bradford takes its source white to its target to rounding.
+    #[test]
+    fn white_diffuser_is_neutral_to_rounding_under_every_illuminant() {
+        let w = srgb_white();
+        let published = [0.95047, 1.0, 1.08883];
+        for c in 0..3 {
+            assert!((w[c] - published[c]).abs() < 1e-6, "{w:?}");
+        }
+        assert!(
+            (Illuminant::D65.white_xyz()[2] - published[2]).abs() > 1e-4,
+            "the tables' D65 white is no longer 2e-4 from the matrix's: {:?}",
+            Illuminant::D65.white_xyz()
+        );
+        for ill in [Illuminant::D65, Illuminant::D50, Illuminant::A] {
+            let to = mat_vec(&bradford(ill.white_xyz(), w), ill.white_xyz());
+            for c in 0..3 {
+                assert!((to[c] - w[c]).abs() < 1e-14, "{ill}: {to:?} vs {w:?}");
+            }
+            for wl in [
+                (360..=1000).step_by(20).map(f64::from).collect::<Vec<_>>(),
+                (380..=730).step_by(10).map(f64::from).collect(),
+                (400..=700).step_by(10).map(f64::from).collect(),
+                vec![550.0],
+            ] {
+                let p = ColourPipeline::new(ill);
+                let rgb = p.reflectance_to_rgb(&wl, &vec![1.0; wl.len()]).unwrap();
+                for c in rgb {
+                    assert!((c - 1.0).abs() < 1e-12, "{ill} {}: {rgb:?}", wl.len());
+                }
+            }
         }
     }
 
