@@ -105,9 +105,9 @@ pub const STUDIO_AZIMUTHS: usize = 4;
 /// radians (~34 degrees) from the normal, where a Blinn-Phong lobe of exponent 30 has fallen
 /// to 0.3 % of its peak. A Lambertian (f = c) is then exact, and the correction vanishes as
 /// the quadrature converges. The w-weighted mean over all directions instead counts a glossy
-/// lobe's peak and overcorrects (a mirror-like lobe went from 1.9 % to 28 % off); a floor
-/// from 0.45 or 0.3 rad corrects diffuse materials a little better and broad lobes a little
-/// worse (BENCHMARKS.md "render", "the studio sky's control variate", 2026-12-03).
+/// lobe's peak and overcorrects (a mirror-like lobe went from 1.9 % to 28-37 % off on 32 px
+/// spheres); a floor from 0.45 or 0.3 rad corrects diffuse materials a little better and broad
+/// lobes a little worse (BENCHMARKS.md "render", "the studio sky's control variate", 2026-12-03).
 pub const STUDIO_FLOOR_THETA_H: f64 = 0.6;
 
 /// View angles (nodes) of the pre-integrated environment table.

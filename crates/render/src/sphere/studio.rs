@@ -63,7 +63,8 @@ fn gauss_legendre(n: usize) -> Vec<(f64, f64)> {
         .collect()
 }
 
-/// E(ny) by the 1-D integral of the module docs (the kernel alone integrates to pi within 1e-11 at any height).
+/// E(ny) by the 1-D integral of the module docs (the kernel alone integrates to pi within 1e-11
+/// at any height).
 pub(super) fn studio_irradiance_exact(ny: f64) -> f64 {
     static GAUSS: OnceLock<Vec<(f64, f64)>> = OnceLock::new();
     let gauss = GAUSS.get_or_init(|| gauss_legendre(GAUSS_POINTS));
