@@ -232,6 +232,26 @@ fn kinds() -> [PredictorKind; 2] {
     [PredictorKind::Exact, PredictorKind::Smooth]
 }
 
+/// Eq. 22 RMSE in the model's transformed space of the linear predictor `c` (over the stored
+/// `values`, material-major) against `target`, computed directly over the valid cells: the
+/// transform of the target's values against `sum_i c_i T(values_i)`.
+fn transformed_rmse(pred: &Predictor, values: &[Vec<f32>], c: &[f64], target: &[f32]) -> f64 {
+    let t = pred.transform();
+    let nc = pred.store().channels().len();
+    let mask = pred.grid().validity_mask();
+    let mut sum = 0.0;
+    for (di, &f) in target.iter().enumerate() {
+        if !mask[di / nc] {
+            continue;
+        }
+        let y: f64 = (0..c.len())
+            .map(|i| c[i] * t.forward(f64::from(values[i][di])))
+            .sum();
+        sum += (t.forward(f64::from(f)) - y).powi(2);
+    }
+    (sum / pred.grid().len() as f64).sqrt()
+}
+
 fn is_coinciding(pred: &Predictor, i: usize) -> bool {
     let pts = points(pred);
     pts.iter().enumerate().any(|(j, p)| j != i && *p == pts[i])
@@ -397,10 +417,19 @@ fn check_merl(case: &Case, m: &predict::PredictedMaterial) -> Result<(), TestCas
 }
 
 proptest! {
-    // Fixed cases: the locate check below failed on one random dataset in CI (seed
-    // 14001124295530264192, N = 5, q = 1, log: found 1.8 % off the point it was made, and every
-    // number of starts converges to the same point, so it is not the choice of starts); until
-    // that is understood, the cases are the same on every run.
+    // Fixed cases. The locate check below failed in CI on one random dataset (spec seed
+    // 14001124295530264192): not a search failure but a target the transform cannot represent
+    // (see `locate_finds_the_minimum_when_the_log_transform_clamps_the_target`), which the
+    // check now allows for. Many random cases still find rare misses of the latent search
+    // itself (a multi-start local search over a multimodal error). Before the side starts of
+    // `best_latent_point` (ridges: `locate_does_not_take_the_wrong_side_of_a_ridge`): failures
+    // after 1,113 and 1,424 cases of this test, 3 in 10,000 specs of the same distribution;
+    // after: 1 in ~12,000 cases (spec seed 14129900930674071267, N = 5, q = 1, raw), 0 in the
+    // same 10,000 specs. Misses remain where latent points cluster (near-duplicate materials,
+    // raw values) and the target's basin is narrower than the starts' spacing (e.g. spec seed
+    // 3740007602265788604, N = 5, q = 1, raw, near duplicate: a basin 0.1 length-scales off
+    // the cluster), or lies between the starts in q = 2 (2381213907287721342, raw). With 24
+    // random cases per run that would fail ~0.2 % of CI runs, so the cases stay fixed.
     #![proptest_config(ProptestConfig {
         cases: 24,
         max_shrink_iters: 32,
@@ -450,25 +479,171 @@ proptest! {
             prop_assert!(s.is_far() && s.distance.is_finite() && s.distance >= scale * 0.999, "{s:?} scale {scale} l {:?}", h.length_scale);
         }
 
-        // Locate: a smooth prediction inside the hull is found where the GP predicts it, to the
-        // precision of the latent search (Hooke-Jeeves down to steps of 1e-5 of the points'
-        // spread: typically 1e-6..1e-5 of the target's size, up to ~1e-3 in a flat valley
-        // (seen with N = 3, q = 1, raw); not necessarily at the point it was made, since the
-        // prediction can be reached elsewhere (e.g. near the mean far from the materials).
-        // Before the search also started from midpoints, a point between two materials was
-        // missed for another material's basin (2.4 % error, N = 5, q = 1).
+        // Locate: a smooth prediction inside the hull, written as a target, is located at least
+        // as well as the point it was made at, to the precision of the latent search
+        // (Hooke-Jeeves down to steps of 1e-5 of the points' spread: typically 1e-6..1e-5 of
+        // the target's size, up to ~1e-3 in a flat valley, seen with N = 3, q = 1, raw); not
+        // necessarily at that point, since the prediction can be reached elsewhere (e.g. near
+        // the mean far from the materials). Before the search also started from midpoints, a
+        // point between two materials was missed for another material's basin (2.4 % error,
+        // N = 5, q = 1).
+        // "At least as well as the point": the target is the prediction only where the
+        // transform can represent it. Under `log` a smooth prediction can be slightly negative
+        // (it is not clamped), and the transform maps a negative target value to 0 (`ln(1 +
+        // f / c)` of f clamped at 0), so there the target differs from the prediction by the
+        // prediction's transformed value and the error at the point is not ~0 (1.8 % of the
+        // target's size in CI: see the test after this one); the search then finds a lower
+        // error elsewhere, and the bound is that error plus the search's precision.
         let x = &latent_points(&pred, spec.seed)[0];
         let m = pred.predict(x, PredictorKind::Smooth).unwrap();
         let d = pred.store().d();
         let values: Vec<f32> = (0..d).map(|di| m.value_at(di).unwrap() as f32).collect();
+        let c = pred.coefficients(x, PredictorKind::Smooth).unwrap();
+        let at_x = transformed_rmse(&pred, &case.values, &c, &values);
+        let clamped = spec.log && values.iter().any(|v| *v < 0.0);
         let target = predict::locate::Target { name: "p".into(), source: "test".into(), values };
         let targets = std::slice::from_ref(&target);
         let loc = &predict::locate::locate(&pred, targets, 3, &|_, _| {}).unwrap()[0];
         let (_, norms) = predict::locate::cross_products(&pred, targets, &|_, _| {}).unwrap();
         let typical = (norms[0] / pred.grid().len() as f64).sqrt();
         prop_assert!(
-            loc.model_rmse <= 5e-3 * typical && loc.model_rmse <= loc.nearest_model_rmse,
-            "{loc:?} (typical {typical:e})"
+            loc.model_rmse <= at_x + 5e-3 * typical && loc.model_rmse <= loc.nearest_model_rmse,
+            "{loc:?} (error at the point {at_x:e}, typical {typical:e})"
+        );
+        if !clamped {
+            // Every value represented: the point itself reconstructs the target to the rounding
+            // of its values to f32, and the bound is the search's precision alone.
+            prop_assert!(at_x <= 1e-6 * typical, "error at the point {at_x:e}, typical {typical:e}");
+        }
+    }
+}
+
+/// The case that failed `variance_and_locate_behave` in CI (its spec's seed
+/// 14001124295530264192: N = 5, q = 1, log, spectral): the smooth prediction at x = -0.13509
+/// was located at -0.12369 with a transformed RMSE of 0.111 (1.8 % of the target's 6.2).
+/// Not a search failure: 5 of the prediction's 300 valid values are negative (down to -6.4e-3
+/// 1/sr, transformed -1.03), the log transform maps them to 0, and that alone makes the error
+/// at x 0.1126 (`sqrt(sum y^2 / 128)` over those 5 cells; the rounding to f32 adds 3e-8). The
+/// error's minimum over the latent line really is at -0.12369, 0.1109: a scan agrees with the
+/// located point and error.
+#[test]
+fn locate_finds_the_minimum_when_the_log_transform_clamps_the_target() {
+    let spec = Spec {
+        seed: 14001124295530264192,
+        n: 5,
+        q: 1,
+        log: true,
+        rgb: false,
+        duplicate: Duplicate::None,
+    };
+    let case = make_case(&spec);
+    let pred = Predictor::open(&case.model).unwrap();
+    let x = &latent_points(&pred, spec.seed)[0];
+    let m = pred.predict(x, PredictorKind::Smooth).unwrap();
+    let d = pred.store().d();
+    let exact: Vec<f64> = (0..d).map(|di| m.value_at(di).unwrap()).collect();
+    let values: Vec<f32> = exact.iter().map(|&v| v as f32).collect();
+    // The premise: the prediction has values the log transform cannot represent.
+    let negative: Vec<usize> = (0..d).filter(|&di| exact[di] < 0.0).collect();
+    assert!(
+        !negative.is_empty(),
+        "no negative value at {x:?}: not the CI case any more"
+    );
+    let n_angles = pred.grid().len() as f64;
+    let t = pred.transform();
+    let c = pred.coefficients(x, PredictorKind::Smooth).unwrap();
+    let y = |di: usize| -> f64 {
+        (0..c.len())
+            .map(|i| c[i] * t.forward(f64::from(case.values[i][di])))
+            .sum()
+    };
+    // The error at x is the clamped values' transformed values (the target is 0 there).
+    let clamp_residual = (negative.iter().map(|&di| y(di).powi(2)).sum::<f64>() / n_angles).sqrt();
+    let at_x = transformed_rmse(&pred, &case.values, &c, &values);
+    assert!(
+        close(at_x, clamp_residual, 1e-5, 0.0),
+        "error at x {at_x:e}, clamp residual {clamp_residual:e}"
+    );
+
+    let target = predict::locate::Target {
+        name: "p".into(),
+        source: "test".into(),
+        values,
+    };
+    let targets = std::slice::from_ref(&target);
+    let loc = &predict::locate::locate(&pred, targets, 3, &|_, _| {}).unwrap()[0];
+    let (cross, norms) = predict::locate::cross_products(&pred, targets, &|_, _| {}).unwrap();
+    let typical = (norms[0] / n_angles).sqrt();
+    // The search's objective along the latent line (the smooth predictor's Gram error).
+    let objective = |xx: f64| {
+        let c = pred.coefficients(&[xx], PredictorKind::Smooth).unwrap();
+        (predict::locate::gram_sq_error(&pred, &cross, norms[0], &c) / n_angles).sqrt()
+    };
+    assert!(close(objective(x[0]), at_x, 1e-6, 1e-9 * typical));
+    // A scan over every material's stretch and beyond, then a fine one around its minimum.
+    let argmin = |lo: f64, hi: f64, k: usize| {
+        (0..=k)
+            .map(|i| lo + (hi - lo) * i as f64 / k as f64)
+            .map(|xx| (objective(xx), xx))
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .unwrap()
+    };
+    let (_, coarse) = argmin(-4.0, 4.0, 8000);
+    let (e_min, x_min) = argmin(coarse - 2e-3, coarse + 2e-3, 4000);
+    assert!(
+        (loc.point[0] - x_min).abs() <= 1e-5,
+        "located at {:?}, the scan's minimum at {x_min}",
+        loc.point
+    );
+    assert!(
+        close(loc.model_rmse, e_min, 1e-6, 0.0) && loc.model_rmse < at_x,
+        "located error {:e}, the scan's minimum {e_min:e}, at x {at_x:e}",
+        loc.model_rmse
+    );
+    // The search is not at fault: it is within the search's precision of the minimum (which
+    // is well away from x and far from 0).
+    assert!((x_min - x[0]).abs() > 1e-3 && e_min > 1e-2 * typical);
+}
+
+/// A material on a ridge of the error between two basins (found by 3,000 random cases of
+/// `variance_and_locate_behave`, spec seed 10770280116901798891: N = 5, q = 1, log, RGB): the
+/// prediction at x = -0.3807 lies in the basin on one side of the best-scoring material (at
+/// 0.026, RMSE 0.141 there), and Hooke-Jeeves from it, and from the best midpoints, went to
+/// the basin on the other side (0.3949, RMSE 0.0711: 0.8 % of the target's size) with 1, 3
+/// and 5 starts. The starts half a length-scale off the training points find it.
+#[test]
+fn locate_does_not_take_the_wrong_side_of_a_ridge() {
+    let spec = Spec {
+        seed: 10770280116901798891,
+        n: 5,
+        q: 1,
+        log: true,
+        rgb: true,
+        duplicate: Duplicate::None,
+    };
+    let case = make_case(&spec);
+    let pred = Predictor::open(&case.model).unwrap();
+    let x = &latent_points(&pred, spec.seed)[0];
+    let m = pred.predict(x, PredictorKind::Smooth).unwrap();
+    let d = pred.store().d();
+    let values: Vec<f32> = (0..d).map(|di| m.value_at(di).unwrap() as f32).collect();
+    assert!(
+        values.iter().all(|v| *v >= 0.0),
+        "a clamped target: not the case any more"
+    );
+    let target = predict::locate::Target {
+        name: "p".into(),
+        source: "test".into(),
+        values,
+    };
+    let targets = std::slice::from_ref(&target);
+    let (_, norms) = predict::locate::cross_products(&pred, targets, &|_, _| {}).unwrap();
+    let typical = (norms[0] / pred.grid().len() as f64).sqrt();
+    for starts in [1, 3, 5] {
+        let loc = &predict::locate::locate(&pred, targets, starts, &|_, _| {}).unwrap()[0];
+        assert!(
+            loc.model_rmse <= 1e-5 * typical && (loc.point[0] - x[0]).abs() <= 1e-3,
+            "{starts} starts: {loc:?} (x {x:?}, typical {typical:e})"
         );
     }
 }
