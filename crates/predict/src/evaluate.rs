@@ -76,6 +76,10 @@ impl Method {
 /// Forming `d` first keeps a small error small: the expanded form subtracts terms of the size
 /// of `G_hh`, so its rounding (~1e-16 `G_hh`) swamped the error of a near-exact reconstruction
 /// (`c` close to `e_h`) on raw data with large values; `d^T G d` rounds relative to `|d|^2 G`.
+///
+/// # Panics
+/// If `g` is not square, `h >= N` or `c` is shorter than N (shapes are the caller's
+/// contract, as in faer's products).
 pub fn sq_error(g: MatRef<'_, f64>, h: usize, c: &[f64]) -> f64 {
     let n = g.nrows();
     let d: Vec<f64> = (0..n)
@@ -143,6 +147,9 @@ fn embed(n: usize, idx: &[usize], c: &[f64]) -> Vec<f64> {
 /// one of the rows, from Gram quantities: `G_hh - 2 c^T g_h + c^T G c` with `g = G` (N x N) of
 /// the rows, `g_h[j] = y_j . y_h` and `g_hh = |y_h|^2` (clamped at 0; its rounding is ~1e-16
 /// `g_hh`, see [`sq_error`]).
+///
+/// # Panics
+/// If `g` is not square or `g_h` or `c` is shorter than N.
 pub fn sq_error_external(g: MatRef<'_, f64>, g_h: &[f64], g_hh: f64, c: &[f64]) -> f64 {
     sq_error_expanded(g, g_h, g_hh, c).max(0.0)
 }

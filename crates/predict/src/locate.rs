@@ -417,6 +417,9 @@ pub fn cross_products(
 /// The transformed-space squared error of `coefficients` against a target from its Gram
 /// quantities (`g_h`, `g_hh` as [`cross_products`] returns them): what the latent search
 /// minimises, for checking a [`Location`] against the direct measurement.
+///
+/// # Panics
+/// If `g_h` or `coefficients` is shorter than the model's N materials.
 pub fn gram_sq_error(pred: &Predictor, g_h: &[f64], g_hh: f64, coefficients: &[f64]) -> f64 {
     sq_error_external(pred.model().gram_matrix().as_ref(), g_h, g_hh, coefficients)
 }

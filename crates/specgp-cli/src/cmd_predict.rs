@@ -77,8 +77,10 @@ pub struct EvaluateArgs {
     /// output, the table then goes to standard error).
     #[arg(long)]
     pub json: Option<PathBuf>,
-    /// With --loo: starting points of the latent search per held-out material (1..=1000; at
-    /// most the N - 1 training points are used).
+    /// With --loo: starts of the latent search per held-out material (1..=1000): this many
+    /// training points of the refit and midpoints of pairs of them, those that reconstruct it
+    /// best (at most the N - 1 training points), plus one point half a length-scale off a
+    /// training point.
     #[arg(long, default_value_t = 3, requires = "loo", value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1000))]
     pub starts: usize,
     /// With --loo: refit each leave-one-out model from the PCA start (a fresh fit) instead of
