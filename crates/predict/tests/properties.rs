@@ -223,6 +223,23 @@ fn latent_points(pred: &Predictor, seed: u64) -> Vec<Vec<f64>> {
     out
 }
 
+/// All D values of `pred`'s smooth prediction at `x`.
+fn smooth_values(pred: &Predictor, x: &[f64]) -> Vec<f64> {
+    let m = pred.predict(x, PredictorKind::Smooth).unwrap();
+    (0..pred.store().d())
+        .map(|di| m.value_at(di).unwrap())
+        .collect()
+}
+
+/// A `locate` target of `values` (named `p`).
+fn target_of(values: Vec<f32>) -> predict::locate::Target {
+    predict::locate::Target {
+        name: "p".into(),
+        source: "test".into(),
+        values,
+    }
+}
+
 /// `|a - b|` within `tol` of the larger magnitude (plus `abs`).
 fn close(a: f64, b: f64, tol: f64, abs: f64) -> bool {
     (a - b).abs() <= tol * a.abs().max(b.abs()) + abs
@@ -495,13 +512,11 @@ proptest! {
         // target's size in CI: see the test after this one); the search then finds a lower
         // error elsewhere, and the bound is that error plus the search's precision.
         let x = &latent_points(&pred, spec.seed)[0];
-        let m = pred.predict(x, PredictorKind::Smooth).unwrap();
-        let d = pred.store().d();
-        let values: Vec<f32> = (0..d).map(|di| m.value_at(di).unwrap() as f32).collect();
+        let values: Vec<f32> = smooth_values(&pred, x).iter().map(|&v| v as f32).collect();
         let c = pred.coefficients(x, PredictorKind::Smooth).unwrap();
         let at_x = transformed_rmse(&pred, &case.values, &c, &values);
         let clamped = spec.log && values.iter().any(|v| *v < 0.0);
-        let target = predict::locate::Target { name: "p".into(), source: "test".into(), values };
+        let target = target_of(values);
         let targets = std::slice::from_ref(&target);
         let loc = &predict::locate::locate(&pred, targets, 3, &|_, _| {}).unwrap()[0];
         let (_, norms) = predict::locate::cross_products(&pred, targets, &|_, _| {}).unwrap();
@@ -539,9 +554,8 @@ fn locate_finds_the_minimum_when_the_log_transform_clamps_the_target() {
     let case = make_case(&spec);
     let pred = Predictor::open(&case.model).unwrap();
     let x = &latent_points(&pred, spec.seed)[0];
-    let m = pred.predict(x, PredictorKind::Smooth).unwrap();
-    let d = pred.store().d();
-    let exact: Vec<f64> = (0..d).map(|di| m.value_at(di).unwrap()).collect();
+    let exact = smooth_values(&pred, x);
+    let d = exact.len();
     let values: Vec<f32> = exact.iter().map(|&v| v as f32).collect();
     // The premise: the prediction has values the log transform cannot represent.
     let negative: Vec<usize> = (0..d).filter(|&di| exact[di] < 0.0).collect();
@@ -565,11 +579,7 @@ fn locate_finds_the_minimum_when_the_log_transform_clamps_the_target() {
         "error at x {at_x:e}, clamp residual {clamp_residual:e}"
     );
 
-    let target = predict::locate::Target {
-        name: "p".into(),
-        source: "test".into(),
-        values,
-    };
+    let target = target_of(values);
     let targets = std::slice::from_ref(&target);
     let loc = &predict::locate::locate(&pred, targets, 3, &|_, _| {}).unwrap()[0];
     let (cross, norms) = predict::locate::cross_products(&pred, targets, &|_, _| {}).unwrap();
@@ -624,18 +634,12 @@ fn locate_does_not_take_the_wrong_side_of_a_ridge() {
     let case = make_case(&spec);
     let pred = Predictor::open(&case.model).unwrap();
     let x = &latent_points(&pred, spec.seed)[0];
-    let m = pred.predict(x, PredictorKind::Smooth).unwrap();
-    let d = pred.store().d();
-    let values: Vec<f32> = (0..d).map(|di| m.value_at(di).unwrap() as f32).collect();
+    let values: Vec<f32> = smooth_values(&pred, x).iter().map(|&v| v as f32).collect();
     assert!(
         values.iter().all(|v| *v >= 0.0),
         "a clamped target: not the case any more"
     );
-    let target = predict::locate::Target {
-        name: "p".into(),
-        source: "test".into(),
-        values,
-    };
+    let target = target_of(values);
     let targets = std::slice::from_ref(&target);
     let (_, norms) = predict::locate::cross_products(&pred, targets, &|_, _| {}).unwrap();
     let typical = (norms[0] / pred.grid().len() as f64).sqrt();
@@ -743,14 +747,11 @@ fn results_do_not_depend_on_the_thread_count() {
     };
     let case = make_case(&spec);
     let pred = Predictor::open(&case.model).unwrap();
-    let d = pred.store().d();
     let x = latent_points(&pred, spec.seed)[1].clone();
-    let target_values: Vec<f32> = {
-        let m = pred.predict(&x, PredictorKind::Smooth).unwrap();
-        (0..d)
-            .map(|di| 1.1 * m.value_at(di).unwrap() as f32)
-            .collect()
-    };
+    let target_values: Vec<f32> = smooth_values(&pred, &x)
+        .iter()
+        .map(|&v| 1.1 * v as f32)
+        .collect();
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
