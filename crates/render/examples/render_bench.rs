@@ -93,6 +93,9 @@ fn stored_materials_study(
         spec(20, 128, 8),
         spec(24, 128, 8),
         spec(24, 96, 4),
+        spec(32, 64, 4),
+        spec(32, 96, 4),
+        spec(32, 128, 4),
     ];
     let opts = |spec| SphereOptions {
         size,
