@@ -2,7 +2,7 @@
 //!
 //! A thin layer over the library crates: [`config`] parses and validates a pipeline config,
 //! [`data`] builds the dataset store (brdf-synth / brdf-io), [`pipeline`] fits (gplvm) and runs
-//! the later stages, [`report`] writes `report.md`; [`bench`] sweeps settings for run time
+//! the later stages, [`report`] writes `report.md`; [`mod@bench`] sweeps settings for run time
 //! against error and [`plot`] draws the result.
 
 pub mod bench;

@@ -203,7 +203,7 @@ fn writable(path: &Path, meta: &std::fs::Metadata) -> bool {
 }
 
 /// Refuses to create anything in the existing directory `dir` (`output`, when given, is what
-/// would be created) when its mode bits say read-only ([`writable`]): root may create files
+/// would be created) when its mode bits say read-only (`writable`): root may create files
 /// there, but an output is not put where the bits say no, as a read-only file is not replaced.
 /// The error ([`Error::Io`], permission denied) names the directory. A `dir` that is missing or
 /// not a directory passes: creating in it fails with its own error.

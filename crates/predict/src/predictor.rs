@@ -129,8 +129,8 @@ pub fn kernel_params(model: &Model) -> Result<KernelParams> {
 
 /// Default path of the sidecar store of `transform`ed values of the dataset at `dataset`:
 /// `DATA.sbrdf.<transform>.sbrdf` next to it ([`Predictor::transformed_store_path`]). The
-/// offset is written as [`short_number`] does (`log-0.01`, `log-1e-300`): as `{}` it took 300
-/// digits for 1e-300, a file name the file system refuses.
+/// offset is written in its shortest form, in exponent form when that is long (`log-0.01`,
+/// `log-1e-300`): as `{}` it took 300 digits for 1e-300, a file name the file system refuses.
 pub fn transformed_store_path(dataset: &Path, transform: Transform) -> PathBuf {
     let tag = match transform {
         Transform::Raw => "raw".to_owned(),

@@ -130,7 +130,7 @@ pub struct RglWriteOptions {
     /// (the rest is the VNDF of the file's NDF): the table's points then follow the BRDF at
     /// that elevation, e.g. the Fresnel-brightened coat of a car paint at grazing incidence,
     /// which the VNDF alone under-samples (its albedo at 85-88 degrees came out 2-3x too high
-    /// at 32^3). `None` tries the plain file, the mirror lobe and this at [`WARP_LOBE_SHARE`],
+    /// at 32^3). `None` tries the plain file, the mirror lobe and this at `WARP_LOBE_SHARE`,
     /// and keeps the best check (measured: it helps clear coats and vinyl a lot, smooth lobes
     /// not at all).
     pub lobe_warp: Option<f64>,
