@@ -7,7 +7,7 @@
 //! - [`microfacet`]: GGX with Smith height-correlated masking, Charlie sheen;
 //! - [`material`]: layered materials (diffuse / Oren-Nayar base, sheen, flakes, dielectric
 //!   interface, clear coat, bare metals), energy-conserving and reciprocal;
-//! - [`preset`]: 51 named materials spanning the RGL isotropic catalogue's families,
+//! - [`mod@preset`]: 51 named materials spanning the RGL isotropic catalogue's families,
 //!   deterministic per seed;
 //! - [`dataset`]: evaluation on an [`brdf_io::AngularGrid`] in memory;
 //! - [`stream`]: the same streamed into a `.sbrdf` store, for any grid size.

@@ -560,8 +560,8 @@ impl PSpec {
     }
 }
 
-/// A prepared material is a spectral [`BrdfSource`] at its prepared wavelengths (renderable and
-/// sampleable like a measured file).
+/// A prepared material is a spectral [`brdf_io::BrdfSource`] at its prepared wavelengths
+/// (renderable and sampleable like a measured file).
 impl brdf_io::BrdfSource for PreparedMaterial {
     fn channels(&self) -> brdf_io::Channels {
         brdf_io::Channels::Spectral(self.wavelengths.clone())
