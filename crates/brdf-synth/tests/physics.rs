@@ -469,3 +469,33 @@ fn values_do_not_depend_on_the_other_wavelengths() {
         f[17]
     );
 }
+
+/// Finite, non-negative and reciprocal at the edges of the hemisphere, for every preset at the
+/// default 33 wavelengths (360:1000:20 nm): exactly grazing directions (theta = 90 deg and
+/// 1e-9 rad above it), wi = wo (theta_d = 0) and wi = reflect(wo) (theta_h = 0), across azimuths.
+#[test]
+fn grazing_and_mirror_configurations_are_finite() {
+    let wl: Vec<f64> = (0..33).map(|i| 360.0 + 20.0 * i as f64).collect();
+    let h = PI / 2.0;
+    let mut dirs = Vec::new();
+    for t in [0.0, 0.5, 1.2, 1.5, h - 1e-4, h - 1e-9, h] {
+        for ph in [0.0, 1.0, 3.0] {
+            dirs.push(dir(t, ph));
+        }
+    }
+    preset(0).par_iter().for_each(|m| {
+        let p = m.prepare(&wl);
+        let (mut f, mut g) = (vec![0.0; 33], vec![0.0; 33]);
+        for a in &dirs {
+            let mirror = [-a[0], -a[1], a[2]];
+            for b in dirs.iter().chain([a, &mirror]) {
+                p.eval(*a, *b, &mut f);
+                p.eval(*b, *a, &mut g);
+                for (x, y) in f.iter().zip(&g) {
+                    assert!(x.is_finite() && *x >= 0.0, "{}: {a:?} {b:?} {x}", m.name);
+                    assert!((x - y).abs() <= 1e-12 + 1e-9 * x, "{}: {x} vs {y}", m.name);
+                }
+            }
+        }
+    });
+}
