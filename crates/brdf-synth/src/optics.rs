@@ -458,6 +458,41 @@ mod tests {
         assert!(Metal::Gold.normal_reflectance(450.0) < 0.45);
     }
 
+    /// At oblique incidence the complex-amplitude path (principal square roots) agrees with the
+    /// real-arithmetic conductor formulas of Born & Wolf (sec. 14.4.1) for every metal, and both
+    /// polarisations stay physical (Rp dips below Rs, and R reaches 1 at grazing).
+    #[test]
+    fn conductor_fresnel_matches_born_and_wolf() {
+        let born_wolf = |cos1: f64, n: f64, k: f64| {
+            let sin2 = 1.0 - cos1 * cos1;
+            let t = n * n - k * k - sin2;
+            let root = (t * t + 4.0 * n * n * k * k).sqrt();
+            let (a2, b2) = (0.5 * (root + t), 0.5 * (root - t));
+            let a = a2.sqrt();
+            let rs =
+                (a2 + b2 - 2.0 * a * cos1 + cos1 * cos1) / (a2 + b2 + 2.0 * a * cos1 + cos1 * cos1);
+            let st = sin2 / cos1; // sin(theta) tan(theta)
+            let rp = rs * (a2 + b2 - 2.0 * a * st + st * st) / (a2 + b2 + 2.0 * a * st + st * st);
+            (rs, rp)
+        };
+        for m in Metal::ALL {
+            for l in [380.0, 550.0, 700.0, 950.0] {
+                let z = m.nk(l);
+                for deg in [5.0f64, 30.0, 60.0, 75.0, 85.0, 89.5] {
+                    let c = deg.to_radians().cos();
+                    let (rs, rp) = born_wolf(c, z.re, z.im);
+                    let r = fresnel(c, 1.0, z);
+                    assert!(
+                        (r - 0.5 * (rs + rp)).abs() < 1e-12,
+                        "{m:?} {l} nm {deg} deg: {r}"
+                    );
+                    assert!(rp < rs && rs < 1.0, "{m:?} {l} nm {deg} deg: {rs} {rp}");
+                }
+                assert!((fresnel(0.0, 1.0, z) - 1.0).abs() < 1e-12);
+            }
+        }
+    }
+
     #[test]
     fn thin_film_limits() {
         // Zero thickness: the bare substrate.
