@@ -183,6 +183,38 @@ impl GpRegression {
         Ok(jac)
     }
 
+    /// Gradient with respect to the test point of `v . w(x*)`, `w` the smooth predictor's
+    /// weights: `v^T J` for the Jacobian `J` of [`GpRegression::weights_jacobian`], by one solve
+    /// (`a = K^-1 v`, then `sum_i a_i dk*_i/dx*_j`) instead of q. A gradient-based search for
+    /// the latent point of a material costs two solves per step this way.
+    pub fn weights_vjp(&self, x_star: &[f64], v: &[f64]) -> Result<Vec<f64>> {
+        self.check_point(x_star)?;
+        let (n, q) = (self.n(), self.q());
+        if v.len() != n {
+            return Err(GpError::DimensionMismatch {
+                what: "weights_vjp: v vs N",
+                expected: n,
+                got: v.len(),
+            });
+        }
+        let mut k = vec![0.0; n];
+        self.fill_kstar(x_star, Predictor::Smooth, &mut k);
+        let mut a = Mat::from_fn(n, 1, |i, _| v[i]);
+        self.solve_seq(a.as_mut(), true);
+        let grad: Vec<f64> = (0..q)
+            .map(|j| {
+                let l = self.params.length_scale().axis(j);
+                let xj = x_star[j] / l;
+                (0..n)
+                    .filter(|&i| k[i] != 0.0)
+                    .map(|i| a[(i, 0)] * k[i] * (self.z[j][i] - xj) / l)
+                    .sum()
+            })
+            .collect();
+        check_finite_slice(&grad, "weights vector-Jacobian product")?;
+        Ok(grad)
+    }
+
     /// Predictive variance `s^2 + mu + j - k_s^T K^-1 k_s` at one test point (clamped at 0;
     /// `j` = the factorisation jitter, usually 0): that of a new noisy observation at `x*`
     /// (the smooth `k_s`), what [`GpRegression::variance_batch`] shades maps with.

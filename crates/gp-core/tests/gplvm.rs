@@ -609,6 +609,32 @@ fn stress_large_n_and_spread_inputs() {
     );
 }
 
+/// `weights_vjp` is `v^T J` of the Jacobian (one solve instead of q), for random `v`, ARD
+/// length-scales and test points near and far from the data; a wrong length is an error.
+#[test]
+fn weights_vjp_is_v_times_the_jacobian() {
+    let mut rng = ChaCha8Rng::seed_from_u64(23);
+    let (n, q) = (12, 3);
+    let x = rand_mat(&mut rng, n, q, -1.0, 1.0);
+    let p = KernelParams::new(0.8, LengthScale::Ard(vec![0.5, 1.3, 0.9]), 1e-3).unwrap();
+    let gp = GpRegression::new(x.as_ref(), p, Par::Seq).unwrap();
+    for xs in [[0.1, 0.4, -0.3], [0.9, -0.8, 0.2], [4.0, 3.0, -5.0]] {
+        let jac = gp.weights_jacobian(&xs).unwrap();
+        let v: Vec<f64> = (0..n).map(|_| rng.random_range(-2.0..2.0)).collect();
+        let g = gp.weights_vjp(&xs, &v).unwrap();
+        for j in 0..q {
+            let want: f64 = (0..n).map(|i| v[i] * jac[(i, j)]).sum();
+            let size: f64 = (0..n).map(|i| (v[i] * jac[(i, j)]).abs()).sum();
+            assert!(
+                (g[j] - want).abs() <= 1e-12 * (size + 1e-300),
+                "{xs:?} axis {j}: {} vs {want}",
+                g[j]
+            );
+        }
+    }
+    assert!(gp.weights_vjp(&[0.0; 3], &[1.0; 5]).is_err());
+}
+
 #[test]
 fn weights_jacobian_matches_finite_differences() {
     let mut rng = ChaCha8Rng::seed_from_u64(17);

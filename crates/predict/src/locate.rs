@@ -180,10 +180,11 @@ pub struct Location {
 }
 
 /// Locates every target in the latent space of `pred`'s model: one pass over the training
-/// store for the cross products, a multi-start latent search per target (`starts` training
-/// points and `starts` midpoints of pairs of them, and one point half a length-scale off one
-/// of them along an axis, those that reconstruct it best; the smooth predictor's error in the
-/// transformed space), and one pass for the errors of the exact predictor at the point found
+/// store for the cross products, a multi-start latent search per target (`starts` each of the
+/// training points, midpoints of pairs of them, points half a length-scale off one of them
+/// along an axis and quasi-random points of the region they span, those that reconstruct it
+/// best; the smooth predictor's error in the transformed space, [`best_latent_point`]), and
+/// one pass for the errors of the exact predictor at the point found
 /// (equal to the smooth one's away from training points), which is never worse than the
 /// closest training material.
 /// `progress(done, total)` counts the chunks of both passes.

@@ -25,9 +25,10 @@ pub struct LocateArgs {
     /// defaults).
     #[arg(required = true)]
     pub targets: Vec<String>,
-    /// Starts of the latent search per target (1..=1000): this many training points and
-    /// midpoints of pairs of them, those that reconstruct it best, plus one point half a
-    /// length-scale off a training point.
+    /// Starts of the latent search per target (1..=1000): this many training points,
+    /// midpoints of pairs of them, points half a length-scale off a training point and
+    /// quasi-random points of the region they span, of each kind those that reconstruct it
+    /// best.
     #[arg(long, default_value_t = 3, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1000))]
     pub starts: usize,
     /// Write the locations as JSON (`.json`; `-`: standard output, the table then goes to

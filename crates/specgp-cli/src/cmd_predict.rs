@@ -78,9 +78,9 @@ pub struct EvaluateArgs {
     #[arg(long)]
     pub json: Option<PathBuf>,
     /// With --loo: starts of the latent search per held-out material (1..=1000): this many
-    /// training points of the refit and midpoints of pairs of them, those that reconstruct it
-    /// best (at most the N - 1 training points), plus one point half a length-scale off a
-    /// training point.
+    /// training points of the refit, midpoints of pairs of them, points half a length-scale off
+    /// a training point and quasi-random points of the region they span, of each kind those
+    /// that reconstruct it best (at most the N - 1 training points).
     #[arg(long, default_value_t = 3, requires = "loo", value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1000))]
     pub starts: usize,
     /// With --loo: refit each leave-one-out model from the PCA start (a fresh fit) instead of
