@@ -645,19 +645,18 @@ fn locate_finds_the_minimum_when_the_log_transform_clamps_the_target() {
 /// well as the point they were predicted at, as `variance_and_locate_behave` checks them.
 #[test]
 fn locate_finds_the_misses_of_earlier_searches() {
-    use Duplicate::{Exact, Near, None};
     let missed: [(u64, usize, usize, bool, bool, Duplicate); 11] = [
-        (12872555450422222705, 4, 1, true, true, None),
-        (10702303389566849176, 5, 2, false, true, Near),
-        (4945475653316591113, 3, 1, false, false, None),
-        (2420630373883128067, 4, 1, false, true, Near),
-        (2018141832678557609, 5, 1, false, false, None),
-        (2970846393982980690, 5, 1, false, true, Exact),
-        (15649383327711538552, 4, 1, true, false, None),
-        (3343143751182000112, 5, 1, false, true, Exact),
-        (11972113025270855347, 5, 1, false, false, Near),
-        (4658529915704848071, 5, 2, false, true, None),
-        (13650506399361138009, 5, 2, false, false, None),
+        (12872555450422222705, 4, 1, true, true, Duplicate::None),
+        (10702303389566849176, 5, 2, false, true, Duplicate::Near),
+        (4945475653316591113, 3, 1, false, false, Duplicate::None),
+        (2420630373883128067, 4, 1, false, true, Duplicate::Near),
+        (2018141832678557609, 5, 1, false, false, Duplicate::None),
+        (2970846393982980690, 5, 1, false, true, Duplicate::Exact),
+        (15649383327711538552, 4, 1, true, false, Duplicate::None),
+        (3343143751182000112, 5, 1, false, true, Duplicate::Exact),
+        (11972113025270855347, 5, 1, false, false, Duplicate::Near),
+        (4658529915704848071, 5, 2, false, true, Duplicate::None),
+        (13650506399361138009, 5, 2, false, false, Duplicate::None),
     ];
     for (seed, n, q, log, rgb, duplicate) in missed {
         let spec = Spec {
