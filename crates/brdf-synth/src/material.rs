@@ -824,8 +824,9 @@ mod tests {
         }
     }
 
-    /// Every interface of the presets (binders and clear coats) tabulates a conservative albedo: at every incidence (between the table's nodes too) and
-    /// wavelength, its transmittance `1 - E` is below `1 - E_ref`, the same GGX lobe's albedo
+    /// Every interface of the presets (binders and clear coats) tabulates a conservative
+    /// albedo: at every incidence (between the table's nodes too) and wavelength, its
+    /// transmittance `1 - E` is below `1 - E_ref`, the same GGX lobe's albedo
     /// integrated finely at that wavelength's index (`directional_albedo` of the interface alone
     /// over a black base). It is also tight: the table holds the largest index over the range
     /// plus a 1 % and 1e-3 margin, so it withholds at most ~1 % (measured: 1.2e-3 to 1.0e-2 over

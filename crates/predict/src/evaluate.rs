@@ -400,9 +400,10 @@ fn objective_and_gradient(
 
 /// The local minimum of [`objective_and_gradient`] that L-BFGS reaches from `x0`, or `None`
 /// when the error or its gradient is not finite there or cannot be computed (Hooke-Jeeves,
-/// which refined the starts before, skipped such a start the same way). It stops when a step changes the error by less than 1e-13 of
-/// the target's squared norm `g_hh` (the scale of the error), after 200 steps, or when the
-/// line search finds no better point: the error is smooth, so that is its minimum to rounding.
+/// which refined the starts before, skipped such a start the same way). It stops when a step
+/// changes the error by less than 1e-13 of the target's squared norm `g_hh` (the scale of the
+/// error), after 200 steps, or when the line search finds no better point: the error is
+/// smooth, so that is its minimum to rounding.
 fn refine_by_lbfgs(
     gp: &GpRegression,
     g: MatRef<'_, f64>,

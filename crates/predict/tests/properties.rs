@@ -1,14 +1,3 @@
-// Fixed cases. The locate check below failed in CI on one random dataset (spec seed
-// 14001124295530264192): not a search failure but a target the transform cannot represent
-// (see `locate_finds_the_minimum_when_the_log_transform_clamps_the_target`), which the
-// check now allows for. Random cases also found rare misses of the latent search itself
-// (a multi-start local search over a multimodal error): 3 in 10,000 before the side starts
-// (ridges: `locate_does_not_take_the_wrong_side_of_a_ridge`), then 8 in ~75,000 with
-// Hooke-Jeeves refining the starts (where latent points cluster, near-duplicate materials,
-// raw values, or between the starts in q = 2), 3 in ~97,000 with L-BFGS instead (session
-// 23), and 0 in 120,000 with L-BFGS and the quasi-random starts (and `starts` side
-// starts): `locate_finds_the_misses_of_earlier_searches` keeps the 11 missed cases. The
-// cases stay fixed all the same, so that CI runs the same test every time.
 //! Property tests of the prediction service over small random datasets: tiny grids, a few
 //! materials with values spanning several decades (and duplicates or near-duplicates), models
 //! fitted through `gplvm`, and invariants checked against independent computations.
@@ -494,16 +483,14 @@ proptest! {
     // Fixed cases. The locate check below failed in CI on one random dataset (spec seed
     // 14001124295530264192): not a search failure but a target the transform cannot represent
     // (see `locate_finds_the_minimum_when_the_log_transform_clamps_the_target`), which the
-    // check now allows for. Many random cases still find rare misses of the latent search
-    // itself (a multi-start local search over a multimodal error). Before the side starts of
-    // `best_latent_point` (ridges: `locate_does_not_take_the_wrong_side_of_a_ridge`): failures
-    // after 1,113 and 1,424 cases of this test, 3 in 10,000 specs of the same distribution;
-    // after: 2 in ~23,000 cases (spec seeds 14129900930674071267 and 13718551568736525945,
-    // both N = 5, q = 1, raw), 0 in the same 10,000 specs. Misses remain where latent points cluster (near-duplicate materials,
-    // raw values) and the target's basin is narrower than the starts' spacing (e.g. spec seed
-    // 3740007602265788604, N = 5, q = 1, raw, near duplicate: a basin 0.1 length-scales off
-    // the cluster), or lies between the starts in q = 2 (2381213907287721342, raw). With 24
-    // random cases per run that would fail ~0.2 % of CI runs, so the cases stay fixed.
+    // check now allows for. Random cases also found rare misses of the latent search itself
+    // (a multi-start local search over a multimodal error): 3 in 10,000 before the side starts
+    // (ridges: `locate_does_not_take_the_wrong_side_of_a_ridge`), then 8 in ~75,000 with
+    // Hooke-Jeeves refining the starts (where latent points cluster, near-duplicate materials,
+    // raw values, or between the starts in q = 2), 3 in ~97,000 with L-BFGS instead (session
+    // 23), and 0 in 120,000 with L-BFGS and the quasi-random starts (and `starts` side
+    // starts): `locate_finds_the_misses_of_earlier_searches` keeps the 11 missed cases. The
+    // cases stay fixed all the same, so that CI runs the same test every time.
     #![proptest_config(ProptestConfig {
         cases: 24,
         max_shrink_iters: 32,
