@@ -385,7 +385,7 @@ impl FactorWork {
 }
 
 /// `||A + j I||_1` (max column sum of absolute values) of a symmetric matrix.
-fn one_norm_sym(a: MatRef<'_, f64>, jitter: f64) -> f64 {
+pub(crate) fn one_norm_sym(a: MatRef<'_, f64>, jitter: f64) -> f64 {
     let n = a.nrows();
     (0..n)
         .map(|j| {

@@ -22,6 +22,10 @@ use crate::kernel::{HyperGradient, KernelParams, LengthScale};
 use faer::linalg::matmul::triangular::BlockStructure;
 use faer::{Accum, Mat, MatRef, Par};
 
+mod moves;
+
+pub use moves::{MoveEvaluator, PointMoves};
+
 const LN_2PI: f64 = 1.837_877_066_409_345_3;
 
 /// Matrices of [`GplvmObjective`]'s evaluations, kept per thread between calls (five N x N
@@ -219,6 +223,40 @@ impl GplvmObjective {
     }
 
     fn assemble(&self, log_det: f64, trace: f64, x: MatRef<'_, f64>) -> Result<f64> {
+        let sq = if self.prior {
+            Self::sum_of_squares(x)
+        } else {
+            0.0
+        };
+        self.assemble_terms(log_det, trace, sq)
+    }
+
+    /// `sum |x_n|^2`, in the order the prior's term sums it.
+    fn sum_of_squares(x: MatRef<'_, f64>) -> f64 {
+        let mut sq = 0.0;
+        for j in 0..x.ncols() {
+            for i in 0..x.nrows() {
+                sq += x[(i, j)] * x[(i, j)];
+            }
+        }
+        sq
+    }
+
+    /// `tr(K^-1 S)` from `K^-1`, in the order the value-only path sums it.
+    fn trace_with(&self, kinv: MatRef<'_, f64>) -> f64 {
+        let n = self.n();
+        let mut trace = 0.0;
+        for j in 0..n {
+            for i in 0..n {
+                trace += kinv[(i, j)] * self.s[(i, j)];
+            }
+        }
+        trace
+    }
+
+    /// The log-likelihood from `log|K|`, `tr(K^-1 S)` and `sum |x_n|^2` (ignored without the
+    /// prior).
+    fn assemble_terms(&self, log_det: f64, trace: f64, sq: f64) -> Result<f64> {
         let n = self.n() as f64;
         let d = self.d as f64;
         let mut v = -0.5 * d * log_det - 0.5 * trace;
@@ -226,12 +264,6 @@ impl GplvmObjective {
             v -= 0.5 * n * d * LN_2PI;
         }
         if self.prior {
-            let mut sq = 0.0;
-            for j in 0..x.ncols() {
-                for i in 0..x.nrows() {
-                    sq += x[(i, j)] * x[(i, j)];
-                }
-            }
             v -= 0.5 * sq;
         }
         if !v.is_finite() {
@@ -261,15 +293,9 @@ impl GplvmObjective {
         condition: bool,
     ) -> Result<(f64, FactorInfo)> {
         self.check_x(x)?;
-        let n = self.n();
         with_work(|w| {
             let (log_det, factor) = self.factor_into(w, x, params, par, condition)?;
-            let mut trace = 0.0;
-            for j in 0..n {
-                for i in 0..n {
-                    trace += w.kinv[(i, j)] * self.s[(i, j)];
-                }
-            }
+            let trace = self.trace_with(w.kinv.as_ref());
             let v = self.assemble(log_det, trace, x)?;
             Ok((v, factor))
         })
@@ -643,6 +669,12 @@ impl<'a> FlatGplvm<'a> {
     pub fn evaluate(&self, theta: &[f64], par: Par) -> Result<GplvmEval> {
         let (x, params) = self.unpack(theta)?;
         self.obj.evaluate(x.as_ref(), &params, par)
+    }
+
+    /// An evaluator of [`neg_log_likelihood`](Self::neg_log_likelihood) for a direct search:
+    /// trials that move one latent point cost `O(N^2)` ([`MoveEvaluator`]).
+    pub fn move_evaluator(&self) -> MoveEvaluator<'_, 'a> {
+        MoveEvaluator::new(self)
     }
 
     /// `-L(theta)` only.

@@ -352,9 +352,12 @@ pub fn fit_gram(g: MatRef<'_, f64>, d: usize, config: &FitConfig) -> Result<Fit>
                     min_step: p.min_step,
                     max_evaluations: p.max_evaluations,
                 };
+                // Exploratory trials move one latent point: O(N^2) each (MoveEvaluator).
+                let mut evaluator = flat.move_evaluator();
                 hooke_jeeves(
                     |t| {
-                        flat.neg_log_likelihood(t, par)
+                        evaluator
+                            .neg_log_likelihood(t, par)
                             .map_or(f64::INFINITY, |v| v * per_value)
                     },
                     &start_theta,

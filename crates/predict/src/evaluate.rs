@@ -667,19 +667,24 @@ pub fn refit_warm(
                 ..LbfgsSettings::default()
             },
         )?,
-        OptimizerKind::HookeJeeves => hooke_jeeves(
-            |t| {
-                flat.neg_log_likelihood(t, par)
-                    .map_or(f64::INFINITY, |v| v * per_value)
-            },
-            &theta0,
-            &HookeJeevesSettings {
-                initial_step: p.initial_step,
-                step_reduction: 0.5,
-                min_step: p.min_step,
-                max_evaluations: p.max_evaluations,
-            },
-        )?,
+        OptimizerKind::HookeJeeves => {
+            // Exploratory trials move one latent point: O(N^2) each (MoveEvaluator).
+            let mut evaluator = flat.move_evaluator();
+            hooke_jeeves(
+                |t| {
+                    evaluator
+                        .neg_log_likelihood(t, par)
+                        .map_or(f64::INFINITY, |v| v * per_value)
+                },
+                &theta0,
+                &HookeJeevesSettings {
+                    initial_step: p.initial_step,
+                    step_reduction: 0.5,
+                    min_step: p.min_step,
+                    max_evaluations: p.max_evaluations,
+                },
+            )?
+        }
     };
     let (x, params) = flat.unpack(&best.x)?;
     Ok(Refit {

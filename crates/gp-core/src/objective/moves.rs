@@ -1,0 +1,369 @@
+//! The log-likelihood after moving one latent point, in `O(N^2)` from a reference
+//! factorisation, and a direct search's objective built on it.
+//!
+//! Moving point `n` changes row and column `n` of `K` (its diagonal, `s^2 + mu`, stays):
+//! `K' = K + e_n d^T + d e_n^T` with `d = k'_n - k_n`, `d_n = 0`, a symmetric rank-2 update
+//! `K' = K + U C U^T`, `U = [e_n, d]`, `C = [[0, 1], [1, 0]]`. With `M = C + U^T K^-1 U` =
+//! `[[a, 1 + b], [1 + b, c]]` (`a = K^-1_nn`, `b = (K^-1 d)_n`, `c = d^T K^-1 d`), the
+//! determinant lemma and Woodbury's identity give
+//!
+//! ```text
+//! log|K'|       = log|K| + ln((1 + b)^2 - a c)
+//! tr(K'^-1 S)   = tr(K^-1 S) - tr(M^-1 U^T W U),   W = K^-1 S K^-1
+//! U^T W U       = [[W_nn, (W d)_n], [(W d)_n, d^T W d]]
+//! ```
+//!
+//! so a move costs the new point's `N` kernel values and two matrix-vector products with
+//! `K^-1` and `W`, both computed once per reference. For a small move every correction term is
+//! small, so the difference from the reference is computed directly (to rounding relative to
+//! the correction), not as the difference of two `O(N^3)` evaluations. Hooke-Jeeves, the paper's
+//! optimiser, tries one coordinate at a time: all its exploratory trials are such moves.
+
+use faer::linalg::matmul::triangular::BlockStructure;
+use faer::{Accum, Mat, MatRef, Par};
+
+use super::{FlatGplvm, GplvmObjective};
+use crate::cholesky::{FactorWork, one_norm_sym};
+use crate::error::{GpError, Result};
+use crate::kernel::KernelParams;
+
+/// A move whose determinant ratio `|K'| / |K|` falls below this, or exceeds its inverse, is
+/// evaluated in full: the moved point comes to (or leaves) a near-duplicate of another, and
+/// the update would lose the digits the full factorisation keeps.
+const MIN_DETERMINANT_RATIO: f64 = 1e-6;
+
+/// References whose `K` has a larger 1-norm condition number take no moves (every trial is
+/// evaluated in full): the update's rounding grows with `cond(K)` through `W`, ~1e3 eps |L|
+/// at the paper's fits (cond ~4e5), and from a near-singular reference a move can be off
+/// entirely (a test moved a point away from a duplicate at mu = 1e-10: 131 against 482).
+const MAX_CONDITION: f64 = 1e7;
+
+/// The reference state of [`PointMoves`]: `X`, `K`, `K^-1`, `W = K^-1 S K^-1` and the terms of
+/// the log-likelihood there.
+pub struct PointMoves<'a> {
+    obj: &'a GplvmObjective,
+    params: KernelParams,
+    x: Mat<f64>,
+    /// Scaled axes of `x` (`x_ij / l_j`, one `Vec` per axis), as the kernel matrix uses them.
+    z: Vec<Vec<f64>>,
+    k: Mat<f64>,
+    l: Mat<f64>,
+    kinv: Mat<f64>,
+    /// `K^-1 S`, on the way to `W`.
+    kinv_s: Mat<f64>,
+    w: Mat<f64>,
+    factor: FactorWork,
+    /// Whether the last reset succeeded (otherwise no moves are evaluated).
+    ready: bool,
+    log_det: f64,
+    trace: f64,
+    sq: f64,
+    value: f64,
+    /// Scratch of one move: the kernel change `d`, `K^-1 d` and `W d`.
+    d: Vec<f64>,
+    kd: Vec<f64>,
+    wd: Vec<f64>,
+}
+
+impl std::fmt::Debug for PointMoves<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PointMoves")
+            .field("n", &self.x.nrows())
+            .field("q", &self.x.ncols())
+            .field("value", &self.value)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<'a> PointMoves<'a> {
+    /// The reference `(x, params)` of `obj`, or `None` when `K` needs jitter to factor or its
+    /// condition number exceeds 1e7 (evaluate in full then: [`GplvmObjective::log_likelihood`]
+    /// adds the jitter). The reference's
+    /// log-likelihood ([`PointMoves::value`]) has the same bits as the optimisers' full
+    /// evaluation ([`FlatGplvm::neg_log_likelihood`]).
+    pub fn new(
+        obj: &'a GplvmObjective,
+        x: MatRef<'_, f64>,
+        params: &KernelParams,
+        par: Par,
+    ) -> Result<Option<Self>> {
+        let mut m = PointMoves {
+            obj,
+            params: params.clone(),
+            x: Mat::new(),
+            z: Vec::new(),
+            k: Mat::new(),
+            l: Mat::new(),
+            kinv: Mat::new(),
+            kinv_s: Mat::new(),
+            w: Mat::new(),
+            factor: FactorWork::new(),
+            ready: false,
+            log_det: 0.0,
+            trace: 0.0,
+            sq: 0.0,
+            value: 0.0,
+            d: Vec::new(),
+            kd: Vec::new(),
+            wd: Vec::new(),
+        };
+        Ok(m.reset(x, params, par)?.then_some(m))
+    }
+
+    /// Moves the reference to `(x, params)`, reusing the buffers; false when `K` needs jitter or
+    /// is too ill-conditioned (as [`PointMoves::new`]). After a false or an error, moves
+    /// evaluate to `None` until a reset returns true.
+    pub fn reset(&mut self, x: MatRef<'_, f64>, params: &KernelParams, par: Par) -> Result<bool> {
+        self.ready = false;
+        let obj = self.obj;
+        obj.check_x(x)?;
+        let n = obj.n();
+        self.params = params.clone();
+        self.z = params.scaled_axes(x, "latent points X")?;
+        self.x.resize_with(x.nrows(), x.ncols(), |_, _| 0.0);
+        self.x.copy_from(x);
+        // The optimisers' plain path (GplvmObjective::factor_into without a condition
+        // estimate), so the reference value has the same bits as theirs.
+        params.kernel_matrix_into(x, &mut self.k)?;
+        self.l.resize_with(n, n, |_, _| 0.0);
+        self.l.copy_from(&self.k);
+        if !self.factor.factor_in_place(self.l.as_mut(), par) {
+            return Ok(false);
+        }
+        self.factor
+            .inverse_into(self.l.as_ref(), &mut self.kinv, par);
+        let condition = one_norm_sym(self.k.as_ref(), 0.0) * one_norm_sym(self.kinv.as_ref(), 0.0);
+        // (A NaN condition, from an overflowing inverse, takes no moves either.)
+        if condition.is_nan() || condition > MAX_CONDITION {
+            return Ok(false);
+        }
+        self.log_det = 2.0 * (0..n).map(|i| self.l[(i, i)].ln()).sum::<f64>();
+        self.trace = obj.trace_with(self.kinv.as_ref());
+        self.sq = GplvmObjective::sum_of_squares(x);
+        self.value = obj.assemble_terms(self.log_det, self.trace, self.sq)?;
+        // W = (K^-1 S) K^-1, symmetric: its lower triangle, then mirrored.
+        self.kinv_s.resize_with(n, n, |_, _| 0.0);
+        faer::linalg::matmul::matmul(
+            self.kinv_s.as_mut(),
+            Accum::Replace,
+            &self.kinv,
+            &obj.s,
+            1.0,
+            par,
+        );
+        self.w.resize_with(n, n, |_, _| 0.0);
+        faer::linalg::matmul::triangular::matmul(
+            self.w.as_mut(),
+            BlockStructure::TriangularLower,
+            Accum::Replace,
+            &self.kinv_s,
+            BlockStructure::Rectangular,
+            &self.kinv,
+            BlockStructure::Rectangular,
+            1.0,
+            par,
+        );
+        for j in 0..n {
+            for i in 0..j {
+                self.w[(i, j)] = self.w[(j, i)];
+            }
+        }
+        self.ready = true;
+        Ok(true)
+    }
+
+    /// The log-likelihood at the reference (after a reset that returned true).
+    pub fn value(&self) -> f64 {
+        self.value
+    }
+
+    /// The reference latent points (`N x q`).
+    pub fn x(&self) -> MatRef<'_, f64> {
+        self.x.as_ref()
+    }
+
+    /// The log-likelihood at the reference (after a reset that returned true).with point `n` moved to `point` (`q` values), in
+    /// `O(N^2)` (module docs); equal to a full evaluation up to rounding. `None` when the move
+    /// brings the point so close to another, or takes it so far from one it nearly duplicated,
+    /// that `|K'| / |K|` leaves [1e-6, 1e6], or after a failed [`PointMoves::reset`]: evaluate
+    /// it in full then.
+    pub fn value_with_point(&mut self, n: usize, point: &[f64]) -> Result<Option<f64>> {
+        let (size, q) = (self.x.nrows(), self.x.ncols());
+        if n >= size {
+            return Err(GpError::IndexOutOfRange {
+                what: "moved latent point",
+                index: n,
+                len: size,
+            });
+        }
+        if point.len() != q {
+            return Err(GpError::DimensionMismatch {
+                what: "moved latent point's coordinates vs latent dimension q",
+                expected: q,
+                got: point.len(),
+            });
+        }
+        if let Some((col, &value)) = point.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            return Err(GpError::NonFinite {
+                what: "moved latent point",
+                row: n,
+                col,
+                value,
+            });
+        }
+        if !self.ready {
+            return Ok(None);
+        }
+        // d = k(point, x_j) - K_jn, with d_n = 0 (the diagonal does not move).
+        self.d.resize(size, 0.0);
+        self.params.fill_sq_dist(&self.z, point, &mut self.d);
+        crate::fastmath::rbf_from_sq_dist_in_place(&mut self.d, self.params.signal_variance());
+        for (j, dj) in self.d.iter_mut().enumerate() {
+            *dj = if j == n { 0.0 } else { *dj - self.k[(j, n)] };
+        }
+        // K^-1 d and W d, column by column (both symmetric).
+        for (out, m) in [(&mut self.kd, &self.kinv), (&mut self.wd, &self.w)] {
+            out.clear();
+            out.resize(size, 0.0);
+            for (j, &dj) in self.d.iter().enumerate() {
+                if dj != 0.0 {
+                    for (o, v) in out.iter_mut().zip(m.col_as_slice(j)) {
+                        *o += v * dj;
+                    }
+                }
+            }
+        }
+        let a = self.kinv[(n, n)];
+        let b = self.kd[n];
+        let c = crate::fastmath::dot(&self.d, &self.kd);
+        // |K'| / |K| = (1 + b)^2 - a c, as 1 + (2b + b^2 - a c) for its logarithm.
+        let excess = b.mul_add(b + 2.0, -a * c);
+        let ratio = 1.0 + excess;
+        if !(MIN_DETERMINANT_RATIO..=1.0 / MIN_DETERMINANT_RATIO).contains(&ratio) {
+            return Ok(None);
+        }
+        let z11 = self.w[(n, n)];
+        let z12 = self.wd[n];
+        let z22 = crate::fastmath::dot(&self.d, &self.wd);
+        // tr(M^-1 Z) with det M = -(|K'| / |K|).
+        let correction = (c * z11 - 2.0 * (1.0 + b) * z12 + a * z22) / -ratio;
+        let log_det = self.log_det + excess.ln_1p();
+        let trace = self.trace - correction;
+        let old: f64 = (0..q).map(|j| self.x[(n, j)] * self.x[(n, j)]).sum();
+        let new: f64 = point.iter().map(|v| v * v).sum();
+        let sq = self.sq - old + new;
+        self.obj.assemble_terms(log_det, trace, sq).map(Some)
+    }
+}
+
+/// A direct search's objective, `-L(theta)` of a [`FlatGplvm`], that evaluates a `theta`
+/// differing from the last fully evaluated one in one latent point by [`PointMoves`]
+/// (`O(N^2)`), and in two points (the last accepted move and the next trial, as Hooke-Jeeves
+/// makes them) by moving the reference to the first one; anything else (a pattern move, a
+/// changed hyperparameter, a `K` that needs jitter) is evaluated in full. Values equal
+/// [`FlatGplvm::neg_log_likelihood`]'s up to rounding.
+#[derive(Debug)]
+pub struct MoveEvaluator<'f, 'a> {
+    flat: &'f FlatGplvm<'a>,
+    /// The reference's `theta` and state (`None` before the first full evaluation, or when
+    /// its `K` needed jitter).
+    reference: Option<(Vec<f64>, PointMoves<'a>)>,
+    /// Evaluations without a factorisation: by a move, or of the reference itself.
+    moves: u64,
+    /// Evaluations in all.
+    evaluations: u64,
+}
+
+impl<'f, 'a> MoveEvaluator<'f, 'a> {
+    /// An evaluator of `flat` with no reference yet.
+    pub fn new(flat: &'f FlatGplvm<'a>) -> Self {
+        Self {
+            flat,
+            reference: None,
+            moves: 0,
+            evaluations: 0,
+        }
+    }
+
+    /// `(evaluations without a factorisation, evaluations in all)` so far.
+    pub fn counts(&self) -> (u64, u64) {
+        (self.moves, self.evaluations)
+    }
+
+    /// `-L(theta)`, as [`FlatGplvm::neg_log_likelihood`] (its errors too).
+    pub fn neg_log_likelihood(&mut self, theta: &[f64], par: Par) -> Result<f64> {
+        self.evaluations += 1;
+        let (n, q) = (self.flat.obj.n(), self.flat.q);
+        if theta.len() != self.flat.len() {
+            return self.flat.neg_log_likelihood(theta, par);
+        }
+        let rows = self.reference.as_ref().and_then(|(reference, _)| {
+            // Hyperparameters must match bit for bit; then the latent rows that differ (up to 3).
+            if theta[n * q..] != reference[n * q..] {
+                return None;
+            }
+            let differ = |i: usize| theta[i * q..(i + 1) * q] != reference[i * q..(i + 1) * q];
+            let mut rows = (0..n).filter(|&i| differ(i));
+            let first = rows.next();
+            let second = rows.next();
+            match rows.next() {
+                Some(_) => None,
+                None => Some((first, second)),
+            }
+        });
+        let row = |theta: &[f64], i: usize| theta[i * q..(i + 1) * q].to_vec();
+        match rows {
+            Some((None, _)) => {
+                // The reference itself.
+                let (_, moves) = self.reference.as_ref().expect("a reference");
+                self.moves += 1;
+                Ok(-moves.value())
+            }
+            Some((Some(i), None)) => self.move_value(theta, i, &row(theta, i), par),
+            Some((Some(i), Some(j))) => {
+                // Move the reference to the first changed point (the accepted one), then move
+                // the second from there.
+                let mut base = self.reference.as_ref().expect("a reference").0.clone();
+                base[i * q..(i + 1) * q].copy_from_slice(&theta[i * q..(i + 1) * q]);
+                if self.set_reference(&base, par)? {
+                    self.move_value(theta, j, &row(theta, j), par)
+                } else {
+                    self.flat.neg_log_likelihood(theta, par)
+                }
+            }
+            None => {
+                if self.set_reference(theta, par)? {
+                    let (_, moves) = self.reference.as_ref().expect("a reference");
+                    Ok(-moves.value())
+                } else {
+                    self.flat.neg_log_likelihood(theta, par)
+                }
+            }
+        }
+    }
+
+    /// `-L` at the reference with point `i` at `point`; in full when the move declines.
+    fn move_value(&mut self, theta: &[f64], i: usize, point: &[f64], par: Par) -> Result<f64> {
+        let (_, moves) = self.reference.as_mut().expect("a reference");
+        match moves.value_with_point(i, point)? {
+            Some(v) => {
+                self.moves += 1;
+                Ok(-v)
+            }
+            None => self.flat.neg_log_likelihood(theta, par),
+        }
+    }
+
+    /// Makes `theta` the reference; false (and no reference) when its `K` needs jitter, and
+    /// no reference after an error either.
+    fn set_reference(&mut self, theta: &[f64], par: Par) -> Result<bool> {
+        let reference = self.reference.take();
+        let (x, params) = self.flat.unpack(theta)?;
+        let moves = match reference {
+            Some((_, mut moves)) => moves.reset(x.as_ref(), &params, par)?.then_some(moves),
+            None => PointMoves::new(self.flat.obj, x.as_ref(), &params, par)?,
+        };
+        self.reference = moves.map(|m| (theta.to_vec(), m));
+        Ok(self.reference.is_some())
+    }
+}
