@@ -54,7 +54,7 @@ pub use faer::{Mat, MatRef, Par};
 pub use gram::{all_but, centre_gram, gram_from_data, subset_gram};
 pub use kernel::{HyperGradient, KernelGradient, KernelParams, KernelParamsUnchecked, LengthScale};
 pub use objective::{
-    FactorInfo, FlatGplvm, GplvmEval, GplvmObjective, Learn, MoveEvaluator, PointMoves,
-    log_likelihood_from_data,
+    FactorInfo, FlatGplvm, GplvmEval, GplvmObjective, Learn, MAX_UPDATE_MOVE, MAX_UPDATES,
+    MoveCounts, MoveEvaluator, PointMoves, log_likelihood_from_data,
 };
 pub use regression::{GpRegression, Predictor, column_mean, posterior_mean};

@@ -24,7 +24,7 @@ use faer::{Accum, Mat, MatRef, Par};
 
 mod moves;
 
-pub use moves::{MoveEvaluator, PointMoves};
+pub use moves::{MAX_UPDATE_MOVE, MAX_UPDATES, MoveCounts, MoveEvaluator, PointMoves};
 
 const LN_2PI: f64 = 1.837_877_066_409_345_3;
 

@@ -354,7 +354,7 @@ pub fn fit_gram(g: MatRef<'_, f64>, d: usize, config: &FitConfig) -> Result<Fit>
                 };
                 // Exploratory trials move one latent point: O(N^2) each (MoveEvaluator).
                 let mut evaluator = flat.move_evaluator();
-                hooke_jeeves(
+                let run = hooke_jeeves(
                     |t| {
                         evaluator
                             .neg_log_likelihood(t, par)
@@ -362,7 +362,16 @@ pub fn fit_gram(g: MatRef<'_, f64>, d: usize, config: &FitConfig) -> Result<Fit>
                     },
                     &start_theta,
                     &settings,
-                )?
+                )?;
+                let c = evaluator.counts();
+                tracing::debug!(
+                    evaluations = c.evaluations,
+                    cheap = c.cheap,
+                    references = c.references,
+                    updates = c.updates,
+                    "Hooke-Jeeves trials by one-point moves"
+                );
+                run
             }
             OptimizerKind::Lbfgs => {
                 let settings = LbfgsSettings {

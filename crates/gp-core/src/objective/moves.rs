@@ -38,6 +38,16 @@ const MIN_DETERMINANT_RATIO: f64 = 1e-6;
 /// entirely (a test moved a point away from a duplicate at mu = 1e-10: 131 against 482).
 const MAX_CONDITION: f64 = 1e7;
 
+/// Reference moves ([`PointMoves::move_reference`]) between two full resets: each update of
+/// `K^-1` and `W` adds its rounding to theirs.
+pub const MAX_UPDATES: usize = 32;
+
+/// The largest move (in length-scales, along any axis) that [`PointMoves::move_reference`]
+/// makes by an update. Updates by moves up to 1 in a row drifted to 2.6e-6 relative in a test
+/// (cond(K) ~ 2e5), up to 0.1 to 1.6e-10, up to 0.01 to 1.1e-12 after 32 updates: larger moves
+/// reset in full (Hooke-Jeeves makes them only while its step is above 0.01).
+pub const MAX_UPDATE_MOVE: f64 = 1e-2;
+
 /// The reference state of [`PointMoves`]: `X`, `K`, `K^-1`, `W = K^-1 S K^-1` and the terms of
 /// the log-likelihood there.
 pub struct PointMoves<'a> {
@@ -55,6 +65,8 @@ pub struct PointMoves<'a> {
     factor: FactorWork,
     /// Whether the last reset succeeded (otherwise no moves are evaluated).
     ready: bool,
+    /// Reference moves ([`PointMoves::move_reference`]) since the last reset.
+    updates: usize,
     log_det: f64,
     trace: f64,
     sq: f64,
@@ -99,6 +111,7 @@ impl<'a> PointMoves<'a> {
             w: Mat::new(),
             factor: FactorWork::new(),
             ready: false,
+            updates: 0,
             log_det: 0.0,
             trace: 0.0,
             sq: 0.0,
@@ -115,6 +128,7 @@ impl<'a> PointMoves<'a> {
     /// evaluate to `None` until a reset returns true.
     pub fn reset(&mut self, x: MatRef<'_, f64>, params: &KernelParams, par: Par) -> Result<bool> {
         self.ready = false;
+        self.updates = 0;
         let obj = self.obj;
         obj.check_x(x)?;
         let n = obj.n();
@@ -182,12 +196,100 @@ impl<'a> PointMoves<'a> {
         self.x.as_ref()
     }
 
-    /// The log-likelihood at the reference (after a reset that returned true).with point `n` moved to `point` (`q` values), in
+    /// The log-likelihood at the reference with point `n` moved to `point` (`q` values), in
     /// `O(N^2)` (module docs); equal to a full evaluation up to rounding. `None` when the move
     /// brings the point so close to another, or takes it so far from one it nearly duplicated,
     /// that `|K'| / |K|` leaves [1e-6, 1e6], or after a failed [`PointMoves::reset`]: evaluate
     /// it in full then.
     pub fn value_with_point(&mut self, n: usize, point: &[f64]) -> Result<Option<f64>> {
+        match self.prepare_move(n, point)? {
+            Some(t) => self.obj.assemble_terms(t.log_det, t.trace, t.sq).map(Some),
+            None => Ok(None),
+        }
+    }
+
+    /// Makes the reference's point `n` `point`, in `O(N^2)`: `K^-1` and `W` by the same rank-2
+    /// update (`K'^-1 = K^-1 - P G P^T`, `P = K^-1 U`, `G = M^-1`; `W' = W - P G Q^T - Q G P^T +
+    /// P G Z G P^T`, `Q = W U`, `Z = U^T W U`). False, with the reference unchanged, when
+    /// [`PointMoves::value_with_point`] would give `None`, for a move longer than
+    /// [`MAX_UPDATE_MOVE`] length-scales, or after [`MAX_UPDATES`] updates since the last reset
+    /// (rounding accumulates in the updated matrices): reset then.
+    pub fn move_reference(&mut self, n: usize, point: &[f64]) -> Result<bool> {
+        if self.updates >= MAX_UPDATES {
+            return Ok(false);
+        }
+        let Some(t) = self.prepare_move(n, point)? else {
+            return Ok(false);
+        };
+        let long = point.iter().enumerate().any(|(j, &p)| {
+            (p - self.x[(n, j)]).abs() > MAX_UPDATE_MOVE * self.params.length_scale().axis(j)
+        });
+        if long {
+            return Ok(false);
+        }
+        let value = self.obj.assemble_terms(t.log_det, t.trace, t.sq)?;
+        let size = self.x.nrows();
+        // G = M^-1 = [[c, -(1 + b)], [-(1 + b), a]] / det M, det M = -(|K'| / |K|).
+        let det_m = -t.ratio;
+        let (g11, g12, g22) = (t.c / det_m, -(1.0 + t.b) / det_m, t.a / det_m);
+        // H = G Z G.
+        let (z11, z12, z22) = (t.z11, t.z12, t.z22);
+        let (gz11, gz12) = (g11 * z11 + g12 * z12, g11 * z12 + g12 * z22);
+        let (gz21, gz22) = (g12 * z11 + g22 * z12, g12 * z12 + g22 * z22);
+        let (h11, h12, h22) = (
+            gz11 * g11 + gz12 * g12,
+            gz11 * g12 + gz12 * g22,
+            gz21 * g12 + gz22 * g22,
+        );
+        // P = [u, v] (u = K^-1 e_n, v = K^-1 d), Q = [w, W d] (w = W e_n): the old columns.
+        let u = self.kinv.col_as_slice(n).to_vec();
+        let w = self.w.col_as_slice(n).to_vec();
+        let v = &self.kd;
+        let wd = &self.wd;
+        for j in 0..size {
+            let (uj, vj, wj, wdj) = (u[j], v[j], w[j], wd[j]);
+            // K'^-1[:, j] = K^-1[:, j] - u (G P^T)_1j - v (G P^T)_2j.
+            let (p1, p2) = (g11 * uj + g12 * vj, g12 * uj + g22 * vj);
+            for ((o, &ui), &vi) in self.kinv.col_as_slice_mut(j).iter_mut().zip(&u).zip(v) {
+                *o -= ui * p1 + vi * p2;
+            }
+            // W'[:, j] = W[:, j] - u (G Q^T - H P^T)_1j - v (G Q^T - H P^T)_2j - w (G P^T)_1j
+            //            - W d (G P^T)_2j.
+            let a1 = g11 * wj + g12 * wdj - (h11 * uj + h12 * vj);
+            let a2 = g12 * wj + g22 * wdj - (h12 * uj + h22 * vj);
+            for ((((o, &ui), &vi), &wi), &wdi) in self
+                .w
+                .col_as_slice_mut(j)
+                .iter_mut()
+                .zip(&u)
+                .zip(v)
+                .zip(&w)
+                .zip(wd)
+            {
+                *o -= ui * a1 + vi * a2 + wi * p1 + wdi * p2;
+            }
+        }
+        // K's row and column n, the point, its scaled axes, the terms.
+        for j in 0..size {
+            let kj = self.k[(j, n)] + self.d[j];
+            self.k[(j, n)] = kj;
+            self.k[(n, j)] = kj;
+        }
+        for (axis, &p) in point.iter().enumerate() {
+            self.x[(n, axis)] = p;
+            self.z[axis][n] = p / self.params.length_scale().axis(axis);
+        }
+        self.log_det = t.log_det;
+        self.trace = t.trace;
+        self.sq = t.sq;
+        self.value = value;
+        self.updates += 1;
+        Ok(true)
+    }
+
+    /// The terms of a move of point `n` to `point` (`d`, `K^-1 d` and `W d` left in the
+    /// scratch vectors); `None` as [`PointMoves::value_with_point`].
+    fn prepare_move(&mut self, n: usize, point: &[f64]) -> Result<Option<MoveTerms>> {
         let (size, q) = (self.x.nrows(), self.x.ncols());
         if n >= size {
             return Err(GpError::IndexOutOfRange {
@@ -247,31 +349,68 @@ impl<'a> PointMoves<'a> {
         let z22 = crate::fastmath::dot(&self.d, &self.wd);
         // tr(M^-1 Z) with det M = -(|K'| / |K|).
         let correction = (c * z11 - 2.0 * (1.0 + b) * z12 + a * z22) / -ratio;
-        let log_det = self.log_det + excess.ln_1p();
-        let trace = self.trace - correction;
         let old: f64 = (0..q).map(|j| self.x[(n, j)] * self.x[(n, j)]).sum();
         let new: f64 = point.iter().map(|v| v * v).sum();
-        let sq = self.sq - old + new;
-        self.obj.assemble_terms(log_det, trace, sq).map(Some)
+        Ok(Some(MoveTerms {
+            a,
+            b,
+            c,
+            ratio,
+            z11,
+            z12,
+            z22,
+            log_det: self.log_det + excess.ln_1p(),
+            trace: self.trace - correction,
+            sq: self.sq - old + new,
+        }))
     }
 }
 
+/// The scalars of one move ([`PointMoves::prepare_move`]; module docs).
+struct MoveTerms {
+    /// `K^-1_nn`, `(K^-1 d)_n`, `d^T K^-1 d`.
+    a: f64,
+    b: f64,
+    c: f64,
+    /// `|K'| / |K|`.
+    ratio: f64,
+    /// `Z = U^T W U`.
+    z11: f64,
+    z12: f64,
+    z22: f64,
+    /// The moved state's `log|K'|`, `tr(K'^-1 S)` and `sum |x|^2`.
+    log_det: f64,
+    trace: f64,
+    sq: f64,
+}
+
 /// A direct search's objective, `-L(theta)` of a [`FlatGplvm`], that evaluates a `theta`
-/// differing from the last fully evaluated one in one latent point by [`PointMoves`]
-/// (`O(N^2)`), and in two points (the last accepted move and the next trial, as Hooke-Jeeves
-/// makes them) by moving the reference to the first one; anything else (a pattern move, a
-/// changed hyperparameter, a `K` that needs jitter) is evaluated in full. Values equal
-/// [`FlatGplvm::neg_log_likelihood`]'s up to rounding.
+/// differing from its reference in one latent point by [`PointMoves`] (`O(N^2)`), and in two
+/// points (the last accepted move and the next trial, as Hooke-Jeeves makes them) by moving the
+/// reference to the first one ([`PointMoves::move_reference`], `O(N^2)`; in full every
+/// [`MAX_UPDATES`] moves) and the second from there; anything else (a pattern move, a changed
+/// hyperparameter, a `K` that needs jitter or is ill-conditioned) is evaluated in full and
+/// becomes the reference. Values equal [`FlatGplvm::neg_log_likelihood`]'s up to rounding.
 #[derive(Debug)]
 pub struct MoveEvaluator<'f, 'a> {
     flat: &'f FlatGplvm<'a>,
     /// The reference's `theta` and state (`None` before the first full evaluation, or when
     /// its `K` needed jitter).
     reference: Option<(Vec<f64>, PointMoves<'a>)>,
-    /// Evaluations without a factorisation: by a move, or of the reference itself.
-    moves: u64,
+    counts: MoveCounts,
+}
+
+/// What a [`MoveEvaluator`] has done.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct MoveCounts {
     /// Evaluations in all.
-    evaluations: u64,
+    pub evaluations: u64,
+    /// Evaluations without a factorisation: by a move, or of the reference itself.
+    pub cheap: u64,
+    /// References set up in full (each a factorisation, an inverse and `W`).
+    pub references: u64,
+    /// References moved to an accepted point by an update ([`PointMoves::move_reference`]).
+    pub updates: u64,
 }
 
 impl<'f, 'a> MoveEvaluator<'f, 'a> {
@@ -280,19 +419,18 @@ impl<'f, 'a> MoveEvaluator<'f, 'a> {
         Self {
             flat,
             reference: None,
-            moves: 0,
-            evaluations: 0,
+            counts: MoveCounts::default(),
         }
     }
 
-    /// `(evaluations without a factorisation, evaluations in all)` so far.
-    pub fn counts(&self) -> (u64, u64) {
-        (self.moves, self.evaluations)
+    /// What it has done so far.
+    pub fn counts(&self) -> MoveCounts {
+        self.counts
     }
 
     /// `-L(theta)`, as [`FlatGplvm::neg_log_likelihood`] (its errors too).
     pub fn neg_log_likelihood(&mut self, theta: &[f64], par: Par) -> Result<f64> {
-        self.evaluations += 1;
+        self.counts.evaluations += 1;
         let (n, q) = (self.flat.obj.n(), self.flat.q);
         if theta.len() != self.flat.len() {
             return self.flat.neg_log_likelihood(theta, par);
@@ -316,20 +454,26 @@ impl<'f, 'a> MoveEvaluator<'f, 'a> {
             Some((None, _)) => {
                 // The reference itself.
                 let (_, moves) = self.reference.as_ref().expect("a reference");
-                self.moves += 1;
+                self.counts.cheap += 1;
                 Ok(-moves.value())
             }
             Some((Some(i), None)) => self.move_value(theta, i, &row(theta, i), par),
             Some((Some(i), Some(j))) => {
-                // Move the reference to the first changed point (the accepted one), then move
-                // the second from there.
-                let mut base = self.reference.as_ref().expect("a reference").0.clone();
-                base[i * q..(i + 1) * q].copy_from_slice(&theta[i * q..(i + 1) * q]);
-                if self.set_reference(&base, par)? {
-                    self.move_value(theta, j, &row(theta, j), par)
+                // Move the reference to the first changed point (the accepted one): by an
+                // update, or in full when the update declines. Then move the second from there.
+                let (reference, moves) = self.reference.as_mut().expect("a reference");
+                let point = row(theta, i);
+                let moved = moves.move_reference(i, &point)?;
+                reference[i * q..(i + 1) * q].copy_from_slice(&point);
+                if moved {
+                    self.counts.updates += 1;
                 } else {
-                    self.flat.neg_log_likelihood(theta, par)
+                    let base = reference.clone();
+                    if !self.set_reference(&base, par)? {
+                        return self.flat.neg_log_likelihood(theta, par);
+                    }
                 }
+                self.move_value(theta, j, &row(theta, j), par)
             }
             None => {
                 if self.set_reference(theta, par)? {
@@ -347,7 +491,7 @@ impl<'f, 'a> MoveEvaluator<'f, 'a> {
         let (_, moves) = self.reference.as_mut().expect("a reference");
         match moves.value_with_point(i, point)? {
             Some(v) => {
-                self.moves += 1;
+                self.counts.cheap += 1;
                 Ok(-v)
             }
             None => self.flat.neg_log_likelihood(theta, par),
@@ -357,6 +501,7 @@ impl<'f, 'a> MoveEvaluator<'f, 'a> {
     /// Makes `theta` the reference; false (and no reference) when its `K` needs jitter, and
     /// no reference after an error either.
     fn set_reference(&mut self, theta: &[f64], par: Par) -> Result<bool> {
+        self.counts.references += 1;
         let reference = self.reference.take();
         let (x, params) = self.flat.unpack(theta)?;
         let moves = match reference {
