@@ -400,6 +400,18 @@ pub struct MoveEvaluator<'f, 'a> {
     counts: MoveCounts,
 }
 
+/// How a `theta` differs from a [`MoveEvaluator`]'s reference.
+enum Change {
+    /// Not at all.
+    None,
+    /// In one latent point.
+    One(usize),
+    /// In two latent points (in index order).
+    Two(usize, usize),
+    /// In more, in a hyperparameter, or there is no reference.
+    More,
+}
+
 /// What a [`MoveEvaluator`] has done.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct MoveCounts {
@@ -431,71 +443,76 @@ impl<'f, 'a> MoveEvaluator<'f, 'a> {
     /// `-L(theta)`, as [`FlatGplvm::neg_log_likelihood`] (its errors too).
     pub fn neg_log_likelihood(&mut self, theta: &[f64], par: Par) -> Result<f64> {
         self.counts.evaluations += 1;
-        let (n, q) = (self.flat.obj.n(), self.flat.q);
         if theta.len() != self.flat.len() {
             return self.flat.neg_log_likelihood(theta, par);
         }
-        let rows = self.reference.as_ref().and_then(|(reference, _)| {
-            // Hyperparameters must match bit for bit; then the latent rows that differ (up to 3).
-            if theta[n * q..] != reference[n * q..] {
-                return None;
+        let q = self.flat.q;
+        let row = |i: usize| &theta[i * q..(i + 1) * q];
+        match self.change_from_reference(theta) {
+            Change::None => {
+                if let Some((_, moves)) = &self.reference {
+                    self.counts.cheap += 1;
+                    return Ok(-moves.value());
+                }
             }
-            let differ = |i: usize| theta[i * q..(i + 1) * q] != reference[i * q..(i + 1) * q];
-            let mut rows = (0..n).filter(|&i| differ(i));
-            let first = rows.next();
-            let second = rows.next();
-            match rows.next() {
-                Some(_) => None,
-                None => Some((first, second)),
-            }
-        });
-        let row = |theta: &[f64], i: usize| theta[i * q..(i + 1) * q].to_vec();
-        match rows {
-            Some((None, _)) => {
-                // The reference itself.
-                let (_, moves) = self.reference.as_ref().expect("a reference");
-                self.counts.cheap += 1;
-                Ok(-moves.value())
-            }
-            Some((Some(i), None)) => self.move_value(theta, i, &row(theta, i), par),
-            Some((Some(i), Some(j))) => {
+            Change::One(i) => return self.move_value(theta, i, row(i), par),
+            Change::Two(i, j) => {
                 // Move the reference to the first changed point (the accepted one): by an
                 // update, or in full when the update declines. Then move the second from there.
-                let (reference, moves) = self.reference.as_mut().expect("a reference");
-                let point = row(theta, i);
-                let moved = moves.move_reference(i, &point)?;
-                reference[i * q..(i + 1) * q].copy_from_slice(&point);
-                if moved {
-                    self.counts.updates += 1;
-                } else {
-                    let base = reference.clone();
-                    if !self.set_reference(&base, par)? {
-                        return self.flat.neg_log_likelihood(theta, par);
+                if let Some((reference, moves)) = &mut self.reference {
+                    let moved = moves.move_reference(i, row(i))?;
+                    reference[i * q..(i + 1) * q].copy_from_slice(row(i));
+                    if moved {
+                        self.counts.updates += 1;
+                    } else {
+                        let base = reference.clone();
+                        if !self.set_reference(&base, par)? {
+                            return self.flat.neg_log_likelihood(theta, par);
+                        }
                     }
-                }
-                self.move_value(theta, j, &row(theta, j), par)
-            }
-            None => {
-                if self.set_reference(theta, par)? {
-                    let (_, moves) = self.reference.as_ref().expect("a reference");
-                    Ok(-moves.value())
-                } else {
-                    self.flat.neg_log_likelihood(theta, par)
+                    return self.move_value(theta, j, row(j), par);
                 }
             }
+            Change::More => {}
+        }
+        if self.set_reference(theta, par)?
+            && let Some((_, moves)) = &self.reference
+        {
+            return Ok(-moves.value());
+        }
+        self.flat.neg_log_likelihood(theta, par)
+    }
+
+    /// How `theta` differs from the reference: not at all, in one or two latent points (the
+    /// hyperparameters bit for bit equal), or more (or there is no reference).
+    fn change_from_reference(&self, theta: &[f64]) -> Change {
+        let (n, q) = (self.flat.obj.n(), self.flat.q);
+        let Some((reference, _)) = &self.reference else {
+            return Change::More;
+        };
+        if theta[n * q..] != reference[n * q..] {
+            return Change::More;
+        }
+        let mut rows =
+            (0..n).filter(|&i| theta[i * q..(i + 1) * q] != reference[i * q..(i + 1) * q]);
+        match (rows.next(), rows.next(), rows.next()) {
+            (None, _, _) => Change::None,
+            (Some(i), None, _) => Change::One(i),
+            (Some(i), Some(j), None) => Change::Two(i, j),
+            _ => Change::More,
         }
     }
 
-    /// `-L` at the reference with point `i` at `point`; in full when the move declines.
+    /// `-L` at the reference with point `i` at `point`; in full when the move declines (or
+    /// there is no reference).
     fn move_value(&mut self, theta: &[f64], i: usize, point: &[f64], par: Par) -> Result<f64> {
-        let (_, moves) = self.reference.as_mut().expect("a reference");
-        match moves.value_with_point(i, point)? {
-            Some(v) => {
-                self.counts.cheap += 1;
-                Ok(-v)
-            }
-            None => self.flat.neg_log_likelihood(theta, par),
+        if let Some((_, moves)) = &mut self.reference
+            && let Some(v) = moves.value_with_point(i, point)?
+        {
+            self.counts.cheap += 1;
+            return Ok(-v);
         }
+        self.flat.neg_log_likelihood(theta, par)
     }
 
     /// Makes `theta` the reference; false (and no reference) when its `K` needs jitter, and
