@@ -233,6 +233,29 @@ fn small_and_degenerate_datasets() {
     };
     let spread = dist(&m.materials[0].coords, &m.materials[3].coords);
     assert!(dist(&m.materials[0].coords, &m.materials[1].coords) < 1e-3 * spread.max(1e-12));
+    // The same with Hooke-Jeeves, whose trials are one-point moves from a reference `K^-1`:
+    // at the paper's noise (cond(K) ~ N / mu) and at a noise so small that K needs jitter or is
+    // too ill-conditioned for moves (every trial then evaluated in full).
+    for noise in [1e-4, 1e-12] {
+        let hj = FitParams {
+            noise,
+            ..params(OptimizerKind::HookeJeeves, "raw")
+        }
+        .check()
+        .unwrap();
+        let m = fit_store(&dup, &hj).unwrap();
+        assert!(m.fit.log_likelihood.is_finite(), "noise {noise}");
+        assert!(
+            m.fit.log_likelihood > m.fit.initial_log_likelihood,
+            "noise {noise}"
+        );
+        let spread = dist(&m.materials[0].coords, &m.materials[3].coords);
+        let together = dist(&m.materials[0].coords, &m.materials[1].coords);
+        assert!(
+            together < 1e-3 * spread,
+            "noise {noise}: {together} against {spread}"
+        );
+    }
     // A damaged store (a NaN where material 0's first value was; the uncompressed payload
     // starts at byte 4096, index-major, and cell 0 is valid): an error naming it and the
     // material.
