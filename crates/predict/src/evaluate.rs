@@ -879,18 +879,24 @@ pub(crate) fn rmse_pass(
                 for (&j, out) in cols.iter().zip(ft.chunks_exact_mut(m)) {
                     target(range.start + j, &block[j * n..(j + 1) * n], out);
                 }
+                // Column by column (the rows' sums in the same order as entry by entry, without
+                // an integer division per entry to find its row).
                 if model_space {
                     fy.clear();
                     fy.resize(ft.len(), 0.0);
                     transform.forward_batch(ft, fy);
-                    for (i, (y, q)) in fy.iter().zip(p.iter()).enumerate() {
-                        acc[i % m].1 += (y - q) * (y - q);
+                    for (ys, qs) in fy.chunks_exact(m).zip(p.chunks_exact(m)) {
+                        for ((a, y), q) in acc.iter_mut().zip(ys).zip(qs) {
+                            a.1 += (y - q) * (y - q);
+                        }
                     }
                 }
                 transform.inverse_in_place(p);
-                for (i, (f, q)) in ft.iter().zip(p.iter()).enumerate() {
-                    let diff = f64::from(*f) - q;
-                    acc[i % m].0 += diff * diff;
+                for (fs, qs) in ft.chunks_exact(m).zip(p.chunks_exact(m)) {
+                    for ((a, f), q) in acc.iter_mut().zip(fs).zip(qs) {
+                        let diff = f64::from(*f) - q;
+                        a.0 += diff * diff;
+                    }
                 }
             }
             let k = done.fetch_add(1, Ordering::Relaxed) + 1;
