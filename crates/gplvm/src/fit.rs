@@ -223,6 +223,44 @@ pub fn flat_objective<'a>(
         .with_noise_floor(floor)?)
 }
 
+/// Minimises `-L / per_value` of `flat` by Hooke-Jeeves from `theta0` with the step and
+/// budget of `params` (the fits' and the leave-one-out refits' direct search). Its exploratory
+/// trials move one latent point each and are evaluated in `O(N^2)` from a reference
+/// factorisation ([`gp_core::MoveEvaluator`]); a trial whose evaluation fails counts as no
+/// improvement.
+pub fn minimise_by_hooke_jeeves(
+    flat: &FlatGplvm<'_>,
+    theta0: &[f64],
+    params: &FitParams,
+    per_value: f64,
+) -> Result<Minimum> {
+    let settings = HookeJeevesSettings {
+        initial_step: params.initial_step,
+        step_reduction: 0.5,
+        min_step: params.min_step,
+        max_evaluations: params.max_evaluations,
+    };
+    let mut evaluator = flat.move_evaluator();
+    let run = hooke_jeeves(
+        |t| {
+            evaluator
+                .neg_log_likelihood(t, Par::Seq)
+                .map_or(f64::INFINITY, |v| v * per_value)
+        },
+        theta0,
+        &settings,
+    )?;
+    let c = evaluator.counts();
+    tracing::debug!(
+        evaluations = c.evaluations,
+        cheap = c.cheap,
+        references = c.references,
+        updates = c.updates,
+        "Hooke-Jeeves trials by one-point moves"
+    );
+    Ok(run)
+}
+
 fn template_params(config: &FitConfig) -> Result<KernelParams> {
     let p = &config.params;
     Ok(KernelParams::isotropic(
@@ -346,32 +384,7 @@ pub fn fit_gram(g: MatRef<'_, f64>, d: usize, config: &FitConfig) -> Result<Fit>
         let start_theta = restart_start(&theta0, n * q, p.lengthscale, p.seed, restart);
         let run = match p.optimizer {
             OptimizerKind::HookeJeeves => {
-                let settings = HookeJeevesSettings {
-                    initial_step: p.initial_step,
-                    step_reduction: 0.5,
-                    min_step: p.min_step,
-                    max_evaluations: p.max_evaluations,
-                };
-                // Exploratory trials move one latent point: O(N^2) each (MoveEvaluator).
-                let mut evaluator = flat.move_evaluator();
-                let run = hooke_jeeves(
-                    |t| {
-                        evaluator
-                            .neg_log_likelihood(t, par)
-                            .map_or(f64::INFINITY, |v| v * per_value)
-                    },
-                    &start_theta,
-                    &settings,
-                )?;
-                let c = evaluator.counts();
-                tracing::debug!(
-                    evaluations = c.evaluations,
-                    cheap = c.cheap,
-                    references = c.references,
-                    updates = c.updates,
-                    "Hooke-Jeeves trials by one-point moves"
-                );
-                run
+                minimise_by_hooke_jeeves(&flat, &start_theta, p, per_value)?
             }
             OptimizerKind::Lbfgs => {
                 let settings = LbfgsSettings {

@@ -21,7 +21,6 @@ use brdf_io::store::Store;
 use faer::{Mat, MatMut, MatRef, Par, Side};
 use gp_core::{GpRegression, all_but, centre_gram, subset_gram};
 use gp_core::{GplvmObjective, KernelParams};
-use gplvm::optim::{HookeJeevesSettings, hooke_jeeves};
 use gplvm::optim::{LbfgsSettings, lbfgs};
 use gplvm::{FitConfig, OptimizerKind, Transform, fit_gram};
 use rayon::prelude::*;
@@ -668,22 +667,7 @@ pub fn refit_warm(
             },
         )?,
         OptimizerKind::HookeJeeves => {
-            // Exploratory trials move one latent point: O(N^2) each (MoveEvaluator).
-            let mut evaluator = flat.move_evaluator();
-            hooke_jeeves(
-                |t| {
-                    evaluator
-                        .neg_log_likelihood(t, par)
-                        .map_or(f64::INFINITY, |v| v * per_value)
-                },
-                &theta0,
-                &HookeJeevesSettings {
-                    initial_step: p.initial_step,
-                    step_reduction: 0.5,
-                    min_step: p.min_step,
-                    max_evaluations: p.max_evaluations,
-                },
-            )?
+            gplvm::fit::minimise_by_hooke_jeeves(&flat, &theta0, p, per_value)?
         }
     };
     let (x, params) = flat.unpack(&best.x)?;
