@@ -18,6 +18,12 @@
 //! small, so the difference from the reference is computed directly (to rounding relative to
 //! the correction), not as the difference of two `O(N^3)` evaluations. Hooke-Jeeves, the paper's
 //! optimiser, tries one coordinate at a time: all its exploratory trials are such moves.
+//!
+//! When the search accepts a move, the reference follows it by the same rank-2 update of `K^-1`
+//! and `W` (`O(N^2)`, [`PointMoves::move_reference`]) for short moves and at most
+//! [`MAX_UPDATES`] times in a row, by a new factorisation otherwise. [`MoveEvaluator`] keeps the
+//! reference for a direct search (BENCHMARKS.md "gplvm", session 24: the paper's fit 16x
+//! faster, its leave-one-out refits 13x).
 
 use faer::linalg::matmul::triangular::BlockStructure;
 use faer::{Accum, Mat, MatRef, Par};
@@ -48,8 +54,9 @@ pub const MAX_UPDATES: usize = 32;
 /// reset in full (Hooke-Jeeves makes them only while its step is above 0.01).
 pub const MAX_UPDATE_MOVE: f64 = 1e-2;
 
-/// The reference state of [`PointMoves`]: `X`, `K`, `K^-1`, `W = K^-1 S K^-1` and the terms of
-/// the log-likelihood there.
+/// The log-likelihood of a [`GplvmObjective`] at latent points that differ from a reference in
+/// one point: the reference's `X`, `K`, `K^-1`, `W = K^-1 S K^-1` and the terms of the
+/// log-likelihood there (module docs).
 pub struct PointMoves<'a> {
     obj: &'a GplvmObjective,
     params: KernelParams,
