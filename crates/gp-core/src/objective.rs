@@ -66,6 +66,33 @@ fn with_work<R>(f: impl FnOnce(&mut Work) -> R) -> R {
     })
 }
 
+/// `b = K^-1 S` and the lower triangle of `a = scale K^-1 S K^-1 = scale b K^-1` (symmetric:
+/// half the flops; the strict upper triangle is left as it was), both resized to `N x N`.
+fn kinv_s_kinv_lower(
+    kinv: MatRef<'_, f64>,
+    s: MatRef<'_, f64>,
+    scale: f64,
+    b: &mut Mat<f64>,
+    a: &mut Mat<f64>,
+    par: Par,
+) {
+    let n = kinv.nrows();
+    b.resize_with(n, n, |_, _| 0.0);
+    faer::linalg::matmul::matmul(b.as_mut(), Accum::Replace, kinv, s, 1.0, par);
+    a.resize_with(n, n, |_, _| 0.0);
+    faer::linalg::matmul::triangular::matmul(
+        a.as_mut(),
+        BlockStructure::TriangularLower,
+        Accum::Replace,
+        b.as_ref(),
+        BlockStructure::Rectangular,
+        kinv,
+        BlockStructure::Rectangular,
+        scale,
+        par,
+    );
+}
+
 /// What the Cholesky factorisation of `K` needed.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FactorInfo {
@@ -359,23 +386,16 @@ impl GplvmObjective {
         // cost as much as the arithmetic).
         with_work(|w| {
             let (log_det, factor) = self.factor_into(w, x, params, par, condition)?;
-            // B = K^-1 S, A = K^-1 S K^-1 = B K^-1.
-            w.b.resize_with(n, n, |_, _| 0.0);
-            faer::linalg::matmul::matmul(w.b.as_mut(), Accum::Replace, &w.kinv, &self.s, 1.0, par);
-            let trace: f64 = (0..n).map(|i| w.b[(i, i)]).sum();
-            // A is symmetric: compute its lower triangle only (half the flops), then mirror.
-            w.dk.resize_with(n, n, |_, _| 0.0);
-            faer::linalg::matmul::triangular::matmul(
-                w.dk.as_mut(),
-                BlockStructure::TriangularLower,
-                Accum::Replace,
-                &w.b,
-                BlockStructure::Rectangular,
-                &w.kinv,
-                BlockStructure::Rectangular,
+            // B = K^-1 S, and the lower triangle of A / 2 = K^-1 S K^-1 / 2 (mirrored below).
+            kinv_s_kinv_lower(
+                w.kinv.as_ref(),
+                self.s.as_ref(),
                 0.5,
+                &mut w.b,
+                &mut w.dk,
                 par,
             );
+            let trace: f64 = (0..n).map(|i| w.b[(i, i)]).sum();
             let half_d = 0.5 * self.d as f64;
             for j in 0..n {
                 for i in j..n {

@@ -25,10 +25,9 @@
 //! reference for a direct search (BENCHMARKS.md "gplvm", session 24: the paper's fit 16x
 //! faster, its leave-one-out refits 13x).
 
-use faer::linalg::matmul::triangular::BlockStructure;
-use faer::{Accum, Mat, MatRef, Par};
+use faer::{Mat, MatRef, Par};
 
-use super::{FlatGplvm, GplvmObjective};
+use super::{FlatGplvm, GplvmObjective, kinv_s_kinv_lower};
 use crate::cholesky::{FactorWork, one_norm_sym};
 use crate::error::{GpError, Result};
 use crate::kernel::KernelParams;
@@ -163,25 +162,12 @@ impl<'a> PointMoves<'a> {
         self.sq = GplvmObjective::sum_of_squares(x);
         self.value = obj.assemble_terms(self.log_det, self.trace, self.sq)?;
         // W = (K^-1 S) K^-1, symmetric: its lower triangle, then mirrored.
-        self.kinv_s.resize_with(n, n, |_, _| 0.0);
-        faer::linalg::matmul::matmul(
-            self.kinv_s.as_mut(),
-            Accum::Replace,
-            &self.kinv,
-            &obj.s,
+        kinv_s_kinv_lower(
+            self.kinv.as_ref(),
+            obj.s.as_ref(),
             1.0,
-            par,
-        );
-        self.w.resize_with(n, n, |_, _| 0.0);
-        faer::linalg::matmul::triangular::matmul(
-            self.w.as_mut(),
-            BlockStructure::TriangularLower,
-            Accum::Replace,
-            &self.kinv_s,
-            BlockStructure::Rectangular,
-            &self.kinv,
-            BlockStructure::Rectangular,
-            1.0,
+            &mut self.kinv_s,
+            &mut self.w,
             par,
         );
         for j in 0..n {
