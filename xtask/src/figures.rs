@@ -102,6 +102,8 @@ pub fn render_figures(
         env_mode: render.env_mode().map_err(|reason| err(out, reason))?,
         ..SphereOptions::default()
     };
+    // Every figure renders predictions of this one model: each cell's logarithms once.
+    let pred = &pred.with_forward_cache();
     let model = pred.model();
     let n = model.materials.len();
     let store: Arc<brdf_io::Store> = pred.store().clone();

@@ -6,7 +6,7 @@
 
 use std::cell::RefCell;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 pub use brdf_io::ChannelSelection;
 use brdf_io::store::Store;
@@ -89,6 +89,9 @@ impl std::fmt::Display for PredictorKind {
 struct Inner {
     /// Sidecar store of forward-transformed values (see [`Predictor::with_transformed_store`]).
     forward_store: Option<Arc<Store>>,
+    /// Forward-transformed values of the cells lazy lookups have read, kept for the next
+    /// lookups (see [`Predictor::with_forward_cache`]).
+    forward_cells: Option<Arc<ForwardCells>>,
     model: Model,
     model_path: PathBuf,
     store: Arc<Store>,
@@ -97,6 +100,15 @@ struct Inner {
     grid: AngularGrid,
     channels: Channels,
     transform: Transform,
+}
+
+/// Most memory [`Predictor::with_forward_cache`] may take (all cells kept): 512 MiB.
+pub const FORWARD_CACHE_MAX_BYTES: u64 = 512 << 20;
+
+/// Forward-transformed values per angular cell (all stored channels x N materials, f64),
+/// computed on first use ([`Predictor::with_forward_cache`]).
+struct ForwardCells {
+    cells: Vec<OnceLock<Box<[f64]>>>,
 }
 
 /// A fitted model bound to its dataset store: GP weights, variances and predicted materials.
@@ -257,6 +269,7 @@ impl Predictor {
         Ok(Self {
             inner: Arc::new(Inner {
                 forward_store: None,
+                forward_cells: None,
                 transform: model.transform,
                 grid: *store.grid(),
                 channels: store.channels().clone(),
@@ -372,6 +385,41 @@ impl Predictor {
         Ok(Self {
             inner: Arc::new(inner),
         })
+    }
+
+    /// This predictor keeping, in memory, the forward-transformed values of every angular cell a
+    /// lazy lookup ([`PredictedMaterial::eval_cell`]) reads, for all materials predicted from it
+    /// (its clones share them): many renders of predicted materials (thumbnails, sheets, paths)
+    /// then take each cell's logarithms once instead of once per render, with the same values
+    /// bit for bit (f64, unlike the f32 sidecar). A no-op under `raw`, with a sidecar in use, or
+    /// when keeping every cell would take more than [`FORWARD_CACHE_MAX_BYTES`] (cells x
+    /// channels x N x 8 B; a render touches about half the cells).
+    pub fn with_forward_cache(&self) -> Self {
+        let inner = &*self.inner;
+        let bytes = (inner.grid.len() as u64)
+            .saturating_mul(inner.channels.len() as u64)
+            .saturating_mul(inner.n as u64)
+            .saturating_mul(8);
+        if inner.transform == Transform::Raw
+            || inner.forward_store.is_some()
+            || inner.forward_cells.is_some()
+            || bytes > FORWARD_CACHE_MAX_BYTES
+        {
+            return self.clone();
+        }
+        let mut inner = inner.clone();
+        inner.forward_cells = Some(Arc::new(ForwardCells {
+            cells: (0..inner.grid.len()).map(|_| OnceLock::new()).collect(),
+        }));
+        Self {
+            inner: Arc::new(inner),
+        }
+    }
+
+    /// Whether lazy lookups keep the forward-transformed values of the cells they read
+    /// ([`Predictor::with_forward_cache`]).
+    pub fn keeps_forward_values(&self) -> bool {
+        self.inner.forward_cells.is_some()
     }
 
     /// Whether lookups read the forward-transformed sidecar store.
@@ -752,10 +800,26 @@ impl PredictedMaterial {
             let (raw, wide, vals) = &mut *scratch;
             let span = last + 1 - first;
             vals.resize(span, 0.0);
-            let (store, transformed) = self.pred.lookup_store();
-            let block = store.values_in_ref(a * nc + first..a * nc + last + 1, raw)?;
-            debug_assert_eq!(block.len(), span * n);
-            self.combine_block(block, transformed, wide, vals);
+            if let Some(cells) = &inner.forward_cells {
+                // The cell's forward-transformed values, all channels, computed once: the
+                // transform is elementwise, so these are the bits combine_block computes.
+                let cell = match cells.cells[a].get() {
+                    Some(cell) => cell,
+                    None => {
+                        let block = inner.store.values_in_ref(a * nc..(a + 1) * nc, raw)?;
+                        let mut t = vec![0.0; block.len()].into_boxed_slice();
+                        inner.transform.forward_batch(block, &mut t);
+                        cells.cells[a].get_or_init(|| t)
+                    }
+                };
+                row_dots(&self.coef, &cell[first * n..(last + 1) * n], vals);
+                inner.transform.inverse_in_place(vals);
+            } else {
+                let (store, transformed) = self.pred.lookup_store();
+                let block = store.values_in_ref(a * nc + first..a * nc + last + 1, raw)?;
+                debug_assert_eq!(block.len(), span * n);
+                self.combine_block(block, transformed, wide, vals);
+            }
             sel.apply(vals, first, out);
             self.check_finite(out, a * out.len())
         })
@@ -794,6 +858,11 @@ impl PredictedMaterial {
     /// for a cell outside the grid.
     pub fn prefetch_cell(&self, a: usize) {
         if a >= self.pred.inner.grid.len() {
+            return;
+        }
+        if let Some(cells) = &self.pred.inner.forward_cells
+            && cells.cells[a].get().is_some()
+        {
             return;
         }
         let nc = self.pred.inner.channels.len();

@@ -280,6 +280,56 @@ fn lazy_lookups_equal_the_materialised_values() {
     assert!(BrdfSource::eval_cell(&material, g.len(), &mut by_trait).is_err());
 }
 
+/// A predictor keeping each cell's forward-transformed values (`with_forward_cache`, as the
+/// pipeline's figures and the map's thumbnails use) gives every lazy lookup the bits of the
+/// uncached one: first reads and cached reads, several materials sharing the cache (points,
+/// both predictors, a blend), a wavelength subset; under `raw` it changes nothing.
+#[test]
+fn forward_cache_gives_the_uncached_bits() {
+    for transform in ["log", "raw"] {
+        let f = fixture(6, transform);
+        let pred = Predictor::open(&f.model).unwrap();
+        let cached = pred.with_forward_cache();
+        assert_eq!(cached.keeps_forward_values(), transform == "log");
+        assert!(!pred.keeps_forward_values());
+        let names: Vec<String> = pred
+            .model()
+            .materials
+            .iter()
+            .map(|m| m.name.clone())
+            .collect();
+        let nc = pred.channels().len();
+        let subset = Channels::parse_wavelengths("425,500,610").unwrap();
+        let materials = |p: &Predictor| {
+            vec![
+                p.predict(&[0.3, -0.2], PredictorKind::Exact).unwrap(),
+                p.predict(&[-0.1, 0.4], PredictorKind::Smooth).unwrap(),
+                p.lerp(&names[0], &names[2], 0.3).unwrap(),
+                p.predict(&[0.1, 0.1], PredictorKind::Exact)
+                    .unwrap()
+                    .with_wavelengths(&subset)
+                    .unwrap(),
+            ]
+        };
+        let (plain, kept) = (materials(&pred), materials(&cached));
+        // Twice over the cells: the first pass fills the cache, the second reads it.
+        for _ in 0..2 {
+            for (a, b) in plain.iter().zip(&kept) {
+                let k = a.channels().len();
+                let (mut va, mut vb) = (vec![0.0; k], vec![0.0; k]);
+                for cell in 0..pred.grid().len() {
+                    a.eval_cell(cell, &mut va).unwrap();
+                    b.eval_cell(cell, &mut vb).unwrap();
+                    for (x, y) in va.iter().zip(&vb) {
+                        assert_eq!(x.to_bits(), y.to_bits(), "{transform}, cell {cell}");
+                    }
+                }
+                assert!(k == nc || k == 3);
+            }
+        }
+    }
+}
+
 #[test]
 fn exact_predictor_reproduces_training_materials_and_lerp_is_linear() {
     let f = fixture(8, "log");

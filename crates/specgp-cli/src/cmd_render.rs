@@ -326,8 +326,9 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
     // Variance per transformed value, as `predict --variance` and the reports give it.
     let scale = model.data_scale;
     let img = if let Some(pred) = pred.filter(|_| args.thumbnails) {
-        // Thumbnails are lazy predictions: read an existing sidecar like `render` does.
-        let pred = crate::cmd_predict::with_existing_sidecar(pred)?;
+        // Thumbnails are lazy predictions: read an existing sidecar like `render` does, else
+        // keep each cell's logarithms for the next thumbnail.
+        let pred = crate::cmd_predict::with_existing_sidecar(pred)?.with_forward_cache();
         let needed = render::colour::needed_wavelengths(pred.channels(), opts.sphere.illuminant)?;
         // Thumbnails where the materials explain less than a tenth of the prior variance are
         // framed as far from every material (as `predict` warns about such points).
