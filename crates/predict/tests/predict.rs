@@ -45,6 +45,15 @@ fn write_store(path: &Path, n: usize, seed: u64, grid: AngularGrid) {
     .unwrap();
 }
 
+/// The model's material names, in order.
+fn material_names(pred: &Predictor) -> Vec<String> {
+    pred.model()
+        .materials
+        .iter()
+        .map(|m| m.name.clone())
+        .collect()
+}
+
 fn fixture(n: usize, transform: &str) -> Fixture {
     let dir = tempfile::tempdir().unwrap();
     let store = dir.path().join("data.sbrdf");
@@ -207,12 +216,7 @@ fn lazy_lookups_equal_the_materialised_values() {
     assert_eq!(report.negatives, 0);
     // An extrapolated linear interpolation (t = 3: 3 y_a - 2 y_b in log space) goes below 0
     // where y_b > 1.5 y_a; the report counts every negative value written.
-    let names: Vec<String> = pred
-        .model()
-        .materials
-        .iter()
-        .map(|m| m.name.clone())
-        .collect();
+    let names = material_names(&pred);
     let beyond = pred.lerp(&names[0], &names[3], 3.0).unwrap();
     let report = beyond.materialize(&out, |_, _| {}).unwrap();
     let written = brdf_io::npy::read(&out).unwrap().to_f32();
@@ -292,12 +296,7 @@ fn forward_cache_gives_the_uncached_bits() {
         let cached = pred.with_forward_cache();
         assert_eq!(cached.keeps_forward_values(), transform == "log");
         assert!(!pred.keeps_forward_values());
-        let names: Vec<String> = pred
-            .model()
-            .materials
-            .iter()
-            .map(|m| m.name.clone())
-            .collect();
+        let names = material_names(&pred);
         let nc = pred.channels().len();
         let subset = Channels::parse_wavelengths("425,500,610").unwrap();
         let materials = |p: &Predictor| {
