@@ -340,27 +340,40 @@ impl GplvmObjective {
         par: Par,
         condition: bool,
     ) -> Result<(f64, FactorInfo)> {
-        let n = self.n();
-        params.kernel_matrix_into(x, &mut w.k)?;
-        let plain = !condition && {
-            w.l.resize_with(n, n, |_, _| 0.0);
-            w.l.copy_from(&w.k);
-            w.factor.factor_in_place(w.l.as_mut(), par)
-        };
-        if plain {
-            w.factor.inverse_into(w.l.as_ref(), &mut w.kinv, par);
-            let log_det = 2.0 * (0..n).map(|i| w.l[(i, i)].ln()).sum::<f64>();
+        if condition {
+            params.kernel_matrix_into(x, &mut w.k)?;
+        } else if let Some(log_det) = self.factor_plain(w, x, params, par)? {
             let info = FactorInfo {
                 jitter: 0.0,
                 attempts: 1,
                 condition_estimate: f64::NAN,
             };
-            Ok((log_det, info))
-        } else {
-            let f = self.factor_matrix(w.k.as_ref(), par)?;
-            w.kinv = f.inverse();
-            Ok((f.log_det(), FactorInfo::of(&f, condition)))
+            return Ok((log_det, info));
         }
+        let f = self.factor_matrix(w.k.as_ref(), par)?;
+        w.kinv = f.inverse();
+        Ok((f.log_det(), FactorInfo::of(&f, condition)))
+    }
+
+    /// The optimisers' plain path: `K` into `w.k`, factored as it is (no check, no jitter)
+    /// into `w.l`, its inverse into `w.kinv`, and `log|K|`; `None` (with `w.k` filled) when
+    /// a pivot is not positive and finite.
+    fn factor_plain(
+        &self,
+        w: &mut Work,
+        x: MatRef<'_, f64>,
+        params: &KernelParams,
+        par: Par,
+    ) -> Result<Option<f64>> {
+        let n = self.n();
+        params.kernel_matrix_into(x, &mut w.k)?;
+        w.l.resize_with(n, n, |_, _| 0.0);
+        w.l.copy_from(&w.k);
+        if !w.factor.factor_in_place(w.l.as_mut(), par) {
+            return Ok(None);
+        }
+        w.factor.inverse_into(w.l.as_ref(), &mut w.kinv, par);
+        Ok(Some(2.0 * (0..n).map(|i| w.l[(i, i)].ln()).sum::<f64>()))
     }
 
     /// Value and analytic gradient with respect to `X` and the hyperparameters.

@@ -27,8 +27,8 @@
 
 use faer::{Mat, MatRef, Par};
 
-use super::{FlatGplvm, GplvmObjective, kinv_s_kinv_lower};
-use crate::cholesky::{FactorWork, one_norm_sym};
+use super::{FlatGplvm, GplvmObjective, Work, kinv_s_kinv_lower};
+use crate::cholesky::one_norm_sym;
 use crate::error::{GpError, Result};
 use crate::kernel::KernelParams;
 
@@ -62,13 +62,10 @@ pub struct PointMoves<'a> {
     x: Mat<f64>,
     /// Scaled axes of `x` (`x_ij / l_j`, one `Vec` per axis), as the kernel matrix uses them.
     z: Vec<Vec<f64>>,
-    k: Mat<f64>,
-    l: Mat<f64>,
-    kinv: Mat<f64>,
-    /// `K^-1 S`, on the way to `W`.
-    kinv_s: Mat<f64>,
+    /// `K`, its factor and `K^-1` (the optimisers' plain path, [`GplvmObjective`]'s
+    /// `factor_plain`), and `K^-1 S` on the way to `W`.
+    work: Work,
     w: Mat<f64>,
-    factor: FactorWork,
     /// Whether the last reset succeeded (otherwise no moves are evaluated).
     ready: bool,
     /// Reference moves ([`PointMoves::move_reference`]) since the last reset.
@@ -110,12 +107,8 @@ impl<'a> PointMoves<'a> {
             params: params.clone(),
             x: Mat::new(),
             z: Vec::new(),
-            k: Mat::new(),
-            l: Mat::new(),
-            kinv: Mat::new(),
-            kinv_s: Mat::new(),
+            work: Work::new(),
             w: Mat::new(),
-            factor: FactorWork::new(),
             ready: false,
             updates: 0,
             log_det: 0.0,
@@ -142,31 +135,27 @@ impl<'a> PointMoves<'a> {
         self.z = params.scaled_axes(x, "latent points X")?;
         self.x.resize_with(x.nrows(), x.ncols(), |_, _| 0.0);
         self.x.copy_from(x);
-        // The optimisers' plain path (GplvmObjective::factor_into without a condition
-        // estimate), so the reference value has the same bits as theirs.
-        params.kernel_matrix_into(x, &mut self.k)?;
-        self.l.resize_with(n, n, |_, _| 0.0);
-        self.l.copy_from(&self.k);
-        if !self.factor.factor_in_place(self.l.as_mut(), par) {
+        // The optimisers' plain path, so the reference value has the same bits as theirs.
+        let Some(log_det) = obj.factor_plain(&mut self.work, x, params, par)? else {
             return Ok(false);
-        }
-        self.factor
-            .inverse_into(self.l.as_ref(), &mut self.kinv, par);
-        let condition = one_norm_sym(self.k.as_ref(), 0.0) * one_norm_sym(self.kinv.as_ref(), 0.0);
+        };
+        let (k, kinv) = (self.work.k.as_ref(), self.work.kinv.as_ref());
+        let condition = one_norm_sym(k, 0.0) * one_norm_sym(kinv, 0.0);
         // (A NaN condition, from an overflowing inverse, takes no moves either.)
         if condition.is_nan() || condition > MAX_CONDITION {
             return Ok(false);
         }
-        self.log_det = 2.0 * (0..n).map(|i| self.l[(i, i)].ln()).sum::<f64>();
-        self.trace = obj.trace_with(self.kinv.as_ref());
+        self.log_det = log_det;
+        self.trace = obj.trace_with(kinv);
         self.sq = GplvmObjective::sum_of_squares(x);
         self.value = obj.assemble_terms(self.log_det, self.trace, self.sq)?;
         // W = (K^-1 S) K^-1, symmetric: its lower triangle, then mirrored.
+        let work = &mut self.work;
         kinv_s_kinv_lower(
-            self.kinv.as_ref(),
+            work.kinv.as_ref(),
             obj.s.as_ref(),
             1.0,
-            &mut self.kinv_s,
+            &mut work.b,
             &mut self.w,
             par,
         );
@@ -235,7 +224,7 @@ impl<'a> PointMoves<'a> {
             gz21 * g12 + gz22 * g22,
         );
         // P = [u, v] (u = K^-1 e_n, v = K^-1 d), Q = [w, W d] (w = W e_n): the old columns.
-        let u = self.kinv.col_as_slice(n).to_vec();
+        let u = self.work.kinv.col_as_slice(n).to_vec();
         let w = self.w.col_as_slice(n).to_vec();
         let v = &self.kd;
         let wd = &self.wd;
@@ -243,7 +232,7 @@ impl<'a> PointMoves<'a> {
             let (uj, vj, wj, wdj) = (u[j], v[j], w[j], wd[j]);
             // K'^-1[:, j] = K^-1[:, j] - u (G P^T)_1j - v (G P^T)_2j.
             let (p1, p2) = (g11 * uj + g12 * vj, g12 * uj + g22 * vj);
-            for ((o, &ui), &vi) in self.kinv.col_as_slice_mut(j).iter_mut().zip(&u).zip(v) {
+            for ((o, &ui), &vi) in self.work.kinv.col_as_slice_mut(j).iter_mut().zip(&u).zip(v) {
                 *o -= ui * p1 + vi * p2;
             }
             // W'[:, j] = W[:, j] - u (G Q^T - H P^T)_1j - v (G Q^T - H P^T)_2j - w (G P^T)_1j
@@ -264,9 +253,9 @@ impl<'a> PointMoves<'a> {
         }
         // K's row and column n, the point, its scaled axes, the terms.
         for j in 0..size {
-            let kj = self.k[(j, n)] + self.d[j];
-            self.k[(j, n)] = kj;
-            self.k[(n, j)] = kj;
+            let kj = self.work.k[(j, n)] + self.d[j];
+            self.work.k[(j, n)] = kj;
+            self.work.k[(n, j)] = kj;
         }
         for (axis, &p) in point.iter().enumerate() {
             self.x[(n, axis)] = p;
@@ -314,10 +303,14 @@ impl<'a> PointMoves<'a> {
         self.params.fill_sq_dist(&self.z, point, &mut self.d);
         crate::fastmath::rbf_from_sq_dist_in_place(&mut self.d, self.params.signal_variance());
         for (j, dj) in self.d.iter_mut().enumerate() {
-            *dj = if j == n { 0.0 } else { *dj - self.k[(j, n)] };
+            *dj = if j == n {
+                0.0
+            } else {
+                *dj - self.work.k[(j, n)]
+            };
         }
         // K^-1 d and W d, column by column (both symmetric).
-        for (out, m) in [(&mut self.kd, &self.kinv), (&mut self.wd, &self.w)] {
+        for (out, m) in [(&mut self.kd, &self.work.kinv), (&mut self.wd, &self.w)] {
             out.clear();
             out.resize(size, 0.0);
             for (j, &dj) in self.d.iter().enumerate() {
@@ -328,7 +321,7 @@ impl<'a> PointMoves<'a> {
                 }
             }
         }
-        let a = self.kinv[(n, n)];
+        let a = self.work.kinv[(n, n)];
         let b = self.kd[n];
         let c = crate::fastmath::dot(&self.d, &self.kd);
         // |K'| / |K| = (1 + b)^2 - a c, as 1 + (2b + b^2 - a c) for its logarithm.
