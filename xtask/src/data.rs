@@ -75,12 +75,14 @@ pub fn build_store(config: &DataConfig, out: &Path) -> Result<(ImportReport, f64
                     .collect::<Result<_>>()?,
                 None => (0..set.len()).collect(),
             };
+            // The networks' inputs are the same for every network: made once.
+            let inputs = brdf_io::nbrdf::GridInputs::new(&config.grid);
             import_each(out, config, Channels::Rgb, options, rows.len(), |i| {
                 let net = set
                     .material(rows[i])
                     .map_err(|e| Error::stage("data", weights, e))?;
                 let (values, report) = net
-                    .resample_with(&config.grid, brdf_io::nbrdf::NbrdfOptions::default())
+                    .resample_on(&inputs, brdf_io::nbrdf::NbrdfOptions::default())
                     .map_err(|e| Error::stage("data", weights, e))?;
                 let source = format!("{} row {}", weights.display(), rows[i]);
                 Ok((net.name().to_owned(), source, values, report))

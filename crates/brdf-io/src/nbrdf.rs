@@ -23,7 +23,10 @@ use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 use crate::grid::{AngularGrid, Channels, Vec3};
-use crate::source::{BrdfSource, ImportReport, PairWeights, ResampleOptions, resample_cells};
+use crate::source::{
+    BrdfSource, ImportReport, PairWeights, ResampleOptions, resample_cells,
+    resample_cells_indexed_into,
+};
 
 /// Number of weights per network (6*21 + 21 + 21*21 + 21 + 21*3 + 3).
 pub const WEIGHTS_PER_NETWORK: usize = 675;
@@ -197,33 +200,22 @@ impl Nbrdf {
     }
 
     /// The forward pass on an input vector `(hx, hy, hz, dx, dy, dz)`: RGB in 1/sr.
+    ///
+    /// Each neuron sums its bias and then its inputs' products in input order (no fused
+    /// multiply-adds); the loops run over a layer's neurons innermost, so that they vectorise.
     pub fn forward(&self, x: [f64; 6]) -> [f64; 3] {
         let w = &self.w;
-        let mut a1 = [0.0; 21];
-        for (j, a) in a1.iter_mut().enumerate() {
-            let mut s = w[B1 + j];
-            for (i, xi) in x.iter().enumerate() {
-                s += xi * w[W1 + i * 21 + j];
+        let a1 = layer::<6, 21>(&x, &w[W1..B1], &w[B1..W2]);
+        let a2 = layer::<21, 21>(&a1, &w[W2..B2], &w[B2..W3]);
+        let mut s = [0.0; 3];
+        s.copy_from_slice(&w[B3..B3 + 3]);
+        for (i, ai) in a2.iter().enumerate() {
+            let row = &w[W3 + i * 3..W3 + i * 3 + 3];
+            for (sj, wij) in s.iter_mut().zip(row) {
+                *sj += ai * wij;
             }
-            *a = s.max(0.0);
         }
-        let mut a2 = [0.0; 21];
-        for (j, a) in a2.iter_mut().enumerate() {
-            let mut s = w[B2 + j];
-            for (i, ai) in a1.iter().enumerate() {
-                s += ai * w[W2 + i * 21 + j];
-            }
-            *a = s.max(0.0);
-        }
-        let mut out = [0.0; 3];
-        for (j, o) in out.iter_mut().enumerate() {
-            let mut s = w[B3 + j];
-            for (i, ai) in a2.iter().enumerate() {
-                s += ai * w[W3 + i * 3 + j];
-            }
-            *o = (s.exp() - 1.0).max(0.0);
-        }
-        out
+        s.map(|v| (v.exp() - 1.0).max(0.0))
     }
 
     /// f(wi, wo) as RGB in 1/sr; 0 when either direction is at or below the horizon or the pair
@@ -255,6 +247,103 @@ impl Nbrdf {
         tracing::info!(material = %self.name, %grid, "resampled Neural-BRDF: {report}");
         Ok((values, report))
     }
+
+    /// As [`Nbrdf::resample_with`] on the grid of `inputs`, whose network inputs (made once for
+    /// a whole set: [`GridInputs`]) replace the per-cell trigonometry. The same values, bit for
+    /// bit.
+    pub fn resample_on(
+        &self,
+        inputs: &GridInputs,
+        options: NbrdfOptions,
+    ) -> Result<(Vec<f32>, ImportReport)> {
+        let grid = &inputs.grid;
+        let mut values = vec![0f32; grid.len() * 3];
+        let report = resample_cells_indexed_into(
+            grid,
+            0,
+            &mut values,
+            3,
+            options,
+            PairWeights::Equal,
+            |flat| inputs.directions(flat),
+            |slot, wi, wo, out| {
+                let x = match inputs.table.get(slot.cell) {
+                    Some(cell) => cell.inputs[usize::from(slot.swapped)],
+                    None => network_input(wi, wo),
+                };
+                out.copy_from_slice(&x.map_or([0.0; 3], |x| self.forward(x)));
+                Ok(())
+            },
+        )?;
+        tracing::info!(material = %self.name, %grid, "resampled Neural-BRDF: {report}");
+        Ok((values, report))
+    }
+}
+
+/// The networks' inputs at every bin centre of a grid, in both direction orders, with the
+/// cells' directions. They are the same for every network, so an import of a set makes them
+/// once and passes them to [`Nbrdf::resample_on`]: their trigonometry (the directions, then two
+/// `atan2` and three `sin_cos` per order) cost as much as the networks themselves. Grids whose
+/// table would exceed [`GridInputs::MAX_BYTES`] keep no table; their inputs are computed per
+/// cell, as [`Nbrdf::resample_with`] does.
+#[derive(Debug, Clone)]
+pub struct GridInputs {
+    grid: AngularGrid,
+    /// One entry per cell; empty when the grid is beyond the size limit.
+    table: Vec<CellInputs>,
+}
+
+/// One cell of [`GridInputs`].
+#[derive(Debug, Clone, Copy)]
+struct CellInputs {
+    /// The bin-centre directions `(wi, wo)`.
+    dirs: (Vec3, Vec3),
+    /// The inputs of `(wi, wo)` and of `(wo, wi)` (`None` where [`network_input`] gives none).
+    inputs: [Option<[f64; 6]>; 2],
+}
+
+impl GridInputs {
+    /// The largest table kept, in bytes (MERL's own 90 x 90 x 180 grid needs ~230 MB).
+    pub const MAX_BYTES: usize = 512 << 20;
+
+    /// The inputs of every cell of `grid` (in parallel), or none beyond [`Self::MAX_BYTES`].
+    pub fn new(grid: &AngularGrid) -> Self {
+        use rayon::prelude::*;
+        let entry = std::mem::size_of::<CellInputs>();
+        let table = if grid.len().saturating_mul(entry) > Self::MAX_BYTES {
+            Vec::new()
+        } else {
+            (0..grid.len())
+                .into_par_iter()
+                .map(|cell| {
+                    let (wi, wo) = grid.bin_centre_flat(cell).to_dirs();
+                    CellInputs {
+                        dirs: (wi, wo),
+                        inputs: [network_input(wi, wo), network_input(wo, wi)],
+                    }
+                })
+                .collect()
+        };
+        Self { grid: *grid, table }
+    }
+
+    /// The grid.
+    pub fn grid(&self) -> &AngularGrid {
+        &self.grid
+    }
+
+    /// Whether the inputs are tabulated (false beyond [`Self::MAX_BYTES`]).
+    pub fn is_tabulated(&self) -> bool {
+        self.table.len() == self.grid.len()
+    }
+
+    /// The bin-centre directions of cell `flat`.
+    fn directions(&self, flat: usize) -> (Vec3, Vec3) {
+        match self.table.get(flat) {
+            Some(cell) => cell.dirs,
+            None => self.grid.bin_centre_flat(flat).to_dirs(),
+        }
+    }
 }
 
 impl BrdfSource for Nbrdf {
@@ -267,6 +356,21 @@ impl BrdfSource for Nbrdf {
         out.copy_from_slice(&Nbrdf::eval(self, wi, wo));
         Ok(())
     }
+}
+
+/// One dense layer with ReLU: `relu(x W + b)` for `W` stored input-major (`W[i * OUT + j]`).
+/// Neuron `j` sums `b[j]`, then `x[0] W[0][j]`, `x[1] W[1][j]`, ... in that order.
+#[inline(always)]
+fn layer<const IN: usize, const OUT: usize>(x: &[f64; IN], w: &[f64], b: &[f64]) -> [f64; OUT] {
+    let mut s = [0.0; OUT];
+    s.copy_from_slice(&b[..OUT]);
+    for (i, xi) in x.iter().enumerate() {
+        let row = &w[i * OUT..(i + 1) * OUT];
+        for (sj, wij) in s.iter_mut().zip(row) {
+            *sj += xi * wij;
+        }
+    }
+    s.map(|v| v.max(0.0))
 }
 
 /// The network input `(sin theta_h, 0, cos theta_h, d)` of a direction pair, or `None` when the
@@ -454,5 +558,107 @@ mod tests {
         // Negative pre-activations clamp: hz < 0 gives exp(0.1) - 1 on every channel.
         let z = net.forward([0.0, 0.0, -1.0, 0.0, 0.0, 1.0]);
         assert!((z[0] - (0.1f64.exp() - 1.0)).abs() < 1e-6);
+    }
+
+    /// A network of seeded weights in [-0.6, 0.6) (splitmix64).
+    fn seeded_network(seed: u64) -> Nbrdf {
+        let mut state = seed;
+        let row: Vec<f32> = (0..WEIGHTS_PER_NETWORK)
+            .map(|_| {
+                state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+                let mut z = state;
+                z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+                z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+                z ^= z >> 31;
+                ((z >> 11) as f64 / (1u64 << 53) as f64 * 1.2 - 0.6) as f32
+            })
+            .collect();
+        Nbrdf::from_weights(format!("net{seed}"), &row).unwrap()
+    }
+
+    /// The forward pass neuron by neuron, as the authors' `nn.h` writes it: the reference the
+    /// vectorised layers must reproduce bit for bit.
+    fn forward_by_neurons(net: &Nbrdf, x: [f64; 6]) -> [f64; 3] {
+        let w = &net.w;
+        let dense = |input: &[f64], weights: usize, bias: usize, outputs: usize| -> Vec<f64> {
+            (0..outputs)
+                .map(|j| {
+                    let mut s = w[bias + j];
+                    for (i, xi) in input.iter().enumerate() {
+                        s += xi * w[weights + i * outputs + j];
+                    }
+                    s
+                })
+                .collect()
+        };
+        let a1: Vec<f64> = dense(&x, W1, B1, 21).iter().map(|v| v.max(0.0)).collect();
+        let a2: Vec<f64> = dense(&a1, W2, B2, 21).iter().map(|v| v.max(0.0)).collect();
+        let o = dense(&a2, W3, B3, 3);
+        [0, 1, 2].map(|c| (o[c].exp() - 1.0).max(0.0))
+    }
+
+    #[test]
+    fn vectorised_layers_give_the_neuron_by_neuron_bits() {
+        let grid = AngularGrid::new(6, 6, 12).unwrap();
+        for seed in 0..8 {
+            let net = seeded_network(seed);
+            for cell in 0..grid.len() {
+                let (wi, wo) = grid.bin_centre_flat(cell).to_dirs();
+                for x in [network_input(wi, wo), network_input(wo, wi)]
+                    .into_iter()
+                    .flatten()
+                {
+                    let (got, want) = (net.forward(x), forward_by_neurons(&net, x));
+                    assert_eq!(got.map(f64::to_bits), want.map(f64::to_bits), "{x:?}");
+                }
+            }
+        }
+    }
+
+    /// Resampling on shared inputs gives `resample_with`'s values and report exactly, in both
+    /// reciprocity modes, with the table and without one (the fallback of grids beyond
+    /// `GridInputs::MAX_BYTES`).
+    #[test]
+    fn shared_inputs_resample_the_same_bits() {
+        let grid = AngularGrid::new(8, 8, 16).unwrap();
+        let tabulated = GridInputs::new(&grid);
+        assert!(tabulated.is_tabulated());
+        let untabulated = GridInputs {
+            grid,
+            table: Vec::new(),
+        };
+        assert!(!untabulated.is_tabulated());
+        for seed in [3, 11] {
+            let net = seeded_network(seed);
+            for reciprocal in [true, false] {
+                let options = NbrdfOptions {
+                    reciprocal,
+                    ..NbrdfOptions::default()
+                };
+                let (want, want_report) = net.resample_with(&grid, options).unwrap();
+                assert!(want.iter().any(|&v| v > 0.0));
+                for inputs in [&tabulated, &untabulated] {
+                    let (got, report) = net.resample_on(inputs, options).unwrap();
+                    assert_eq!(
+                        got.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                        want.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+                    );
+                    // The cosine-weighted sums depend on how rayon split the cells; the
+                    // rest of the report does not.
+                    let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * b.abs();
+                    assert!(close(report.reciprocal_sq, want_report.reciprocal_sq));
+                    assert!(close(
+                        report.non_reciprocal_sq,
+                        want_report.non_reciprocal_sq
+                    ));
+                    let sums_aside = ImportReport {
+                        reciprocal_sq: want_report.reciprocal_sq,
+                        non_reciprocal_sq: want_report.non_reciprocal_sq,
+                        ..report
+                    };
+                    assert_eq!(sums_aside, want_report);
+                }
+            }
+        }
     }
 }

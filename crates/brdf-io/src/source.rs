@@ -449,6 +449,47 @@ pub(crate) fn resample_cells_into<F>(
 where
     F: Fn(Vec3, Vec3, &mut [f64]) -> Result<()> + Sync,
 {
+    resample_cells_indexed_into(
+        grid,
+        first_cell,
+        out,
+        n_channels,
+        options,
+        weights,
+        |flat| grid.bin_centre_flat(flat).to_dirs(),
+        |_, wi, wo, out| eval(wi, wo, out),
+    )
+}
+
+/// Which evaluation of a cell [`resample_cells_indexed_into`] asks for: the cell's flat index
+/// and whether the directions are swapped (`eval(wo, wi)`, the reciprocal order).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct PairSlot {
+    /// The cell's flat angular index in the grid.
+    pub cell: usize,
+    /// Whether this is the swapped order `(wo, wi)` of the cell's bin-centre directions.
+    pub swapped: bool,
+}
+
+/// As [`resample_cells_into`], with `eval` also told which cell and order it evaluates, and
+/// each cell's bin-centre directions `(wi, wo)` taken from `directions(flat)`, which must give
+/// `grid.bin_centre_flat(flat).to_dirs()` (for sources that precompute per-cell work once for
+/// many materials, such as the Neural-BRDF networks' inputs).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn resample_cells_indexed_into<D, F>(
+    grid: &crate::grid::AngularGrid,
+    first_cell: usize,
+    out: &mut [f32],
+    n_channels: usize,
+    options: ResampleOptions,
+    weights: PairWeights,
+    directions: D,
+    eval: F,
+) -> Result<ImportReport>
+where
+    D: Fn(usize) -> (Vec3, Vec3) + Sync,
+    F: Fn(PairSlot, Vec3, Vec3, &mut [f64]) -> Result<()> + Sync,
+{
     use rayon::prelude::*;
     options.validate()?;
     if n_channels == 0
@@ -473,15 +514,19 @@ where
             let mut swapped = vec![0f64; n_channels];
             for (k, cell) in values.chunks_mut(n_channels).enumerate() {
                 let flat = first_cell + chunk * cells_per_chunk + k;
-                let (wi, wo) = grid.bin_centre_flat(flat).to_dirs();
+                let (wi, wo) = directions(flat);
                 if !(wi[2] > 0.0 && wo[2] > 0.0) {
                     report.below_horizon_cells += 1;
                     cell.iter_mut().for_each(|v| *v = 0.0);
                     continue;
                 }
-                eval(wi, wo, &mut buf)?;
+                let slot = |reversed| PairSlot {
+                    cell: flat,
+                    swapped: reversed,
+                };
+                eval(slot(false), wi, wo, &mut buf)?;
                 if options.reciprocal {
-                    eval(wo, wi, &mut swapped)?;
+                    eval(slot(true), wo, wi, &mut swapped)?;
                     let weight_a = match weights {
                         PairWeights::Equal => 0.5,
                         PairWeights::CosOutgoingSquared => {

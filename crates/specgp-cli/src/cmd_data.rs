@@ -290,6 +290,8 @@ fn import_nbrdf(args: &NbrdfArgs) -> anyhow::Result<()> {
         clamp_outliers: args.clamp,
         reciprocal: !args.no_reciprocal,
     };
+    // The networks' inputs are the same for every network: made once.
+    let inputs = brdf_io::nbrdf::GridInputs::new(&args.store.grid);
     import_each(
         &args.store,
         Channels::Rgb,
@@ -297,7 +299,7 @@ fn import_nbrdf(args: &NbrdfArgs) -> anyhow::Result<()> {
         rows.len(),
         |i| {
             let net = set.material(rows[i])?;
-            let (values, report) = net.resample_with(&args.store.grid, options)?;
+            let (values, report) = net.resample_on(&inputs, options)?;
             let source = format!("{} row {}", args.weights.display(), rows[i]);
             Ok((net.name().to_owned(), source, values, report))
         },
