@@ -285,7 +285,7 @@ impl SphereOptions {
         let (t, p) = self.light;
         if !t.is_finite() || !p.is_finite() || !(0.0..=180.0).contains(&t) {
             return bad(format!(
-                "light ({t}, {p}): theta must be in [0, 180] degrees"
+                "light ({t:?}, {p:?}): theta must be in [0, 180] degrees"
             ));
         }
         for (name, v) in [
@@ -293,7 +293,7 @@ impl SphereOptions {
             ("environment radiance", self.env_radiance),
         ] {
             if !v.is_finite() || v < 0.0 {
-                return bad(format!("{name} {v} must be finite and >= 0"));
+                return bad(format!("{name} {v:?} must be finite and >= 0"));
             }
         }
         if let EnvMode::Table(t) = self.env_mode
@@ -310,7 +310,7 @@ impl SphereOptions {
         }
         if !self.exposure.is_finite() || self.exposure.abs() > 64.0 {
             return bad(format!(
-                "exposure {} must be within +-64 stops",
+                "exposure {:?} must be within +-64 stops",
                 self.exposure
             ));
         }

@@ -480,3 +480,38 @@ fn failed_thumbnails_name_their_latent_point() {
         Error::Thumbnail { point: [0.75, 0.75], ref source } if matches!(**source, Error::NonFiniteValue { .. })
     ));
 }
+
+/// Out-of-range scene numbers are errors that quote them readably: 1e300 as `1e300`, not as
+/// three hundred digits.
+#[test]
+fn bad_scene_numbers_are_quoted_readably() {
+    let src = Faulty::new(Channels::Rgb, 0.5, 0);
+    let cases = [
+        (
+            SphereOptions {
+                exposure: 1e300,
+                ..opts(10, MODES[0])
+            },
+            "exposure 1e300 must be within +-64 stops",
+        ),
+        (
+            SphereOptions {
+                light: (1e300, 0.0),
+                ..opts(10, MODES[0])
+            },
+            "light (1e300, 0.0): theta must be in [0, 180] degrees",
+        ),
+        (
+            SphereOptions {
+                env_radiance: -1e-300,
+                ..opts(10, MODES[0])
+            },
+            "environment radiance -1e-300 must be finite and >= 0",
+        ),
+    ];
+    for (options, message) in cases {
+        let e = error_of(render_sphere(&src, &options), message);
+        assert!(matches!(e, Error::InvalidArgument { .. }), "{e}");
+        assert!(e.to_string().contains(message), "{e}");
+    }
+}
