@@ -137,18 +137,21 @@ fn import_each(
     let mut writer = StoreWriter::create(out, info, options).map_err(store_err)?;
     let pb = bar(count as u64, "import");
     let mut total = ImportReport::new();
-    for i in 0..count {
-        let (name, source, values, report) = load(i)?;
-        report
-            .ensure_finite(&format!("{name} ({source})"))
-            .map_err(store_err)?;
-        pb.set_message(name.clone());
-        writer
-            .add_material(&name, &source, &values)
-            .map_err(store_err)?;
-        total = total.merge(&report);
-        pb.inc(1);
-    }
+    // Material i is written while material i + 1 is resampled.
+    writer.add_materials_overlapped(
+        count,
+        |i| {
+            let (name, source, values, report) = load(i)?;
+            report
+                .ensure_finite(&format!("{name} ({source})"))
+                .map_err(store_err)?;
+            pb.set_message(name.clone());
+            total = total.merge(&report);
+            pb.inc(1);
+            Ok((name, source, values))
+        },
+        store_err,
+    )?;
     pb.finish_and_clear();
     writer.finish().map_err(store_err)?;
     Ok(total)

@@ -204,6 +204,28 @@ impl Nbrdf {
     /// Each neuron sums its bias and then its inputs' products in input order (no fused
     /// multiply-adds); the loops run over a layer's neurons innermost, so that they vectorise.
     pub fn forward(&self, x: [f64; 6]) -> [f64; 3] {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe { self.forward_avx2(x) };
+        }
+        self.forward_portable(x)
+    }
+
+    /// [`Nbrdf::forward`] compiled for AVX2 (4 neurons per instruction instead of 2; separate
+    /// multiplies and adds as in every build, so the same bits).
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn forward_avx2(&self, x: [f64; 6]) -> [f64; 3] {
+        self.forward_portable(x)
+    }
+
+    /// The forward pass every build compiles.
+    #[inline(always)]
+    fn forward_portable(&self, x: [f64; 6]) -> [f64; 3] {
         let w = &self.w;
         let a1 = layer::<6, 21>(&x, &w[W1..B1], &w[B1..W2]);
         let a2 = layer::<21, 21>(&a1, &w[W2..B2], &w[B2..W3]);

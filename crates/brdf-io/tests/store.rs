@@ -1130,3 +1130,80 @@ fn uncompressed_size_is_known_before_writing() {
     brdf_io::output::ensure_space(&out, 1, "the store").unwrap();
     brdf_io::output::ensure_space(Path::new("-"), u64::MAX, "the store").unwrap();
 }
+
+/// `add_materials_overlapped` writes what `add_material` writes, byte for byte, and stops at
+/// the first error, its loader's or its writer's, leaving no file.
+#[test]
+fn overlapped_material_writes_match_and_stop_at_the_first_error() {
+    let tmp = dir();
+    let info = info(4, 5, 6, Channels::Spectral(vec![450.0, 550.0, 650.0]));
+    let rows: Vec<_> = (0..6).map(|i| material(&info, i)).collect();
+    let plain = tmp.path().join("plain.sbrdf");
+    write_materials(&plain, &info, &rows, StoreOptions::default(), usize::MAX).unwrap();
+    let overlapped = tmp.path().join("overlapped.sbrdf");
+    let mut w = StoreWriter::create(&overlapped, info.clone(), StoreOptions::default()).unwrap();
+    let mut asked = Vec::new();
+    w.add_materials_overlapped(
+        rows.len(),
+        |i| -> Result<_, String> {
+            asked.push(i);
+            Ok((format!("mat{i}"), format!("test:{i}"), rows[i].clone()))
+        },
+        |e| e.to_string(),
+    )
+    .unwrap();
+    w.finish().unwrap();
+    assert_eq!(asked, [0, 1, 2, 3, 4, 5]);
+    assert_eq!(
+        std::fs::read(&plain).unwrap(),
+        std::fs::read(&overlapped).unwrap()
+    );
+
+    // The loader fails at material 2: nothing after it is asked for, and nothing is left.
+    let sub = tempfile::tempdir().unwrap();
+    let out = sub.path().join("loader.sbrdf");
+    let mut w = StoreWriter::create(&out, info.clone(), StoreOptions::default()).unwrap();
+    let mut asked = Vec::new();
+    let e = w
+        .add_materials_overlapped(
+            rows.len(),
+            |i| {
+                asked.push(i);
+                if i == 2 {
+                    return Err(format!("cannot load {i}"));
+                }
+                Ok((format!("mat{i}"), String::new(), rows[i].clone()))
+            },
+            |e| e.to_string(),
+        )
+        .unwrap_err();
+    assert_eq!(e, "cannot load 2");
+    assert_eq!(asked, [0, 1, 2]);
+    drop(w);
+    assert!(only_file(sub.path()).is_empty());
+
+    // The writer fails on material 1 (a non-finite value): its error comes back through
+    // `write_error`, the loader stops soon after (at most two materials ahead), and the writer
+    // stays failed.
+    let out = sub.path().join("writer.sbrdf");
+    let mut w = StoreWriter::create(&out, info.clone(), StoreOptions::default()).unwrap();
+    let mut asked = Vec::new();
+    let e = w
+        .add_materials_overlapped(
+            rows.len(),
+            |i| -> Result<_, String> {
+                asked.push(i);
+                let mut row = rows[i].clone();
+                if i == 1 {
+                    row[0] = f32::NAN;
+                }
+                Ok((format!("mat{i}"), String::new(), row))
+            },
+            |e| format!("writer: {e}"),
+        )
+        .unwrap_err();
+    assert!(e.starts_with("writer: ") && e.contains("mat1"), "{e}");
+    assert!(asked.len() <= 4, "{asked:?}");
+    assert!(w.finish().is_err());
+    assert!(only_file(sub.path()).is_empty());
+}

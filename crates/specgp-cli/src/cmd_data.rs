@@ -184,15 +184,20 @@ fn import_each(
     let mut writer = StoreWriter::create(&store.out, info, store.options())?;
     let pb = bar(count as u64, what);
     let mut total = ImportReport::new();
-    for i in 0..count {
-        let (name, source, values, report) = load(i)?;
-        report.ensure_finite(&format!("{name} ({source})"))?;
-        pb.set_message(name.clone());
-        writer.add_material(&name, &source, &values)?;
-        pb.suspend(|| errln!("{name}: {report}"));
-        total = total.merge(&report);
-        pb.inc(1);
-    }
+    // Material i is written while material i + 1 is resampled.
+    writer.add_materials_overlapped(
+        count,
+        |i| {
+            let (name, source, values, report) = load(i)?;
+            report.ensure_finite(&format!("{name} ({source})"))?;
+            pb.set_message(name.clone());
+            pb.suspend(|| errln!("{name}: {report}"));
+            total = total.merge(&report);
+            pb.inc(1);
+            Ok((name, source, values))
+        },
+        anyhow::Error::from,
+    )?;
     pb.finish_and_clear();
     let header = writer.finish()?;
     // Status goes to stderr like every command's (stdout is for machine-readable output).

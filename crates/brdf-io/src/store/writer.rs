@@ -398,6 +398,48 @@ impl StoreWriter {
         m.finish()
     }
 
+    /// Adds `count` whole materials in order (material mode), `load(i)` giving material `i`'s
+    /// `(name, source, values)`: material `i` is written on a second thread while `load(i + 1)`
+    /// runs, so that an import's resampling and its writes overlap. The first error stops
+    /// both: `load`'s as it is, the writer's through `write_error`.
+    pub fn add_materials_overlapped<E>(
+        &mut self,
+        count: usize,
+        mut load: impl FnMut(usize) -> std::result::Result<(String, String, Vec<f32>), E>,
+        write_error: impl FnOnce(Error) -> E,
+    ) -> std::result::Result<(), E> {
+        let (send, receive) = std::sync::mpsc::sync_channel::<(String, String, Vec<f32>)>(1);
+        std::thread::scope(|scope| {
+            let writer = scope.spawn(move || -> Result<()> {
+                for (name, source, values) in receive {
+                    self.add_material(&name, &source, &values)?;
+                }
+                Ok(())
+            });
+            let mut loaded = Ok(());
+            for i in 0..count {
+                match load(i) {
+                    // A closed channel means the writer stopped on an error: it is returned below.
+                    Ok(material) => {
+                        if send.send(material).is_err() {
+                            break;
+                        }
+                    }
+                    Err(e) => {
+                        loaded = Err(e);
+                        break;
+                    }
+                }
+            }
+            drop(send);
+            let written = writer
+                .join()
+                .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+            loaded?;
+            written.map_err(write_error)
+        })
+    }
+
     /// Switches to block mode with these (name, source) materials, in row order (names as for
     /// [`StoreWriter::begin_material`]).
     pub fn declare_materials<S: AsRef<str>, T: AsRef<str>>(
