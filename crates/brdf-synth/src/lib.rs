@@ -41,8 +41,8 @@ pub mod stream;
 pub use dataset::{DEFAULT_GRID, DEFAULT_WAVELENGTHS, SynthDataset, generate, preset_dataset};
 pub use error::{Error, Result};
 pub use material::{
-    Base, Body, Diffuse, Family, Flakes, Fresnel, Interface, Material, PreparedMaterial, Sheen,
-    Specular, Substrate, directional_albedo,
+    Base, Body, Diffuse, Family, Flakes, Fresnel, FresnelCache, Interface, Material,
+    PreparedMaterial, Sheen, Specular, Substrate, directional_albedo,
 };
 pub use optics::{Ior, Metal};
 pub use preset::{N_MATERIALS, preset, preset_material};

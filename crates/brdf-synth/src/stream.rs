@@ -1,5 +1,6 @@
 //! Streaming a synthetic dataset into a `.sbrdf` store: any grid size, never more than one
-//! block of cells (about 16 MB of f32 values for all materials) in memory.
+//! block of cells (about 16 MB of f32 values for all materials) in memory, plus each thread's
+//! [`FresnelCache`]s (up to 1 MiB per material).
 
 use std::path::Path;
 
@@ -9,7 +10,7 @@ use rayon::prelude::*;
 
 use crate::dataset::prepare_all;
 use crate::error::{Error, Result};
-use crate::material::Material;
+use crate::material::{FresnelCache, Material};
 
 /// Values held in memory per block while streaming to a store (f32 values).
 const BLOCK_VALUES: usize = 4 << 20;
@@ -55,28 +56,39 @@ pub fn write_store(
         .collect();
     writer.declare_materials(&sources).map_err(store_err)?;
     let cells_per_block = (BLOCK_VALUES / (n * nc)).max(1);
+    // Each block is cut into one part per thread; part p of every block remembers its
+    // materials' Fresnel reflectances in caches[p] (the grid's few distinct cos(theta_d)).
+    let parts = rayon::current_num_threads().max(1);
+    let mut caches: Vec<Vec<FresnelCache>> = (0..parts)
+        .map(|_| (0..n).map(|_| FresnelCache::new()).collect())
+        .collect();
     let mut block = Vec::new();
     let mut start = 0;
     while start < grid.len() {
         let end = (start + cells_per_block).min(grid.len());
         block.clear();
         block.resize((end - start) * nc * n, 0.0f32);
+        let cells_per_part = (end - start).div_ceil(parts);
         // Index-major: for cell c and channel l, the N materials are contiguous.
-        block.par_chunks_mut(nc * n).enumerate().for_each_init(
-            || vec![0.0f64; nc],
-            |scratch, (i, out)| {
-                let hd = grid.bin_centre_flat(start + i);
-                if !hd.is_above_horizon() {
-                    return;
-                }
-                for (mi, m) in prepared.iter().enumerate() {
-                    m.eval_half_diff(&hd, scratch);
-                    for (l, v) in scratch.iter().enumerate() {
-                        out[l * n + mi] = *v as f32;
+        block
+            .par_chunks_mut(cells_per_part * nc * n)
+            .zip(caches.par_iter_mut())
+            .enumerate()
+            .for_each(|(p, (part, caches))| {
+                let mut scratch = vec![0.0f64; nc];
+                for (k, out) in part.chunks_mut(nc * n).enumerate() {
+                    let hd = grid.bin_centre_flat(start + p * cells_per_part + k);
+                    if !hd.is_above_horizon() {
+                        continue;
+                    }
+                    for (mi, (m, cache)) in prepared.iter().zip(caches.iter_mut()).enumerate() {
+                        m.eval_half_diff_cached(&hd, &mut scratch, cache);
+                        for (l, v) in scratch.iter().enumerate() {
+                            out[l * n + mi] = *v as f32;
+                        }
                     }
                 }
-            },
-        );
+            });
         writer
             .write_block(start * nc..end * nc, &block)
             .map_err(store_err)?;

@@ -7,7 +7,8 @@ use brdf_io::{AngularGrid, Channels, HalfDiff};
 use brdf_synth::material::directional_albedo;
 use brdf_synth::microfacet::{ggx_d, smith_g2};
 use brdf_synth::{
-    Body, Family, Fresnel, Material, Metal, N_MATERIALS, generate, preset, preset_material,
+    Body, Family, Fresnel, FresnelCache, Material, Metal, N_MATERIALS, generate, preset,
+    preset_material,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -577,4 +578,55 @@ fn presets_are_continuous_above_the_horizon() {
         let (jump, _) = jump_along(&p, |s| (dir(wi, 0.0), dir(1.0 + 0.7 * s, phi)), 1000);
         assert!(jump > 0.99, "{}: horizon jump {jump}", m.name);
     });
+}
+
+/// Remembered Fresnel reflectances change nothing: every preset (seeds 0 and 3) gives the same
+/// bits with a `FresnelCache` as without, on a grid's bin centres visited twice (the second
+/// time from the cache), at random direction pairs, and across a cache that filled and started
+/// again (more distinct cosines than `FresnelCache::MAX_VALUES` holds).
+#[test]
+fn fresnel_caches_give_the_same_bits() {
+    let wl: Vec<f64> = (0..33).map(|k| 360.0 + 20.0 * k as f64).collect();
+    let grid = AngularGrid::new(6, 8, 12).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(25);
+    let random: Vec<([f64; 3], [f64; 3])> = (0..400)
+        .map(|_| {
+            let mut d = || dir(rng.random_range(0.0..1.6), rng.random_range(0.0..6.3));
+            (d(), d())
+        })
+        .collect();
+    let distinct = FresnelCache::MAX_VALUES / wl.len() + 500;
+    for seed in [0, 3] {
+        for m in preset(seed) {
+            let p = m.prepare(&wl);
+            let mut cache = FresnelCache::new();
+            let (mut plain, mut cached) = (vec![0.0; wl.len()], vec![0.0; wl.len()]);
+            let mut check = |wi: [f64; 3], wo: [f64; 3], cache: &mut FresnelCache| {
+                p.eval(wi, wo, &mut plain);
+                p.eval_cached(wi, wo, &mut cached, cache);
+                let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&plain), bits(&cached), "{} at {wi:?} {wo:?}", m.name);
+            };
+            for _ in 0..2 {
+                for cell in 0..grid.len() {
+                    let (wi, wo) = grid.bin_centre_flat(cell).to_dirs();
+                    check(wi, wo, &mut cache);
+                }
+            }
+            for &(wi, wo) in &random {
+                check(wi, wo, &mut cache);
+            }
+            if m.name == "metal_gold" || m.name == "irid_flake_paint1" {
+                // Specular pairs at `distinct` incidence angles fill the cache beyond its limit.
+                for k in 0..distinct {
+                    let theta = 1.5 * k as f64 / distinct as f64;
+                    check(dir(theta, 0.0), dir(theta, PI), &mut cache);
+                }
+                for k in 0..50 {
+                    let theta = 1.5 * k as f64 / 50.0;
+                    check(dir(theta, 0.0), dir(theta, PI), &mut cache);
+                }
+            }
+        }
+    }
 }
