@@ -89,6 +89,7 @@ impl Dtype {
     }
 
     /// `v` as this type stores it (f16: rounded to nearest, magnitudes below 2^-25 become 0).
+    #[inline]
     pub fn round(self, v: f32) -> f32 {
         match self {
             Self::F32 => v,
@@ -406,9 +407,14 @@ pub(crate) fn encode_values(values: &[f32], dtype: Dtype, out: &mut Vec<u8>) {
     out.clear();
     match dtype {
         Dtype::F32 => {
-            out.reserve(values.len() * 4);
-            for v in values {
-                out.extend_from_slice(&v.to_le_bytes());
+            if cfg!(target_endian = "little") {
+                // The values' own bytes are their little-endian encoding: one copy.
+                out.extend_from_slice(bytemuck::cast_slice(values));
+            } else {
+                out.reserve(values.len() * 4);
+                for v in values {
+                    out.extend_from_slice(&v.to_le_bytes());
+                }
             }
         }
         Dtype::F16 => {

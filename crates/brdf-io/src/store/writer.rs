@@ -316,16 +316,25 @@ impl StoreWriter {
     }
 
     /// An error when `v` (kept, i.e. above the horizon) does not fit the storage type.
+    #[inline]
     fn check_range(&self, m: usize, index: usize, v: f32, valid: bool) -> Option<Error> {
         let max = f32::from(half::f16::MAX);
-        (valid && self.options.dtype == Dtype::F16 && v.abs() > max).then(|| Error::StoreUsage {
+        (valid && self.options.dtype == Dtype::F16 && v.abs() > max)
+            .then(|| self.beyond_f16(m, index, v))
+    }
+
+    /// The error of value `v` of material `m` at `index`, beyond the f16 range.
+    #[cold]
+    fn beyond_f16(&self, m: usize, index: usize, v: f32) -> Error {
+        let max = f32::from(half::f16::MAX);
+        Error::StoreUsage {
             path: self.path.clone(),
             reason: format!(
                 "material {:?}: value {v} at index {index} exceeds the f16 range (|v| <= {max}); \
                  store as f32 or clamp outliers",
                 self.materials[m].name
             ),
-        })
+        }
     }
 
     fn add_entry(&mut self, name: &str, source: &str) -> Result<()> {
@@ -726,6 +735,7 @@ impl StoreWriter {
 }
 
 /// Adds input `v` to the statistics of the values as `dtype` stores them.
+#[inline(always)]
 fn accumulate(s: &mut ValueStats, sum: &mut f64, v: f32, valid: bool, dtype: Dtype) {
     if !valid {
         if v != 0.0 {
