@@ -81,8 +81,10 @@ pub fn write_store(
                     if !hd.is_above_horizon() {
                         continue;
                     }
+                    // The cell's directions, for every material.
+                    let (wi, wo) = hd.to_dirs();
                     for (mi, (m, cache)) in prepared.iter().zip(caches.iter_mut()).enumerate() {
-                        m.eval_half_diff_cached(&hd, &mut scratch, cache);
+                        m.eval_cached(wi, wo, &mut scratch, cache);
                         for (l, v) in scratch.iter().enumerate() {
                             out[l * n + mi] = *v as f32;
                         }
