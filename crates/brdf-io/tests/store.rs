@@ -178,48 +178,111 @@ fn block_mode_equals_material_mode() {
         Channels::spectral(vec![400.0, 500.0, 600.0, 700.0]).unwrap(),
     );
     let n = 3;
-    let rows: Vec<_> = (0..n).map(|i| material(&info, 10 + i as u64)).collect();
+    let mut rows: Vec<_> = (0..n).map(|i| material(&info, 10 + i as u64)).collect();
+    // Values f16 flushes to zero (cell 0 is above the horizon) and a big one.
+    rows[1][0] = 1e-9;
+    rows[2][1] = -3e-9;
+    rows[0][2] = 6.0e4;
+    for dtype in [Dtype::F32, Dtype::F16] {
+        let t = dir();
+        let a = t.path().join("a.sbrdf");
+        let b = t.path().join("b.sbrdf");
+        let opts = StoreOptions {
+            chunk_len: Some(13),
+            compression: Compression::Zstd { level: 1 },
+            dtype,
+            ..Default::default()
+        };
+        write_materials(&a, &info, &rows, opts.clone(), 1000).unwrap();
+        let mut w = StoreWriter::create(&b, info.clone(), opts).unwrap();
+        let names: Vec<(String, String)> = (0..n)
+            .map(|i| (format!("mat{i}"), format!("test:{i}")))
+            .collect();
+        w.declare_materials(&names).unwrap();
+        let mut d0 = 0;
+        for len in [1usize, 5, 40, 17].iter().cycle() {
+            let d1 = (d0 + len).min(info.d());
+            let block: Vec<f32> = (d0..d1)
+                .flat_map(|d| rows.iter().map(move |r| r[d]))
+                .collect();
+            w.write_block(d0..d1, &block).unwrap();
+            d0 = d1;
+            if d0 == info.d() {
+                break;
+            }
+        }
+        let hb = w.finish().unwrap();
+        let (sa, sb) = (Store::open(&a).unwrap(), Store::open(&b).unwrap());
+        assert_eq!(read_all(&sa), read_all(&sb));
+        // Same statistics up to summation order.
+        for (x, y) in sa.header().materials.iter().zip(&hb.materials) {
+            assert_eq!((&x.name, &x.source), (&y.name, &y.source));
+            let (p, q) = (&x.stats, &y.stats);
+            assert_eq!(
+                (p.count, p.min, p.max, p.negatives, p.flushed_to_zero),
+                (q.count, q.min, q.max, q.negatives, q.flushed_to_zero)
+            );
+            assert_eq!(p.zeroed_below_horizon, q.zeroed_below_horizon);
+            assert!((p.sum_sq - q.sum_sq).abs() < 1e-9 * p.sum_sq);
+            assert!((p.mean - q.mean).abs() < 1e-12 * p.mean.abs().max(1.0));
+        }
+        let flushed: Vec<u64> = hb
+            .materials
+            .iter()
+            .map(|m| m.stats.flushed_to_zero)
+            .collect();
+        let expected = if dtype == Dtype::F16 {
+            [0, 1, 1]
+        } else {
+            [0; 3]
+        };
+        assert_eq!(flushed, expected, "{dtype:?}");
+        // 6e4 = 1875 * 32 is exact in f16 too.
+        assert_eq!(hb.materials[0].stats.max, 6.0e4);
+        assert_eq!(sa.header().checksum, sb.header().checksum);
+    }
+}
+
+#[test]
+fn block_mode_reports_the_first_offence_in_material_order() {
+    let info = info(2, 2, 4, Channels::Rgb);
     let t = dir();
-    let a = t.path().join("a.sbrdf");
-    let b = t.path().join("b.sbrdf");
-    let opts = StoreOptions {
-        chunk_len: Some(13),
-        compression: Compression::Zstd { level: 1 },
+    let path = t.path().join("b.sbrdf");
+    let opts16 = StoreOptions {
+        dtype: Dtype::F16,
         ..Default::default()
     };
-    write_materials(&a, &info, &rows, opts.clone(), 1000).unwrap();
-    let mut w = StoreWriter::create(&b, info.clone(), opts).unwrap();
-    let names: Vec<(String, String)> = (0..n)
-        .map(|i| (format!("mat{i}"), format!("test:{i}")))
-        .collect();
-    w.declare_materials(&names).unwrap();
-    let mut d0 = 0;
-    for len in [1usize, 5, 40, 17].iter().cycle() {
-        let d1 = (d0 + len).min(info.d());
-        let block: Vec<f32> = (d0..d1)
-            .flat_map(|d| rows.iter().map(move |r| r[d]))
-            .collect();
-        w.write_block(d0..d1, &block).unwrap();
-        d0 = d1;
-        if d0 == info.d() {
-            break;
+    // At index 4 (above the horizon) material "b" is too big for f16 and "c" is not finite:
+    // the error names "b"; with the two swapped it names "b" as not finite.
+    for (b, c, non_finite) in [(7.0e4, f32::NAN, false), (f32::INFINITY, -7.0e4, true)] {
+        let mut w = StoreWriter::create(&path, info.clone(), opts16.clone()).unwrap();
+        w.declare_materials(&[("a", "s"), ("b", "s"), ("c", "s")])
+            .unwrap();
+        let mut block = vec![0.25f32; 6 * 3];
+        block[4 * 3 + 1] = b;
+        block[4 * 3 + 2] = c;
+        let e = w.write_block(0..6, &block).unwrap_err();
+        match &e {
+            Error::NonFiniteValue {
+                material, index, ..
+            } => {
+                assert!(non_finite, "{e}");
+                assert_eq!((material.as_str(), *index), ("b", 4));
+            }
+            e => {
+                assert!(!non_finite, "{e}");
+                let text = e.to_string();
+                assert!(
+                    text.contains("material \"b\": value 70000 at index 4"),
+                    "{text}"
+                );
+                assert!(text.contains("exceeds the f16 range"), "{text}");
+            }
         }
+        names_file(&e, &path);
+        assert!(w.finish().is_err());
+        assert!(only_file(t.path()).is_empty());
     }
-    let hb = w.finish().unwrap();
-    let (sa, sb) = (Store::open(&a).unwrap(), Store::open(&b).unwrap());
-    assert_eq!(read_all(&sa), read_all(&sb));
-    // Same statistics up to summation order.
-    for (x, y) in sa.header().materials.iter().zip(&hb.materials) {
-        assert_eq!((&x.name, &x.source), (&y.name, &y.source));
-        let (p, q) = (&x.stats, &y.stats);
-        assert_eq!(
-            (p.count, p.min, p.max, p.negatives),
-            (q.count, q.min, q.max, q.negatives)
-        );
-        assert!((p.sum_sq - q.sum_sq).abs() < 1e-9 * p.sum_sq);
-        assert!((p.mean - q.mean).abs() < 1e-12);
-    }
-    assert_eq!(sa.header().checksum, sb.header().checksum);
 }
 
 #[test]

@@ -511,27 +511,34 @@ impl StoreWriter {
             )));
         }
         // Validate and gather statistics before touching any state.
-        let mut stats = vec![ValueStats::default(); n];
-        let mut sums = vec![0.0f64; n];
+        let mut block = BlockStats::new(n);
+        let f16_max = f32::from(half::f16::MAX);
+        let f16 = self.options.dtype == Dtype::F16;
         for (i, row) in values.chunks_exact(n.max(1)).enumerate() {
             let di = range.start + i;
             let valid = self.mask[di / nc];
-            for (m, &v) in row.iter().enumerate() {
-                if !v.is_finite() {
-                    let e = Error::NonFiniteValue {
-                        path: self.path.clone(),
-                        material: self.materials[m].name.clone(),
-                        index: di,
-                        value: v,
-                    };
-                    return self.fail(e);
+            let bad = row.iter().any(|v| !v.is_finite())
+                || (f16 && valid && row.iter().any(|v| v.abs() > f16_max));
+            if bad {
+                // The first offence in material order, as reported value by value.
+                for (m, &v) in row.iter().enumerate() {
+                    if !v.is_finite() {
+                        let e = Error::NonFiniteValue {
+                            path: self.path.clone(),
+                            material: self.materials[m].name.clone(),
+                            index: di,
+                            value: v,
+                        };
+                        return self.fail(e);
+                    }
+                    if let Some(e) = self.check_range(m, di, v, valid) {
+                        return self.fail(e);
+                    }
                 }
-                if let Some(e) = self.check_range(m, di, v, valid) {
-                    return self.fail(e);
-                }
-                accumulate(&mut stats[m], &mut sums[m], v, valid, self.options.dtype);
             }
+            block.add_row(row, valid, self.options.dtype);
         }
+        let (stats, sums) = block.into_stats();
         for (m, (s, sum)) in stats.into_iter().zip(sums).enumerate() {
             let s = close_stats(s, sum);
             self.materials[m].stats.merge(&s);
@@ -755,6 +762,88 @@ fn accumulate(s: &mut ValueStats, sum: &mut f64, v: f32, valid: bool, dtype: Dty
     s.sum_sq += x * x;
     if x < 0.0 {
         s.negatives += 1;
+    }
+}
+
+/// The statistics of a block of index-major rows (all N materials' values at one index), one
+/// lane per material: each row's loop over the materials vectorises, and each material's
+/// statistics take its values in index order, as [`accumulate`] does one value at a time.
+struct BlockStats {
+    min: Vec<f64>,
+    max: Vec<f64>,
+    sum: Vec<f64>,
+    sum_sq: Vec<f64>,
+    negatives: Vec<u64>,
+    flushed_to_zero: Vec<u64>,
+    zeroed_below_horizon: Vec<u64>,
+    valid_rows: u64,
+}
+
+impl BlockStats {
+    fn new(n: usize) -> Self {
+        let empty = ValueStats::default();
+        Self {
+            min: vec![empty.min; n],
+            max: vec![empty.max; n],
+            sum: vec![0.0; n],
+            sum_sq: vec![0.0; n],
+            negatives: vec![0; n],
+            flushed_to_zero: vec![0; n],
+            zeroed_below_horizon: vec![0; n],
+            valid_rows: 0,
+        }
+    }
+
+    /// Adds one row of finite inputs (in range for `dtype`), stored as `dtype` stores them.
+    #[inline]
+    fn add_row(&mut self, row: &[f32], valid: bool, dtype: Dtype) {
+        if !valid {
+            for (z, &v) in self.zeroed_below_horizon.iter_mut().zip(row) {
+                *z += u64::from(v != 0.0);
+            }
+            return;
+        }
+        self.valid_rows += 1;
+        match dtype {
+            Dtype::F32 => self.add_valid(row, |v| v),
+            Dtype::F16 => self.add_valid(row, |v| Dtype::F16.round(v)),
+        }
+    }
+
+    #[inline(always)]
+    fn add_valid(&mut self, row: &[f32], round: impl Fn(f32) -> f32) {
+        let n = row.len();
+        let (min, max) = (&mut self.min[..n], &mut self.max[..n]);
+        let (sum, sum_sq) = (&mut self.sum[..n], &mut self.sum_sq[..n]);
+        let (negatives, flushed) = (&mut self.negatives[..n], &mut self.flushed_to_zero[..n]);
+        for m in 0..n {
+            let v = row[m];
+            let stored = round(v);
+            flushed[m] += u64::from(stored == 0.0 && v != 0.0);
+            let x = f64::from(stored);
+            min[m] = min[m].min(x);
+            max[m] = max[m].max(x);
+            sum[m] += x;
+            sum_sq[m] += x * x;
+            negatives[m] += u64::from(x < 0.0);
+        }
+    }
+
+    /// Per material: its statistics (without the mean) and the sum of its valid values.
+    fn into_stats(self) -> (Vec<ValueStats>, Vec<f64>) {
+        let stats = (0..self.min.len())
+            .map(|m| ValueStats {
+                count: self.valid_rows,
+                min: self.min[m],
+                max: self.max[m],
+                mean: 0.0,
+                sum_sq: self.sum_sq[m],
+                negatives: self.negatives[m],
+                zeroed_below_horizon: self.zeroed_below_horizon[m],
+                flushed_to_zero: self.flushed_to_zero[m],
+            })
+            .collect();
+        (stats, self.sum)
     }
 }
 
