@@ -231,6 +231,50 @@ pub const RECIPROCITY_BINS: usize = 32;
 /// Bins a decade of [`ImportReport::non_reciprocal_hist`].
 const RECIPROCITY_BINS_PER_DECADE: f64 = 8.0;
 
+/// The bin of [`ImportReport::non_reciprocal_hist`] that relative part `r` falls in, by its
+/// definition: `floor((log10 r + 4) * 8)`, in `0..RECIPROCITY_BINS`.
+fn reciprocity_bin_by_log(r: f64) -> usize {
+    let x = (r.log10() + 4.0) * RECIPROCITY_BINS_PER_DECADE;
+    // (`as` saturates: NaN and negative x land in bin 0.)
+    (x as usize).min(RECIPROCITY_BINS - 1)
+}
+
+/// The bin of `r`, as [`reciprocity_bin_by_log`] gives it, without a logarithm: the number of
+/// bin boundaries at or below `r` (comparisons that vectorise; a `log10` was ~10 % of a
+/// Neural-BRDF import). The boundaries are the smallest values the definition puts in each
+/// bin, found once by bisection over the bits of positive `f64`s, then one `+inf` to make
+/// 32 lanes.
+#[inline]
+fn reciprocity_bin(r: f64) -> usize {
+    static BOUNDARIES: std::sync::OnceLock<[f64; RECIPROCITY_BINS]> = std::sync::OnceLock::new();
+    let boundaries = BOUNDARIES.get_or_init(|| {
+        std::array::from_fn(|k| {
+            if k + 1 == RECIPROCITY_BINS {
+                return f64::INFINITY;
+            }
+            // The smallest positive r in bin k + 1 or above (1.0 is in the last bin).
+            let (mut lo, mut hi) = (0u64, 1f64.to_bits());
+            while hi - lo > 1 {
+                let mid = lo + (hi - lo) / 2;
+                if reciprocity_bin_by_log(f64::from_bits(mid)) > k {
+                    hi = mid;
+                } else {
+                    lo = mid;
+                }
+            }
+            f64::from_bits(hi)
+        })
+    });
+    let mut below = [0u64; 4];
+    for four in boundaries.chunks_exact(4) {
+        for (b, &t) in below.iter_mut().zip(four) {
+            *b += u64::from(t <= r);
+        }
+    }
+    // (At most 31: r = +inf is not a relative part.)
+    (below.iter().sum::<u64>() as usize).min(RECIPROCITY_BINS - 1)
+}
+
 impl ImportReport {
     /// An empty report (min = +inf, max = -inf).
     pub fn new() -> Self {
@@ -296,10 +340,7 @@ impl ImportReport {
             let size = a.abs() + b.abs();
             if size > 0.0 {
                 let r = (a - b).abs() / size;
-                let x = (r.log10() + 4.0) * RECIPROCITY_BINS_PER_DECADE;
-                // (`as` saturates: NaN and negative x land in bin 0.)
-                let bin = (x as usize).min(RECIPROCITY_BINS - 1);
-                self.non_reciprocal_hist[bin] += 1;
+                self.non_reciprocal_hist[reciprocity_bin(r)] += 1;
             }
         }
         stored
@@ -550,6 +591,46 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn reciprocity_bins_without_a_logarithm_match_the_definition() {
+        let same = |r: f64| assert_eq!(reciprocity_bin(r), reciprocity_bin_by_log(r), "r = {r:e}");
+        for r in [
+            0.0,
+            f64::MIN_POSITIVE,
+            5e-324,
+            1e-300,
+            1e-4,
+            0.5,
+            1.0,
+            f64::NAN,
+        ] {
+            same(r);
+        }
+        assert_eq!(reciprocity_bin(0.0), 0);
+        assert_eq!(reciprocity_bin(1.0), RECIPROCITY_BINS - 1);
+        // Every value within 4096 ulps of each boundary (where a logarithm's rounding
+        // decides), and each bin reached.
+        let mut reached = [false; RECIPROCITY_BINS];
+        for k in 1..RECIPROCITY_BINS {
+            let t = 10f64
+                .powf(k as f64 / RECIPROCITY_BINS_PER_DECADE - 4.0)
+                .to_bits();
+            for bits in t - 4096..=t + 4096 {
+                same(f64::from_bits(bits));
+            }
+            reached[reciprocity_bin(f64::from_bits(t + 4096))] = true;
+        }
+        assert!(reached[1..].iter().all(|&r| r), "{reached:?}");
+        // Log-uniform values over [1e-6, 1].
+        let mut s = 0x9E37_79B9_7F4A_7C15u64;
+        for _ in 0..200_000 {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            same(10f64.powf(-6.0 * (s >> 11) as f64 / (1u64 << 53) as f64));
+        }
+    }
 
     #[test]
     fn record_clamps_and_counts() {
