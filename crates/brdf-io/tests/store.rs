@@ -1029,12 +1029,52 @@ fn writer_rejects_non_finite_and_bad_lengths_and_leaves_nothing() {
         dtype: Dtype::F16,
         ..Default::default()
     };
-    let mut w = StoreWriter::create(&path, info.clone(), opts16).unwrap();
+    let mut w = StoreWriter::create(&path, info.clone(), opts16.clone()).unwrap();
     let mut row = vec![0.5f32; info.d()];
     row[0] = 7.0e4; // cell 0 is above the horizon
     let e = w.add_material("big", "s", &row).unwrap_err();
     assert!(e.to_string().contains("exceeds the f16 range"), "{e}");
     drop(w);
+    // The first offence in index order is the one reported, whichever its kind, and a big
+    // value below the horizon (stored as 0) is none.
+    let below = info.grid.validity_mask().iter().position(|v| !v).unwrap() * 3;
+    for (big, nan, first_is_nan) in [(5, 7, false), (7, 5, true), (below, 5, true)] {
+        let mut w = StoreWriter::create(&path, info.clone(), opts16.clone()).unwrap();
+        let mut row = vec![0.5f32; info.d()];
+        row[big] = -7.0e4;
+        row[nan] = f32::NAN;
+        let mut m = w.begin_material("m", "s").unwrap();
+        let e = m
+            .write(&row[..2])
+            .and_then(|_| m.write(&row[2..]))
+            .unwrap_err();
+        match &e {
+            Error::NonFiniteValue { index, .. } => {
+                assert!(first_is_nan, "{e}");
+                assert_eq!(*index, nan);
+            }
+            e => {
+                assert!(!first_is_nan, "{e}");
+                assert!(
+                    e.to_string().contains(&format!("at index {big} exceeds")),
+                    "{e}"
+                );
+            }
+        }
+    }
+    let mut w = StoreWriter::create(&path, info.clone(), opts16.clone()).unwrap();
+    let mut row = vec![0.0f32; info.d()];
+    row[below] = 7.0e4;
+    let h = {
+        w.add_material("m", "s", &row).unwrap();
+        w.finish().unwrap()
+    };
+    assert_eq!(h.materials[0].stats.zeroed_below_horizon, 1);
+    assert_eq!(
+        Store::open(&path).unwrap().header().materials[0].stats.max,
+        0.0
+    );
+    std::fs::remove_file(&path).unwrap();
     // Too many values, too few values, duplicate names, empty store, grid mismatch.
     let mut w = StoreWriter::create(&path, info.clone(), StoreOptions::default()).unwrap();
     assert!(w.add_material("m", "s", &vec![0.0; info.d() + 1]).is_err());

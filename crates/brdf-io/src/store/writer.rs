@@ -868,28 +868,40 @@ impl MaterialWriter<'_> {
             ));
             return w.fail(e);
         }
+        // Checked value by value (for the first offence in index order) only when a
+        // vectorised look finds a suspect.
+        let f16_max = f32::from(half::f16::MAX);
+        let suspect = values.iter().any(|v| !v.is_finite())
+            || (w.options.dtype == Dtype::F16 && values.iter().any(|v| v.abs() > f16_max));
         self.buf.clear();
-        self.buf.reserve(values.len() * 4);
+        self.buf.resize(values.len() * 4, 0);
         let mut sum = 0.0;
         let mut stats = ValueStats::default();
-        for (i, &v) in values.iter().enumerate() {
-            let di = self.written + i;
-            if !v.is_finite() {
-                let e = Error::NonFiniteValue {
-                    path: w.path.clone(),
-                    material: w.materials[self.index].name.clone(),
-                    index: di,
-                    value: v,
-                };
-                return w.fail(e);
-            }
-            let valid = w.mask[di / nc];
-            if let Some(e) = w.check_range(self.index, di, v, valid) {
-                return w.fail(e);
+        let (mut cell, mut channel) = (self.written / nc, self.written % nc);
+        for (i, (&v, out)) in values.iter().zip(self.buf.chunks_exact_mut(4)).enumerate() {
+            let valid = w.mask[cell];
+            if suspect {
+                let di = self.written + i;
+                if !v.is_finite() {
+                    let e = Error::NonFiniteValue {
+                        path: w.path.clone(),
+                        material: w.materials[self.index].name.clone(),
+                        index: di,
+                        value: v,
+                    };
+                    return w.fail(e);
+                }
+                if let Some(e) = w.check_range(self.index, di, v, valid) {
+                    return w.fail(e);
+                }
             }
             accumulate(&mut stats, &mut sum, v, valid, w.options.dtype);
             let v = if valid { v } else { 0.0 };
-            self.buf.extend_from_slice(&v.to_le_bytes());
+            out.copy_from_slice(&v.to_le_bytes());
+            channel += 1;
+            if channel == nc {
+                (cell, channel) = (cell + 1, 0);
+            }
         }
         self.stats.merge(&close_stats(stats, sum));
         let Mode::Materials { scratch, current } = &mut w.mode else {
