@@ -315,9 +315,17 @@ impl StoreWriter {
         Err(e)
     }
 
-    /// An error when `v` (kept, i.e. above the horizon) does not fit the storage type.
-    #[inline]
-    fn check_range(&self, m: usize, index: usize, v: f32, valid: bool) -> Option<Error> {
+    /// The error of value `v` of material `m` at `index` (`valid`: above the horizon, so
+    /// kept), if any: not finite, or kept and beyond the storage type's range.
+    fn check_value(&self, m: usize, index: usize, v: f32, valid: bool) -> Option<Error> {
+        if !v.is_finite() {
+            return Some(Error::NonFiniteValue {
+                path: self.path.clone(),
+                material: self.materials[m].name.clone(),
+                index,
+                value: v,
+            });
+        }
         let max = f32::from(half::f16::MAX);
         (valid && self.options.dtype == Dtype::F16 && v.abs() > max)
             .then(|| self.beyond_f16(m, index, v))
@@ -522,16 +530,7 @@ impl StoreWriter {
             if bad {
                 // The first offence in material order, as reported value by value.
                 for (m, &v) in row.iter().enumerate() {
-                    if !v.is_finite() {
-                        let e = Error::NonFiniteValue {
-                            path: self.path.clone(),
-                            material: self.materials[m].name.clone(),
-                            index: di,
-                            value: v,
-                        };
-                        return self.fail(e);
-                    }
-                    if let Some(e) = self.check_range(m, di, v, valid) {
+                    if let Some(e) = self.check_value(m, di, v, valid) {
                         return self.fail(e);
                     }
                 }
@@ -880,20 +879,8 @@ impl MaterialWriter<'_> {
         let (mut cell, mut channel) = (self.written / nc, self.written % nc);
         for (i, (&v, out)) in values.iter().zip(self.buf.chunks_exact_mut(4)).enumerate() {
             let valid = w.mask[cell];
-            if suspect {
-                let di = self.written + i;
-                if !v.is_finite() {
-                    let e = Error::NonFiniteValue {
-                        path: w.path.clone(),
-                        material: w.materials[self.index].name.clone(),
-                        index: di,
-                        value: v,
-                    };
-                    return w.fail(e);
-                }
-                if let Some(e) = w.check_range(self.index, di, v, valid) {
-                    return w.fail(e);
-                }
+            if suspect && let Some(e) = w.check_value(self.index, self.written + i, v, valid) {
+                return w.fail(e);
             }
             accumulate(&mut stats, &mut sum, v, valid, w.options.dtype);
             let v = if valid { v } else { 0.0 };
