@@ -517,8 +517,9 @@ impl StagingDir {
                 let entry = entry.ok()?;
                 let name = entry.file_name().into_string().ok()?;
                 let ours = name.starts_with(&prefix) && name.ends_with(".tmp");
-                (ours && entry.file_type().ok()?.is_dir() && entry.path() != dir.path())
-                    .then(|| entry.path())
+                // By name: `tempdir_in` makes a relative `dest` absolute in `dir.path()`.
+                let mine = Some(entry.file_name().as_os_str()) == dir.path().file_name();
+                (ours && !mine && entry.file_type().ok()?.is_dir()).then(|| entry.path())
             })
             .collect();
         leftovers.sort();
@@ -781,6 +782,26 @@ mod tests {
             std::fs::read_to_string(killed.join("report.md")).unwrap(),
             "half"
         );
+    }
+
+    /// A run given a relative output directory does not report its own staging directory
+    /// (it did: `tempdir_in` makes the path absolute, and the listing's paths stay relative).
+    #[test]
+    fn staging_in_a_relative_directory_is_not_its_own_leftover() {
+        let dir = tempfile::tempdir().unwrap();
+        // The same directory, relative to the working directory (no chdir: tests share it).
+        let cwd = std::env::current_dir().unwrap();
+        let up = cwd.components().count() - 1;
+        let mut out: PathBuf = std::iter::repeat_n("..", up).collect();
+        out.push(dir.path().strip_prefix("/").unwrap());
+        out.push("out");
+        assert!(out.is_relative(), "{}", out.display());
+        let first = StagingDir::create(&out).unwrap();
+        assert!(first.leftovers().is_empty(), "{:?}", first.leftovers());
+        // The check still sees another run's directory.
+        let second = StagingDir::create(&out).unwrap();
+        assert_eq!(second.leftovers().len(), 1);
+        assert_eq!(second.leftovers()[0].file_name(), first.path().file_name());
     }
 
     #[test]
