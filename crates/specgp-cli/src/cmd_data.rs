@@ -415,7 +415,9 @@ pub struct InfoArgs {
     path: PathBuf,
     /// Print the header (store) or the model without its Gram matrix as JSON, with the file
     /// size and the checksum verdict (store) or whether the model's dataset is present and
-    /// matches (model); for an RGL file its description, channels and table sizes.
+    /// matches (model: `dataset_checksum_verified`, true when the dataset is intact and the
+    /// one the model was fitted on; `dataset_intact`, null when it does not open); for an RGL
+    /// file its description, channels and table sizes.
     #[arg(long)]
     json: bool,
 }
@@ -562,10 +564,11 @@ fn model_info(args: &InfoArgs) -> anyhow::Result<()> {
     let model = gplvm::Model::load(&args.path)?;
     let ds = &model.dataset;
     let ds_path = model.dataset_path(&args.path);
+    let mut recorded = false;
     let (dataset, verified) = match Store::open(&ds_path) {
         Ok(store) => {
             let verified = store.verify_checksum();
-            let recorded = store.header().checksum.to_string() == ds.checksum;
+            recorded = store.header().checksum.to_string() == ds.checksum;
             let status = match (&verified, recorded) {
                 (Err(brdf_io::Error::StoreChecksum { .. }), _) => {
                     "present, checksum MISMATCH: its payload is damaged".to_owned()
@@ -579,7 +582,7 @@ fn model_info(args: &InfoArgs) -> anyhow::Result<()> {
         Err(e) => (format!("not usable: {e}"), None),
     };
     // After the summary: a damaged dataset fails the command, as `info DATA.sbrdf` does.
-    let checked = verified.as_ref().map(Result::is_ok);
+    let intact = verified.as_ref().map(Result::is_ok);
     let verdict = match verified {
         Some(Err(e)) => {
             let model = args.path.display();
@@ -595,7 +598,10 @@ fn model_info(args: &InfoArgs) -> anyhow::Result<()> {
             o.remove("gram");
             o.insert("path".into(), args.path.display().to_string().into());
             o.insert("dataset_status".into(), dataset.into());
-            o.insert("dataset_checksum_verified".into(), checked.into());
+            // Usable by the model: intact, and the data it was fitted on.
+            let usable = intact == Some(true) && recorded;
+            o.insert("dataset_checksum_verified".into(), usable.into());
+            o.insert("dataset_intact".into(), intact.into());
         }
         outln!("{}", serde_json::to_string_pretty(&v)?);
         return verdict;

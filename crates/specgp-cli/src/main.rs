@@ -38,7 +38,8 @@ enum Command {
     /// Import measured BRDF files into a dataset store (`.sbrdf`).
     Import(cmd_data::ImportArgs),
     /// Describe a dataset store (materials, grid, channels, D, bytes, layout, checksum) or a
-    /// model file (`.toml`: the fit, and whether its dataset is still there).
+    /// model file (`.toml`: the fit, and whether its dataset is still there; a damaged dataset
+    /// fails the command, a missing or replaced one is reported).
     Info(cmd_data::InfoArgs),
     /// Export materials of a dataset store as an N x D `.npy` matrix (streamed).
     Export(cmd_data::ExportArgs),

@@ -165,6 +165,7 @@ fn model_log_likelihood_matches_recomputation_from_export() {
         );
         assert_eq!(info["dataset_status"], "present, checksum verified");
         assert_eq!(info["dataset_checksum_verified"], true);
+        assert_eq!(info["dataset_intact"], true);
         assert!(info.get("gram").is_none());
         let text = specgp(&["info", model_name], d);
         assert!(
@@ -543,9 +544,6 @@ fn sample_writes_csv_to_stdout_with_a_dash() {
     );
 }
 
-/// SIGTERM (or SIGINT, SIGHUP) while an output is being written: exit status 130 and no
-/// `.NAME.XXXXXX.tmp` file left behind (a signal skips the destructors that delete it).
-#[cfg(unix)]
 /// A store damaged after it was written is refused by the commands that read all of it
 /// (`export`, `fit`) instead of leaving as wrong numbers or a model that records the checksum
 /// of other data; nothing is written.
@@ -601,10 +599,62 @@ fn damaged_stores_are_refused_by_export_and_fit() {
     assert_eq!(out.status.code(), Some(1));
     let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(info["dataset_checksum_verified"], false);
+    assert_eq!(info["dataset_intact"], false);
     assert!(
         String::from_utf8_lossy(&out.stderr).contains("the dataset of model good.toml"),
         "{out:?}"
     );
+}
+
+/// `info MODEL` on a model whose dataset was replaced (intact, other data) or removed: the
+/// summary says so, the JSON's `dataset_checksum_verified` is false (it said true for a
+/// replaced one, whose checksum is not the model's) and the exit status is 0 (only a damaged
+/// dataset fails the command); `predict` refuses the replaced one.
+#[test]
+fn info_model_reports_a_replaced_or_missing_dataset() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    synth_small(d, "400:700:100");
+    specgp(
+        &["fit", "data.sbrdf", "--latent-dim", "2", "--out", "m.toml"],
+        d,
+    );
+    let replaced = [
+        "synth",
+        "--out",
+        "data.sbrdf",
+        "--grid",
+        "8,8,16",
+        "--wavelengths",
+        "400:700:100",
+        "--seed",
+        "3",
+    ];
+    specgp(&replaced, d);
+    let out = run(&["info", "m.toml", "--json"], d);
+    assert_eq!(out.status.code(), Some(0), "{out:?}");
+    let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        info["dataset_status"],
+        "present, DIFFERENT checksum (refitted or replaced?)"
+    );
+    assert_eq!(info["dataset_checksum_verified"], false);
+    assert_eq!(info["dataset_intact"], true);
+    let e = specgp_fails(&["predict", "m.toml", "--at", "0,0", "--out", "p.npy"], d);
+    assert!(e.contains("checksum"), "{e}");
+    std::fs::remove_file(d.join("data.sbrdf")).unwrap();
+    let out = run(&["info", "m.toml", "--json"], d);
+    assert_eq!(out.status.code(), Some(0), "{out:?}");
+    let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(
+        info["dataset_status"]
+            .as_str()
+            .unwrap()
+            .starts_with("not usable: "),
+        "{info}"
+    );
+    assert_eq!(info["dataset_checksum_verified"], false);
+    assert_eq!(info["dataset_intact"], serde_json::Value::Null);
 }
 
 /// Runs the shell command `script` in `dir` with `$SPECGP` set to the binary: its status.
