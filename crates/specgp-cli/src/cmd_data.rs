@@ -673,7 +673,8 @@ pub struct ExportArgs {
     #[arg(long)]
     out: PathBuf,
     /// Comma-separated material names to export (default: all); names that contain commas
-    /// (e.g. `gp-exact@0.1,0.2` from `specgp predict`) are recognised whole.
+    /// (e.g. `gp-exact@0.1,0.2` from `specgp predict`) are recognised whole, and a list that
+    /// the store's names read in more than one way is refused as ambiguous.
     #[arg(long)]
     materials: Option<String>,
     /// Element type of the `.npy`.
@@ -696,31 +697,93 @@ fn npy_header(descr: &str, rows: usize, cols: usize) -> Vec<u8> {
     h
 }
 
-/// The rows named by a comma-separated `list`; a name may itself contain commas: from each
-/// position, the shortest run of comma-separated pieces that names a material is taken.
+/// The store rows that the comma-separated `list` names. Names may contain commas, so the
+/// list is split at the commas that leave every piece a material name (as given, else
+/// trimmed): a list that reads in no way is an error naming the piece where the furthest
+/// reading stops, one that reads in several ways is ambiguous.
 fn select_materials(store: &Store, list: &str) -> anyhow::Result<Vec<usize>> {
     let pieces: Vec<&str> = list.split(',').collect();
-    let mut rows = Vec::new();
-    let mut i = 0;
-    while i < pieces.len() {
-        let found = (i..pieces.len()).find_map(|j| {
-            // The name as given (names may start or end with spaces), else trimmed.
-            let name = pieces[i..=j].join(",");
-            let row = store
-                .material_index(&name)
-                .or_else(|_| store.material_index(name.trim()));
-            row.ok().map(|r| (r, j))
-        });
-        match found {
-            Some((row, j)) => {
-                rows.push(row);
-                i = j + 1;
+    let k = pieces.len();
+    let all = store.names();
+    let longest = all.iter().map(|n| n.len()).max().unwrap_or(0);
+    let index: std::collections::HashMap<&str, usize> =
+        all.iter().enumerate().map(|(r, n)| (&**n, r)).collect();
+    // names[i]: (row, j) for each name made of pieces i..=j (no longer than the longest name).
+    let names: Vec<Vec<(usize, usize)>> = (0..k)
+        .map(|i| {
+            let mut name = String::new();
+            let mut found = Vec::new();
+            for (j, piece) in pieces.iter().enumerate().skip(i) {
+                if j > i {
+                    name.push(',');
+                }
+                name.push_str(piece);
+                if name.trim().len() > longest {
+                    break;
+                }
+                if let Some(&r) = index.get(name.as_str()).or_else(|| index.get(name.trim())) {
+                    found.push((r, j));
+                }
             }
-            // The error of the first piece alone (it names the store and the known names).
-            None => return Err(store.material_index(pieces[i].trim()).unwrap_err().into()),
+            found
+        })
+        .collect();
+    // readings[i]: in how many ways pieces i.. read as names (saturating at 2).
+    let mut readings = vec![0u8; k + 1];
+    readings[k] = 1;
+    for i in (0..k).rev() {
+        readings[i] = names[i]
+            .iter()
+            .fold(0u8, |n, &(_, j)| n.saturating_add(readings[j + 1]).min(2));
+    }
+    // A reading: at each name, the first (or last) choice that still reads to the end.
+    let walk = |last: bool| {
+        let (mut i, mut rows) = (0, Vec::new());
+        while i < k {
+            let mut viable = names[i].iter().filter(|&&(_, j)| readings[j + 1] > 0);
+            let &(row, j) = if last {
+                viable.next_back()
+            } else {
+                viable.next()
+            }
+            .expect("a position with readings has a viable name");
+            rows.push(row);
+            i = j + 1;
+        }
+        rows
+    };
+    match readings[0] {
+        0 => {
+            // The last piece, among those a reading can reach, that no name starts with (the
+            // one the furthest reading stops at; its error names the store and suggests a near
+            // name); there is one, since no reading reaches the end.
+            let mut reachable = vec![false; k + 1];
+            reachable[0] = true;
+            let mut stuck = None;
+            for i in 0..k {
+                if reachable[i] {
+                    names[i].iter().for_each(|&(_, j)| reachable[j + 1] = true);
+                    if names[i].is_empty() {
+                        stuck = Some(i);
+                    }
+                }
+            }
+            let piece = stuck.map_or(list, |i| pieces[i]);
+            Err(store.material_index(piece.trim()).unwrap_err().into())
+        }
+        1 => Ok(walk(false)),
+        _ => {
+            let show = |rows: Vec<usize>| {
+                format!("{:?}", rows.iter().map(|&r| all[r]).collect::<Vec<_>>())
+            };
+            bail!(
+                "--materials {list:?} is ambiguous: the store's material names (which may \
+                 contain commas) read it as {} or as {}",
+                show(walk(false)),
+                show(walk(true))
+            )
         }
     }
-    Ok(rows)
 }
 
 /// Runs `specgp export`: streams the chosen rows out chunk by chunk (bounded memory).
@@ -835,6 +898,43 @@ mod tests {
             "{e}"
         );
         assert!(ensure_unique_names(&file_names(&files[..2])).is_ok());
+    }
+
+    /// `--materials` reads names that hold commas whole, in the one way the store's names
+    /// allow; a list that reads in two ways is refused as ambiguous (the shortest name was
+    /// taken first: "a,b" failed on "b" although "a,b" is a material).
+    #[test]
+    fn material_lists_split_where_the_names_allow() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.sbrdf");
+        let info = brdf_io::StoreInfo {
+            grid: brdf_io::AngularGrid::new(2, 2, 4).unwrap(),
+            channels: brdf_io::Channels::Rgb,
+        };
+        let mut w = brdf_io::StoreWriter::create(&path, info, Default::default()).unwrap();
+        let d = w.d();
+        for name in ["a", "a,b", "b,c", "c", " x "] {
+            w.add_material(name, "test", &vec![0.0; d]).unwrap();
+        }
+        w.finish().unwrap();
+        let store = Store::open(&path).unwrap();
+        let rows = |list: &str| select_materials(&store, list).map_err(|e| e.to_string());
+        assert_eq!(rows("a,b"), Ok(vec![1]));
+        assert_eq!(rows("c,a,b"), Ok(vec![3, 1]));
+        assert_eq!(rows("a, x ,c"), Ok(vec![0, 4, 3]));
+        assert_eq!(rows("a , c"), Ok(vec![0, 3]));
+        assert!(rows("a,b,c,a").unwrap_err().contains("is ambiguous"));
+        let e = rows("a,b,c").unwrap_err();
+        assert!(
+            e.contains("is ambiguous")
+                && e.contains(r#"["a,b", "c"]"#)
+                && e.contains(r#"["a", "b,c"]"#),
+            "{e}"
+        );
+        let e = rows("a,b,d").unwrap_err();
+        assert!(e.contains("\"d\"") && e.contains("s.sbrdf"), "{e}");
+        let e = rows("q,a").unwrap_err();
+        assert!(e.contains("\"q\""), "{e}");
     }
 
     #[test]
