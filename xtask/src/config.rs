@@ -583,12 +583,11 @@ impl PipelineParams {
                 l.starts
             )));
         }
-        if let Some(f) = l.files.iter().find(|f| {
-            !matches!(
-                f.extension().and_then(|e| e.to_str()),
-                Some("bsdf" | "binary")
-            )
-        }) {
+        if let Some(f) = l
+            .files
+            .iter()
+            .find(|f| !brdf_io::has_extension(f, "bsdf") && !brdf_io::has_extension(f, "binary"))
+        {
             return Err(bad(format!(
                 "locate.files: {} is not an RGL .bsdf or a MERL .binary file",
                 f.display()

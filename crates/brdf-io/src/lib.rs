@@ -21,6 +21,29 @@ pub mod store;
 pub mod tensor;
 
 pub use error::{Error, Result};
+
+/// Whether `path` ends in `.EXT` for `ext` = `EXT`, in any ASCII case: `GOLD.BSDF` is an RGL
+/// file and `P.NPY` an `.npy` output, as everywhere else a file's kind is read from its name.
+pub fn has_extension(path: impl AsRef<std::path::Path>, ext: &str) -> bool {
+    let name = path.as_ref().as_os_str().as_encoded_bytes();
+    let n = ext.len() + 1;
+    name.len() >= n
+        && name[name.len() - n] == b'.'
+        && name[name.len() - ext.len()..].eq_ignore_ascii_case(ext.as_bytes())
+}
 pub use grid::{AngularGrid, ChannelSelection, Channels, HalfDiff, Vec3};
 pub use source::{Blend, BrdfSource, ImportReport};
 pub use store::{Store, StoreInfo, StoreOptions, StoreWriter};
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn extensions_match_in_any_case_and_only_whole() {
+        use super::has_extension as has;
+        assert!(has("a/GOLD.BSDF", "bsdf") && has("gold.bsdf", "bsdf") && has("x.Npy", "npy"));
+        assert!(has(".sbrdf", "sbrdf"), "as `ends_with(\".sbrdf\")` read it");
+        assert!(!has("gold.bsdf.tmp", "bsdf") && !has("goldbsdf", "bsdf"));
+        assert!(!has("a.sbrdf", "brdf") && !has("", "npy") && !has("npy", "npy"));
+        assert!(has("é.NPY", "npy") && !has("a.npé", "npy"));
+    }
+}

@@ -89,8 +89,12 @@ impl Target {
                 describe_channels(channels)
             ),
         };
-        let (values, report) = match path.extension().and_then(|e| e.to_str()) {
-            Some("bsdf") => {
+        let (bsdf, merl) = (
+            brdf_io::has_extension(path, "bsdf"),
+            brdf_io::has_extension(path, "binary"),
+        );
+        let (values, report) = match (bsdf, merl) {
+            (true, _) => {
                 let bsdf = brdf_io::rgl::RglBsdf::open(path)?;
                 let rgb_file = *bsdf.native_channels() == Channels::Rgb;
                 if rgb_file != rgb_model {
@@ -104,7 +108,7 @@ impl Target {
                 report.ensure_finite(&spec)?;
                 (values, report)
             }
-            Some("binary") => {
+            (_, true) => {
                 if !rgb_model {
                     return Err(mismatch("a MERL file (R,G,B)"));
                 }

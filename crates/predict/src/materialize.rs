@@ -34,15 +34,17 @@ impl OutputFormat {
         if path == Path::new(brdf_io::output::STDOUT) {
             return Ok(Self::Npy);
         }
-        match path.extension().and_then(|e| e.to_str()) {
-            Some("sbrdf") => Ok(Self::Sbrdf),
-            Some("npy") => Ok(Self::Npy),
-            Some("binary") => Ok(Self::Merl),
-            _ => Err(Error::Output {
-                path: path.to_owned(),
-                reason: "unknown output format: expected a .sbrdf, .npy or .binary file".into(),
-            }),
-        }
+        [
+            ("sbrdf", Self::Sbrdf),
+            ("npy", Self::Npy),
+            ("binary", Self::Merl),
+        ]
+        .into_iter()
+        .find_map(|(ext, format)| brdf_io::has_extension(path, ext).then_some(format))
+        .ok_or_else(|| Error::Output {
+            path: path.to_owned(),
+            reason: "unknown output format: expected a .sbrdf, .npy or .binary file".into(),
+        })
     }
 }
 

@@ -478,10 +478,10 @@ fn bsdf_info(args: &InfoArgs) -> anyhow::Result<()> {
 /// Runs `specgp info`: a model file (`.toml`), an RGL file (`.bsdf`) or a dataset store
 /// (anything else).
 pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
-    if args.path.extension().is_some_and(|e| e == "toml") {
+    if brdf_io::has_extension(&args.path, "toml") {
         return model_info(args);
     }
-    if args.path.extension().is_some_and(|e| e == "bsdf") {
+    if brdf_io::has_extension(&args.path, "bsdf") {
         return bsdf_info(args);
     }
     let store = Store::open(&args.path)?;

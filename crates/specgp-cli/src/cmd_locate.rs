@@ -84,17 +84,19 @@ fn pending_targets(pred: &Predictor, spec: &str) -> anyhow::Result<Vec<Pending>>
     let (grid, channels) = (pred.grid(), pred.channels());
     let (store_path, only) = match brdf_io::store::parse_store_spec(spec) {
         Some((path, name)) => (Some(path), Some(name)),
-        None if spec.ends_with(".sbrdf") => (Some(PathBuf::from(spec)), None),
+        None if brdf_io::has_extension(spec, "sbrdf") => (Some(PathBuf::from(spec)), None),
         None => (None, None),
     };
     let Some(path) = store_path else {
         let path = Path::new(spec);
-        match path.extension().and_then(|e| e.to_str()) {
-            Some("bsdf" | "binary") => {}
-            _ => bail!(
+        if !["bsdf", "binary"]
+            .iter()
+            .any(|e| brdf_io::has_extension(path, e))
+        {
+            bail!(
                 "unknown TARGET {spec:?}: expected DATA.sbrdf, DATA.sbrdf:MATERIAL, an RGL .bsdf \
                  file or a MERL .binary file"
-            ),
+            );
         }
         return Ok(vec![Pending::File(spec.to_owned())]);
     };

@@ -217,7 +217,7 @@ pub fn open_model_source(
     kind: PredictorKind,
 ) -> Option<anyhow::Result<PredictedMaterial>> {
     let (model, point) = spec.rsplit_once('@')?;
-    if !model.ends_with(".toml") {
+    if !brdf_io::has_extension(model, "toml") {
         return None;
     }
     Some((|| {
@@ -346,10 +346,7 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
     }
     let inputs = crate::paths::model_inputs(&args.model, args.dataset.as_deref());
     crate::paths::ensure_output_is_not_an_input(&args.out, &inputs)?;
-    let bsdf = args
-        .out
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("bsdf"));
+    let bsdf = brdf_io::has_extension(&args.out, "bsdf");
     if !bsdf && let Some(flag) = args.rgl.given() {
         bail!(
             "{flag} applies to a `.bsdf` output, not to {}",
@@ -458,8 +455,8 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
         return crate::cmd_convert::write_bsdf(&material, material.label(), &args.out, &args.rgl);
     }
     let pb = bar(pred.store().n_chunks() as u64, "predict");
-    let spectral_merl = args.out.extension().is_some_and(|e| e == "binary")
-        && material.channels() != &Channels::Rgb;
+    let spectral_merl =
+        brdf_io::has_extension(&args.out, "binary") && material.channels() != &Channels::Rgb;
     let report = if spectral_merl {
         write_spectral_merl(&material, &args.out, &pb)
     } else {

@@ -105,8 +105,10 @@ pub fn open_source(
     }
     let path = Path::new(spec);
     // Any case: `PW.BSDF` is an RGL file too.
-    let ext = path.extension().and_then(|e| e.to_str());
-    match ext.map(str::to_ascii_lowercase).as_deref() {
+    let ext = ["bsdf", "binary", "sbrdf", "toml"]
+        .into_iter()
+        .find(|e| brdf_io::has_extension(path, e));
+    match ext {
         Some("bsdf") => {
             let mut bsdf = brdf_io::rgl::RglBsdf::open(path)?;
             if let Some(ch) = wavelengths {

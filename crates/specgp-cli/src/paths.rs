@@ -22,9 +22,7 @@ pub fn source_file(source: &str) -> PathBuf {
 /// be `-` (standard output) or an existing special file (`/dev/null`, a FIFO: written into as
 /// it is, see `brdf_io::output`). `what` names the format in the message.
 pub fn ensure_extension(out: &Path, ext: &str, what: &str) -> anyhow::Result<()> {
-    let matches = out
-        .extension()
-        .is_some_and(|e| e.to_string_lossy().eq_ignore_ascii_case(ext));
+    let matches = brdf_io::has_extension(out, ext);
     let special = std::fs::metadata(out).is_ok_and(|m| !m.is_file() && !m.is_dir());
     if !matches && !special && out != Path::new(brdf_io::output::STDOUT) {
         bail!(
@@ -134,7 +132,7 @@ pub fn model_inputs<'a>(model: &'a Path, dataset: Option<&'a Path>) -> Vec<&'a P
 /// `predict::Predictor::open` does) and the store's sidecar of forward-transformed values.
 /// Empty when `path` is not a readable model file.
 pub fn model_data_files(path: &Path) -> Vec<PathBuf> {
-    if path.extension().is_none_or(|e| e != "toml") {
+    if !brdf_io::has_extension(path, "toml") {
         return Vec::new();
     }
     match gplvm::Model::load(path) {

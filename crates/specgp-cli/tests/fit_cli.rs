@@ -66,6 +66,53 @@ fn fitted_small(dir: &Path, wavelengths: &str) {
     );
 }
 
+/// A file's kind is read from its extension in any case, by every command (`predict --out
+/// P.NPY` and `sample DATA.SBRDF:MATERIAL` were refused while `fit --out M.TOML` was not).
+#[test]
+fn upper_case_extensions_name_the_same_kinds() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    fitted_small(d, "400:700:100");
+    std::fs::rename(d.join("data.sbrdf"), d.join("DATA.SBRDF")).unwrap();
+    specgp(
+        &["fit", "DATA.SBRDF", "--out", "M.TOML", "--latent-dim", "2"],
+        d,
+    );
+    specgp(&["predict", "M.TOML", "--at", "0,0", "--out", "P.NPY"], d);
+    specgp(&["predict", "M.TOML", "--at", "0,0", "--out", "p.npy"], d);
+    assert_eq!(
+        std::fs::read(d.join("P.NPY")).unwrap(),
+        std::fs::read(d.join("p.npy")).unwrap()
+    );
+    specgp(&["predict", "M.TOML", "--at", "0,0", "--out", "P.Sbrdf"], d);
+    assert_eq!(
+        brdf_io::Store::open(d.join("P.Sbrdf"))
+            .unwrap()
+            .n_materials(),
+        1
+    );
+    std::fs::write(d.join("dirs.csv"), "0,0,1,0,0,1\n").unwrap();
+    let stored = specgp(
+        &[
+            "sample",
+            "DATA.SBRDF:paper_white",
+            "--dirs",
+            "dirs.csv",
+            "--out",
+            "-",
+        ],
+        d,
+    );
+    assert!(stored.starts_with("400,500,600,700\n"), "{stored}");
+    let predicted = specgp(
+        &["sample", "M.TOML@0,0", "--dirs", "dirs.csv", "--out", "-"],
+        d,
+    );
+    assert!(predicted.starts_with("400,500,600,700\n"), "{predicted}");
+    let info = specgp(&["info", "M.TOML"], d);
+    assert!(info.contains("(model)"), "{info}");
+}
+
 #[test]
 fn model_log_likelihood_matches_recomputation_from_export() {
     let dir = tempfile::tempdir().unwrap();

@@ -30,7 +30,7 @@ pub fn parse_store_spec(spec: &str) -> Option<(PathBuf, String)> {
     // The first `:` after a `.sbrdf` path: the material name may contain `:` itself.
     spec.match_indices(':').find_map(|(i, _)| {
         let (path, name) = (&spec[..i], &spec[i + 1..]);
-        (path.ends_with(".sbrdf") && !name.is_empty())
+        (crate::has_extension(path, "sbrdf") && !name.is_empty())
             .then(|| (PathBuf::from(path), name.to_owned()))
     })
 }
