@@ -453,8 +453,9 @@ impl Channels {
         Ok(Self::Spectral(wavelengths_nm))
     }
 
-    /// Parses a wavelength specification: `START:END:STEP` in nm (END included when it falls on
-    /// the step; at most [`MAX_WAVELENGTHS`]) or a comma-separated list.
+    /// Parses a wavelength specification: `START:END:STEP` in nm (END included; it must be
+    /// START plus a whole number of STEPs; at most [`MAX_WAVELENGTHS`]) or a comma-separated
+    /// list.
     pub fn parse_wavelengths(spec: &str) -> Result<Self> {
         let bad = |why: &str| Error::InvalidGrid {
             reason: format!(
@@ -476,6 +477,17 @@ impl Channels {
             if steps.is_nan() || steps >= MAX_WAVELENGTHS as f64 {
                 return Err(bad(&format!(
                     "more than {MAX_WAVELENGTHS} wavelengths (is STEP meant to be that small?)"
+                )));
+            }
+            // END must be on the step: a range that stopped short of it silently (400:700:70
+            // gave 400-680 nm) hid a typo or a wrong STEP.
+            let last = start + steps * step;
+            if (end - start) / step - steps > 1e-6 {
+                return Err(bad(&format!(
+                    "END {end} is not START plus a whole number of STEPs (the range would \
+                     stop at {last}); write {start}:{last}:{step}, or choose a STEP that \
+                     divides {}",
+                    end - start
                 )));
             }
             let count = steps as usize + 1;
@@ -853,6 +865,19 @@ mod tests {
             Channels::parse_wavelengths("360:1000:0.25").unwrap().len(),
             2561
         );
+        assert_eq!(
+            Channels::parse_wavelengths("400:700:2.5").unwrap().labels()[120],
+            "700"
+        );
+        assert_eq!(Channels::parse_wavelengths("550:550:10").unwrap().len(), 1);
+        // An END off the step is refused, naming where the range would stop.
+        for (spec, stop) in [("400:700:70", "680"), ("400:700:1000", "400")] {
+            let e = Channels::parse_wavelengths(spec).unwrap_err().to_string();
+            assert!(
+                e.contains(spec) && e.contains(&format!("would stop at {stop})")),
+                "{e}"
+            );
+        }
     }
 
     proptest! {
