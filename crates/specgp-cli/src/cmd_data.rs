@@ -213,12 +213,16 @@ fn import_each(
     Ok(())
 }
 
-/// Refuses repeated material names before anything is read or written (a store's names are
-/// unique; the store writer would only find out after resampling the earlier sources).
-/// `names` pairs each name with the source it comes from.
+/// Refuses repeated or invalid material names before anything is read or written (a store's
+/// names are unique and free of control characters; the store writer would only find out
+/// after resampling the earlier sources). `names` pairs each name with the source it comes
+/// from.
 fn ensure_unique_names(names: &[(String, String)]) -> anyhow::Result<()> {
     let mut seen: std::collections::HashMap<&str, &str> = std::collections::HashMap::new();
     for (name, source) in names {
+        if let Err(why) = brdf_io::store::check_material_name(name) {
+            bail!("{source}: {why}");
+        }
         if let Some(first) = seen.insert(name, source) {
             bail!(
                 "{source}: the material name {name:?} is already taken by {first} (names in a \
@@ -275,7 +279,14 @@ fn import_nbrdf(args: &NbrdfArgs) -> anyhow::Result<()> {
             .iter()
             .map(|n| {
                 set.find(n.trim()).with_context(|| {
-                    format!("{}: no material named {:?}", args.names.display(), n.trim())
+                    let names: Vec<&str> = set.names().iter().map(String::as_str).collect();
+                    let hint = brdf_io::error::closest_name(n.trim(), &names)
+                        .map_or(String::new(), |c| format!("; did you mean {c:?}?"));
+                    format!(
+                        "{}: no material named {:?}{hint}",
+                        args.names.display(),
+                        n.trim()
+                    )
                 })
             })
             .collect::<anyhow::Result<_>>()?,

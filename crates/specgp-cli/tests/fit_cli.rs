@@ -1134,6 +1134,28 @@ fn imports_of_real_data_and_a_broken_network() {
     let e = specgp_fails(&import("broken.npy", "broken.sbrdf"), d);
     assert!(e.contains("NaN or infinite") && e.contains(names[1]), "{e}");
     assert!(!d.join("broken.sbrdf").exists());
+    // Names are checked before any network is evaluated (a control character in the last
+    // name was found after all of them), and --only suggests a near name.
+    std::fs::write(d.join("bad-names.txt"), format!("{}\nx\u{7}y\n", names[0])).unwrap();
+    let mut bad = import("good.npy", "bad.sbrdf");
+    bad[4] = "bad-names.txt";
+    let e = specgp_fails(&bad, d);
+    assert!(
+        e.contains("bad-names.txt line 2") && e.contains("control character"),
+        "{e}"
+    );
+    let mut only = import("good.npy", "only.sbrdf");
+    let typo = &names[0][..names[0].len() - 1];
+    only.extend(["--only", typo]);
+    let e = specgp_fails(&only, d);
+    assert!(
+        e.contains(&format!(
+            "no material named {typo:?}; did you mean {:?}?",
+            names[0]
+        )),
+        "{e}"
+    );
+    assert!(!d.join("bad.sbrdf").exists() && !d.join("only.sbrdf").exists());
     // A real RGL file through `import rgl`.
     let bsdf = shared.join("rgl-rgb/paper_white_rgb.bsdf");
     let bsdf = bsdf.to_str().unwrap();

@@ -31,7 +31,7 @@ mod writer;
 pub use gram::{F64_BLOCK, GramTransform, Identity};
 pub use reader::{OpenOptions, ReadMode, Store};
 pub use sample::{StoreMaterial, parse_store_spec};
-pub use writer::{MaterialWriter, StoreWriter};
+pub use writer::{MaterialWriter, StoreWriter, check_material_name};
 
 use serde::{Deserialize, Serialize};
 

@@ -346,14 +346,8 @@ impl StoreWriter {
     }
 
     fn add_entry(&mut self, name: &str, source: &str) -> Result<()> {
-        if name.is_empty() {
-            return Err(self.usage("material names must not be empty".into()));
-        }
-        if name.chars().any(char::is_control) {
-            return Err(self.usage(format!(
-                "material name {name:?} contains a newline or another control character \
-                 (names are listed one per line)"
-            )));
+        if let Err(why) = check_material_name(name) {
+            return Err(self.usage(why));
         }
         if self.materials.iter().any(|m| m.name == name) {
             return Err(self.usage(format!("duplicate material name {name:?}")));
@@ -738,6 +732,22 @@ impl StoreWriter {
         }
         Ok((sink, chunk_len))
     }
+}
+
+/// Whether `name` may name a material in a store (non-empty, no newline or other control
+/// character: names are listed one per line); the reason when not. Importers check their
+/// names with it before reading any data.
+pub fn check_material_name(name: &str) -> std::result::Result<(), String> {
+    if name.is_empty() {
+        return Err("material names must not be empty".into());
+    }
+    if name.chars().any(char::is_control) {
+        return Err(format!(
+            "material name {name:?} contains a newline or another control character (names \
+             are listed one per line)"
+        ));
+    }
+    Ok(())
 }
 
 /// Adds input `v` to the statistics of the values as `dtype` stores them.
