@@ -196,6 +196,52 @@ impl SpectralWeights {
     }
 }
 
+/// The fractions of the observer's X, Y and Z responses under `illuminant` (integrals of
+/// `cmf * S` over 360-780 nm) that fall between the first and last of `wavelengths` (nm,
+/// increasing): beyond them a spectrum is extrapolated as constant, so colours computed from
+/// samples that miss much of the visible range are guesses.
+pub fn visible_coverage(wavelengths: &[f64], illuminant: Illuminant) -> [f64; 3] {
+    let (Some(&lo), Some(&hi)) = (wavelengths.first(), wavelengths.last()) else {
+        return [0.0; 3];
+    };
+    let (mut inside, mut all) = ([0.0; 3], [0.0; 3]);
+    for s in 0..=420 {
+        let nm = cie::START_NM + f64::from(s);
+        let e = illuminant.spd(nm);
+        let c = cmf(nm);
+        for i in 0..3 {
+            all[i] += c[i] * e;
+            if (lo..=hi).contains(&nm) {
+                inside[i] += c[i] * e;
+            }
+        }
+    }
+    [0, 1, 2].map(|i| inside[i] / all[i])
+}
+
+/// A warning when `wavelengths` cover less than 95 % of any of the observer's X, Y, Z
+/// responses ([`visible_coverage`]): colours from them are mostly extrapolated.
+pub fn coverage_warning(wavelengths: &[f64], illuminant: Illuminant) -> Option<String> {
+    let cover = visible_coverage(wavelengths, illuminant);
+    let least = cover.iter().copied().fold(f64::INFINITY, f64::min);
+    (least < 0.95).then(|| {
+        let (lo, hi) = (wavelengths[0], wavelengths[wavelengths.len() - 1]);
+        let span = if lo == hi {
+            format!("{lo} nm")
+        } else {
+            format!("{lo}-{hi} nm")
+        };
+        format!(
+            "the colour comes from spectral channels at {span}, where only {:.0} % / {:.0} % / \
+             {:.0} % of the observer's X / Y / Z response under {illuminant} lies: it is \
+             extrapolated from the end samples (held constant beyond them) and can be far off",
+            100.0 * cover[0],
+            100.0 * cover[1],
+            100.0 * cover[2]
+        )
+    })
+}
+
 /// The spectral channels the observer needs under `illuminant` (non-zero weight), when they are
 /// fewer than all: a source restricted to them renders the same colours with fewer lookups.
 /// `None` for RGB channels or when every wavelength is needed.
@@ -378,6 +424,13 @@ impl ColourPipeline {
             ]),
             brdf_io::Channels::Spectral(wl) => {
                 let w = SpectralWeights::new(wl, self.illuminant)?;
+                static WARNED: std::sync::atomic::AtomicBool =
+                    std::sync::atomic::AtomicBool::new(false);
+                if let Some(why) = coverage_warning(wl, self.illuminant)
+                    && !WARNED.swap(true, std::sync::atomic::Ordering::Relaxed)
+                {
+                    tracing::warn!("{why} (said once per run)");
+                }
                 let m = &self.to_rgb;
                 let row = |r: usize| -> Vec<f64> {
                     (0..w.len())
@@ -659,6 +712,40 @@ mod tests {
                 .unwrap()
                 .is_none()
         );
+    }
+
+    /// Samples that miss much of the visible range are flagged (a 500 nm store rendered gold
+    /// grey, an 800-1000 nm one white, without a word); the usual samplings are not.
+    #[test]
+    fn samplings_that_miss_the_visible_range_are_flagged() {
+        let range = |a: f64, b: f64, step: f64| -> Vec<f64> {
+            (0..=((b - a) / step).round() as usize)
+                .map(|i| a + i as f64 * step)
+                .collect()
+        };
+        for ill in [Illuminant::D65, Illuminant::A] {
+            for wl in [
+                range(360.0, 1000.0, 20.0),
+                range(400.0, 700.0, 50.0),
+                range(380.0, 780.0, 5.0),
+            ] {
+                let c = visible_coverage(&wl, ill);
+                assert!(c.iter().all(|&f| f > 0.98 && f <= 1.0), "{wl:?}: {c:?}");
+                assert_eq!(coverage_warning(&wl, ill), None);
+            }
+            assert_eq!(visible_coverage(&range(800.0, 1000.0, 50.0), ill), [0.0; 3]);
+            for wl in [vec![500.0], vec![425.0, 475.0], range(800.0, 1000.0, 50.0)] {
+                let w = coverage_warning(&wl, ill).unwrap();
+                assert!(
+                    w.contains("extrapolated") && w.contains(&ill.to_string()),
+                    "{w}"
+                );
+            }
+        }
+        // Blue-poor samplings lose Z first.
+        let c = visible_coverage(&range(480.0, 700.0, 20.0), Illuminant::D65);
+        assert!(c[1] > 0.9 && c[2] < 0.5, "{c:?}");
+        assert!(coverage_warning(&range(480.0, 700.0, 20.0), Illuminant::D65).is_some());
     }
 
     #[test]
