@@ -1352,7 +1352,27 @@ fn rgl_files_of_predictions_and_stored_materials_read_back_as_their_source() {
     assert!(p_text.contains("0.1") && p_text != q_text, "{p_text}");
     let bsdf = brdf_io::rgl::RglBsdf::open(d.join("p.bsdf")).unwrap();
     assert_eq!(bsdf.channels().len(), 7);
-    specgp(&["convert", "data.sbrdf:metal_gold", "--out", "g.bsdf"], d);
+    let (_, err) = specgp_outputs(&["convert", "data.sbrdf:metal_gold", "--out", "g.bsdf"], d);
+    assert!(!err.contains("warning"), "{err}");
+    // Sizes given too small: written as asked, with a warning (there was none).
+    let tiny = [
+        "convert",
+        "data.sbrdf:metal_gold",
+        "--theta-samples",
+        "2",
+        "--resolution",
+        "2",
+        "--out",
+        "tiny.bsdf",
+    ];
+    let (_, err) = specgp_outputs(&tiny, d);
+    assert!(
+        err.contains(
+            "warning: the check error is above --tolerance 0.05 with the sizes given \
+                      (--theta-samples 2 --resolution 2)"
+        ),
+        "{err}"
+    );
     let info = specgp(&["info", "p.bsdf"], d);
     assert!(
         info.contains("theta_i        12 (degrees: 0.0, ")
