@@ -37,12 +37,12 @@ pub enum Error {
         reason: String,
     },
     /// A thumbnail of a latent map failed (the source made for its point, or its render).
-    #[error("the thumbnail at latent point ({}, {}): {source}", point[0], point[1])]
+    #[error("the thumbnail at latent point ({}, {}): {cause}", point[0], point[1])]
     Thumbnail {
         /// Its latent point (the map's first two axes).
         point: [f64; 2],
-        /// What failed.
-        source: Box<Error>,
+        /// What failed (in the message, not the error chain: `{:#}` printed it twice).
+        cause: Box<Error>,
     },
     /// A picture could not be written.
     #[error("writing {path}: {reason}")]

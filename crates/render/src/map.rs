@@ -463,7 +463,7 @@ pub fn latent_map(
                 f(p).and_then(|src| render_sphere(src.as_ref(), &opts.sphere))
                     .map_err(|e| Error::Thumbnail {
                         point: p,
-                        source: Box::new(e),
+                        cause: Box::new(e),
                     })
             })
             .collect::<Result<_>>()?;

@@ -477,8 +477,10 @@ fn failed_thumbnails_name_their_latent_point() {
     );
     assert!(matches!(
         err,
-        Error::Thumbnail { point: [0.75, 0.75], ref source } if matches!(**source, Error::NonFiniteValue { .. })
+        Error::Thumbnail { point: [0.75, 0.75], ref cause } if matches!(**cause, Error::NonFiniteValue { .. })
     ));
+    // Its cause is in its message only, so a chain printed with `{:#}` says it once.
+    assert!(std::error::Error::source(&err).is_none());
 }
 
 /// Out-of-range scene numbers are errors that quote them readably: 1e300 as `1e300`, not as
