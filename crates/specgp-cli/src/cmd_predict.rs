@@ -477,6 +477,12 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
         report.seconds
     );
     if report.negatives > 0 {
+        // (A linear blend has no GP in it: its weight beyond [0, 1] extrapolates.)
+        let unconstrained = if args.lerp.is_some() {
+            "a blend with a weight outside [0, 1] is not constrained to be non-negative"
+        } else {
+            "the GP mean is not constrained to be non-negative"
+        };
         errln!(
             "warning: {} {} values are negative (min {:e} 1/sr): {}",
             report.negatives,
@@ -487,15 +493,11 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
             },
             report.min_value,
             match (report.format == predict::OutputFormat::Merl, spectral_merl) {
-                (true, true) => {
-                    "negative predicted spectra or out-of-gamut colours; the MERL file stores 0 \
-                     there"
-                }
-                (true, false) => {
-                    "the GP mean is not constrained to be non-negative; the MERL file stores 0 \
-                     there"
-                }
-                _ => "the GP mean is not constrained to be non-negative",
+                (true, true) => "negative predicted spectra or out-of-gamut colours; the MERL \
+                                 file stores 0 there"
+                    .to_owned(),
+                (true, false) => format!("{unconstrained}; the MERL file stores 0 there"),
+                _ => unconstrained.to_owned(),
             }
         );
     }

@@ -1986,6 +1986,17 @@ fn lerp_reads_names_with_commas() {
     lerp("a,b,a,0.75", 1, 0, 0.75);
     lerp(" pad , c , 0.5", 5, 3, 0.5);
     lerp("a, c,1", 0, 3, 1.0);
+    // A weight beyond [0, 1] extrapolates below zero; the warning blames the blend, not a GP.
+    let (_, err) = specgp_outputs(
+        &["predict", "m.toml", "--lerp", "a,c,-5", "--out", "l.npy"],
+        d,
+    );
+    assert!(
+        err.contains("values are negative")
+            && err.contains("a blend with a weight outside [0, 1]")
+            && !err.contains("GP mean"),
+        "{err}"
+    );
     let e = specgp_fails(
         &["predict", "m.toml", "--lerp", "a,b,c,0.5", "--out", "x.npy"],
         d,
