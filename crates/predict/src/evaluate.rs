@@ -1142,6 +1142,10 @@ pub fn evaluate(
         let res: Vec<LooMaterial> = (0..n)
             .into_par_iter()
             .map(|h| {
+                // A refit's warnings (a fit at its cap) name the material held out; WARN level,
+                // so that the span shows whenever its warnings do.
+                let name = &model.materials[h].name;
+                let _span = tracing::warn_span!("leave-one-out", held_out = %name).entered();
                 let warm = options.warm_start.then(|| (x_full.as_ref(), &params));
                 // Named: the refit's own message counts the N - 1 materials it was given.
                 let r = leave_one_out(g.as_ref(), d_eff, &config, h, options.starts, warm).map_err(
