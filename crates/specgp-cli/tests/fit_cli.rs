@@ -1498,6 +1498,22 @@ fn fits_stopped_at_their_cap_are_reported() {
     assert!(!said.contains("stopped at its cap"), "{said}");
     let stop = Model::load(&d.join("f.toml")).unwrap().fit.stop_reason;
     assert!(!stop.starts_with("reached"), "{stop}");
+    // Leave-one-out refits at their cap say whose refit it was.
+    let (_, said) = specgp_outputs(
+        &[
+            "evaluate",
+            "f.toml",
+            "--loo",
+            "--cold",
+            "--refit-iterations",
+            "2",
+        ],
+        d,
+    );
+    assert!(
+        said.contains("leave-one-out{held_out=paper_white}: the optimiser stopped at its cap"),
+        "{said}"
+    );
 }
 
 /// Natural mistakes get messages that say how to fix them: a store or a model named without
