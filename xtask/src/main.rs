@@ -37,13 +37,22 @@ enum Command {
     },
 }
 
-/// A path as given, or relative to the project root when it does not exist as given.
-fn locate(path: &Path, root: &Path) -> PathBuf {
+/// A path as given, or relative to the project root when it does not exist as given; an
+/// error naming both places when it is in neither (it named the root's only).
+fn locate(path: &Path, root: &Path) -> anyhow::Result<PathBuf> {
     if path.exists() || path.is_absolute() {
-        path.to_owned()
-    } else {
-        root.join(path)
+        return Ok(path.to_owned());
     }
+    let in_root = root.join(path);
+    if in_root.exists() {
+        return Ok(in_root);
+    }
+    let here = std::env::current_dir().map_or_else(|_| ".".into(), |d| d.display().to_string());
+    anyhow::bail!(
+        "{}: no such file here ({here}) or in the project root ({})",
+        path.display(),
+        root.display()
+    )
 }
 
 fn main() -> std::process::ExitCode {
@@ -79,7 +88,7 @@ fn run(cli: &Cli) -> anyhow::Result<()> {
     let root = project_root();
     match &cli.command {
         Command::Pipeline { config, out } => {
-            let path = locate(config, &root);
+            let path = locate(config, &root)?;
             let config = PipelineConfig::load(&path, &root)?;
             let out = out
                 .clone()
@@ -96,7 +105,7 @@ fn run(cli: &Cli) -> anyhow::Result<()> {
             );
         }
         Command::Bench { config, out } => {
-            let path = locate(config, &root);
+            let path = locate(config, &root)?;
             let bench = xtask::bench::BenchConfig::load(&path)?;
             let out = out
                 .clone()

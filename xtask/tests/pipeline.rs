@@ -802,6 +802,23 @@ fn the_binary_takes_the_project_root_of_its_environment() {
         "{err}"
     );
     assert!(!root.join("out").exists());
+    // A config in neither place: the error names both (it named the root's only).
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_xtask"))
+        .args(["pipeline", "configs/nowhere.toml"])
+        .env("CARGO_MANIFEST_DIR", root.join("xtask"))
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains(&format!(
+            "configs/nowhere.toml: no such file here ({}) or in the project root ({})",
+            dir.path().display(),
+            root.display()
+        )),
+        "{err}"
+    );
 }
 
 /// A pipeline creates no output directory (nor files) inside a directory whose mode bits say
