@@ -42,7 +42,8 @@ pub struct RglArgs {
     #[arg(
         long,
         default_value_t = brdf_io::rgl::DEFAULT_TOLERANCE,
-        conflicts_with_all = ["resolution", "theta_samples"]
+        conflicts_with_all = ["resolution", "theta_samples"],
+        allow_negative_numbers = true
     )]
     pub tolerance: f64,
     /// Description stored in a written `.bsdf` file (default: the source).

@@ -27,7 +27,7 @@ pub struct RenderArgs {
     /// right towards up. Default: 45,135 (upper left) for a sphere; for a plane, behind the
     /// sample 26 degrees short of the mirror direction of the view at its centre (130,90 at
     /// --view 78), so that glossy samples show their sheen.
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub light: Option<String>,
     /// Illuminant of spectral sources: D65, D50 or A. Colours are white-balanced to D65 (Bradford),
     /// as a camera would: a white material looks white under each; coloured ones shift.
@@ -45,7 +45,7 @@ pub struct RenderArgs {
     pub shape: String,
     /// With `--shape plane`: angle in degrees between the sample's normal and the view
     /// direction at its centre (0..89; default 78).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub view: Option<f64>,
     /// The environment: the dim uniform one integrated as `table` (pre-integrated over the
     /// view angle once per render through the half vector, accurate on the sharpest lobes;

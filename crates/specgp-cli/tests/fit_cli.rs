@@ -1534,6 +1534,35 @@ fn source_mistakes_say_how_to_fix_them() {
     );
     let e = specgp_fails(&["render", "m.toml", "--out", "x.png"], d);
     assert!(e.contains("m.toml@X1,...,Xq"), "{e}");
+    // Negative numbers reach the commands' own checks (clap took them for flags and suggested
+    // `-- -30,0`).
+    for (args, said) in [
+        (
+            &[
+                "render",
+                "data.sbrdf:paper_white",
+                "--light",
+                "-30,0",
+                "--out",
+                "x.png",
+            ][..],
+            "--light \"-30,0\": THETA must be in [0, 180] degrees",
+        ),
+        (
+            &[
+                "convert",
+                "data.sbrdf:paper_white",
+                "--tolerance",
+                "-1",
+                "--out",
+                "x.bsdf",
+            ],
+            "tolerance -1 must be finite and > 0",
+        ),
+    ] {
+        let e = specgp_fails(args, d);
+        assert!(e.contains(said) && !e.contains("tip"), "{e}");
+    }
     // A model whose dataset moved: each command names a remedy it has (`render`, `sample` and
     // `convert` have no --dataset, which the message used to suggest).
     let model_text = std::fs::read_to_string(d.join("m.toml")).unwrap();
