@@ -20,10 +20,10 @@ pub enum Error {
     },
     /// An output that its file system cannot hold (checked before writing it).
     #[error(
-        "{path}: {what} needs about {needed} bytes ({:.1} GB), but its file system has {available} \
-         bytes ({:.1} GB) free",
-        *needed as f64 / 1e9,
-        *available as f64 / 1e9
+        "{path}: {what} needs about {needed} bytes ({}), but its file system has {available} \
+         bytes ({}) free",
+        readable_bytes(*needed),
+        readable_bytes(*available)
     )]
     NoSpace {
         /// The output.
@@ -37,8 +37,8 @@ pub enum Error {
     },
     /// Working memory that could not be allocated (a store of very many materials).
     #[error(
-        "{path}: not enough memory for {what}: it needs {needed} bytes ({:.1} GB)",
-        *needed as f64 / 1e9
+        "{path}: not enough memory for {what}: it needs {needed} bytes ({})",
+        readable_bytes(*needed)
     )]
     OutOfMemory {
         /// The store being processed.
@@ -235,6 +235,20 @@ pub fn did_you_mean(closest: &Option<String>) -> String {
         .map_or_else(String::new, |c| format!("; did you mean {c:?}?"))
 }
 
+/// `bytes` in the largest decimal unit that keeps a leading digit (`598 kB`, `1.2 GB`): a
+/// small size read "0.0 GB".
+pub fn readable_bytes(bytes: u64) -> String {
+    let b = bytes as f64;
+    match [(1e12, "TB"), (1e9, "GB"), (1e6, "MB"), (1e3, "kB")]
+        .into_iter()
+        .find(|&(unit, _)| b >= unit)
+    {
+        Some((unit, name)) if b / unit < 10.0 => format!("{:.1} {name}", b / unit),
+        Some((unit, name)) => format!("{:.0} {name}", b / unit),
+        None => format!("{bytes} B"),
+    }
+}
+
 /// The candidate most like `name`, for "did you mean" hints: one equal to it but for case,
 /// else the only one containing it (or contained in it; none when several do), else the most
 /// similar by Jaro-Winkler similarity if that is at least 0.8. `None` when nothing is close.
@@ -274,6 +288,25 @@ mod tests {
         assert_eq!(quantity(1, "material"), "1 material");
         assert_eq!(quantity(51, "material"), "51 materials");
         assert_eq!(quantity(0, "channel"), "0 channels");
+    }
+
+    #[test]
+    fn byte_counts_read_in_a_unit_that_keeps_a_digit() {
+        assert_eq!(readable_bytes(512), "512 B");
+        assert_eq!(readable_bytes(598_000), "598 kB");
+        assert_eq!(readable_bytes(1_226_941_477), "1.2 GB");
+        assert_eq!(readable_bytes(23_000_000_000), "23 GB");
+        let e = Error::NoSpace {
+            path: "a.sbrdf".into(),
+            what: "the store".into(),
+            needed: 700_000,
+            available: 600_000,
+        };
+        assert!(
+            e.to_string().contains("700000 bytes (700 kB)")
+                && e.to_string().contains("(600 kB) free"),
+            "{e}"
+        );
     }
 
     #[test]
