@@ -191,7 +191,16 @@ fn import_each(
             let (name, source, values, report) = load(i)?;
             report.ensure_finite(&format!("{name} ({source})"))?;
             pb.set_message(name.clone());
-            pb.suspend(|| errln!("{name}: {report}"));
+            pb.suspend(|| {
+                errln!("{name}: {report}");
+                // (A MERL file whose samples are all negative, i.e. all "not measured".)
+                if report.values > 0 && report.max <= 0.0 {
+                    errln!(
+                        "warning: {name} ({source}): every stored value is 0 (a black material: \
+                         nothing in the source was measured or positive)"
+                    );
+                }
+            });
             total = total.merge(&report);
             pb.inc(1);
             Ok((name, source, values))

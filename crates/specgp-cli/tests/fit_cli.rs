@@ -1291,6 +1291,36 @@ fn merl_output_of_a_coarse_model_is_on_merls_grid() {
         "{} black cells",
         black.len()
     );
+    // Imported back; a MERL file of nothing but "not measured" (negative) samples imports as
+    // a black material, with a warning (only a count said so).
+    let (_, said) = specgp_outputs(
+        &[
+            "import", "merl", "x.binary", "--grid", "8,8,16", "--out", "x.sbrdf",
+        ],
+        d,
+    );
+    assert!(!said.contains("warning"), "{said}");
+    let mut bytes = std::fs::read(d.join("x.binary")).unwrap();
+    for v in bytes[12..].chunks_exact_mut(8) {
+        v.copy_from_slice(&(-1.0f64).to_le_bytes());
+    }
+    std::fs::write(d.join("none.binary"), bytes).unwrap();
+    let (_, said) = specgp_outputs(
+        &[
+            "import",
+            "merl",
+            "none.binary",
+            "--grid",
+            "8,8,16",
+            "--out",
+            "none.sbrdf",
+        ],
+        d,
+    );
+    assert!(
+        said.contains("warning: none (none.binary): every stored value is 0"),
+        "{said}"
+    );
     std::fs::write(d.join("dirs.csv"), "0.3,0,0.954,-0.3,0,0.954\n").unwrap();
     let csv = specgp(
         &["sample", "x.binary", "--dirs", "dirs.csv", "--out", "-"],
