@@ -149,6 +149,7 @@ pub fn write_bsdf(
 pub fn convert(args: &ConvertArgs) -> anyhow::Result<()> {
     crate::paths::ensure_output_is_not_an_input(&args.out, &[&args.from.file()])?;
     crate::paths::ensure_extension(&args.out, "bsdf", "an RGL tensor file")?;
+    crate::paths::refuse_binary_on_terminal(&args.out, "an RGL tensor file")?;
     let source = args.from.open()?;
     write_bsdf(source.as_ref(), &args.from.source, &args.out, &args.rgl)
 }

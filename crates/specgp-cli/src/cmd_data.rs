@@ -810,6 +810,7 @@ fn select_materials(store: &Store, list: &str) -> anyhow::Result<Vec<usize>> {
 pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
     crate::paths::ensure_output_is_not_an_input(&args.out, &[&args.path])?;
     crate::paths::ensure_extension(&args.out, "npy", "an .npy array")?;
+    crate::paths::refuse_binary_on_terminal(&args.out, "an .npy array")?;
     let store = Store::open(&args.path)?;
     // Export reads every value anyway: damaged data must not leave as numbers.
     store.verify_checksum()?;

@@ -354,6 +354,7 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
         );
     }
     // The format is known from the name: refuse an unknown one before any work.
+    crate::paths::refuse_binary_on_terminal(&args.out, "a predicted material")?;
     if !bsdf && predict::OutputFormat::from_path(&args.out).is_err() {
         bail!(
             "{}: unknown output format: expected a .sbrdf, .npy, .binary or .bsdf file (or - \

@@ -91,6 +91,7 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
     let source = crate::paths::source_file(&args.source);
     crate::paths::ensure_output_is_not_an_input(&args.out, &[&source])?;
     crate::paths::ensure_extension(&args.out, "png", "a PNG image")?;
+    crate::paths::refuse_binary_on_terminal(&args.out, "a PNG image")?;
     let env_mode = parse_env(&args.env)?;
     let plane = match args.shape.as_str() {
         "sphere" => {
@@ -259,6 +260,7 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
     inputs.extend(located_files.iter().map(PathBuf::as_path));
     crate::paths::ensure_output_is_not_an_input(&args.out, &inputs)?;
     crate::paths::ensure_extension(&args.out, "png", "a PNG image")?;
+    crate::paths::refuse_binary_on_terminal(&args.out, "a PNG image")?;
     let env_mode = parse_env(&args.env)?;
     let start = std::time::Instant::now();
     let model = gplvm::Model::load(&args.model)?;

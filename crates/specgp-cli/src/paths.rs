@@ -33,6 +33,24 @@ pub fn ensure_extension(out: &Path, ext: &str, what: &str) -> anyhow::Result<()>
     Ok(())
 }
 
+/// Refuses `-` (standard output) for binary data (`what`: a PNG image, an .npy array, ...)
+/// when standard output is a terminal: the bytes would garble it. Redirected or piped, it
+/// passes.
+pub fn refuse_binary_on_terminal(out: &Path, what: &str) -> anyhow::Result<()> {
+    let terminal = std::io::IsTerminal::is_terminal(&std::io::stdout());
+    refuse_binary_if_terminal(out, what, terminal)
+}
+
+fn refuse_binary_if_terminal(out: &Path, what: &str, terminal: bool) -> anyhow::Result<()> {
+    if terminal && out == Path::new(brdf_io::output::STDOUT) {
+        bail!(
+            "--out -: refusing to write {what} (binary data) to the terminal; redirect standard \
+             output to a file (> FILE) or a pipe, or name a file"
+        );
+    }
+    Ok(())
+}
+
 /// Refuses, before any work is done, an output that is a directory or whose directory does
 /// not exist or cannot be written (the atomic write would otherwise fail at the end, after the
 /// rendering or fitting, naming its temporary file). `-` (standard output) always passes.
@@ -206,6 +224,19 @@ mod tests {
                 .to_string();
             assert!(e.starts_with(bad) && e.contains("must end in .png"), "{e}");
         }
+    }
+
+    #[test]
+    fn binary_data_is_not_written_to_a_terminal() {
+        let e = refuse_binary_if_terminal(Path::new("-"), "a PNG image", true)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("refusing to write a PNG image (binary data) to the terminal"),
+            "{e}"
+        );
+        assert!(refuse_binary_if_terminal(Path::new("-"), "a PNG image", false).is_ok());
+        assert!(refuse_binary_if_terminal(Path::new("x.png"), "a PNG image", true).is_ok());
     }
 
     #[test]
