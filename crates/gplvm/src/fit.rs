@@ -339,16 +339,25 @@ pub fn fit_gram(g: MatRef<'_, f64>, d: usize, config: &FitConfig) -> Result<Fit>
     let (s, data_scale) = scaled_centred_gram(g, d, p.data_scaling)?;
     let n = s.nrows();
     let q = p.latent_dim;
-    if q >= n {
+    // Centred data span at most min(N - 1, D) dimensions (D = 1 value per material spans one).
+    let span = n.saturating_sub(1).min(d);
+    if q > span {
         tracing::warn!(
-            "latent dimension q = {q} for N = {n} materials: centred data span at most N - 1 = \
-             {} dimensions, so the PCA start leaves {} of them at 0 up to rounding (a smaller q \
-             fits the same)",
-            n.saturating_sub(1),
-            q + 1 - n
+            "latent dimension q = {q} for N = {n} materials of D = {d} values: centred data \
+             span at most min(N - 1, D) = {span} dimensions, so the PCA start leaves {} of them \
+             at 0 up to rounding (a smaller q fits the same)",
+            q - span
         );
     }
     let (s2, mu) = (p.amplitude * p.amplitude, p.noise);
+    if mu >= s2 && !p.learn_hyperparameters {
+        tracing::warn!(
+            "noise {mu:e} is at least the kernel's signal variance s^2 = {s2:e}: K is mostly \
+             noise, so where the materials sit hardly changes the likelihood (the fit may stop \
+             at once); with data scaled to unit average variance (the default), a noise well \
+             below 1 (default 1e-4) makes a latent space"
+        );
+    }
     if s2 + mu == s2 {
         tracing::warn!(
             "noise {mu:e} is below the rounding of the kernel's diagonal s^2 + mu = {s2:e}: it \

@@ -1546,6 +1546,47 @@ fn fits_stopped_at_their_cap_are_reported() {
     );
 }
 
+/// Fits that cannot make a latent space say why: a noise at least the signal variance (it
+/// "converged" at once without a word), and more latent dimensions than D values span.
+#[test]
+fn meaningless_fits_are_warned_about() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    synth_small(d, "400:700:100");
+    let (_, said) = specgp_outputs(
+        &["fit", "data.sbrdf", "--noise", "10", "--out", "n.toml"],
+        d,
+    );
+    assert!(
+        said.contains("noise 1e1 is at least the kernel's signal variance s^2 = 1e0"),
+        "{said}"
+    );
+    let (_, said) = specgp_outputs(&["fit", "data.sbrdf", "--out", "ok.toml"], d);
+    assert!(
+        !said.contains("signal variance") && !said.contains("latent dimension"),
+        "{said}"
+    );
+    let one = [
+        "synth",
+        "--grid",
+        "1,1,1",
+        "--wavelengths",
+        "500",
+        "--out",
+        "one.sbrdf",
+    ];
+    specgp(&one, d);
+    let (_, said) = specgp_outputs(
+        &["fit", "one.sbrdf", "--latent-dim", "2", "--out", "one.toml"],
+        d,
+    );
+    assert!(
+        said.contains("latent dimension q = 2 for N = 51 materials of D = 1 values")
+            && said.contains("min(N - 1, D) = 1 dimensions"),
+        "{said}"
+    );
+}
+
 /// Natural mistakes get messages that say how to fix them: a store or a model named without
 /// a material or a point, a point with too few coordinates, an unknown material in --lerp.
 #[test]
