@@ -784,12 +784,16 @@ fn the_binary_takes_the_project_root_of_its_environment() {
          files = [\"a.bsdf\", \"b.bsdf\", \"c.bsdf\"]\n",
     )
     .unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_xtask"))
-        .args(["pipeline", "configs/elsewhere.toml"])
-        .env("CARGO_MANIFEST_DIR", root.join("xtask"))
-        .current_dir(dir.path())
-        .output()
-        .unwrap();
+    // `xtask pipeline CONFIG` run in the temporary directory, with `root` as project root.
+    let pipeline = |config: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_xtask"))
+            .args(["pipeline", config])
+            .env("CARGO_MANIFEST_DIR", root.join("xtask"))
+            .current_dir(dir.path())
+            .output()
+            .unwrap()
+    };
+    let out = pipeline("configs/elsewhere.toml");
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "{err}");
     assert!(
@@ -803,12 +807,7 @@ fn the_binary_takes_the_project_root_of_its_environment() {
     );
     assert!(!root.join("out").exists());
     // A config in neither place: the error names both (it named the root's only).
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_xtask"))
-        .args(["pipeline", "configs/nowhere.toml"])
-        .env("CARGO_MANIFEST_DIR", root.join("xtask"))
-        .current_dir(dir.path())
-        .output()
-        .unwrap();
+    let out = pipeline("configs/nowhere.toml");
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "{err}");
     assert!(
