@@ -789,7 +789,10 @@ fn select_materials(store: &Store, list: &str) -> anyhow::Result<Vec<usize>> {
                 }
             }
             let piece = stuck.map_or(list, |i| pieces[i]);
-            Err(store.material_index(piece.trim()).unwrap_err().into())
+            match store.material_index(piece.trim()) {
+                Err(e) => Err(e.into()),
+                Ok(_) => bail!("--materials {list:?} does not read as material names"),
+            }
         }
         1 => Ok(walk(false)),
         _ => {
