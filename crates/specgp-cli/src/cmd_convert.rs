@@ -118,8 +118,9 @@ pub fn write_bsdf(
         if options.tolerance.is_some() {
             errln!(
                 "warning: the check error is above --tolerance {}: finer tables did not reduce \
-                 it by a quarter (or reached 64 x 64); sharp coats over a diffuse base need \
-                 larger tables at grazing incidence (--theta-samples 128 --resolution 128)",
+                 it by a quarter (or reached 64 x 64); larger ones may (--theta-samples 128 \
+                 --resolution 128: sharp coats over a diffuse base need them at grazing \
+                 incidence)",
                 args.tolerance,
             );
         } else {

@@ -45,7 +45,7 @@ fn refuse_binary_if_terminal(out: &Path, what: &str, terminal: bool) -> anyhow::
     if terminal && out == Path::new(brdf_io::output::STDOUT) {
         bail!(
             "--out -: refusing to write {what} (binary data) to the terminal; redirect standard \
-             output to a file (> FILE) or a pipe, or name a file"
+             output (> FILE) or name a file"
         );
     }
     Ok(())
