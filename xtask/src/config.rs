@@ -725,13 +725,23 @@ fn check_only(only: &[String]) -> std::result::Result<(), String> {
     Ok(())
 }
 
+/// "no material named N", with a near name of `names` when there is one ("did you mean").
+pub fn no_material_named<S: AsRef<str>>(n: &str, names: &[S]) -> String {
+    let names: Vec<&str> = names.iter().map(AsRef::as_ref).collect();
+    match brdf_io::error::closest_name(n, &names) {
+        Some(c) => format!("no material named {n:?}; did you mean {c:?}?"),
+        None => format!("no material named {n:?}"),
+    }
+}
+
 /// Every midpoint names two different materials of `names`.
 fn check_midpoints(midpoints: &[[String; 2]], names: &[String]) -> std::result::Result<(), String> {
     for [a, b] in midpoints {
         for n in [a, b] {
             if !names.contains(n) {
                 return Err(format!(
-                    "predict.midpoints: no material named {n:?} in the data"
+                    "predict.midpoints: {} in the data",
+                    no_material_named(n, names)
                 ));
             }
         }

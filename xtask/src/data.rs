@@ -69,7 +69,8 @@ pub fn build_store(config: &DataConfig, out: &Path) -> Result<(ImportReport, f64
                     .iter()
                     .map(|n| {
                         set.find(n.trim()).ok_or_else(|| {
-                            Error::stage("data", names, format!("no material named {n:?}"))
+                            let known = crate::config::no_material_named(n.trim(), set.names());
+                            Error::stage("data", names, known)
                         })
                     })
                     .collect::<Result<_>>()?,

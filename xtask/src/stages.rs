@@ -113,7 +113,13 @@ pub fn predict_points(
                 .map(|m| m.coords.clone())
                 .ok_or_else(|| Error::Config {
                     path: config.path.clone(),
-                    reason: format!("predict.midpoints: no material named {name:?} in the data"),
+                    reason: format!(
+                        "predict.midpoints: {} in the data",
+                        crate::config::no_material_named(
+                            name,
+                            &model.materials.iter().map(|m| &m.name).collect::<Vec<_>>()
+                        )
+                    ),
                 })
         };
         let (xa, xb) = (find(a)?, find(b)?);

@@ -257,6 +257,10 @@ fn unknown_keys_and_bad_values_are_named() {
             "names one material twice",
         ),
         (
+            base.replace("\"metal_copper\"]]", "\"metal_coper\"]]"),
+            "no material named \"metal_coper\"; did you mean \"metal_copper\"?",
+        ),
+        (
             base.replace(
                 "seed = 0",
                 "seed = 0\nonly = [\"metal_gold\", \"metal_gold\", \"metal_copper\", \"paper_white\"]",
