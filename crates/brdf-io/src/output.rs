@@ -314,6 +314,10 @@ impl AtomicOutput {
         ensure_dir_writable(&dir, Some(&path))?;
         let tmp = builder.tempfile_in(&dir).map_err(io)?;
         let listed = Listed::new(tmp.path());
+        // A killed run's temporary file of this output stays until someone deletes it.
+        if let Ok(leftovers) = other_runs_temporaries(&dir, &prefix, tmp.path(), false) {
+            warn_of_leftovers(&dir, &leftovers, "a temporary file", "temporary files");
+        }
         if let Some(perm) = existing {
             tmp.as_file().set_permissions(perm).map_err(io)?;
         }
@@ -476,6 +480,57 @@ pub fn remove_unfinished_outputs() -> usize {
         .count()
 }
 
+/// The temporary files (`dirs`: directories) named `PREFIX*.tmp` in `dir` other than `mine`:
+/// another run's of the same output, running now or killed (SIGKILL, a power cut) before it
+/// could delete them; sorted.
+fn other_runs_temporaries(
+    dir: &Path,
+    prefix: &str,
+    mine: &Path,
+    dirs: bool,
+) -> std::io::Result<Vec<PathBuf>> {
+    let mut found: Vec<PathBuf> = std::fs::read_dir(dir)?
+        .filter_map(|entry| {
+            let entry = entry.ok()?;
+            let name = entry.file_name().into_string().ok()?;
+            // PREFIX, tempfile's 6 random characters, `.tmp` (not another output's whose name
+            // starts like this one's).
+            let ours = name.starts_with(prefix)
+                && name.ends_with(".tmp")
+                && name.len() == prefix.len() + 6 + ".tmp".len();
+            // By name: `tempdir_in` and `tempfile_in` make a relative directory absolute.
+            let is_mine = Some(entry.file_name().as_os_str()) == mine.file_name();
+            let kind = entry.file_type().ok()?;
+            let kind_ok = if dirs { kind.is_dir() } else { kind.is_file() };
+            (ours && !is_mine && kind_ok).then(|| entry.path())
+        })
+        .collect();
+    found.sort();
+    Ok(found)
+}
+
+/// Warns that `dir` holds `leftovers` (`one` / `many`: what they are) of another run of the
+/// same output. Only reported: deleting a running one would break it.
+fn warn_of_leftovers(dir: &Path, leftovers: &[PathBuf], one: &str, many: &str) {
+    if leftovers.is_empty() {
+        return;
+    }
+    let (what, them) = match leftovers.len() {
+        1 => (one, "it"),
+        _ => (many, "them"),
+    };
+    tracing::warn!(
+        "{} holds {what} of another run of this output (running now, or killed before it could \
+         clean up): {}; delete {them} when no run is using {them}",
+        dir.display(),
+        leftovers
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", "),
+    );
+}
+
 /// A hidden directory (`.NAME.XXXXXX.tmp`) inside an output directory where a run that writes
 /// several files puts them, so that a run that fails or is interrupted leaves the output
 /// directory as it was, and a run that succeeds replaces the earlier run's files as a set
@@ -511,34 +566,14 @@ impl StagingDir {
         // Staging directories of other runs: one running now, or one killed (SIGKILL, a power
         // cut) before it could delete its own. Only reported: deleting a running one would
         // break it.
-        let mut leftovers: Vec<PathBuf> = std::fs::read_dir(dest)
-            .map_err(|e| Error::io(dest, e))?
-            .filter_map(|entry| {
-                let entry = entry.ok()?;
-                let name = entry.file_name().into_string().ok()?;
-                let ours = name.starts_with(&prefix) && name.ends_with(".tmp");
-                // By name: `tempdir_in` makes a relative `dest` absolute in `dir.path()`.
-                let mine = Some(entry.file_name().as_os_str()) == dir.path().file_name();
-                (ours && !mine && entry.file_type().ok()?.is_dir()).then(|| entry.path())
-            })
-            .collect();
-        leftovers.sort();
-        if !leftovers.is_empty() {
-            let (dirs, them) = match leftovers.len() {
-                1 => ("a staging directory", "it"),
-                _ => ("staging directories", "them"),
-            };
-            tracing::warn!(
-                "{} holds {dirs} of another run of this output (running now, or killed before it \
-                 could clean up): {}; delete {them} when no run is using {them}",
-                dest.display(),
-                leftovers
-                    .iter()
-                    .map(|p| p.display().to_string())
-                    .collect::<Vec<_>>()
-                    .join(", "),
-            );
-        }
+        let leftovers = other_runs_temporaries(dest, &prefix, dir.path(), true)
+            .map_err(|e| Error::io(dest, e))?;
+        warn_of_leftovers(
+            dest,
+            &leftovers,
+            "a staging directory",
+            "staging directories",
+        );
         Ok(Self {
             dir,
             dest: dest.to_owned(),
@@ -782,6 +817,30 @@ mod tests {
             std::fs::read_to_string(killed.join("report.md")).unwrap(),
             "half"
         );
+    }
+
+    /// A killed run's temporary file of the same output is found (and reported by
+    /// `AtomicOutput::create`); the new run's own, other outputs' and directories are not.
+    #[test]
+    fn other_runs_temporary_files_are_found() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        for name in [
+            ".a.csv.AbCdEf.tmp",
+            ".a.csv.x.AbCdEf.tmp",
+            ".a.csv.AbCdEfGh.tmp",
+        ] {
+            std::fs::write(d.join(name), "x").unwrap();
+        }
+        std::fs::create_dir(d.join(".a.csv.Zz1234.tmp")).unwrap();
+        let out = AtomicOutput::create(d.join("a.csv")).unwrap();
+        let Inner::Temp { tmp, .. } = &out.inner else {
+            panic!("a file output is written to a temporary file")
+        };
+        let found = other_runs_temporaries(d, ".a.csv.", tmp.path(), false).unwrap();
+        assert_eq!(found, [d.join(".a.csv.AbCdEf.tmp")]);
+        let dirs = other_runs_temporaries(d, ".a.csv.", tmp.path(), true).unwrap();
+        assert_eq!(dirs, [d.join(".a.csv.Zz1234.tmp")]);
     }
 
     /// A run given a relative output directory does not report its own staging directory
