@@ -426,7 +426,9 @@ impl ColourPipeline {
                 let w = SpectralWeights::new(wl, self.illuminant)?;
                 static WARNED: std::sync::atomic::AtomicBool =
                     std::sync::atomic::AtomicBool::new(false);
-                if let Some(why) = coverage_warning(wl, self.illuminant)
+                // (Once said, not worked out again for every render.)
+                if !WARNED.load(std::sync::atomic::Ordering::Relaxed)
+                    && let Some(why) = coverage_warning(wl, self.illuminant)
                     && !WARNED.swap(true, std::sync::atomic::Ordering::Relaxed)
                 {
                     tracing::warn!("{why} (said once per run)");

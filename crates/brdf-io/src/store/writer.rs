@@ -514,14 +514,11 @@ impl StoreWriter {
         }
         // Validate and gather statistics before touching any state.
         let mut block = BlockStats::new(n);
-        let f16_max = f32::from(half::f16::MAX);
         let f16 = self.options.dtype == Dtype::F16;
         for (i, row) in values.chunks_exact(n.max(1)).enumerate() {
             let di = range.start + i;
             let valid = self.mask[di / nc];
-            let bad = row.iter().any(|v| !v.is_finite())
-                || (f16 && valid && row.iter().any(|v| v.abs() > f16_max));
-            if bad {
+            if may_offend(row, f16 && valid) {
                 // The first offence in material order, as reported value by value.
                 for (m, &v) in row.iter().enumerate() {
                     if let Some(e) = self.check_value(m, di, v, valid) {
@@ -750,6 +747,15 @@ pub fn check_material_name(name: &str) -> std::result::Result<(), String> {
     Ok(())
 }
 
+/// Whether `values` may hold an offence for [`StoreWriter::check_value`]: a non-finite value,
+/// or (`f16_range`: an f16 store, above the horizon) one beyond f16's range. A vectorised look:
+/// only then are the values checked one by one, for the first offence in order.
+#[inline]
+fn may_offend(values: &[f32], f16_range: bool) -> bool {
+    let f16_max = f32::from(half::f16::MAX);
+    values.iter().any(|v| !v.is_finite()) || (f16_range && values.iter().any(|v| v.abs() > f16_max))
+}
+
 /// Adds input `v` to the statistics of the values as `dtype` stores them.
 #[inline(always)]
 fn accumulate(s: &mut ValueStats, sum: &mut f64, v: f32, valid: bool, dtype: Dtype) {
@@ -879,9 +885,7 @@ impl MaterialWriter<'_> {
         }
         // Checked value by value (for the first offence in index order) only when a
         // vectorised look finds a suspect.
-        let f16_max = f32::from(half::f16::MAX);
-        let suspect = values.iter().any(|v| !v.is_finite())
-            || (w.options.dtype == Dtype::F16 && values.iter().any(|v| v.abs() > f16_max));
+        let suspect = may_offend(values, w.options.dtype == Dtype::F16);
         self.buf.clear();
         self.buf.resize(values.len() * 4, 0);
         let mut sum = 0.0;
