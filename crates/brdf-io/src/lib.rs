@@ -8,6 +8,47 @@
 //!   [`merl`]: MERL `.binary` files; [`nbrdf`]: Neural-BRDF networks; [`npy`]: `.npy` I/O.
 //! - [`output`]: atomic output files ([`output::write_file_atomic`], [`output::AtomicOutput`]).
 //! - [`source`]: the [`BrdfSource`] trait (f(wi, wo) for any source) and the [`ImportReport`].
+//!
+//! A store written material by material, read back memory-mapped, its Gram matrix taken in one
+//! pass, and a stored material evaluated at a pair of directions:
+//!
+//! ```
+//! use std::f64::consts::PI;
+//! use brdf_io::store::StoreMaterial;
+//! use brdf_io::{AngularGrid, BrdfSource, Channels, Store, StoreInfo, StoreOptions, StoreWriter};
+//!
+//! let dir = tempfile::tempdir()?;
+//! let path = dir.path().join("two.sbrdf");
+//! // 8 x 8 x 16 cells (theta_h, theta_d, phi_d; MERL's index mapping) at 3 wavelengths.
+//! let info = StoreInfo {
+//!     grid: AngularGrid::new(8, 8, 16)?,
+//!     channels: Channels::parse_wavelengths("450:650:100")?,
+//! };
+//! let d = info.d(); // values per material: cells x channels
+//! let valid = info.grid.validity_mask().iter().filter(|v| **v).count() * 3;
+//! // Two Lambertian materials, f = albedo / pi at every angle and wavelength.
+//! let mut writer = StoreWriter::create(&path, info, StoreOptions::default())?;
+//! for (name, albedo) in [("grey", 0.5), ("white", 0.9)] {
+//!     writer.add_material(name, "example", &vec![(albedo / PI) as f32; d])?;
+//! }
+//! writer.finish()?; // written to a temporary file beside `path`, renamed into place here
+//!
+//! let store = Store::open(&path)?;
+//! assert_eq!((store.n_materials(), store.d(), store.names()), (2, d, vec!["grey", "white"]));
+//! // G = Y Y^T (row-major, f64 sums); cells below the horizon hold 0 and add nothing.
+//! let g = store.gram()?;
+//! let expected = valid as f64 * (0.5 / PI) * (0.9 / PI);
+//! assert!((g[1] - expected).abs() < 1e-6 * expected && g[1] == g[2]);
+//!
+//! // A stored material is a `BrdfSource`: f(wi, wo) in 1/sr, one value per channel,
+//! // interpolated on the grid.
+//! let white = StoreMaterial::open(&path, "white")?;
+//! let (wi, wo) = ([0.0, 0.6, 0.8], [0.3, -0.4, 0.75f64.sqrt()]);
+//! let mut f = [0.0; 3];
+//! white.eval(wi, wo, &mut f)?;
+//! assert!(f.iter().all(|v| (v - 0.9 / PI).abs() < 1e-6 / PI));
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 
 pub mod error;
 pub mod grid;
