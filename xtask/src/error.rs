@@ -38,16 +38,23 @@ pub enum Error {
 }
 
 impl Error {
-    /// A stage error from any displayable cause.
+    /// A stage error from any displayable cause. A cause that starts by naming the stage's
+    /// file (`PATH: No space left on device`) loses that prefix: the message names it already.
     pub fn stage(
         stage: &'static str,
         path: impl Into<PathBuf>,
         cause: impl std::fmt::Display,
     ) -> Self {
+        let path = path.into();
+        let reason = cause.to_string();
+        let reason = match reason.strip_prefix(&format!("{}: ", path.display())) {
+            Some(rest) => rest.to_owned(),
+            None => reason,
+        };
         Self::Stage {
             stage,
-            path: path.into(),
-            reason: cause.to_string(),
+            path,
+            reason,
         }
     }
 
@@ -112,6 +119,12 @@ mod tests {
         )
         .published(staging, out);
         assert_eq!(e.to_string(), "/runs/out/sheet.png: disk full");
+        // A cause naming the stage's own file does not name it twice.
+        let e = Error::stage("predict", "/o/p.bsdf", "/o/p.bsdf: No space left on device");
+        assert_eq!(
+            e.to_string(),
+            "predict stage (/o/p.bsdf): No space left on device"
+        );
         let e = Error::stage("data", "/data/w.npy", "not an .npy file").published(staging, out);
         assert_eq!(e.to_string(), "data stage (/data/w.npy): not an .npy file");
     }

@@ -201,8 +201,80 @@ fn main() -> std::process::ExitCode {
         Err(err) if is_broken_pipe(&err) => std::process::ExitCode::SUCCESS,
         Err(err) => {
             // Best effort: standard error may be closed too; the exit code says it anyway.
-            errln!("error: {err:#}");
+            errln!("error: {}", error_message(&err));
             std::process::ExitCode::FAILURE
         }
+    }
+}
+
+/// The error and its causes joined by ": ", as `{err:#}` prints them, except that a cause
+/// starting with a name the message already holds (a file's path, which both a command's
+/// context and the file error under it give) drops that repetition: "writing out.npy" over
+/// "out.npy: No space left on device" reads "writing out.npy: No space left on device".
+fn error_message(err: &anyhow::Error) -> String {
+    let mut message = String::new();
+    for cause in err.chain().map(ToString::to_string) {
+        if message.is_empty() {
+            message = cause;
+            continue;
+        }
+        // The shortest "NAME: " the cause starts with that the message holds as whole words.
+        let named = cause
+            .match_indices(": ")
+            .map(|(i, _)| i)
+            .find(|&i| holds_name(&message, &cause[..i]));
+        message.push_str(": ");
+        message.push_str(named.map_or(cause.as_str(), |i| &cause[i + 2..]));
+    }
+    message
+}
+
+/// Whether `message` holds `name` delimited like a word: after the start, a space or `(`, and
+/// before the end, a space, `:`, `,` or `)`.
+fn holds_name(message: &str, name: &str) -> bool {
+    !name.is_empty()
+        && message.match_indices(name).any(|(i, _)| {
+            let before = message[..i].chars().next_back();
+            let after = message[i + name.len()..].chars().next();
+            matches!(before, None | Some(' ' | '('))
+                && matches!(after, None | Some(' ' | ':' | ',' | ')'))
+        })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::error_message;
+    use anyhow::Context;
+
+    #[test]
+    fn error_messages_name_a_path_once() {
+        let io = || Err::<(), _>(anyhow::anyhow!("/tmp/x y.npy: No space left on device"));
+        // A path (with a space in it) that the context ends with.
+        let err = io().context("writing /tmp/x y.npy").unwrap_err();
+        assert_eq!(
+            error_message(&err),
+            "writing /tmp/x y.npy: No space left on device"
+        );
+        // A path the message holds further back.
+        let err = io()
+            .context("/tmp/x y.npy: writing the synthetic dataset failed")
+            .context("synth")
+            .unwrap_err();
+        assert_eq!(
+            error_message(&err),
+            "synth: /tmp/x y.npy: writing the synthetic dataset failed: No space left on device"
+        );
+        // Causes that do not repeat a name are joined as `{:#}` does, and a repetition must be
+        // a whole word ("a.npy" does not hold the word "npy").
+        let err = io().context("writing /tmp/other.npy").unwrap_err();
+        assert_eq!(error_message(&err), format!("{err:#}"));
+        let err = Err::<(), _>(anyhow::anyhow!("npy: bad header"))
+            .context("reading a.npy")
+            .context("loading")
+            .unwrap_err();
+        assert_eq!(
+            error_message(&err),
+            "loading: reading a.npy: npy: bad header"
+        );
     }
 }
