@@ -49,6 +49,14 @@ pub enum Error {
     Write {
         /// The file.
         path: PathBuf,
+        /// Why (without the path again).
+        reason: String,
+    },
+    /// A picture could not be read.
+    #[error("reading {path}: {reason}")]
+    Read {
+        /// The file.
+        path: PathBuf,
         /// Why.
         reason: String,
     },

@@ -211,9 +211,13 @@ impl Image {
     /// Writes an 8-bit sRGB PNG (RGBA) atomically ([`brdf_io::output::write_file_atomic`]: a
     /// temporary file renamed into place, or straight into a special file such as `/dev/stdout`).
     pub fn save_png(&self, path: &Path) -> Result<()> {
+        // The atomic writer's errors name the file themselves: "writing P: P: ..." said it twice.
         let err = |reason: String| Error::Write {
             path: path.to_owned(),
-            reason,
+            reason: match reason.strip_prefix(&format!("{}: ", path.display())) {
+                Some(rest) => rest.to_owned(),
+                None => reason,
+            },
         };
         if self.width == 0 || self.height == 0 {
             return Err(err("empty image".into()));
@@ -235,7 +239,7 @@ impl Image {
 
 /// Reads an 8-bit RGB or RGBA PNG back as (width, height, RGBA bytes) — for tests and tools.
 pub fn read_png_rgba8(path: &Path) -> Result<(usize, usize, Vec<u8>)> {
-    let err = |reason: String| Error::Write {
+    let err = |reason: String| Error::Read {
         path: path.to_owned(),
         reason,
     };
@@ -334,5 +338,20 @@ mod tests {
             "no temp file left"
         );
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn png_errors_name_the_file_once_and_say_what_failed() {
+        let dir = std::env::temp_dir().join(format!("render-img-err-{}", std::process::id()));
+        let p = dir.join("missing/t.png");
+        let shown = p.display().to_string();
+        let e = Image::new(2, 2, [0.5; 3])
+            .save_png(&p)
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with(&format!("writing {shown}: ")), "{e}");
+        assert_eq!(e.matches(&shown).count(), 1, "{e}");
+        let e = read_png_rgba8(&p).unwrap_err().to_string();
+        assert!(e.starts_with(&format!("reading {shown}: ")), "{e}");
     }
 }
