@@ -501,6 +501,45 @@ mod tests {
         ));
     }
 
+    /// A truly indefinite matrix (`1 1^T - 1e-6 I`: eigenvalue `-1e-6` three times) needs a
+    /// jitter above `1e-6`, so the escalation must climb `1e-13, 1e-12, ..., 1e-5` times the
+    /// mean diagonal: nine jittered attempts after the plain one, and the factor is that of
+    /// `A + j I`. One step further down the policy's cap it fails, with every attempt counted;
+    /// a non-positive mean diagonal (nothing to scale a jitter by) fails at once.
+    #[test]
+    fn jitter_escalates_by_its_factor_until_the_matrix_factors() {
+        let a = Mat::from_fn(4, 4, |i, j| 1.0 - if i == j { 1e-6 } else { 0.0 });
+        let f = CholeskyFactor::new(a.as_ref(), Par::Seq).unwrap();
+        let mean = 1.0 - 1e-6;
+        assert_eq!(f.attempts(), 10);
+        assert!(
+            (f.jitter() - 1e-5 * mean).abs() <= 1e-12 * mean,
+            "{}",
+            f.jitter()
+        );
+        let back = f.l() * f.l().transpose();
+        for i in 0..4 {
+            for j in 0..4 {
+                let want = a[(i, j)] + if i == j { f.jitter() } else { 0.0 };
+                assert!((back[(i, j)] - want).abs() <= 1e-14, "{i},{j}");
+            }
+        }
+        // Eigenvalue -0.5 of a mean diagonal 1: beyond the last jitter (1e-2), 13 attempts.
+        let a = Mat::from_fn(2, 2, |i, j| if i == j { 1.0 } else { 1.5 });
+        assert!(matches!(
+            CholeskyFactor::new(a.as_ref(), Par::Seq),
+            Err(GpError::NotPositiveDefinite { attempts: 13, last_jitter, .. })
+                if (last_jitter - 1e-2).abs() < 1e-15
+        ));
+        for diagonal in [0.0, -1.0] {
+            let a = Mat::from_fn(2, 2, |i, j| if i == j { diagonal } else { 1.0 });
+            assert!(matches!(
+                CholeskyFactor::new(a.as_ref(), Par::Seq),
+                Err(GpError::NotPositiveDefinite { attempts: 1, .. })
+            ));
+        }
+    }
+
     /// A matrix singular only by rounding (two identical points of a noise-free kernel, with
     /// and without a noise term far below rounding) gets a jitter within a few hundred times
     /// the pivots' rounding, not the old `1e-10 mean(diag)`, which outweighed any noise below
