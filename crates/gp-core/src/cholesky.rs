@@ -480,6 +480,35 @@ mod tests {
         assert!(k1 >= k2 / 30.0 && k1 <= k2 * 30.0, "k1 {k1} k2 {k2}");
     }
 
+    /// The two half solves compose to the full solve, and each is its triangle's inverse.
+    #[test]
+    fn half_solves_compose_to_the_solve() {
+        let a = spd(9, 6);
+        let f = CholeskyFactor::new(a.as_ref(), Par::Seq).unwrap();
+        let b = Mat::from_fn(9, 2, |i, j| (i as f64 + 0.5 * j as f64).cos());
+        let mut halves = b.clone();
+        f.solve_lower_in_place(halves.as_mut());
+        let lower = f.l() * &halves;
+        f.solve_upper_in_place(halves.as_mut());
+        let upper = f.l().transpose() * &halves;
+        let full = f.solve(b.as_ref()).unwrap();
+        let scale = full.norm_max();
+        for i in 0..9 {
+            for j in 0..2 {
+                assert!((lower[(i, j)] - b[(i, j)]).abs() < 1e-12);
+                assert!((halves[(i, j)] - full[(i, j)]).abs() < 1e-12 * scale);
+            }
+        }
+        // L^-T applied to L^-1 b gives back L^-1 b under L^T.
+        let mut once = b.clone();
+        f.solve_lower_in_place(once.as_mut());
+        for i in 0..9 {
+            for j in 0..2 {
+                assert!((upper[(i, j)] - once[(i, j)]).abs() < 1e-12 * once.norm_max());
+            }
+        }
+    }
+
     /// Every vector the estimator tries (Hager's iterates and Higham's alternating vector)
     /// gives `||A^-1 x||_1 / ||x||_1 <= ||A^-1||_1`, so the estimate is a lower bound on the
     /// exact 1-norm condition number, here within a factor 3 of it, for matrices of every size
