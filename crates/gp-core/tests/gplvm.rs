@@ -532,6 +532,81 @@ fn stress_duplicates_tiny_noise_and_dynamic_range() {
     }
 }
 
+/// Where two training points coincide, the exact predictor's `k*` carries the delta (noise)
+/// term of both copies, so it is no column of `K` and the weights come from a solve: they
+/// equal a dense solve with `k*_i = s^2 exp(-r_i^2 / 2 l^2) + mu [r_i = 0]`, in the
+/// single-point and the batch path (a noise of 0.1 makes the delta term visible: with `-mu`
+/// the weights move by ~0.1). Batch inputs of the wrong width or with a NaN are errors.
+#[test]
+fn exact_weights_at_a_duplicated_point_include_both_copies_noise() {
+    let (s2, l, mu) = (1.3, 0.8, 0.1);
+    let base = [[0.0, 0.0], [0.5, -0.3], [-0.4, 0.6], [0.9, 0.8]];
+    // Points 0 and 4 coincide.
+    let x = Mat::from_fn(5, 2, |i, j| base[i % 4][j]);
+    let gp = GpRegression::new(
+        x.as_ref(),
+        KernelParams::isotropic(s2, l, mu).unwrap(),
+        Par::Seq,
+    )
+    .unwrap();
+    let rbf = |a: [f64; 2], b: [f64; 2]| {
+        let r2 = (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2);
+        (s2 * (-0.5 * r2 / (l * l)).exp(), r2)
+    };
+    // K's noise sits on its diagonal; k*'s wherever x* is a training point's location.
+    let k = |a, b| {
+        let (v, r2) = rbf(a, b);
+        if r2 == 0.0 { v + mu } else { v }
+    };
+    let row = |i: usize| [x[(i, 0)], x[(i, 1)]];
+    let kk = Mat::from_fn(5, 5, |i, j| {
+        rbf(row(i), row(j)).0 + if i == j { mu } else { 0.0 }
+    });
+    let kinv = kk.partial_piv_lu().inverse();
+    let points = [base[0], base[1], [0.2, 0.1]];
+    let batch = gp
+        .weights_batch(
+            Mat::from_fn(3, 2, |m, j| points[m][j]).as_ref(),
+            Predictor::Exact,
+            Par::Seq,
+        )
+        .unwrap();
+    for (m, &p) in points.iter().enumerate() {
+        let kstar: Vec<f64> = (0..5).map(|i| k(row(i), p)).collect();
+        let want: Vec<f64> = (0..5)
+            .map(|i| (0..5).map(|j| kinv[(i, j)] * kstar[j]).sum())
+            .collect();
+        let w = gp.weights(&p, Predictor::Exact).unwrap();
+        for i in 0..5 {
+            assert!(
+                (w[i] - want[i]).abs() < 1e-12,
+                "point {m}, weight {i}: {w:?} vs {want:?}"
+            );
+            assert!(
+                (batch[(i, m)] - w[i]).abs() < 1e-12,
+                "point {m}, weight {i}"
+            );
+        }
+    }
+    // At the single training point 1 the weights are e_1 exactly.
+    assert_eq!(batch[(1, 1)], 1.0);
+    // The duplicates share the prediction; their weights sum to more than a half each would
+    // give without the delta term.
+    let w = gp.weights(&base[0], Predictor::Exact).unwrap();
+    assert!((w[0] - w[4]).abs() < 1e-12 && w[0] + w[4] > 0.9, "{w:?}");
+    for bad in [
+        Mat::from_fn(2, 3, |_, _| 0.0),
+        Mat::from_fn(2, 1, |_, _| 0.0),
+        Mat::from_fn(2, 2, |i, j| if (i, j) == (1, 0) { f64::NAN } else { 0.0 }),
+    ] {
+        assert!(
+            gp.weights_batch(bad.as_ref(), Predictor::Exact, Par::Seq)
+                .is_err()
+        );
+        assert!(gp.variance_batch(bad.as_ref(), Par::Seq).is_err());
+    }
+}
+
 /// At a training point the exact predictor's `k*` is a column of `K`, so its weights are `e_i`
 /// and its variance 0 *exactly*, however ill-conditioned `K` is; a solve with `K` returns
 /// `e_i` only to ~cond(K) eps (here visibly off).
