@@ -362,6 +362,13 @@ fn predictors_against_dense_formulas() {
                 .sum();
             let vd = (1.0 + 1e-4 - quad).max(0.0);
             assert!((var[r] - vd).abs() <= 1e-8, "var {} vs {vd}", var[r]);
+            // The single-point path agrees with the batch (it had no check of its own).
+            let v1 = gp.variance(&xr).unwrap();
+            assert!(
+                (v1 - var[r]).abs() <= 1e-12,
+                "variance {v1} vs batch {}",
+                var[r]
+            );
             // Mean against the dense formula m + Y_c^T K^-1 k*.
             let yp = posterior_mean(&w1, y.as_ref(), &mean).unwrap();
             for j in 0..d {
