@@ -135,4 +135,38 @@ mod tests {
         bad[(0, 0)] = f64::NAN;
         assert!(centre_gram(bad.as_ref()).is_err());
     }
+
+    /// With small integer data and `N = 4` every step is exact, so `Y Y^T` and its centring are
+    /// the exact values (a symmetrisation that mixed the two triangles wrongly showed here);
+    /// with random data both are bitwise symmetric (the centring's two triangles round
+    /// differently before they are averaged).
+    #[test]
+    fn gram_and_centring_are_exact_and_exactly_symmetric() {
+        let y = Mat::from_fn(4, 3, |i, j| ((i * 3 + j * 5) % 7) as f64 - 3.0);
+        let g = gram_from_data(y.as_ref(), Par::Seq).unwrap();
+        let s = centre_gram(g.as_ref()).unwrap();
+        let mean: Vec<f64> = (0..3)
+            .map(|j| (0..4).map(|i| y[(i, j)]).sum::<f64>() / 4.0)
+            .collect();
+        for i in 0..4 {
+            for j in 0..4 {
+                let gij: f64 = (0..3).map(|k| y[(i, k)] * y[(j, k)]).sum();
+                assert_eq!(g[(i, j)], gij, "G {i},{j}");
+                let sij: f64 = (0..3)
+                    .map(|k| (y[(i, k)] - mean[k]) * (y[(j, k)] - mean[k]))
+                    .sum();
+                assert_eq!(s[(i, j)], sij, "S {i},{j}");
+            }
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let y = Mat::from_fn(13, 7, |_, _| rng.random_range(-3.0..5.0));
+        let g = gram_from_data(y.as_ref(), Par::Seq).unwrap();
+        let s = centre_gram(g.as_ref()).unwrap();
+        for i in 0..13 {
+            for j in 0..13 {
+                assert_eq!(g[(i, j)].to_bits(), g[(j, i)].to_bits());
+                assert_eq!(s[(i, j)].to_bits(), s[(j, i)].to_bits());
+            }
+        }
+    }
 }

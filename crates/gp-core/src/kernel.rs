@@ -898,4 +898,128 @@ mod tests {
         ));
         assert_eq!(KernelParams::paper().to_log_vec()[2], 1e-4f64.ln());
     }
+
+    /// `dF/dK` and `K_rbf` must both be `N x N`: one wrong dimension (rows or columns, of
+    /// either matrix) is a dimension error, not a gradient read from the first `N` columns of
+    /// a wider matrix, nor an index panic.
+    #[test]
+    fn backprop_rejects_a_wrong_dimension_of_either_matrix() {
+        let p = KernelParams::paper();
+        let x = Mat::from_fn(4, 2, |i, j| 0.3 * (i * 2 + j) as f64);
+        let k = p.rbf_matrix(x.as_ref()).unwrap();
+        let dk = Mat::from_fn(4, 4, |i, j| 1.0 / (1.0 + (i + j) as f64));
+        p.backprop_with_rbf(x.as_ref(), dk.as_ref(), k.as_ref())
+            .unwrap();
+        for (r, c) in [(4, 5), (5, 4), (4, 3), (3, 4)] {
+            let bad = Mat::from_fn(r, c, |i, j| 1.0 / (1.0 + (i + j) as f64));
+            assert!(
+                matches!(
+                    p.backprop(x.as_ref(), bad.as_ref()),
+                    Err(GpError::DimensionMismatch { .. })
+                ),
+                "dF/dK {r} x {c}"
+            );
+            for (dk, k) in [(bad.as_ref(), k.as_ref()), (dk.as_ref(), bad.as_ref())] {
+                assert!(
+                    matches!(
+                        p.backprop_with_rbf(x.as_ref(), dk, k),
+                        Err(GpError::DimensionMismatch { .. })
+                    ),
+                    "{r} x {c}"
+                );
+            }
+        }
+    }
+
+    /// The latent gradient is translation-invariant, and computed so: at points shifted by
+    /// `2^30` (coordinates, scaled coordinates and so `K_rbf` stay exact: multiples of
+    /// `2^-10`, length-scales powers of 2) it equals the unshifted gradient to rounding.
+    /// Without centring the coordinates first, `r_n x_n - (W X)_n` cancels `2^30`-sized terms
+    /// and keeps only ~7 digits.
+    #[test]
+    fn latent_gradient_is_exact_far_from_the_origin() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let n = 9;
+        let x = Mat::from_fn(n, 2, |_, _| {
+            rng.random_range(-2048i32..2048) as f64 / 1024.0
+        });
+        let shifted = Mat::from_fn(n, 2, |i, j| x[(i, j)] + 1073741824.0);
+        let dk = Mat::from_fn(n, n, |i, j| {
+            ((i * j) % 5) as f64 - 1.5 + (i + j) as f64 / 7.0
+        });
+        for p in [
+            KernelParams::isotropic(1.5, 1.0, 1e-3).unwrap(),
+            KernelParams::new(0.7, LengthScale::Ard(vec![0.5, 2.0]), 1e-2).unwrap(),
+        ] {
+            let g = p.backprop(x.as_ref(), dk.as_ref()).unwrap();
+            let gs = p.backprop(shifted.as_ref(), dk.as_ref()).unwrap();
+            let scale = g.x.norm_max();
+            assert!(scale > 1e-3);
+            for i in 0..n {
+                for j in 0..2 {
+                    let (a, b) = (g.x[(i, j)], gs.x[(i, j)]);
+                    assert!((a - b).abs() <= 1e-12 * scale, "{i},{j}: {a} vs {b}");
+                }
+            }
+        }
+    }
+
+    /// The gradients against the explicit pair sums of `backprop`'s formulas for `N = 21`,
+    /// where the length-scale sum runs through its eight-lane blocks (rows with at least 8
+    /// later points; the other tests have `N <= 9` and so only the remainder loop), and the
+    /// summed isotropic one, the amplitude's and the noise's alongside.
+    #[test]
+    fn gradients_match_explicit_pair_sums_for_many_points() {
+        let mut rng = ChaCha8Rng::seed_from_u64(21);
+        let n = 21;
+        let x = Mat::from_fn(n, 2, |_, _| rng.random_range(-1.5..1.5));
+        let a = Mat::from_fn(n, n, |_, _| rng.random_range(-1.0..1.0));
+        let dk = Mat::from_fn(n, n, |i, j| a[(i, j)] + a[(j, i)]);
+        for p in [
+            KernelParams::new(1.3, LengthScale::Ard(vec![0.8, 1.7]), 1e-2).unwrap(),
+            KernelParams::isotropic(0.6, 1.1, 1e-3).unwrap(),
+        ] {
+            let g = p.backprop(x.as_ref(), dk.as_ref()).unwrap();
+            let k = p.rbf_matrix(x.as_ref()).unwrap();
+            let (mut d_l, mut d_s2, mut gx) = ([0.0f64; 2], 0.0, Mat::<f64>::zeros(n, 2));
+            for r in 0..n {
+                for c in 0..n {
+                    let w = dk[(r, c)] * k[(r, c)];
+                    d_s2 += w;
+                    for j in 0..2 {
+                        let l2 = p.length_scale().axis(j).powi(2);
+                        let d = x[(r, j)] - x[(c, j)];
+                        d_l[j] += w * d * d / l2;
+                        gx[(r, j)] -= 2.0 * w * d / l2;
+                    }
+                }
+            }
+            let want_l: Vec<f64> = match p.length_scale() {
+                LengthScale::Isotropic(_) => vec![d_l[0] + d_l[1]],
+                LengthScale::Ard(_) => d_l.to_vec(),
+            };
+            let close = |a: f64, b: f64, scale: f64| (a - b).abs() <= 1e-11 * scale;
+            let scale_l = d_l[0].abs() + d_l[1].abs();
+            for (got, want) in g.hyper_log.length_scale.iter().zip(&want_l) {
+                assert!(close(*got, *want, scale_l), "{got} vs {want}");
+            }
+            assert!(close(
+                g.hyper_log.signal_variance,
+                d_s2,
+                d_s2.abs().max(1.0)
+            ));
+            let trace: f64 = (0..n).map(|i| dk[(i, i)]).sum();
+            assert!(close(
+                g.hyper_log.noise,
+                p.noise() * trace,
+                trace.abs() * p.noise()
+            ));
+            let scale_x = gx.norm_max();
+            for r in 0..n {
+                for j in 0..2 {
+                    assert!(close(g.x[(r, j)], gx[(r, j)], scale_x), "{r},{j}");
+                }
+            }
+        }
+    }
 }
