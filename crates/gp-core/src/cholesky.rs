@@ -416,6 +416,13 @@ mod tests {
         a
     }
 
+    /// `||M||_1`, the largest column sum of absolute values, straight from the entries.
+    fn norm1(m: MatRef<'_, f64>) -> f64 {
+        (0..m.ncols())
+            .map(|j| (0..m.nrows()).map(|i| m[(i, j)].abs()).sum::<f64>())
+            .fold(0.0, f64::max)
+    }
+
     #[test]
     fn solve_inverse_logdet_match_dense() {
         for (n, par) in [(1, Par::Seq), (7, Par::Seq), (60, Par::rayon(2))] {
@@ -515,11 +522,6 @@ mod tests {
     /// the estimator's indices treat apart (n = 1, 2 and odd/even).
     #[test]
     fn condition_estimate_is_a_tight_lower_bound_on_kappa_1() {
-        let norm1 = |m: MatRef<'_, f64>| {
-            (0..m.ncols())
-                .map(|j| (0..m.nrows()).map(|i| m[(i, j)].abs()).sum::<f64>())
-                .fold(0.0, f64::max)
-        };
         for (n, seed) in [(1, 1), (2, 2), (7, 3), (8, 4), (30, 5)] {
             let a = spd(n, seed);
             let f = CholeskyFactor::new(a.as_ref(), Par::Seq).unwrap();
@@ -549,11 +551,6 @@ mod tests {
     /// all-ones signs it was 0.18 of kappa_1 at n = 20).
     #[test]
     fn condition_estimate_follows_the_signs_of_the_inverse() {
-        let norm1 = |m: MatRef<'_, f64>| {
-            (0..m.ncols())
-                .map(|j| (0..m.nrows()).map(|i| m[(i, j)].abs()).sum::<f64>())
-                .fold(0.0, f64::max)
-        };
         for n in [12, 20, 31] {
             let s = |i: usize| if (i / 2).is_multiple_of(2) { 1.0 } else { -1.0 };
             let a = Mat::from_fn(n, n, |i, j| {
@@ -598,11 +595,6 @@ mod tests {
     /// (`1e-2` mean diag), which changes `||A||_1` by 0.5 %; the estimate is exact here.
     #[test]
     fn condition_estimate_of_a_jittered_factor_is_that_of_a_plus_j_i() {
-        let norm1 = |m: MatRef<'_, f64>| {
-            (0..m.ncols())
-                .map(|j| (0..m.nrows()).map(|i| m[(i, j)].abs()).sum::<f64>())
-                .fold(0.0, f64::max)
-        };
         let a = Mat::from_fn(4, 4, |i, j| 1.0 - if i == j { 5e-3 } else { 0.0 });
         let f = CholeskyFactor::new(a.as_ref(), Par::Seq).unwrap();
         let j = f.jitter();
