@@ -25,7 +25,8 @@ pub type Vec3 = [f64; 3];
 /// Rusinkiewicz half/difference angles of a direction pair, in radians.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct HalfDiff {
-    /// Angle between the half vector and the normal, in [0, pi/2].
+    /// Angle between the half vector and the normal: in [0, pi/2] for directions above the
+    /// horizon ([`HalfDiff::from_dirs`] does not check that; below it, theta_h reaches pi).
     pub theta_h: f64,
     /// Angle between the incident direction and the half vector, in [0, pi/2].
     pub theta_d: f64,

@@ -225,8 +225,9 @@ fn padded_tail(values: &mut [f64], mut f: impl FnMut(&mut [f64])) {
 /// is integer arithmetic on the bits, the exponent becomes a float through the 2^52 trick
 /// (AVX2 has no 64-bit integer to float conversion), `m - 1` is `x` itself below sqrt(2) (so
 /// the rounding of `u = 1 + x` never enters), and `2 atanh(s) / s` is a degree-6 polynomial in
-/// `s^2` (`LN_SERIES`, by FMAs). About 0.6 ns per value on one core of the Zen 4 here, data in
-/// cache (the division and the FP pipes bound it; BENCHMARKS.md "gplvm", session 15).
+/// `s^2` (`LN_SERIES`, by FMAs). About 0.7 ns per value on one core of the Zen 4 here, data in
+/// cache, ~0.14 ns of it the widening and the store (the division and the FP pipes bound it;
+/// BENCHMARKS.md "gplvm", session 15).
 ///
 /// # Panics
 /// If `input` and `out` differ in length.

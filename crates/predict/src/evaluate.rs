@@ -77,8 +77,9 @@ impl Method {
 /// (`c` close to `e_h`) on raw data with large values; `d^T G d` rounds relative to `|d|^2 G`.
 ///
 /// # Panics
-/// If `g` is not square, `h >= N` or `c` is shorter than N (shapes are the caller's
-/// contract, as in faer's products).
+/// If `g` has fewer columns than rows or `c` is shorter than N (shapes are the caller's
+/// contract, as in faer's products). An `h` outside `0..N` is not checked: the result is then
+/// `c^T G c`, the error against a zero row.
 pub fn sq_error(g: MatRef<'_, f64>, h: usize, c: &[f64]) -> f64 {
     let n = g.nrows();
     let d: Vec<f64> = (0..n)

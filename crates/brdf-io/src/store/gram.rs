@@ -8,9 +8,10 @@
 //! has them, selected at run time: panels of 4 rows x up to 12 columns ending at the diagonal;
 //! a portable version with 4 x 8 tiles otherwise).
 //!
-//! (A mixed-precision variant, f32 products summed in f64, was measured and removed: on the
-//! default synthetic store it was 1.0x (raw) to 1.2x (log) as fast, and its 1e-8..1e-7 error in
-//! the centred Gram matrix moved the fitted log-likelihood by 5e-6..5e-2; BENCHMARKS.md "gplvm".)
+//! (A mixed-precision variant, the transform and the products in f32, summed in f64, was
+//! measured and removed: on the default synthetic store it was 1.0x (raw) to 1.2x (log) as
+//! fast, and its 3e-9..1e-8 error in the centred Gram matrix moved the fitted log-likelihood by
+//! 5.6e-6..5.4e-2; BENCHMARKS.md "gplvm".)
 
 use std::ops::Range;
 
