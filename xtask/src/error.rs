@@ -46,11 +46,7 @@ impl Error {
         cause: impl std::fmt::Display,
     ) -> Self {
         let path = path.into();
-        let reason = cause.to_string();
-        let reason = match reason.strip_prefix(&format!("{}: ", path.display())) {
-            Some(rest) => rest.to_owned(),
-            None => reason,
-        };
+        let reason = brdf_io::error::without_path_prefix(cause.to_string(), &path);
         Self::Stage {
             stage,
             path,

@@ -278,9 +278,33 @@ pub fn closest_name<'a>(name: &str, candidates: &[&'a str]) -> Option<&'a str> {
         .map(|(c, _)| *c)
 }
 
+/// `message` without a leading `"PATH: "` for `path`, the form this crate's file errors take
+/// (`"{path}: {problem}"`): for wrappers whose own message names the file already, so it is
+/// said once ("writing P: No space left", not "writing P: P: No space left").
+pub fn without_path_prefix(message: String, path: &std::path::Path) -> String {
+    match message.strip_prefix(&format!("{}: ", path.display())) {
+        Some(rest) => rest.to_owned(),
+        None => message,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_leading_path_is_dropped_only_when_it_is_the_given_file() {
+        let p = std::path::Path::new("/o/a b.png");
+        assert_eq!(without_path_prefix("/o/a b.png: full".into(), p), "full");
+        assert_eq!(
+            without_path_prefix("/o/c.png: full".into(), p),
+            "/o/c.png: full"
+        );
+        assert_eq!(
+            without_path_prefix("/o/a b.pngx: full".into(), p),
+            "/o/a b.pngx: full"
+        );
+    }
 
     /// "1 material", never "1 materials".
     #[test]

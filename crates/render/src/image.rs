@@ -214,10 +214,7 @@ impl Image {
         // The atomic writer's errors name the file themselves: "writing P: P: ..." said it twice.
         let err = |reason: String| Error::Write {
             path: path.to_owned(),
-            reason: match reason.strip_prefix(&format!("{}: ", path.display())) {
-                Some(rest) => rest.to_owned(),
-                None => reason,
-            },
+            reason: brdf_io::error::without_path_prefix(reason, path),
         };
         if self.width == 0 || self.height == 0 {
             return Err(err("empty image".into()));
