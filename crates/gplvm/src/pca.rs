@@ -193,4 +193,31 @@ mod tests {
             }
         }
     }
+
+    /// Identical materials give a zero centred Gram matrix: zero eigenvalues, zero scores and
+    /// nothing explained, all finite (the tiny-matrix rescaling must not take log2(0)).
+    #[test]
+    fn pca_of_a_zero_gram_matrix_is_zero() {
+        let pca = Pca::from_centred_gram(Mat::<f64>::zeros(4, 4).as_ref(), 3).unwrap();
+        assert_eq!(pca.eigenvalues, vec![0.0; 4]);
+        assert_eq!((pca.scores.nrows(), pca.scores.ncols()), (4, 3));
+        for i in 0..4 {
+            for k in 0..3 {
+                assert_eq!(pca.scores[(i, k)], 0.0);
+            }
+        }
+        assert_eq!(pca.explained(2), 0.0);
+        let x = pca.latent_start(InitScaling::PerAxis);
+        assert!((0..4).all(|i| (0..3).all(|k| x[(i, k)] == 0.0)));
+    }
+
+    /// A non-square or empty matrix is refused with an error that says what it got.
+    #[test]
+    fn pca_refuses_a_non_square_or_empty_gram_matrix() {
+        for (r, c) in [(3, 2), (2, 3), (0, 0), (0, 3)] {
+            let err = Pca::from_centred_gram(Mat::<f64>::zeros(r, c).as_ref(), 1).unwrap_err();
+            let msg = err.to_string();
+            assert!(msg.contains(&format!("got {r}x{c}")), "{msg}");
+        }
+    }
 }
