@@ -211,6 +211,27 @@ mod tests {
         assert!((0..4).all(|i| (0..3).all(|k| x[(i, k)] == 0.0)));
     }
 
+    /// Each component's sign is fixed as documented: its largest-magnitude score is positive,
+    /// whatever sign the eigen-solver returned (checked over matrices whose components come out
+    /// of the solver with both signs).
+    #[test]
+    fn pca_components_have_a_positive_largest_score() {
+        for seed in 0..8u64 {
+            let y = Mat::from_fn(7, 4, |i, j| {
+                let h = (i as u64 * 31 + j as u64 * 17 + seed * 101) % 23;
+                h as f64 - 11.0
+            });
+            let s = &y * y.transpose();
+            let pca = Pca::from_centred_gram(s.as_ref(), 3).unwrap();
+            for k in 0..3 {
+                let largest = (0..7)
+                    .map(|i| pca.scores[(i, k)])
+                    .fold(0.0f64, |m, v| if v.abs() > m.abs() { v } else { m });
+                assert!(largest > 0.0, "seed {seed}, component {k}: {largest}");
+            }
+        }
+    }
+
     /// A non-square or empty matrix is refused with an error that says what it got.
     #[test]
     fn pca_refuses_a_non_square_or_empty_gram_matrix() {
