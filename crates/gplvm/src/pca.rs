@@ -207,8 +207,50 @@ mod tests {
             }
         }
         assert_eq!(pca.explained(2), 0.0);
-        let x = pca.latent_start(InitScaling::PerAxis);
-        assert!((0..4).all(|i| (0..3).all(|k| x[(i, k)] == 0.0)));
+        for scaling in [InitScaling::PerAxis, InitScaling::Isotropic] {
+            let x = pca.latent_start(scaling);
+            assert!((0..4).all(|i| (0..3).all(|k| x[(i, k)] == 0.0)));
+        }
+    }
+
+    /// The latent starts' scalings, on scores given directly (with a non-zero mean, so the
+    /// standard deviation must be taken about it): `None` keeps them, `Isotropic` (and
+    /// `Likelihood`, whose search starts there) divides both axes by the first one's standard
+    /// deviation, `PerAxis` each axis by its own; a constant axis is left as it is.
+    #[test]
+    fn latent_start_scalings_standardise_as_documented() {
+        // Axis 0: 1, 3, 5, 7 (mean 4, std sqrt(5)); axis 1: 10, 10, 14, 14 (std 2); axis 2: 3s.
+        let scores = Mat::from_fn(4, 3, |i, k| match k {
+            0 => 1.0 + 2.0 * i as f64,
+            1 => 10.0 + 4.0 * (i / 2) as f64,
+            _ => 3.0,
+        });
+        let pca = Pca {
+            eigenvalues: vec![3.0, 2.0, 1.0, 0.0],
+            scores: scores.clone(),
+        };
+        let factors = |scaling| {
+            let x = pca.latent_start(scaling);
+            (0..3)
+                .map(|k| {
+                    let f = x[(0, k)] / scores[(0, k)];
+                    for i in 1..4 {
+                        assert!((x[(i, k)] - f * scores[(i, k)]).abs() < 1e-14);
+                    }
+                    f
+                })
+                .collect::<Vec<f64>>()
+        };
+        let close = |got: Vec<f64>, want: [f64; 3]| {
+            for (g, w) in got.iter().zip(want) {
+                assert!((g - w).abs() < 1e-14, "{got:?} against {want:?}");
+            }
+        };
+        let s0 = 5f64.sqrt();
+        close(factors(InitScaling::None), [1.0; 3]);
+        close(factors(InitScaling::Isotropic), [1.0 / s0; 3]);
+        close(factors(InitScaling::Likelihood), [1.0 / s0; 3]);
+        close(factors(InitScaling::PerAxis), [1.0 / s0, 0.5, 1.0]);
     }
 
     /// Each component's sign is fixed as documented: its largest-magnitude score is positive,
