@@ -445,7 +445,8 @@ impl std::fmt::Display for ImportReport {
 /// Resamples `eval` over every bin centre of `grid` in dataset order
 /// (`angular_index * n_channels + channel`), in parallel; cells whose bin-centre directions are
 /// not both above the horizon are 0.0. `eval(wi, wo, out)` fills one cell's channels; with
-/// [`ResampleOptions::reciprocal`] a cell stores the mean of `eval(wi, wo)` and `eval(wo, wi)`.
+/// [`ResampleOptions::reciprocal`] a cell stores the mean of `eval(wi, wo)` and `eval(wo, wi)`,
+/// weighted by `weights` ([`PairWeights`]).
 pub(crate) fn resample_cells<F>(
     grid: &crate::grid::AngularGrid,
     n_channels: usize,

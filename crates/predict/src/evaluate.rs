@@ -149,7 +149,8 @@ fn embed(n: usize, idx: &[usize], c: &[f64]) -> Vec<f64> {
 /// `g_hh`, see [`sq_error`]).
 ///
 /// # Panics
-/// If `g` is not square or `g_h` or `c` is shorter than N.
+/// If `g` has fewer columns than rows or `g_h` or `c` is shorter than N = `g.nrows()` (extra
+/// columns of `g` are not read).
 pub fn sq_error_external(g: MatRef<'_, f64>, g_h: &[f64], g_hh: f64, c: &[f64]) -> f64 {
     sq_error_expanded(g, g_h, g_hh, c).max(0.0)
 }
@@ -312,8 +313,9 @@ pub fn best_latent_point(
     // can lie between all the starts above (seen in q = 2 with raw values, and beside a cluster
     // of near-duplicate materials in q = 1), and L-BFGS from a start does not leave its basin.
     // 32 q Halton points over the points' bounding box widened by half a length-scale, scored
-    // in one batch: with them, 120,000 random cases of the property test had no miss, against
-    // 3 in ~97,000 without (BENCHMARKS.md "predict").
+    // in one batch: with them (and `starts` side points), 120,000 random cases of the property
+    // test had no miss, against 3 in 100,000 from the session-22 starts (one side point, no
+    // Halton points; BENCHMARKS.md "predict", session 23).
     let scatter = best_of(&halton_points(points, gp, 32 * q));
     let mut best = (scored[0].0, points[scored[0].1].clone());
     let from_points = scored.iter().take(starts).map(|&(_, i)| &points[i]);
@@ -636,7 +638,8 @@ pub struct Refit {
 
 /// Refits the GPLVM to the uncentred Gram matrix `g` starting from latent points `x0` and
 /// hyperparameters `params` (warm start), with the optimiser and settings of `config` (the
-/// same objective as [`gplvm::fit_gram`]: data scaled as configured, values per data value).
+/// same objective as [`gplvm::fit_gram`]: data scaled as configured, values per data value),
+/// in one run: `config`'s restarts are not made.
 pub fn refit_warm(
     g: MatRef<'_, f64>,
     d_eff: usize,
@@ -961,13 +964,15 @@ pub(crate) fn damaged_value(store: &Store) -> Result<Option<Error>> {
 pub struct EvalOptions {
     /// Run leave-one-out over every material (refits) and the baselines.
     pub loo: bool,
-    /// Starting points of the GP's latent search per held-out material.
+    /// Starting points of the GP's latent search per held-out material, of each kind
+    /// ([`best_latent_point`]: training points, midpoints, side points, quasi-random points).
     pub starts: usize,
     /// Warm-start the refits from the full model's latent points (otherwise: PCA start, as a
     /// fresh fit).
     pub warm_start: bool,
     /// Cap on the optimiser iterations of each leave-one-out refit (L-BFGS iterations;
-    /// Hooke-Jeeves gets `cap * 2 N q` evaluations); `None` uses the model's fit configuration.
+    /// Hooke-Jeeves at most `cap * 2 N q` evaluations, N the model's materials), applied only
+    /// where the model's fit configuration allows more; `None` uses that configuration.
     pub refit_iterations: Option<u64>,
 }
 

@@ -189,8 +189,8 @@ pub struct Location {
 /// along an axis and quasi-random points of the region they span, those that reconstruct it
 /// best; the smooth predictor's error in the transformed space, [`best_latent_point`]), and
 /// one pass for the errors of the exact predictor at the point found
-/// (equal to the smooth one's away from training points), which is never worse than the
-/// closest training material.
+/// (equal to the smooth one's away from training points), which in the transformed space is
+/// never worse than the closest training material (the BRDF-space error can be).
 /// `progress(done, total)` counts the chunks of both passes.
 ///
 /// Errors: no targets, a target whose length is not the store's D or that holds a NaN or an

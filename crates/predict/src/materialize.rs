@@ -2,7 +2,8 @@
 //! to a `.sbrdf` (one material), a `.npy` (1 x D) or a MERL `.binary` file.
 //!
 //! Only one batch of chunks (a few MB) is in memory at a time, except for MERL output, which
-//! holds the RGB values of one material (3 x cells f32; 17 MB on MERL's grid).
+//! holds the RGB values of one material (3 x cells f32; 17.5 MB on MERL's grid), their f64 copy
+//! on MERL's grid (35 MB) and, from another grid, the f32 values interpolated onto it (17.5 MB).
 
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -168,7 +169,8 @@ impl PredictedMaterial {
     }
 
     /// Writes all values of this material to `path` (format from the extension; written to a
-    /// temporary file in the same directory and renamed into place).
+    /// temporary file in the same directory and renamed into place; standard output, `-`, and
+    /// other special files are written in place).
     ///
     /// MERL `.binary` output needs RGB channels here (clear error for spectral data; the CLI
     /// converts spectral predictions to sRGB with `render::ColourPipeline` and

@@ -19,11 +19,12 @@
 //!    format does;
 //! 2. integrates the projected area `sigma(w_i) = int D(m) max(0, w_i . m) dm` numerically;
 //! 3. tabulates per `theta_i` the warp's density over the format's half-vector coordinates:
-//!    10 % the VNDF `D(m) max(0, w_i . m)` and 90 % the source's own reflected luminance
-//!    `lum f(w_i, w_o) cos(theta_o) 4 (w_i . m)`, both times the coordinates' Jacobian
-//!    (`2 pi^2 u sin theta_m`), so the table's points follow the BRDF at each elevation (any
-//!    positive warp is valid: readers invert the stored one, and renderers' sampling pdfs come
-//!    from the same tables);
+//!    the VNDF `D(m) max(0, w_i . m)` or, when that checks better
+//!    ([`RglWriteOptions::lobe_warp`]), 10 % of it and 90 % the source's own reflected
+//!    luminance `lum f(w_i, w_o) cos(theta_o) 4 (w_i . m)`, both times the coordinates'
+//!    Jacobian (`2 pi^2 u sin theta_m`), so that the table's points follow the BRDF at each
+//!    elevation (any positive warp is valid: readers invert the stored one, and renderers'
+//!    sampling pdfs come from the same tables);
 //! 4. for each point of the regular grid of the warped square, finds the half vector the warp
 //!    maps it to (the exact inverse of the evaluator's own warp inversion, in closed form: a
 //!    binary search of the warp's CDFs and the quadratic of one cell, so a lookup of the
@@ -74,7 +75,8 @@ const REFINE_GAIN: f64 = 0.75;
 /// Largest warp-table side that refinement goes to.
 const MAX_WARP: usize = 512;
 
-/// The default [`RglWriteOptions::tolerance`]: 5 % cos-weighted relative RMS error.
+/// The default [`RglWriteOptions::tolerance`]: 5 % check error (the larger of the cos-weighted
+/// relative RMS error and the largest relative albedo error, [`RglWriteSummary::check`]).
 pub const DEFAULT_TOLERANCE: f64 = 0.05;
 
 /// Incident elevations (degrees) of the albedo check ([`RglWriteSummary::albedo_error`]).
@@ -102,12 +104,13 @@ pub struct RglWriteOptions {
     pub resolution: usize,
     /// Side of the `ndf`, `sigma` and `vndf` tables, at least 2.
     pub warp_resolution: usize,
-    /// Refinement: while the written file's check error ([`RglWriteSummary::check_rms`]) is
-    /// above this, the file is written again with twice the incident elevations, twice the
-    /// value tables' side (and warp tables of at least 4 times that) or both, whichever cuts
-    /// the error most, up to `max_theta_samples` and `max_resolution`, as long as a doubling
-    /// cuts the error by at least a quarter (otherwise the coarser file is kept); `None` writes
-    /// the sizes as they are.
+    /// Refinement: while the written file's check error ([`RglWriteSummary::check`], the
+    /// larger of [`RglWriteSummary::check_rms`] and [`RglWriteSummary::albedo_error`]) is above
+    /// this, the file is written again with twice the incident elevations, twice the value
+    /// tables' side (and warp tables of at least 4 times that, up to 512) or both, whichever
+    /// cuts the error most, up to `max_theta_samples` and `max_resolution`, as long as a
+    /// doubling cuts the error by at least a quarter (otherwise the coarser file is kept);
+    /// `None` writes the sizes as they are.
     pub tolerance: Option<f64>,
     /// Most incident elevations that refinement goes to (at least `theta_samples`, at most
     /// 256).
@@ -649,7 +652,8 @@ impl SourceReference {
 /// integrated over the same
 /// nodes in half-vector space: wo = the reflection of wi about m, dwo = 4 (wi . m) dm, with m
 /// on a midpoint grid in the format's coordinates (u = sqrt(2 theta_m / pi), phi_m), whose
-/// nodes crowd towards the mirror direction (the first is 0.003 degrees from it), so a sharp
+/// nodes crowd towards the mirror direction (the first ring's m is 0.0024 degrees from the
+/// normal, its wo 0.0049 degrees from the mirror direction), so a sharp
 /// lobe is integrated as well as a broad one. Errors are relative to the largest albedo over
 /// the elevations when an albedo is below a thousandth of it (a black material does not
 /// divide by 0).
@@ -1334,6 +1338,31 @@ mod tests {
 
     /// RGB sources are written as `rgb` tables; negative values are stored as 0 and counted;
     /// bad sizes and non-finite values are errors naming the source.
+    /// The evaluator takes directions of any finite length: a wi shorter than ~1e-154 (its
+    /// squared norm underflows) was refused ("directions must be finite and non-zero").
+    #[test]
+    fn evaluation_takes_directions_of_any_finite_length() {
+        let options = RglWriteOptions {
+            theta_samples: 4,
+            resolution: 8,
+            warp_resolution: 16,
+            tolerance: None,
+            ..RglWriteOptions::default()
+        };
+        let (bsdf, _) = written(&Analytic::new(0.3), &options);
+        let (wi, wo) = ([0.0, 0.6, 0.8], [0.3, -0.4, 0.75f64.sqrt()]);
+        let (mut want, mut got) = ([0.0; 4], [0.0; 4]);
+        bsdf.eval(wi, wo, &mut want).unwrap();
+        for s in [1e-170, 1e-300, 1e170, 1e300] {
+            bsdf.eval(wi.map(|v| v * s), wo, &mut got).unwrap();
+            for (a, b) in got.iter().zip(&want) {
+                assert!((a - b).abs() <= 1e-12 * b, "{s:e}: {got:?} vs {want:?}");
+            }
+        }
+        assert!(bsdf.eval([0.0; 3], wo, &mut got).is_err());
+        assert!(bsdf.eval([f64::NAN, 0.0, 1.0], wo, &mut got).is_err());
+    }
+
     #[test]
     fn rgb_negative_and_bad_inputs() {
         struct Rgb(f64);
