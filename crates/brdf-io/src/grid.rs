@@ -45,8 +45,35 @@ fn normalize(v: Vec3) -> Option<Vec3> {
     if (n2 - 1.0).abs() <= 1e-15 {
         return Some(v);
     }
+    unit(v)
+}
+
+/// `v` divided by its norm; `None` for a zero or non-finite `v`. Any finite length works: a
+/// `v` shorter than ~1e-154 or longer than ~1e154, whose squared norm underflows or
+/// overflows, is divided by its largest component first.
+#[inline]
+pub(crate) fn unit(v: Vec3) -> Option<Vec3> {
+    let n2 = dot(v, v);
+    if !(n2 >= f64::MIN_POSITIVE && n2.is_finite()) {
+        return unit_rescaled(v);
+    }
     let n = n2.sqrt();
-    (n > 0.0 && n.is_finite()).then(|| [v[0] / n, v[1] / n, v[2] / n])
+    Some([v[0] / n, v[1] / n, v[2] / n])
+}
+
+/// [`unit`] for a `v` whose squared norm leaves the normal range of f64.
+#[cold]
+fn unit_rescaled(v: Vec3) -> Option<Vec3> {
+    if !v.iter().all(|x| x.is_finite()) {
+        return None;
+    }
+    let m = v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    if m == 0.0 {
+        return None;
+    }
+    let s = [v[0] / m, v[1] / m, v[2] / m];
+    let n = dot(s, s).sqrt();
+    Some([s[0] / n, s[1] / n, s[2] / n])
 }
 
 /// Rotates `v` about the y axis by `angle` (right-handed).
@@ -59,8 +86,8 @@ impl HalfDiff {
     /// Half/difference angles of the direction pair (`wi`, `wo`), as in MERL's
     /// `std_coords_to_half_diff_coords`, with phi_d folded into [0, pi).
     ///
-    /// Returns `None` when the half vector is undefined (wi = -wo) or a vector is not finite.
-    /// The inputs need not be normalised.
+    /// Returns `None` when the half vector is undefined (wi = -wo) or a vector is zero or not
+    /// finite. The inputs need not be normalised (any finite length).
     pub fn from_dirs(wi: Vec3, wo: Vec3) -> Option<Self> {
         let mut hd = Self::from_dirs_merl(wi, wo)?;
         if hd.phi_d >= PI {
@@ -770,6 +797,38 @@ mod tests {
             partial > 100 && plain > 1000 && nearest > 10,
             "partial {partial}, plain {plain}, nearest {nearest}"
         );
+    }
+
+    /// Directions of any finite length give the angles of their unit vectors: a length below
+    /// ~1e-154 or above ~1e154, whose squares underflow or overflow, used to give `None`.
+    #[test]
+    fn directions_of_any_finite_length_are_normalised() {
+        let (wi, wo) = ([0.0, 0.6, 0.8], [0.3, -0.4, 0.75f64.sqrt()]);
+        let (a, b) = (
+            HalfDiff::from_dirs(wi, wo).unwrap(),
+            HalfDiff::from_dirs(wo, wi).unwrap(),
+        );
+        for s in [1e-170, 1e-300, 1e170, 1e300] {
+            let scaled = wi.map(|x| x * s);
+            for (hd, want) in [
+                (HalfDiff::from_dirs(scaled, wo), a),
+                (HalfDiff::from_dirs(wo, scaled), b),
+                (HalfDiff::from_dirs_merl(scaled, wo), a),
+            ] {
+                let hd = hd.unwrap_or_else(|| panic!("{s:e}: None"));
+                assert!(close(hd.theta_h, want.theta_h, 1e-12), "{s:e}: {hd:?}");
+                assert!(close(hd.theta_d, want.theta_d, 1e-12), "{s:e}: {hd:?}");
+                assert!(close(hd.phi_d, want.phi_d, 1e-12), "{s:e}: {hd:?}");
+            }
+        }
+        for bad in [
+            [0.0; 3],
+            [f64::NAN, 0.0, 1.0],
+            [f64::INFINITY, 0.0, 1.0],
+            [1e300, 0.0, f64::NAN],
+        ] {
+            assert_eq!(HalfDiff::from_dirs(bad, wo), None, "{bad:?}");
+        }
     }
 
     #[test]

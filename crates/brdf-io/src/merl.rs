@@ -12,9 +12,12 @@
 //! is folded onto MERL's grid by reciprocity when read.
 //!
 //! [`read_merl`] keeps the values exactly as stored (negative markers included, times the
-//! scale) and refuses NaN and infinite numbers, as [`MerlBrdf::new`] does (so [`write_merl`] never
-//! writes them); the conversions to dataset order treat negatives as 0 and count them in the
-//! [`ImportReport`].
+//! scale; a "full" file's two halves are averaged as above) and refuses NaN and infinite numbers,
+//! as [`MerlBrdf::new`] does ([`write_merl`] refuses values it would store as infinities). The
+//! conversions to dataset order never store a marker: on the file's own grid a marker takes the
+//! mean of its measured neighbours ([`MerlBrdf::to_dataset_order`]); resampling onto another
+//! grid skips markers or reads the nearest measured cell ([`Resampling`]); a marker with no
+//! measured value nearby is stored as 0 and counted in the [`ImportReport`].
 
 use std::path::{Path, PathBuf};
 
@@ -189,7 +192,11 @@ impl MerlBrdf {
     }
 
     /// The values resampled onto `grid` in dataset order (see [`Resampling`]); cells below the
-    /// horizon are 0, negative markers count as 0 (nearest) or are skipped (average).
+    /// horizon are 0. Negative markers are skipped (`Average`) or replaced by the nearest stencil
+    /// cell that holds a value (`Nearest`), and count as 0 (in
+    /// [`ImportReport::negatives_clamped`]) only when no such cell exists. On the file's own grid
+    /// `method` plays no part: this is [`MerlBrdf::to_dataset_order`], which fills markers from
+    /// their neighbours.
     pub fn resample(&self, grid: &AngularGrid, method: Resampling) -> (Vec<f32>, ImportReport) {
         if *grid == self.grid {
             return self.to_dataset_order();
@@ -265,8 +272,7 @@ impl BrdfSource for MerlBrdf {
     fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
         crate::source::check_output_len(out, 3)?;
         out.iter_mut().for_each(|v| *v = 0.0);
-        let len = |v: Vec3| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        if !(wi[2] > 0.0 && wo[2] > 0.0) || len(wi) == 0.0 || len(wo) == 0.0 {
+        if !(wi[2] > 0.0 && wo[2] > 0.0) {
             return Ok(());
         }
         let Some(hd) = HalfDiff::from_dirs_merl(wi, wo) else {
@@ -480,7 +486,12 @@ fn check_finite<T: Copy + Into<f64>>(
 }
 
 /// Writes a MERL `.binary` file (temporary file + rename). Values are in 1/sr; the per-channel
-/// scale is inverted so that [`read_merl`] gives the same values back.
+/// scale is inverted so that [`read_merl`] gives the same values back (except on a grid of
+/// [`FULL_PHI_D_RESOLUTION`], which [`read_merl`] folds onto MERL's grid).
+///
+/// A value whose stored number (value / scale) is beyond the f64 range (above ~1.2e305 1/sr
+/// in R, ~2e305 in B) is an error naming `path`: the file would hold an infinity, which
+/// [`read_merl`] refuses.
 pub fn write_merl(path: impl AsRef<Path>, brdf: &MerlBrdf) -> Result<()> {
     let path = path.as_ref();
     let g = brdf.grid;
@@ -491,6 +502,22 @@ pub fn write_merl(path: impl AsRef<Path>, brdf: &MerlBrdf) -> Result<()> {
         });
     };
     let n = g.len();
+    // A finite value beyond f64::MAX times the scale has no finite stored number: the file
+    // would hold an infinity that `read_merl` refuses.
+    if let Some(i) = (0..brdf.values.len())
+        .find(|&i| !stored_number(brdf.values[i], MERL_SCALE[i / n]).is_finite())
+    {
+        return Err(Error::InvalidArgument {
+            reason: format!(
+                "{}: value {:e} (channel {}, MERL index {i}) is too large for a MERL file: its \
+                 stored number (value / {:e}) is beyond the f64 range",
+                path.display(),
+                brdf.values[i],
+                ["R", "G", "B"][i / n],
+                MERL_SCALE[i / n]
+            ),
+        });
+    }
     write_atomic_with(path, |w| {
         for d in [a, b, c] {
             w.write_all(&d.to_le_bytes())?;
@@ -972,6 +999,42 @@ mod tests {
             e.contains("bad MERL resolution") && !e.contains("big-endian"),
             "{e}"
         );
+    }
+
+    /// A value whose stored number overflows f64 (1e306 x 1500) is refused by the writer,
+    /// naming the file and the value: it used to be written as an infinity that `read_merl`
+    /// then refused. Large values that fit still round-trip exactly; so do lookups with
+    /// directions of any finite length (a wi shorter than ~1e-154 used to read 0).
+    #[test]
+    fn values_beyond_the_stored_range_are_refused_by_the_writer() {
+        let grid = AngularGrid::new(2, 2, 4).unwrap();
+        let n = grid.len();
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("h.binary");
+        let mut values = vec![1e300; 3 * n];
+        values[n + 5] = 1e306;
+        let e = write_merl(&p, &MerlBrdf::new(grid, values.clone()).unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("h.binary: value 1e306 (channel G, MERL index")
+                && e.contains("too large for a MERL file"),
+            "{e}"
+        );
+        assert!(!p.exists(), "nothing is written");
+        values[n + 5] = 1e300;
+        let brdf = MerlBrdf::new(grid, values).unwrap();
+        write_merl(&p, &brdf).unwrap();
+        assert_eq!(read_merl(&p).unwrap(), brdf);
+        let constant = MerlBrdf::new(grid, vec![0.5; 3 * n]).unwrap();
+        let wo = [0.3, -0.4, 0.75f64.sqrt()];
+        for s in [1.0, 1e-170, 1e170] {
+            let mut out = [0.0; 3];
+            constant
+                .eval([0.0, 0.6 * s, 0.8 * s], wo, &mut out)
+                .unwrap();
+            assert_eq!(out, [0.5; 3], "{s:e}");
+        }
     }
 
     #[test]

@@ -22,7 +22,7 @@
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
-use crate::grid::{AngularGrid, Channels, Vec3};
+use crate::grid::{AngularGrid, Channels, Vec3, unit};
 use crate::source::{
     BrdfSource, ImportReport, PairWeights, ResampleOptions, resample_cells,
     resample_cells_indexed_into,
@@ -398,10 +398,6 @@ fn layer<const IN: usize, const OUT: usize>(x: &[f64; IN], w: &[f64], b: &[f64])
 /// The network input `(sin theta_h, 0, cos theta_h, d)` of a direction pair, or `None` when the
 /// pair is not above the horizon or degenerate.
 fn network_input(wi: Vec3, wo: Vec3) -> Option<[f64; 6]> {
-    let unit = |v: Vec3| {
-        let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        (n > 0.0 && n.is_finite()).then(|| [v[0] / n, v[1] / n, v[2] / n])
-    };
     let wi = unit(wi)?;
     let wo = unit(wo)?;
     if !(wi[2] > 0.0 && wo[2] > 0.0) {
@@ -526,6 +522,17 @@ mod tests {
             }
         }
         assert!(network_input([0.0, 0.0, 1.0], [1.0, 0.0, -0.1]).is_none());
+        // Directions of any finite length: a norm whose square underflows or overflows
+        // (below ~1e-154, above ~1e154) used to give no input (a value of 0).
+        let x = network_input(wi, wo).unwrap();
+        for s in [1e-170, 1e170] {
+            let y = network_input(wi.map(|v| v * s), wo).unwrap();
+            assert!(
+                x.iter().zip(&y).all(|(a, b)| (a - b).abs() < 1e-12),
+                "{s:e}: {y:?}"
+            );
+        }
+        assert!(network_input([0.0; 3], wo).is_none());
     }
 
     /// A negative, zero, NaN or infinite outlier threshold is refused before resampling (with

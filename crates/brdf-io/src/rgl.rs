@@ -22,11 +22,12 @@
 //! falls between two stored slices; the 7 RGL files and [`write_rgl`] hold 0 to pi/2 rounded to
 //! f32, at most 7.5e-8 rad off) and `phi_i` must lie within [-pi, pi] (the range of the azimuth
 //! it is interpolated at; isotropic files hold `[0]`); `ndf`, `vndf` and `luminance` must be
-//! finite and >= 0 (`ndf` not 0 everywhere), `sigma` > 0, and each `vndf` slice must integrate
-//! to a positive value. Rows of a `vndf` slice without density (the 90-degree slice of each of
-//! the 7 RGL files has none on the half where microfacets face away from wi) invert as a uniform
-//! row instead of 0/0 (Mitsuba's inversion returns NaN there), so a file that opens never
-//! evaluates to NaN (directions at or below the horizon give 0).
+//! finite and >= 0 (`ndf` not 0 everywhere when `jacobian` is set), `sigma` > 0, the value table
+//! finite, and each `vndf` slice must integrate to a positive value. Rows of a `vndf` slice
+//! without density (the 90-degree slice of each of the 7 RGL files has none on the half where
+//! microfacets face away from wi) invert as a uniform row instead of 0/0 (Mitsuba's inversion
+//! returns NaN there), so a file that opens never evaluates to NaN (directions at or below the
+//! horizon give 0).
 //!
 //! [`write_rgl`] writes any [`BrdfSource`] (a stored or predicted material) as an isotropic file
 //! that this evaluator, Mitsuba 3 and pbrt-v4 read (`rgl/write.rs`).
@@ -35,7 +36,7 @@ use std::f64::consts::{FRAC_PI_2, PI};
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
-use crate::grid::{AngularGrid, ChannelSelection, Channels, Vec3};
+use crate::grid::{AngularGrid, ChannelSelection, Channels, Vec3, unit};
 use crate::source::{
     BrdfSource, ImportReport, PairWeights, ResampleOptions, resample_cells, resample_cells_into,
 };
@@ -752,11 +753,15 @@ impl RglBsdf {
     }
 
     /// Evaluates the file at every bin centre of `grid` (directions from
-    /// [`crate::HalfDiff::to_dirs`]) for `channels`, in parallel. Values are in dataset order
+    /// [`crate::HalfDiff::to_dirs`]) for `channels`, in parallel, with the default
+    /// [`ResampleOptions`]: each cell stores the reciprocal mean of the two direction orders,
+    /// each weighted by the square of the cosine it divides by,
+    /// `(c_o^2 f(wi, wo) + c_i^2 f(wo, wi)) / (c_o^2 + c_i^2)` (the non-reciprocal part is
+    /// measured in the report). Values are in dataset order
     /// (`angular_index * n_channels + channel`, MERL's angular order); cells below the horizon
-    /// are 0.0; negative values (Mitsuba's RGB tables dip slightly below zero) are clamped to 0
-    /// and counted in the report, and so are values above
-    /// [`crate::source::DEFAULT_OUTLIER_THRESHOLD`] (not clamped; see
+    /// are 0.0; a negative mean (Mitsuba's RGB tables dip slightly below zero) is clamped to 0
+    /// and counted in the report; values above
+    /// [`crate::source::DEFAULT_OUTLIER_THRESHOLD`] are counted, not clamped (see
     /// [`RglBsdf::resample_with`]). Such values occur at grazing bin centres, where Mitsuba's
     /// f cos(theta_o) does not vanish as fast as cos(theta_o).
     pub fn resample(
@@ -823,11 +828,6 @@ impl BrdfSource for RglBsdf {
     fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
         RglBsdf::eval(self, wi, wo, out)
     }
-}
-
-fn unit(v: Vec3) -> Option<Vec3> {
-    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    (n > 0.0 && n.is_finite()).then(|| [v[0] / n, v[1] / n, v[2] / n])
 }
 
 /// Elevation of a unit vector, stable near the pole: `2 asin(|d - (0,0,1)| / 2)`.
