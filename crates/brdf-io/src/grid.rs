@@ -593,8 +593,8 @@ impl ChannelSelection {
 
     /// Channels `wanted` from `stored`: R, G, B from RGB channels, or wavelengths inside the
     /// stored range (within 1e-9 nm) from spectral ones. Errors, naming `path` (the file or
-    /// store the channels belong to), for a wavelength outside the range or a mix of RGB and
-    /// spectral channels.
+    /// store the channels belong to), for a wavelength outside the range, a mix of RGB and
+    /// spectral channels, or stored spectral channels without a wavelength.
     pub fn new(path: &Path, stored: &Channels, wanted: &Channels) -> Result<Self> {
         let (s, w) = match (stored, wanted) {
             (Channels::Rgb, Channels::Rgb) => return Ok(Self::all(stored)),
@@ -617,7 +617,11 @@ impl ChannelSelection {
                 });
             }
         };
-        let (min, max) = (s[0], s[s.len() - 1]);
+        let (Some(&min), Some(&max)) = (s.first(), s.last()) else {
+            return Err(Error::InvalidArgument {
+                reason: format!("{}: the data has no wavelengths", path.display()),
+            });
+        };
         let taps = w
             .iter()
             .map(|&l| {
@@ -684,6 +688,54 @@ mod tests {
 
     fn close(a: f64, b: f64, tol: f64) -> bool {
         (a - b).abs() <= tol
+    }
+
+    /// Wavelengths pick the stored channels at or around them (the weight of the upper one),
+    /// within 1e-9 nm of the ends; every refusal names the file: a wavelength outside the
+    /// range, RGB against spectral channels either way, and a spectral list without a
+    /// wavelength (it used to index an empty list).
+    #[test]
+    fn channel_selections_interpolate_wavelengths_and_refuse_what_they_cannot() {
+        let path = Path::new("a.sbrdf");
+        let stored = Channels::Spectral(vec![400.0, 500.0, 700.0]);
+        let sel = ChannelSelection::new(
+            path,
+            &stored,
+            &Channels::Spectral(vec![400.0 - 1e-10, 450.0, 500.0, 650.0, 700.0 + 1e-10]),
+        )
+        .unwrap();
+        assert_eq!(
+            sel.taps(),
+            &[
+                (0, 0, 0.0),
+                (0, 1, 0.5),
+                (1, 1, 0.0),
+                (1, 2, 0.75),
+                (2, 2, 0.0)
+            ]
+        );
+        assert!(!sel.is_identity(3));
+        assert!(ChannelSelection::all(&stored).is_identity(3));
+        let refused = |stored: &Channels, wanted: &Channels, want: &str| {
+            let e = ChannelSelection::new(path, stored, wanted)
+                .err()
+                .unwrap_or_else(|| panic!("{stored:?} -> {wanted:?} accepted"))
+                .to_string();
+            assert!(e.contains("a.sbrdf") && e.contains(want), "{e}");
+        };
+        refused(&stored, &Channels::Spectral(vec![399.9]), "399.9");
+        refused(&stored, &Channels::Spectral(vec![700.1]), "700.1");
+        refused(&stored, &Channels::Rgb, "spectral data has no RGB");
+        refused(
+            &Channels::Rgb,
+            &Channels::Spectral(vec![500.0]),
+            "RGB data has no",
+        );
+        refused(
+            &Channels::Spectral(vec![]),
+            &Channels::Spectral(vec![500.0]),
+            "no wavelengths",
+        );
     }
 
     #[test]
