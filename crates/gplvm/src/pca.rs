@@ -251,6 +251,12 @@ mod tests {
         close(factors(InitScaling::Isotropic), [1.0 / s0; 3]);
         close(factors(InitScaling::Likelihood), [1.0 / s0; 3]);
         close(factors(InitScaling::PerAxis), [1.0 / s0, 0.5, 1.0]);
+        // No components (q = 0): an empty start under every scaling.
+        let none = Pca::from_centred_gram(Mat::<f64>::identity(4, 4).as_ref(), 0).unwrap();
+        for scaling in [InitScaling::Isotropic, InitScaling::PerAxis] {
+            let x = none.latent_start(scaling);
+            assert_eq!((x.nrows(), x.ncols()), (4, 0));
+        }
     }
 
     /// Each component's sign is fixed as documented: its largest-magnitude score is positive,
