@@ -950,7 +950,53 @@ mod tests {
             ..Default::default()
         };
         assert!(hooke_jeeves(|x| x[0], &[0.0], &s).is_err());
+        // The bounds themselves: a zero step and a reduction of 0 or 1 never converge.
+        for (initial_step, step_reduction) in [(0.0, 0.5), (0.1, 0.0), (0.1, 1.0)] {
+            let s = HookeJeevesSettings {
+                initial_step,
+                step_reduction,
+                ..Default::default()
+            };
+            let e = hooke_jeeves(|x| x[0], &[0.0], &s).unwrap_err().to_string();
+            assert!(e.contains("step_reduction in (0, 1)"), "{e}");
+        }
         let s = HookeJeevesSettings::default();
         assert!(hooke_jeeves(|_| f64::NAN, &[0.0], &s).is_err());
+    }
+
+    /// On a constant objective every sweep fails, so the step halves from 1 until it is below
+    /// 1e-3: 10 iterations (steps 2^0..2^-9) of 2 trials per coordinate, plus the start, and
+    /// the start is returned.
+    #[test]
+    fn hooke_jeeves_counts_iterations_and_evaluations() {
+        let s = HookeJeevesSettings {
+            initial_step: 1.0,
+            step_reduction: 0.5,
+            min_step: 1e-3,
+            max_evaluations: 1000,
+        };
+        let m = hooke_jeeves(|_| 7.0, &[0.25, -2.0, 3.0], &s).unwrap();
+        assert_eq!(m.x, vec![0.25, -2.0, 3.0]);
+        assert_eq!(
+            (m.value, m.iterations, m.evaluations),
+            (7.0, 10, 1 + 10 * 2 * 3)
+        );
+        assert!(
+            !m.at_limit && m.stop_reason.starts_with("step 9.766e-4 below"),
+            "{m:?}"
+        );
+    }
+
+    /// Exploratory moves take strict improvements only: a coordinate the objective does not
+    /// depend on stays exactly where it started while the others reach the minimum.
+    #[test]
+    fn hooke_jeeves_leaves_a_flat_coordinate_alone() {
+        let s = HookeJeevesSettings {
+            initial_step: 1.0,
+            ..Default::default()
+        };
+        let m = hooke_jeeves(|x| (x[1] - 3.0).powi(2), &[0.5, 0.0], &s).unwrap();
+        assert_eq!(m.x[0], 0.5, "{m:?}");
+        assert!((m.x[1] - 3.0).abs() < 1e-6 && m.value < 1e-12, "{m:?}");
     }
 }
