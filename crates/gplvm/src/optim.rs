@@ -708,6 +708,53 @@ mod tests {
         assert!(!r.stalled, "{r:?}");
     }
 
+    /// The line search's cubic step is the exact minimiser of a cubic (or quadratic) given
+    /// its values and slopes at the two ends, in either order, and with slopes whose squares
+    /// overflow; a minimiser within a tenth of the interval of an end, or no minimum at all,
+    /// gives the midpoint.
+    #[test]
+    fn cubic_step_minimises_cubics_and_keeps_off_the_ends() {
+        // f = c (t^3 - 3 t): minimum at t = 1; f(0) = 0, f'(0) = -3c, f(2) = 2c, f'(2) = 9c.
+        for c in [1.0, 1e-150, 1e200] {
+            let (fa, da, fb, db) = (0.0, -3.0 * c, 2.0 * c, 9.0 * c);
+            for t in [
+                cubic_step(0.0, fa, da, 2.0, fb, db),
+                cubic_step(2.0, fb, db, 0.0, fa, da),
+            ] {
+                assert!((t - 1.0).abs() < 1e-12, "{c:e}: {t}");
+            }
+        }
+        // f = (t - m)^2 on [0, 2]: m itself inside the margins, the midpoint outside them.
+        let quadratic = |m: f64| {
+            let f = |t: f64| (t - m) * (t - m);
+            cubic_step(0.0, f(0.0), -2.0 * m, 2.0, f(2.0), 2.0 * (2.0 - m))
+        };
+        assert!((quadratic(0.7) - 0.7).abs() < 1e-12);
+        assert!((quadratic(1.75) - 1.75).abs() < 1e-12);
+        assert_eq!(quadratic(1.9), 1.0);
+        assert_eq!(quadratic(0.1), 1.0);
+        // f = -t^3 + 3t on [-0.5, 0.5]: its minimum (t = -1) is outside; f = t^3 + t has none.
+        assert_eq!(cubic_step(-0.5, -1.375, 2.25, 0.5, 1.375, 2.25), 0.0);
+        assert_eq!(cubic_step(0.0, 0.0, 1.0, 1.0, 2.0, 4.0), 0.5);
+    }
+
+    /// The evaluations L-BFGS reports are the objective's calls, line searches included.
+    #[test]
+    fn lbfgs_counts_every_evaluation() {
+        let calls = std::cell::Cell::new(0u64);
+        let m = lbfgs(
+            |x| {
+                calls.set(calls.get() + 1);
+                Ok(rosenbrock(x))
+            },
+            &[-1.2, 1.0],
+            &LbfgsSettings::default(),
+        )
+        .unwrap();
+        assert!(m.evaluations > m.iterations && m.iterations > 10, "{m:?}");
+        assert_eq!(m.evaluations, calls.get());
+    }
+
     #[test]
     fn lbfgs_on_rosenbrock_uses_few_evaluations() {
         let m = lbfgs(
