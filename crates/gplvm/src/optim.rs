@@ -738,6 +738,119 @@ mod tests {
         assert_eq!(cubic_step(0.0, 0.0, 1.0, 1.0, 2.0, 4.0), 0.5);
     }
 
+    /// `wolfe_search` along +x from 0 with f(0) = `f0` and f'(0) = `slope0`: the trial
+    /// returned, the evaluations counted and every (step, value) evaluated.
+    fn search_1d(
+        f: impl Fn(f64) -> (f64, f64),
+        f0: f64,
+        slope0: f64,
+        first: f64,
+    ) -> (Option<Trial>, u64, Vec<(f64, f64)>) {
+        let (mut evaluations, mut tried) = (0, Vec::new());
+        let mut objective = |x: &[f64]| {
+            let (value, slope) = f(x[0]);
+            tried.push((x[0], value));
+            Ok((value, vec![slope]))
+        };
+        let t = wolfe_search(
+            &mut objective,
+            &[0.0],
+            &[1.0],
+            f0,
+            slope0,
+            first,
+            &mut evaluations,
+        );
+        (t, evaluations, tried)
+    }
+
+    /// The line search returns a step that meets the strong Wolfe conditions (sufficient
+    /// decrease with c1 = 1e-4, curvature with c2 = 0.9), with the value and slope of that
+    /// step, in at most 30 evaluations, and no lower than any other trial that decreased
+    /// sufficiently, over 3000 seeded 1-D objectives `a (x - c)^2 + e (x - c)^4 + b sin(w x)`
+    /// and first steps from 1e-3 to 1e2 times the distance to the minimum.
+    #[test]
+    fn wolfe_search_meets_the_strong_wolfe_conditions() {
+        let mut s = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut uniform = move |lo: f64, hi: f64| {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            lo + (hi - lo) * ((s >> 11) as f64 / (1u64 << 53) as f64)
+        };
+        let mut checked = 0;
+        for case in 0..3000 {
+            let (a, c, e) = (uniform(0.1, 10.0), uniform(0.5, 5.0), uniform(0.0, 1.0));
+            let (b, w) = (uniform(0.0, 0.3) * a, uniform(1.0, 10.0));
+            let f = |x: f64| {
+                let value = a * (x - c).powi(2) + e * (x - c).powi(4) + b * (w * x).sin();
+                let slope = 2.0 * a * (x - c) + 4.0 * e * (x - c).powi(3) + b * w * (w * x).cos();
+                (value, slope)
+            };
+            let (f0, slope0) = f(0.0);
+            if slope0 >= 0.0 {
+                continue;
+            }
+            checked += 1;
+            let first = c * 10f64.powf(uniform(-3.0, 2.0));
+            let (t, evaluations, tried) = search_1d(f, f0, slope0, first);
+            let t = t.unwrap_or_else(|| panic!("case {case}: no step"));
+            let what = format!("case {case}: step {} of first {first}", t.step);
+            assert!(t.step > 0.0 && evaluations <= 30, "{what}: {evaluations}");
+            assert_eq!((t.value, t.slope), f(t.step), "{what}");
+            let decreases = |step: f64, value: f64| value <= f0 + 1e-4 * step * slope0;
+            assert!(decreases(t.step, t.value), "{what}: no sufficient decrease");
+            assert!(t.slope.abs() <= 0.9 * slope0.abs(), "{what}: curvature");
+            let lowest = tried
+                .iter()
+                .filter(|&&(step, value)| decreases(step, value))
+                .fold(f64::INFINITY, |m, &(_, value)| m.min(value));
+            assert_eq!(t.value, lowest, "{what}: {tried:?}");
+        }
+        assert!(checked > 2000, "{checked}");
+    }
+
+    /// f = -t + (1 + 0.75 d) t^2 - (1 + d) t^3 / 4 is flat (f' = 0) at the first step, 2, but
+    /// above f(0) by d = 1e-5, less than the sufficient decrease's 1e-4 t |f'(0)|: the search
+    /// must not take it, and goes back to the minimum at 2/3.
+    #[test]
+    fn wolfe_search_refuses_a_flat_step_that_did_not_decrease() {
+        let d = 1e-5;
+        let f = |x: f64| {
+            let value = -x + (1.0 + 0.75 * d) * x * x - (1.0 + d) * x.powi(3) / 4.0;
+            let slope = -1.0 + 2.0 * (1.0 + 0.75 * d) * x - 0.75 * (1.0 + d) * x * x;
+            (value, slope)
+        };
+        assert!(f(2.0).1.abs() < 1e-12 && f(2.0).0 > 0.0);
+        let t = search_1d(f, 0.0, -1.0, 2.0).0.unwrap();
+        assert!(
+            t.value < -0.1 && (t.step - 2.0 / 3.0).abs() < 0.2,
+            "step {}",
+            t.step
+        );
+    }
+
+    /// Along a direction in which the objective falls without end, the line search stops
+    /// after its 30 evaluations (doubling the step each time) with the last, lowest step.
+    #[test]
+    fn wolfe_search_stops_at_its_budget() {
+        let (t, evaluations, tried) = search_1d(|x| (-x, -1.0), 0.0, -1.0, 0.5);
+        let t = t.unwrap();
+        assert_eq!((evaluations, tried.len()), (30, 30));
+        assert_eq!((t.step, t.value), (2f64.powi(28), -(2f64.powi(28))));
+    }
+
+    /// At a kink (|t - 1|: slopes -1 and 1, so the curvature condition holds nowhere) the
+    /// zoom cannot succeed either: it stops at its budget with the lowest step found.
+    #[test]
+    fn wolfe_search_zoom_stops_at_its_budget() {
+        let (t, evaluations, _) =
+            search_1d(|x| ((x - 1.0).abs(), (x - 1.0).signum()), 1.0, -1.0, 3.0);
+        let t = t.unwrap();
+        assert_eq!(evaluations, 30);
+        assert!(t.step < 1.0 && t.value < 1e-3, "step {}", t.step);
+    }
+
     /// The evaluations L-BFGS reports are the objective's calls, line searches included.
     #[test]
     fn lbfgs_counts_every_evaluation() {
