@@ -27,8 +27,9 @@
 //! model.save(&path)?;
 //! assert_eq!(Model::load(&path)?.materials, model.materials);
 //!
-//! // `fit_store` is one pass over the data for the Gram matrix, then `fit_gram`, which reads no
-//! // data: other fits of the same transform start from the same pass, here the paper's
+//! // `fit_store` verifies the store's checksum, makes one pass over the data for the Gram
+//! // matrix, then calls `fit_gram`, which reads no data: other fits of the same transform
+//! // start from the same pass, here the paper's
 //! // Hooke-Jeeves search (the paper fits raw values, which need a pass of their own).
 //! let pass = gplvm::gram_pass(&Store::open(&data)?, config.transform)?;
 //! let again = gplvm::fit_gram(pass.gram.as_ref(), pass.d_effective, &config)?;

@@ -56,10 +56,11 @@ pub struct FitReport {
     pub log_likelihood: f64,
     /// Log-likelihood at the PCA start.
     pub initial_log_likelihood: f64,
-    /// Euclidean norm of the gradient of the log-likelihood at the optimum with respect to the
-    /// optimised parameters as the optimiser sees them: the latent coordinates and, when learnt,
-    /// log s^2, log l and log(mu - min_noise) (the noise floor's parametrisation, so a noise
-    /// near its floor contributes little).
+    /// Euclidean norm of the gradient of the log-likelihood at the optimum (of L itself, not
+    /// of the per-value objective -L / (N D) the optimiser minimises) with respect to the
+    /// optimised parameters: the latent coordinates and, when learnt, log s^2 and
+    /// log(mu - min_noise) (the noise floor's parametrisation, so a noise near its floor
+    /// contributes little); the length-scale is never learnt ([`crate::fit::LEARNT`]).
     pub gradient_norm: f64,
     /// Jitter the Cholesky factorisation of K needed at the optimum.
     pub jitter: f64,

@@ -58,8 +58,8 @@ impl Transform {
         GramTransform::to_f64(self, input, out);
     }
 
-    /// [`Transform::inverse`] of a batch, in place (vectorised with AVX2 + FMA when the CPU has
-    /// them; the same arithmetic as the scalar version).
+    /// [`Transform::inverse`] of a batch, in place (vectorised with AVX-512, or AVX2 + FMA, when
+    /// the CPU has them: [`exp_m1_scaled_in_place`]; the same arithmetic as the scalar version).
     pub fn inverse_in_place(&self, values: &mut [f64]) {
         if let Self::Log { offset } = *self {
             exp_m1_scaled_in_place(values, offset);

@@ -42,7 +42,7 @@
 //! let x = (pred.model().materials[0].coords[0] + pred.model().materials[1].coords[0]) / 2.0;
 //! let mut between = pred.predict(&[x], predict::PredictorKind::Exact)?;
 //! if let Some(w) = render::colour::needed_wavelengths(between.channels(), Illuminant::D65)? {
-//!     between = between.with_wavelengths(&w)?; // 380-780 nm here
+//!     between = between.with_wavelengths(&w)?; // 360-780 nm here (22 of the 33)
 //! }
 //! let ([r, g, b], _) = mean_colour(&render_sphere(&between, &opts)?);
 //! assert!(r > g && g > b); // between gold and copper: a warm metal

@@ -70,10 +70,11 @@ impl Default for MapOptions {
 pub type LabelledPoint = (String, [f64; 2]);
 
 /// The map caption of a model with latent dimension `q` and data transform `transform` (its
-/// display form), shaded by the predictive variance per transformed value (model variance x
-/// `data_scale`, the units the reports use): what the colour bar means, and for q > 2 that the
-/// map is the slice through the origin of the other axes, for q = 1 that the vertical axis is
-/// not one of the model's (every material sits at X2 = 0 and nothing varies along it).
+/// display form), shaded by the predictive standard deviation per transformed value (the
+/// square root of model variance x `data_scale`, the units the reports use; [`latent_map`]
+/// shades by the square root of its `variance`): what the colour bar means, and for q > 2
+/// that the map is the slice through the origin of the other axes, for q = 1 that the vertical
+/// axis is not one of the model's (every material sits at X2 = 0 and nothing varies along it).
 pub fn variance_caption(transform: &str, q: usize) -> String {
     let slice = match q {
         0 | 1 => ", ONE LATENT AXIS: X2 IS NOT A MODEL AXIS".to_owned(),

@@ -189,7 +189,7 @@ const STUDIO_SOFT: f64 = 0.08;
 /// `y` (the up component of a unit direction): 0.15 on the floor, a horizon softened over
 /// |y| < 0.08 (about 5 degrees: sharp on a mirror, without the steps that a harder edge leaves
 /// on glossy lobes as the fixed quadrature directions cross it), then 1.5 rising linearly to
-/// 3 at the zenith. A white diffuser facing up receives ~2.3 pi (sky) and facing down 0.15 pi
+/// 3 at the zenith. A white diffuser facing up receives ~2.5 pi (sky) and facing down 0.15 pi
 /// (floor), per unit `env_radiance`: with the default light, its brightest point stays near
 /// 1 (linear), below clipping at exposure 0.
 pub fn studio_radiance(y: f64) -> f64 {
@@ -257,8 +257,9 @@ pub struct SphereOptions {
 
 impl Default for SphereOptions {
     /// 256 pixels, light from the upper left at 45 degrees, irradiance 2.5 (a white diffuser
-    /// facing the light renders at ~0.8 linear), environment radiance 0.1, D65, exposure 0,
-    /// pre-integrated environment.
+    /// facing the light renders at 2.5 / pi ~ 0.8 linear from the light, ~0.9 with the
+    /// uniform environment's 0.1), environment radiance 0.1, D65, exposure 0, pre-integrated
+    /// environment.
     fn default() -> Self {
         Self {
             size: 256,
