@@ -35,10 +35,12 @@ impl Default for HookeJeevesSettings {
 /// Settings of L-BFGS.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LbfgsSettings {
-    /// Number of correction pairs kept. On the default synthetic set (raw values, q = 5,
-    /// N q = 255) a memory of 100 needs 295 evaluations where 50 needs 389 and 20 needs 735
-    /// (fit_bench example); the two-loop recursion then streams 2 x 100 x 255 values per step,
-    /// ~20 us against ~80 us for the objective.
+    /// Number of correction pairs kept. On the default synthetic store (q = 5, N q = 255) a
+    /// memory of 100 needed 300 evaluations on raw values where 50 needed 377 and 30 needed
+    /// 492, and 1744 on log values where 50 and 30 needed 2071 and 2091 (`fit_bench` example,
+    /// BENCHMARKS.md "gplvm", session 3; raw at 100: 310 since session 9); the two-loop
+    /// recursion then streams 2 x 100 x 255 values per step, ~20 us more than a memory of 30
+    /// or 50 against ~63 us for the objective.
     pub memory: usize,
     /// Maximum number of iterations.
     pub max_iterations: u64,
@@ -92,17 +94,32 @@ pub struct Minimum {
 /// improvement; a successful exploration is followed by a pattern move `x + (x - x_previous)`
 /// that is kept when its own exploration improves on the base point. When no move improves,
 /// the step is reduced. Non-finite objective values count as no improvement.
+///
+/// # Errors
+/// [`Error::InvalidConfig`] when the settings cannot converge (see
+/// [`HookeJeevesSettings`]), and [`Error::Objective`] when the objective is not finite at `x0`.
 pub fn hooke_jeeves(
     mut f: impl FnMut(&[f64]) -> f64,
     x0: &[f64],
     settings: &HookeJeevesSettings,
 ) -> Result<Minimum> {
     let s = *settings;
-    if !(s.initial_step > 0.0 && s.step_reduction > 0.0 && s.step_reduction < 1.0) {
+    // A step that never falls below `min_step` (an infinite initial step, a min_step of 0 or
+    // NaN) never stops the search by its own test: it ran to the evaluation cap, and with no
+    // parameters (no evaluations) forever.
+    if !(s.initial_step.is_finite()
+        && s.initial_step > 0.0
+        && s.step_reduction > 0.0
+        && s.step_reduction < 1.0
+        && s.min_step.is_finite()
+        && s.min_step > 0.0)
+    {
         return Err(Error::InvalidConfig {
-            field: "initial_step, step_reduction",
-            value: format!("{}, {}", s.initial_step, s.step_reduction),
-            expected: "initial_step > 0 and step_reduction in (0, 1) (Hooke-Jeeves)".into(),
+            field: "initial_step, step_reduction, min_step",
+            value: format!("{}, {}, {}", s.initial_step, s.step_reduction, s.min_step),
+            expected: "initial_step and min_step finite and > 0, step_reduction in (0, 1) \
+                       (Hooke-Jeeves)"
+                .into(),
         });
     }
     let evaluations = Cell::new(0u64);
@@ -367,12 +384,13 @@ fn cubic_step(a: f64, fa: f64, da: f64, b: f64, fb: f64, db: f64) -> f64 {
 }
 
 /// Line search for the strong Wolfe conditions (Nocedal & Wright, Algorithms 3.5 and 3.6, with
-/// cubic interpolation): sufficient decrease `f(a) <= f0 + c1 a f0'` and curvature
-/// `|f'(a)| <= c2 |f0'|`. Evaluation errors and non-finite values count as "too far" (an
-/// infinite value: the zoom searches below that step), so the search never leaves the region
-/// where the objective is defined. Returns the accepted trial; when the evaluation budget runs
-/// out, the lowest trial that satisfies sufficient decrease (the curvature condition unmet), or
-/// `None` when no trial does.
+/// cubic interpolation; c1 = 1e-4, c2 = 0.9, at most 30 evaluations): sufficient decrease
+/// `f(a) <= f0 + c1 a f0'` and curvature `|f'(a)| <= c2 |f0'|`. Evaluation errors and
+/// non-finite values count as "too far" (an infinite value: the zoom searches below that
+/// step), so the search never leaves the region where the objective is defined. Returns the
+/// accepted trial; when the evaluation budget runs out or the zoom's interval shrinks to
+/// rounding, the lowest trial that satisfies sufficient decrease (the curvature condition
+/// unmet), or `None` when no trial does.
 fn wolfe_search(
     f: &mut impl FnMut(&[f64]) -> Result<(f64, Vec<f64>)>,
     x: &[f64],
@@ -485,17 +503,22 @@ fn wolfe_search(
 /// the last `memory` correction pairs (initial Hessian scaled by s'y / y'y) and a strong-Wolfe
 /// line search with cubic interpolation. Stops when the gradient norm falls below
 /// `gradient_tolerance`, when one step changes the value by less than `cost_tolerance`
-/// (absolute), after `max_iterations` steps, or when the line search finds no acceptable step.
-/// The last two are taken for convergence only when the gradient norm is at most
-/// `stall_gradient`; otherwise the correction pairs (a badly scaled Hessian model, e.g. after
-/// learnt hyperparameters ran away) are dropped and the method restarts from steepest descent,
-/// and a second such stall in a row ends it as [`Minimum::stalled`]. (An audit found fits with
-/// learnt hyperparameters stopping this way at a gradient of 0.49 per data value, 1.4e5 below
-/// what scipy's L-BFGS then reached from the same point.)
+/// (absolute), after `max_iterations` steps ([`Minimum::at_limit`]), or when the line search
+/// finds no acceptable step. The value-change stop and the line-search stop are taken for
+/// convergence only when the gradient norm is at most `stall_gradient`; otherwise the
+/// correction pairs (a badly scaled Hessian model, e.g. after learnt hyperparameters ran away)
+/// are dropped and the method restarts from steepest descent, and a second such stall in a row
+/// (or one while there were no pairs to drop) ends it as [`Minimum::stalled`]. (An audit found
+/// fits with learnt hyperparameters stopping this way at a gradient of 0.49 per data value,
+/// 1.4e5 below what scipy's L-BFGS then reached from the same point.)
 ///
 /// Own implementation rather than argmin's (used before): with N q = 255 parameters and a
 /// memory of 100, argmin's generic vector arithmetic cost as much per iteration as the O(N^3)
 /// GPLVM objective itself (~0.1 ms); here the recursion is a few plain slice loops.
+///
+/// # Errors
+/// [`Error::Objective`] when the value or the gradient is not finite at `x0`, and the error of
+/// `f` at `x0` itself (errors at later trial points only shorten the line search).
 pub fn lbfgs(
     mut f: impl FnMut(&[f64]) -> Result<(f64, Vec<f64>)>,
     x0: &[f64],
@@ -1110,6 +1133,28 @@ mod tests {
             ..Default::default()
         };
         assert!(hooke_jeeves(|x| x[0], &[0.0], &s).is_err());
+        // Settings whose step never falls below min_step are refused: with no parameters the
+        // search made no evaluation, so neither its own test nor the cap stopped it (a hang),
+        // and with parameters it burnt the whole budget at a step of 0 or infinity.
+        for (initial_step, min_step) in [
+            (0.1, 0.0),
+            (0.1, -1.0),
+            (0.1, f64::NAN),
+            (f64::INFINITY, 1e-6),
+            (0.1, f64::INFINITY),
+        ] {
+            let s = HookeJeevesSettings {
+                initial_step,
+                min_step,
+                ..Default::default()
+            };
+            let e = hooke_jeeves(|_| 0.0, &[], &s).unwrap_err().to_string();
+            assert!(e.contains("min_step"), "{initial_step} {min_step}: {e}");
+            assert!(hooke_jeeves(|x| x[0] * x[0], &[1.0], &s).is_err());
+        }
+        // Sound settings with no parameters stop by the step test.
+        let m = hooke_jeeves(|_| 0.0, &[], &HookeJeevesSettings::default()).unwrap();
+        assert!(!m.at_limit && m.evaluations == 1, "{m:?}");
         // The bounds themselves: a zero step and a reduction of 0 or 1 never converge.
         for (initial_step, step_reduction) in [(0.0, 0.5), (0.1, 0.0), (0.1, 1.0)] {
             let s = HookeJeevesSettings {

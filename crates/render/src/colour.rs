@@ -220,12 +220,15 @@ pub fn visible_coverage(wavelengths: &[f64], illuminant: Illuminant) -> [f64; 3]
 }
 
 /// A warning when `wavelengths` cover less than 95 % of any of the observer's X, Y, Z
-/// responses ([`visible_coverage`]): colours from them are mostly extrapolated.
+/// responses ([`visible_coverage`]): colours from them are mostly extrapolated. No wavelengths
+/// at all cover nothing: a warning too.
 pub fn coverage_warning(wavelengths: &[f64], illuminant: Illuminant) -> Option<String> {
+    let (Some(&lo), Some(&hi)) = (wavelengths.first(), wavelengths.last()) else {
+        return Some("no spectral channels: there is no colour to compute".into());
+    };
     let cover = visible_coverage(wavelengths, illuminant);
     let least = cover.iter().copied().fold(f64::INFINITY, f64::min);
     (least < 0.95).then(|| {
-        let (lo, hi) = (wavelengths[0], wavelengths[wavelengths.len() - 1]);
         let span = if lo == hi {
             format!("{lo} nm")
         } else {
@@ -744,6 +747,9 @@ mod tests {
                 );
             }
         }
+        // No wavelengths: a warning, not a panic (it indexed the empty slice).
+        assert_eq!(visible_coverage(&[], Illuminant::D65), [0.0; 3]);
+        assert!(coverage_warning(&[], Illuminant::D65).is_some_and(|w| w.contains("no spectral")));
         // Blue-poor samplings lose Z first.
         let c = visible_coverage(&range(480.0, 700.0, 20.0), Illuminant::D65);
         assert!(c[1] > 0.9 && c[2] < 0.5, "{c:?}");
