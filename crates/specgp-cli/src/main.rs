@@ -19,7 +19,7 @@ mod cmd_sample;
 mod cmd_synth;
 mod paths;
 
-/// Learn a navigable, predictive space of real-world materials from measured spectral BRDFs.
+/// The `specgp` command line (its `--help` summary is the package description, `about`).
 #[derive(Debug, Parser)]
 #[command(name = "specgp", version, about, long_about = None)]
 struct Cli {
