@@ -731,6 +731,34 @@ mod tests {
         assert!(!r.stalled, "{r:?}");
     }
 
+    /// A line search that fails from steepest descent (no pairs to drop: the objective is
+    /// undefined everywhere but at the start) stops at once as stalled, after one search's 30
+    /// evaluations; a start whose value or gradient is not finite is an error.
+    #[test]
+    fn lbfgs_stops_when_steepest_descent_finds_no_step() {
+        let only_at_one = |x: &[f64]| {
+            if x[0] == 1.0 {
+                Ok((1.0, vec![2.0]))
+            } else {
+                Err(Error::Objective {
+                    reason: "undefined".into(),
+                })
+            }
+        };
+        let m = lbfgs(only_at_one, &[1.0], &LbfgsSettings::default()).unwrap();
+        assert!(m.stalled && !m.at_limit, "{m:?}");
+        assert_eq!((m.x[0], m.iterations, m.evaluations), (1.0, 0, 31), "{m:?}");
+        assert!(m.stop_reason.contains("from steepest descent"), "{m:?}");
+        for start in [(f64::NAN, 0.0), (1.0, f64::NAN), (f64::INFINITY, 1.0)] {
+            let e = lbfgs(
+                |_| Ok((start.0, vec![start.1])),
+                &[0.0],
+                &LbfgsSettings::default(),
+            );
+            assert!(matches!(e, Err(Error::Objective { .. })), "{start:?}");
+        }
+    }
+
     /// The line search's cubic step is the exact minimiser of a cubic (or quadratic) given
     /// its values and slopes at the two ends, in either order, and with slopes whose squares
     /// overflow; a minimiser within a tenth of the interval of an end, or no minimum at all,
