@@ -759,6 +759,26 @@ mod tests {
         }
     }
 
+    /// With the gradient test off, L-BFGS stops when one step changes the value by less than
+    /// `cost_tolerance`, also far from 0 (a minimum value of 100), as converged: the gradient
+    /// is then below `stall_gradient`.
+    #[test]
+    fn lbfgs_stops_on_a_small_change_of_value() {
+        let offset = |x: &[f64]| {
+            let (v, g) = rosenbrock(x);
+            Ok((v + 100.0, g))
+        };
+        let settings = LbfgsSettings {
+            gradient_tolerance: 0.0,
+            cost_tolerance: 1e-9,
+            ..LbfgsSettings::default()
+        };
+        let m = lbfgs(offset, &[-1.2, 1.0], &settings).unwrap();
+        assert!(m.stop_reason.starts_with("value changed by"), "{m:?}");
+        assert!(!m.stalled && !m.at_limit && m.iterations < 100, "{m:?}");
+        assert!((m.value - 100.0).abs() < 1e-8, "{m:?}");
+    }
+
     /// The line search's cubic step is the exact minimiser of a cubic (or quadratic) given
     /// its values and slopes at the two ends, in either order, and with slopes whose squares
     /// overflow; a minimiser within a tenth of the interval of an end, or no minimum at all,
