@@ -392,6 +392,15 @@ mod tests {
             Transform::Log { offset: 0.5 }
         );
         assert!("log:-1".parse::<Transform>().is_err());
+        // The offset must be finite and > 0 (at 0 the log of a zero value is -inf).
+        for bad in [0.0, -0.0, f64::INFINITY, f64::NAN] {
+            let e = Transform::Log { offset: bad }
+                .check()
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("finite and > 0"), "{bad}: {e}");
+        }
+        assert!(Transform::Log { offset: 1e-300 }.check().is_ok());
         assert!("sqrt".parse::<Transform>().is_err());
         assert_eq!(
             Transform::Log { offset: 0.5 }.to_string(),
