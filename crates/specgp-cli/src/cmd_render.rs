@@ -29,10 +29,11 @@ pub struct RenderArgs {
     /// --view 78), so that glossy samples show their sheen.
     #[arg(long, allow_hyphen_values = true)]
     pub light: Option<String>,
-    /// Illuminant of spectral sources: D65, D50 or A. Colours are white-balanced to D65 (Bradford),
-    /// as a camera would: a white material looks white under each; coloured ones shift.
-    #[arg(long, default_value = "D65")]
-    pub illuminant: String,
+    /// Illuminant of spectral sources: D65 (default), D50 or A. Colours are white-balanced to
+    /// D65 (Bradford), as a camera would: a white material looks white under each; coloured
+    /// ones shift. RGB sources are shown as stored, so another illuminant is refused for them.
+    #[arg(long)]
+    pub illuminant: Option<String>,
     /// Exposure in stops (colours multiplied by 2^EV).
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     pub exposure: f64,
@@ -113,7 +114,11 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
             (None, Some(plane)) => plane.sheen_light(),
             (None, None) => SphereOptions::default().light,
         },
-        illuminant: args.illuminant.parse::<Illuminant>()?,
+        illuminant: args
+            .illuminant
+            .as_deref()
+            .unwrap_or("D65")
+            .parse::<Illuminant>()?,
         exposure: args.exposure,
         env_mode,
         ..SphereOptions::default()
@@ -124,6 +129,14 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
         opts.illuminant,
         crate::cmd_sample::predictor_kind(args.smooth),
     )?;
+    if opts.illuminant != Illuminant::D65 && source.channels() == brdf_io::Channels::Rgb {
+        bail!(
+            "--illuminant {}: {} is RGB, shown as stored (linear sRGB); an illuminant applies \
+             to spectral sources",
+            args.illuminant.as_deref().unwrap_or_default(),
+            args.source
+        );
+    }
     // The studio and per-pixel environments integrate hundreds of directions per pixel (a
     // 256 px studio sphere takes ~1 s, 1024 px ~17 s): a spinner on a terminal.
     let slow = matches!(
@@ -417,7 +430,7 @@ mod tests {
             out: out.clone(),
             size: 32,
             light: None,
-            illuminant: "D65".into(),
+            illuminant: None,
             exposure: 0.0,
             background: "0.5".into(),
             shape: "sphere".into(),
@@ -470,7 +483,7 @@ mod tests {
             (
                 "illuminant",
                 RenderArgs {
-                    illuminant: "F2".into(),
+                    illuminant: Some("F2".into()),
                     ..plane.clone()
                 },
             ),
@@ -505,6 +518,22 @@ mod tests {
         ] {
             assert!(render(&bad).is_err(), "bad {field} accepted");
         }
+        // An illuminant other than D65 would be ignored by an RGB source: refused, by name.
+        let e = render(&RenderArgs {
+            illuminant: Some("A".into()),
+            ..args.clone()
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("--illuminant A") && e.contains("vch_golden_yellow_rgb.bsdf is RGB"),
+            "{e}"
+        );
+        render(&RenderArgs {
+            illuminant: Some("d65".into()),
+            ..args.clone()
+        })
+        .unwrap();
         // An output that is a directory is refused before rendering.
         let e = render(&RenderArgs {
             out: dir.path().to_owned(),
