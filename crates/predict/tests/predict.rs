@@ -930,6 +930,18 @@ fn the_transformed_sidecar_store_gives_the_same_predictions() {
             "d = {d}"
         );
     }
+    // A forward cache over the sidecar is a no-op: lookups keep reading the sidecar's values
+    // (a cache would take the dataset's f64 logarithms instead).
+    let kept = fast.with_forward_cache();
+    assert!(!kept.keeps_forward_values() && kept.uses_transformed_store());
+    let c = kept.predict(&x, PredictorKind::Smooth).unwrap();
+    let k = pred.channels().len();
+    let (mut vb, mut vc) = (vec![0.0; k], vec![0.0; k]);
+    for cell in 0..pred.grid().len() {
+        b.eval_cell(cell, &mut vb).unwrap();
+        c.eval_cell(cell, &mut vc).unwrap();
+        assert_eq!(vb, vc, "cell {cell}");
+    }
     // A sidecar of another dataset is refused.
     let e = pred.with_transformed_store(&f.store).unwrap_err();
     assert!(e.to_string().contains("forward-transformed"), "{e}");
@@ -1284,4 +1296,140 @@ fn locate_refuses_targets_it_cannot_compare() {
         e.contains("huge.binary") && e.contains("NaN or infinite"),
         "{e}"
     );
+}
+
+/// Latent coordinates are bounded as model files bound them (`gplvm::model::MAX_COORDINATE`,
+/// 1e100): a coordinate of exactly +-1e100 is a point (no material within reach: all weights
+/// 0, the prediction is the data mean, the variance the prior's), anything beyond is an error
+/// naming the bound.
+#[test]
+fn latent_coordinates_are_bounded_as_in_model_files() {
+    let f = fixture(6, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    let bound = gplvm::model::MAX_COORDINATE;
+    assert_eq!(bound, 1e100);
+    for x in [[bound, 0.0], [0.0, -bound]] {
+        let w = pred.gp_weights(&x, PredictorKind::Exact).unwrap();
+        assert!(w.iter().all(|v| *v == 0.0), "{w:?}");
+        let c = pred.coefficients(&x, PredictorKind::Smooth).unwrap();
+        assert!(c.iter().all(|v| *v == 1.0 / 6.0), "{c:?}");
+        assert!(rel(pred.variance(&x).unwrap(), pred.prior_variance()) < 1e-12);
+    }
+    for x in [[1.5e100, 0.0], [0.0, -f64::MAX]] {
+        let e = pred.predict(&x, PredictorKind::Exact).unwrap_err();
+        assert!(matches!(e, Error::InvalidPoint { .. }), "{e}");
+        assert!(e.to_string().contains("beyond +-1e100"), "{e}");
+        assert!(pred.variance(&x).is_err() && pred.support(&x).is_err());
+    }
+}
+
+/// The support of a point measures distances in length-scales, axis by axis: with ARD
+/// length-scales (0.5, 4) set on the model, the nearest material and its distance are those of
+/// `sqrt(sum_j ((x_j - a_j) / l_j)^2)`, and the variance fraction is the variance over the
+/// prior. (The fitted model's isotropic length-scale can be 1, where dividing by it and
+/// multiplying by it agree.)
+#[test]
+fn support_distances_are_in_per_axis_length_scales() {
+    let f = fixture(6, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    let mut model = pred.model().clone();
+    let ls = [0.5, 4.0];
+    model.hyperparameters.length_scale = ls.to_vec();
+    let ard = Predictor::with_store(model.clone(), &f.model, pred.store().clone()).unwrap();
+    let scaled = |i: usize, x: &[f64]| -> f64 {
+        model.materials[i]
+            .coords
+            .iter()
+            .zip(x)
+            .zip(ls)
+            .map(|((a, b), l)| ((a - b) / l).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    };
+    let a0 = &model.materials[0].coords;
+    for x in [
+        vec![0.3, -0.2],
+        vec![-0.1, 0.4],
+        vec![a0[0] + 0.5 * 0.3, a0[1] + 4.0 * 0.4],
+    ] {
+        let s = ard.support(&x).unwrap();
+        let nearest = (0..model.materials.len())
+            .min_by(|&a, &b| scaled(a, &x).total_cmp(&scaled(b, &x)))
+            .unwrap();
+        assert_eq!(s.nearest, model.materials[nearest].name, "{x:?}");
+        assert!(
+            rel(s.distance, scaled(nearest, &x)) < 1e-12,
+            "{x:?}: {} vs {}",
+            s.distance,
+            scaled(nearest, &x)
+        );
+        assert!(s.distance <= scaled(0, &x) * (1.0 + 1e-12));
+        assert_eq!(
+            s.variance_fraction,
+            ard.variance(&x).unwrap() / ard.prior_variance()
+        );
+    }
+}
+
+/// Lookups by direction pair (`eval_dirs`, the `BrdfSource::eval` of a prediction): above the
+/// horizon, the stencil's weighted sum of cell values at the pair's half/difference angles
+/// (also with more than 8 output channels, which take a heap buffer instead of the stack
+/// one); 0 in every channel when either direction is below or exactly at the horizon, where
+/// a wrong output length is still an error.
+#[test]
+fn direction_lookups_interpolate_cells_above_the_horizon_and_are_zero_elsewhere() {
+    let f = fixture(6, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    let m = pred.predict(&[0.2, -0.1], PredictorKind::Exact).unwrap();
+    let wide = m
+        .with_wavelengths(&Channels::parse_wavelengths("400:700:25").unwrap())
+        .unwrap();
+    assert_eq!((m.channels().len(), wide.channels().len()), (7, 13));
+    let above = [
+        ([0.0, 0.6, 0.8], [0.3, -0.4, 0.75f64.sqrt()]),
+        ([0.5, 0.1, 0.3], [-0.2, 0.05, 0.9]),
+        ([0.0, 0.0, 1.0], [0.0, 0.0, 1.0]),
+    ];
+    for mat in [&m, &wide] {
+        let k = mat.channels().len();
+        let (mut out, mut cell, mut src) = (vec![0.0; k], vec![0.0; k], vec![0.0; k]);
+        for (wi, wo) in above {
+            mat.eval_dirs(wi, wo, &mut out).unwrap();
+            let hd = brdf_io::HalfDiff::from_dirs(wi, wo).unwrap();
+            let mut want = vec![0.0; k];
+            let mut size = 0.0f64;
+            for (a, w) in pred.grid().interpolation_stencil(&hd) {
+                mat.eval_cell(a, &mut cell).unwrap();
+                for c in 0..k {
+                    want[c] += w * cell[c];
+                    size = size.max((w * cell[c]).abs());
+                }
+            }
+            assert!(size > 0.0);
+            for c in 0..k {
+                assert!(
+                    (out[c] - want[c]).abs() <= 1e-13 * size,
+                    "{k} channels, {wi:?} {wo:?}, channel {c}: {} vs {}",
+                    out[c],
+                    want[c]
+                );
+            }
+            BrdfSource::eval(mat, wi, wo, &mut src).unwrap();
+            assert_eq!(src, out);
+        }
+        let below = [
+            ([0.0, 0.6, -0.8], [0.3, -0.4, 0.75f64.sqrt()]),
+            ([0.3, -0.4, 0.75f64.sqrt()], [0.0, 0.6, -0.8]),
+            ([1.0, 0.0, 0.0], [0.0, 0.6, 0.8]),
+            ([0.0, 0.6, 0.8], [0.0, -1.0, 0.0]),
+            ([0.0, 0.0, -1.0], [0.0, 0.0, -1.0]),
+        ];
+        for (wi, wo) in below {
+            out.fill(1.0);
+            mat.eval_dirs(wi, wo, &mut out).unwrap();
+            assert!(out.iter().all(|v| *v == 0.0), "{wi:?} {wo:?}: {out:?}");
+            let e = mat.eval_dirs(wi, wo, &mut [0.0; 2]).unwrap_err();
+            assert!(e.to_string().contains("output has 2 slots"), "{e}");
+        }
+    }
 }
