@@ -150,6 +150,11 @@ pub fn exp_m1_scaled_in_place(values: &mut [f64], scale: f64) {
             return;
         }
     }
+    exp_m1_scaled_portable(values, scale);
+}
+
+/// [`exp_m1_scaled_in_place`] without vector features.
+fn exp_m1_scaled_portable(values: &mut [f64], scale: f64) {
     values.iter_mut().for_each(|v| *v = scale * fast_exp_m1(*v));
 }
 
@@ -249,6 +254,11 @@ pub fn ln_1p_scaled_f64(input: &[f32], scale: f64, out: &mut [f64]) {
             return;
         }
     }
+    ln_1p_scaled_f64_portable(input, scale, out);
+}
+
+/// [`ln_1p_scaled_f64`] without vector features.
+fn ln_1p_scaled_f64_portable(input: &[f32], scale: f64, out: &mut [f64]) {
     for (o, v) in out.iter_mut().zip(input) {
         *o = ln_1p_lanes(f64::from(*v) * scale);
     }
@@ -484,7 +494,11 @@ mod tests {
         let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         type Ln = unsafe fn(&[f32], f64, &mut [f64]);
         type Exp = unsafe fn(&mut [f64], f64);
-        let mut builds: Vec<(&str, Ln, Exp)> = Vec::new();
+        let mut builds: Vec<(&str, Ln, Exp)> = vec![(
+            "portable",
+            ln_1p_scaled_f64_portable,
+            exp_m1_scaled_portable,
+        )];
         #[cfg(target_arch = "x86_64")]
         {
             if std::arch::is_x86_feature_detected!("avx512f") {
