@@ -499,6 +499,19 @@ fn wolfe_search(
     }
 }
 
+/// The slope of `dir` along `grad` (whose norm is `gnorm`), and `false`; when `dir` is not a
+/// descent direction (a slope >= 0 or NaN: numerical trouble in the two-loop recursion),
+/// `dir` becomes the unit steepest-descent direction `-grad / gnorm`, with slope `-gnorm`, and
+/// `true` (L-BFGS then drops its correction pairs).
+fn descent_slope(dir: &mut [f64], grad: &[f64], gnorm: f64) -> (f64, bool) {
+    let slope = dot(grad, dir);
+    if slope < 0.0 {
+        return (slope, false);
+    }
+    dir.iter_mut().zip(grad).for_each(|(d, g)| *d = -g / gnorm);
+    (-gnorm, true)
+}
+
 /// Minimises `f` (returning value and gradient) by L-BFGS from `x0`: the two-loop recursion over
 /// the last `memory` correction pairs (initial Hessian scaled by s'y / y'y) and a strong-Wolfe
 /// line search with cubic interpolation. Stops when the gradient norm falls below
@@ -570,12 +583,9 @@ pub fn lbfgs(
             break format!("reached {} iterations", settings.max_iterations);
         }
         two_loop(&pairs, &grad, gnorm, &mut alpha, &mut dir);
-        let mut slope = dot(&grad, &dir);
-        if slope.is_nan() || slope >= 0.0 {
-            // Not a descent direction (numerical trouble): restart from steepest descent.
+        let (slope, restarted) = descent_slope(&mut dir, &grad, gnorm);
+        if restarted {
             pairs.clear();
-            dir.iter_mut().zip(&grad).for_each(|(d, g)| *d = -g / gnorm);
-            slope = -gnorm;
         }
         let Some(t) = wolfe_search(&mut f, &x, &dir, value, slope, 1.0, &mut evaluations) else {
             let reason = "line search found no acceptable step".to_string();
@@ -777,6 +787,21 @@ mod tests {
         assert!(m.stop_reason.starts_with("value changed by"), "{m:?}");
         assert!(!m.stalled && !m.at_limit && m.iterations < 100, "{m:?}");
         assert!((m.value - 100.0).abs() < 1e-8, "{m:?}");
+    }
+
+    /// A descent direction is kept with its slope; an ascent, flat or NaN direction becomes
+    /// the unit steepest-descent direction, with slope -|gradient|.
+    #[test]
+    fn non_descent_directions_restart_from_steepest_descent() {
+        let grad = [3.0, -4.0];
+        let mut dir = vec![-1.0, 1.0];
+        assert_eq!(descent_slope(&mut dir, &grad, 5.0), (-7.0, false));
+        assert_eq!(dir, [-1.0, 1.0]);
+        for bad in [[1.0, 0.0], [4.0, 3.0], [f64::NAN, 1.0]] {
+            let mut dir = bad.to_vec();
+            assert_eq!(descent_slope(&mut dir, &grad, 5.0), (-5.0, true), "{bad:?}");
+            assert_eq!(dir, [-0.6, 0.8], "{bad:?}");
+        }
     }
 
     /// The line search's cubic step is the exact minimiser of a cubic (or quadratic) given
