@@ -52,7 +52,7 @@ fn normalize(v: Vec3) -> Option<Vec3> {
 /// `v` shorter than ~1e-154 or longer than ~1e154, whose squared norm underflows or
 /// overflows, is divided by its largest component first.
 #[inline]
-pub(crate) fn unit(v: Vec3) -> Option<Vec3> {
+pub fn unit(v: Vec3) -> Option<Vec3> {
     let n2 = dot(v, v);
     if !(n2 >= f64::MIN_POSITIVE && n2.is_finite()) {
         return unit_rescaled(v);

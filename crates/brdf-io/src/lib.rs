@@ -72,7 +72,7 @@ pub fn has_extension(path: impl AsRef<std::path::Path>, ext: &str) -> bool {
         && name[name.len() - n] == b'.'
         && name[name.len() - ext.len()..].eq_ignore_ascii_case(ext.as_bytes())
 }
-pub use grid::{AngularGrid, ChannelSelection, Channels, HalfDiff, Vec3};
+pub use grid::{AngularGrid, ChannelSelection, Channels, HalfDiff, Vec3, unit};
 pub use source::{Blend, BrdfSource, ImportReport};
 pub use store::{Store, StoreInfo, StoreOptions, StoreWriter};
 

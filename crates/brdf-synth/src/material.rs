@@ -24,7 +24,7 @@
 
 use std::f64::consts::PI;
 
-use brdf_io::{HalfDiff, Vec3};
+use brdf_io::{HalfDiff, Vec3, unit};
 
 use crate::dataset::WAVELENGTH_RANGE_NM;
 use crate::microfacet::{charlie_d, ggx_lobe, sheen_visibility, smith_g2};
@@ -700,13 +700,13 @@ impl PreparedMaterial {
     fn eval_impl(&self, wi: Vec3, wo: Vec3, out: &mut [f64], mut cache: Option<&mut FresnelCache>) {
         debug_assert_eq!(out.len(), self.wavelengths.len());
         out.fill(0.0);
-        let (Some(wi), Some(wo)) = (normalize(wi), normalize(wo)) else {
+        let (Some(wi), Some(wo)) = (unit(wi), unit(wo)) else {
             return;
         };
         if wi[2] <= 0.0 || wo[2] <= 0.0 {
             return;
         }
-        let Some(h) = normalize([wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]]) else {
+        let Some(h) = unit([wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]]) else {
             return;
         };
         let g = Geom {
@@ -806,26 +806,6 @@ impl PInterface {
             }
         }
     }
-}
-
-/// `v / |v|`, or `None` for a zero or non-finite vector. Vectors whose squared length under-
-/// or overflows (components below ~1e-154 or above ~1e154) are rescaled by their largest
-/// component first.
-fn normalize(v: Vec3) -> Option<Vec3> {
-    let n = dot(v, v).sqrt();
-    if n > 0.0 && n.is_finite() {
-        return Some([v[0] / n, v[1] / n, v[2] / n]);
-    }
-    if !v.iter().all(|x| x.is_finite()) {
-        return None;
-    }
-    let m = v.iter().fold(0.0f64, |a, x| a.max(x.abs()));
-    if m == 0.0 {
-        return None;
-    }
-    let s = [v[0] / m, v[1] / m, v[2] / m];
-    let n = dot(s, s).sqrt();
-    Some([s[0] / n, s[1] / n, s[2] / n])
 }
 
 /// Directional albedo `int f(wi, wo) cos(theta_o) dwo` per prepared wavelength at incidence
