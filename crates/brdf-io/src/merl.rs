@@ -509,11 +509,12 @@ pub fn write_merl(path: impl AsRef<Path>, brdf: &MerlBrdf) -> Result<()> {
     {
         return Err(Error::InvalidArgument {
             reason: format!(
-                "{}: value {:e} (channel {}, MERL index {i}) is too large for a MERL file: its \
+                "{}: value {:e} (channel {}, MERL index {}) is too large for a MERL file: its \
                  stored number (value / {:e}) is beyond the f64 range",
                 path.display(),
                 brdf.values[i],
                 ["R", "G", "B"][i / n],
+                i % n,
                 MERL_SCALE[i / n]
             ),
         });
@@ -1017,7 +1018,7 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("h.binary: value 1e306 (channel G, MERL index")
+            e.contains("h.binary: value 1e306 (channel G, MERL index 5)")
                 && e.contains("too large for a MERL file"),
             "{e}"
         );
