@@ -29,11 +29,11 @@ pub struct RenderArgs {
     /// --view 78), so that glossy samples show their sheen.
     #[arg(long, allow_hyphen_values = true)]
     pub light: Option<String>,
-    /// Illuminant of spectral sources: D65 (default), D50 or A. Colours are white-balanced to
-    /// D65 (Bradford), as a camera would: a white material looks white under each; coloured
-    /// ones shift. RGB sources are shown as stored, so another illuminant is refused for them.
-    #[arg(long)]
-    pub illuminant: Option<String>,
+    /// Illuminant of spectral sources: D65, D50 or A. Colours are white-balanced to D65
+    /// (Bradford), as a camera would: a white material looks white under each; coloured ones
+    /// shift. RGB sources are shown as stored, so D50 and A are refused for them.
+    #[arg(long, default_value = "D65")]
+    pub illuminant: String,
     /// Exposure in stops (colours multiplied by 2^EV).
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     pub exposure: f64,
@@ -114,11 +114,7 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
             (None, Some(plane)) => plane.sheen_light(),
             (None, None) => SphereOptions::default().light,
         },
-        illuminant: args
-            .illuminant
-            .as_deref()
-            .unwrap_or("D65")
-            .parse::<Illuminant>()?,
+        illuminant: args.illuminant.parse::<Illuminant>()?,
         exposure: args.exposure,
         env_mode,
         ..SphereOptions::default()
@@ -133,7 +129,7 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
         bail!(
             "--illuminant {}: {} is RGB, shown as stored (linear sRGB); an illuminant applies \
              to spectral sources",
-            args.illuminant.as_deref().unwrap_or_default(),
+            args.illuminant,
             args.source
         );
     }
@@ -430,7 +426,7 @@ mod tests {
             out: out.clone(),
             size: 32,
             light: None,
-            illuminant: None,
+            illuminant: "D65".into(),
             exposure: 0.0,
             background: "0.5".into(),
             shape: "sphere".into(),
@@ -483,7 +479,7 @@ mod tests {
             (
                 "illuminant",
                 RenderArgs {
-                    illuminant: Some("F2".into()),
+                    illuminant: "F2".into(),
                     ..plane.clone()
                 },
             ),
@@ -520,7 +516,7 @@ mod tests {
         }
         // An illuminant other than D65 would be ignored by an RGB source: refused, by name.
         let e = render(&RenderArgs {
-            illuminant: Some("A".into()),
+            illuminant: "A".into(),
             ..args.clone()
         })
         .unwrap_err()
@@ -530,7 +526,7 @@ mod tests {
             "{e}"
         );
         render(&RenderArgs {
-            illuminant: Some("d65".into()),
+            illuminant: "d65".into(),
             ..args.clone()
         })
         .unwrap();
