@@ -249,6 +249,41 @@ impl FitParams {
 mod tests {
     use super::*;
 
+    /// Optimiser names round-trip through Display and FromStr (the model file and the CLI
+    /// write and read them).
+    #[test]
+    fn optimizer_names_round_trip() {
+        for (kind, name) in [
+            (OptimizerKind::HookeJeeves, "hooke-jeeves"),
+            (OptimizerKind::Lbfgs, "lbfgs"),
+        ] {
+            assert_eq!(kind.to_string(), name);
+            assert_eq!(name.parse::<OptimizerKind>().unwrap(), kind);
+        }
+        assert!("bfgs".parse::<OptimizerKind>().is_err());
+    }
+
+    /// The bounds of `check` are inclusive where documented: q in 1..=MAX_LATENT_DIM, and a
+    /// min_step equal to initial_step.
+    #[test]
+    fn check_accepts_its_bounds_and_refuses_past_them() {
+        let with = |latent_dim, min_step| FitParams {
+            latent_dim,
+            min_step,
+            initial_step: 0.5,
+            ..FitParams::default()
+        };
+        assert!(with(1, 1e-3).check().is_ok());
+        assert!(with(MAX_LATENT_DIM, 0.5).check().is_ok());
+        for bad in [
+            with(0, 1e-3),
+            with(MAX_LATENT_DIM + 1, 1e-3),
+            with(2, 0.5000001),
+        ] {
+            assert!(bad.clone().check().is_err(), "{bad:?}");
+        }
+    }
+
     #[test]
     fn paper_config_parses() {
         let p: FitParams = toml::from_str(
