@@ -1336,8 +1336,6 @@ mod tests {
         assert!((rms_error(&bsdf, &source) - refined.check_rms).abs() < refined.check_rms);
     }
 
-    /// RGB sources are written as `rgb` tables; negative values are stored as 0 and counted;
-    /// bad sizes and non-finite values are errors naming the source.
     /// The evaluator takes directions of any finite length: a wi shorter than ~1e-154 (its
     /// squared norm underflows) was refused ("directions must be finite and non-zero").
     #[test]
@@ -1363,6 +1361,8 @@ mod tests {
         assert!(bsdf.eval([f64::NAN, 0.0, 1.0], wo, &mut got).is_err());
     }
 
+    /// RGB sources are written as `rgb` tables; negative values are stored as 0 and counted;
+    /// bad sizes and non-finite values are errors naming the source.
     #[test]
     fn rgb_negative_and_bad_inputs() {
         struct Rgb(f64);
