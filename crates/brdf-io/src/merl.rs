@@ -138,7 +138,8 @@ impl MerlBrdf {
     /// The values in dataset order on the file's own grid (`flat * 3 + channel`), with cells
     /// below the horizon set to 0. A negative marker (a cell MERL did not measure) takes the
     /// mean of the measured values of that channel among its neighbours within
-    /// [`MARKER_FILL_RADIUS`] cells along each axis, the nearest ring that has any (counted in
+    /// [`MARKER_FILL_RADIUS`] cells along each axis (phi_d wrapping around, as phi_d = 0 = pi),
+    /// the nearest ring that has any (counted in
     /// [`ImportReport::markers_filled`]): stored as 0 it was a hole the fit learnt as a black
     /// spot (resampling onto other grids already skipped markers). A marker with no measured
     /// neighbour is stored as 0 (counted in [`ImportReport::negatives_clamped`]).
@@ -168,16 +169,23 @@ impl MerlBrdf {
 
     /// The mean of channel `c`'s measured values (valid cell, not a marker) among the cells
     /// around `flat` within the smallest box of half-side 1 to [`MARKER_FILL_RADIUS`] that
-    /// holds any.
+    /// holds any. The theta axes stop at their ends; phi_d wraps (its first and last bins
+    /// border phi_d = 0 = pi), and a box wider than the phi_d axis takes each bin once.
     fn neighbour_mean(&self, mask: &[bool], c: usize, flat: usize) -> Option<f64> {
         let g = self.grid;
         let (i, j, k) = g.unindex(flat);
         let span = |x: usize, r: usize, n: usize| x.saturating_sub(r)..=(x + r).min(n - 1);
+        let n_pd = g.n_phi_d;
+        let phi_span = |r: usize| {
+            let width = (2 * r + 1).min(n_pd);
+            let first = if width == n_pd { 0 } else { k + n_pd - r };
+            (first..first + width).map(move |d| d % n_pd)
+        };
         (1..=MARKER_FILL_RADIUS).find_map(|r| {
             let (mut sum, mut count) = (0.0, 0u32);
             for a in span(i, r, g.n_theta_h) {
                 for b in span(j, r, g.n_theta_d) {
-                    for d in span(k, r, g.n_phi_d) {
+                    for d in phi_span(r) {
                         let f = g.index(a, b, d);
                         let v = self.value(c, f);
                         if mask[f] && v >= 0.0 && v.is_finite() {
@@ -834,7 +842,8 @@ mod tests {
                 let (mut sum, mut count) = (0.0, 0.0);
                 for a in i.saturating_sub(1)..=(i + 1).min(5) {
                     for b in j.saturating_sub(1)..=(j + 1).min(5) {
-                        for d in k.saturating_sub(1)..=(k + 1).min(11) {
+                        // phi_d wraps: bins 11 and 0 border phi_d = pi = 0.
+                        for d in [(k + 11) % 12, k, (k + 1) % 12] {
                             let f = grid.index(a, b, d);
                             if mask[f] && brdf.value(c, f) >= 0.0 {
                                 sum += brdf.value(c, f);
@@ -869,6 +878,46 @@ mod tests {
         assert_eq!(clamped.value(1, f), 0.0);
         assert_eq!(clamped.value(2, f) as f32, v[f * 3 + 2]);
         assert_eq!(clamped.to_dataset_order().1.negatives_clamped, 0);
+    }
+
+    /// The box around a marker wraps along phi_d: the first and last phi_d bins border
+    /// phi_d = 0 = pi, so a marker in one is filled from the other. A box wider than the phi_d
+    /// axis counts each bin once.
+    #[test]
+    fn marker_boxes_wrap_around_phi_d() {
+        // Measured cells only in the last phi_d bin (value 4) and, two bins in, in bin 2
+        // (value 10); markers everywhere else.
+        let grid = AngularGrid::new(4, 4, 8).unwrap();
+        let n = grid.len();
+        let mut values = vec![-1.0; 3 * n];
+        for c in 0..3 {
+            values[c * n + grid.index(1, 1, 7)] = 4.0;
+            values[c * n + grid.index(1, 1, 2)] = 10.0;
+        }
+        let (v, _) = MerlBrdf::new(grid, values).unwrap().to_dataset_order();
+        let at = |k: usize| v[grid.index(1, 1, k) * 3];
+        // Bin 0's ring 1 reaches bin 7 across phi_d = 0 (and bin 1, a marker): only 4 counts.
+        assert_eq!(at(0), 4.0);
+        // Bin 1 sees bin 2 at ring 1; bin 7 is two bins away, so it does not count.
+        assert_eq!(at(1), 10.0);
+        // Bin 6 sees bin 7 at ring 1, but bin 2 only at ring 4 (across the wrap).
+        assert_eq!(at(6), 4.0);
+        // Bin 4 is two bins from bin 2 and three from bin 7: ring 2 holds bin 2 only.
+        assert_eq!(at(4), 10.0);
+        // Bin 5 is two bins from bin 7 and three from bin 2.
+        assert_eq!(at(5), 4.0);
+
+        // On a 2-bin phi_d axis every box spans it; each measured bin counts once, so a
+        // marker is the mean of its neighbours, not weighted by how often the box wraps.
+        let grid = AngularGrid::new(3, 3, 2).unwrap();
+        let n = grid.len();
+        let mut values = vec![-1.0; 3 * n];
+        for c in 0..3 {
+            values[c * n + grid.index(1, 1, 0)] = 2.0;
+            values[c * n + grid.index(1, 0, 1)] = 8.0;
+        }
+        let (v, _) = MerlBrdf::new(grid, values).unwrap().to_dataset_order();
+        assert_eq!(v[grid.index(1, 1, 1) * 3 + 2], 5.0);
     }
 
     /// Markers take the measured values of the nearest ring that has any, up to
