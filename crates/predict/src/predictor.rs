@@ -392,18 +392,20 @@ impl Predictor {
     /// (its clones share them): many renders of predicted materials (thumbnails, sheets, paths)
     /// then take each cell's logarithms once instead of once per render, with the same values
     /// bit for bit (f64, unlike the f32 sidecar). A no-op under `raw`, with a sidecar in use, or
-    /// when keeping every cell would take more than [`FORWARD_CACHE_MAX_BYTES`] (cells x
-    /// channels x N x 8 B; a render touches about half the cells).
+    /// when keeping every cell would take more than [`FORWARD_CACHE_MAX_BYTES`]
+    /// ([`Predictor::forward_cache_bytes`]; a render touches about half the cells).
     pub fn with_forward_cache(&self) -> Self {
+        self.with_forward_cache_within(FORWARD_CACHE_MAX_BYTES)
+    }
+
+    /// As [`Predictor::with_forward_cache`], with `max_bytes` in place of
+    /// [`FORWARD_CACHE_MAX_BYTES`]: a no-op when keeping every cell would take more.
+    pub fn with_forward_cache_within(&self, max_bytes: u64) -> Self {
         let inner = &*self.inner;
-        let bytes = (inner.grid.len() as u64)
-            .saturating_mul(inner.channels.len() as u64)
-            .saturating_mul(inner.n as u64)
-            .saturating_mul(8);
         if inner.transform == Transform::Raw
             || inner.forward_store.is_some()
             || inner.forward_cells.is_some()
-            || bytes > FORWARD_CACHE_MAX_BYTES
+            || self.forward_cache_bytes() > max_bytes
         {
             return self.clone();
         }
@@ -414,6 +416,16 @@ impl Predictor {
         Self {
             inner: Arc::new(inner),
         }
+    }
+
+    /// Memory a forward cache keeping every cell would take: cells x channels x N x 8 bytes
+    /// (saturating).
+    pub fn forward_cache_bytes(&self) -> u64 {
+        let inner = &*self.inner;
+        (inner.grid.len() as u64)
+            .saturating_mul(inner.channels.len() as u64)
+            .saturating_mul(inner.n as u64)
+            .saturating_mul(8)
     }
 
     /// Whether lazy lookups keep the forward-transformed values of the cells they read

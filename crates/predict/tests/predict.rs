@@ -298,6 +298,18 @@ fn forward_cache_gives_the_uncached_bits() {
         assert!(!pred.keeps_forward_values());
         let names = material_names(&pred);
         let nc = pred.channels().len();
+        // The size cap: cells x channels x N x 8 bytes, inclusive.
+        let bytes = pred.forward_cache_bytes();
+        assert_eq!(bytes, (pred.grid().len() * nc * names.len() * 8) as u64);
+        assert_eq!(
+            pred.with_forward_cache_within(bytes).keeps_forward_values(),
+            transform == "log"
+        );
+        assert!(
+            !pred
+                .with_forward_cache_within(bytes - 1)
+                .keeps_forward_values()
+        );
         let subset = Channels::parse_wavelengths("425,500,610").unwrap();
         let materials = |p: &Predictor| {
             vec![
