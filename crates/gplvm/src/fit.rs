@@ -641,4 +641,93 @@ mod tests {
             assert_eq!(d[4], 7.0);
         }
     }
+
+    /// The condition number is the ratio of the extreme eigenvalues of `K + jitter I`: for two
+    /// points, `(k11 + j + k12) / (k11 + j - k12)`; `None` beyond
+    /// [`EXACT_CONDITION_MAX_N`] points (the caller falls back to the Cholesky estimate).
+    #[test]
+    fn condition_number_is_exact_for_two_points_and_skipped_beyond_the_cap() {
+        let p = KernelParams::isotropic(1.5, 0.8, 1e-3).unwrap();
+        let x = Mat::from_fn(2, 1, |i, _| [0.0, 0.5][i]);
+        let k = p.kernel_matrix(x.as_ref()).unwrap();
+        let (k11, k12) = (k[(0, 0)], k[(0, 1)]);
+        assert!(k12 > 0.5 && k11 > k12);
+        for jitter in [0.0, 0.25] {
+            let want = (k11 + jitter + k12) / (k11 + jitter - k12);
+            let got = condition_number(&x, &p, jitter).unwrap();
+            assert!(
+                (got - want).abs() <= 1e-12 * want,
+                "jitter {jitter}: {got} vs {want}"
+            );
+        }
+        let far = Mat::from_fn(EXACT_CONDITION_MAX_N + 1, 1, |i, _| i as f64);
+        assert_eq!(condition_number(&far, &p, 0.0), None);
+    }
+
+    /// At exactly [`EXACT_CONDITION_MAX_N`] points the condition number is still exact: with
+    /// the points far apart K is `(s^2 + mu) I` up to ~1e-300, so it is 1.
+    #[test]
+    fn condition_number_is_exact_up_to_the_cap() {
+        let p = KernelParams::isotropic(1.0, 1.0, 1e-4).unwrap();
+        let x = Mat::from_fn(EXACT_CONDITION_MAX_N, 1, |i, _| 40.0 * i as f64);
+        let c = condition_number(&x, &p, 0.0).unwrap();
+        assert!((c - 1.0).abs() < 1e-12, "{c}");
+    }
+
+    /// The likelihood-maximising scale of the PCA start: the coarse scan and the golden-section
+    /// refinement find the minimum of a dense scan of `-L(a x0)` to 1e-3 in `log a`, anywhere
+    /// in 10^-3..10^3: dividing `x0` by 300 multiplies the factor by 300, and dividing it by
+    /// 1e4 puts the optimum beyond the range, where its upper end is returned.
+    #[test]
+    fn best_start_scale_finds_the_likelihood_maximum_across_its_range() {
+        let (n, d) = (9, 6);
+        let y = Mat::from_fn(n, d, |i, j| {
+            (0.7 * i as f64 + 1.3 * j as f64).sin() + 0.5 * (0.3 * (i * j) as f64).cos()
+        });
+        let g = &y * y.transpose();
+        let (s, _) = scaled_centred_gram(g.as_ref(), d, DataScaling::UnitVariance).unwrap();
+        let params = FitParams {
+            latent_dim: 2,
+            ..FitParams::default()
+        };
+        let template = KernelParams::isotropic(1.0, 1.0, 1e-4).unwrap();
+        let objective = GplvmObjective::new(s.clone(), d).unwrap().with_prior(true);
+        let flat = flat_objective(&objective, 2, template.clone(), &params).unwrap();
+        let x0 = Pca::from_centred_gram(s.as_ref(), 2)
+            .unwrap()
+            .latent_start(InitScaling::Isotropic);
+        let value = |x: MatRef<'_, f64>, log_a: f64| {
+            let a = log_a.exp();
+            let xa = Mat::from_fn(x.nrows(), x.ncols(), |i, k| x[(i, k)] * a);
+            let t = flat.pack(xa.as_ref(), &template).unwrap();
+            flat.neg_log_likelihood(&t, Par::Seq).unwrap()
+        };
+        let dense_argmin = |x: MatRef<'_, f64>| {
+            let (lo, hi) = (
+                -3.0 * std::f64::consts::LN_10,
+                3.0 * std::f64::consts::LN_10,
+            );
+            (0..=60_000)
+                .map(|i| lo + (hi - lo) * f64::from(i) / 60_000.0)
+                .min_by(|a, b| value(x, *a).total_cmp(&value(x, *b)))
+                .unwrap()
+        };
+        let a1 = best_start_scale(&flat, x0.as_ref(), &template, Par::Seq).unwrap();
+        let want = dense_argmin(x0.as_ref());
+        assert!((a1.ln() - want).abs() < 1e-3, "{a1} vs {}", want.exp());
+        // Inside, away from the ends: a maximum, not a range end.
+        assert!(a1 > 1e-2 && a1 < 10.0, "{a1}");
+        // The same start 300 times smaller needs a factor 300 times larger (ln 300 = 5.7,
+        // near the top of the range).
+        let small = Mat::from_fn(n, 2, |i, k| x0[(i, k)] / 300.0);
+        let a300 = best_start_scale(&flat, small.as_ref(), &template, Par::Seq).unwrap();
+        assert!(
+            (a300 / a1 / 300.0 - 1.0).abs() < 1e-3,
+            "{a300} vs 300 x {a1}"
+        );
+        // Beyond the range: its upper end, 10^3.
+        let tiny = Mat::from_fn(n, 2, |i, k| x0[(i, k)] / (1e4 * a1));
+        let top = best_start_scale(&flat, tiny.as_ref(), &template, Par::Seq).unwrap();
+        assert!((top / 1e3 - 1.0).abs() < 1e-9, "{top}");
+    }
 }

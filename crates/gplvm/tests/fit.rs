@@ -347,6 +347,8 @@ fn reported_likelihood_matches_an_independent_recomputation() {
             );
             assert_eq!(model.fit.jitter, 0.0);
         }
+        // `fit_store` fills in the Gram pass's time (`fit_gram` leaves it 0).
+        assert!(model.fit.gram_seconds > 0.0, "{:?}", model.fit);
 
         let store = Store::open(&data).unwrap();
         let (n, d) = (store.n_materials(), store.d());
@@ -817,4 +819,198 @@ fn hooke_jeeves_by_point_moves_matches_full_evaluations() {
         assert_eq!(c.evaluations, by_moves.evaluations);
         assert!(c.cheap * 2 > c.evaluations, "{c:?}");
     }
+}
+
+/// What `f` logs at WARN level and above (plain text), with its result.
+fn warnings_of<T>(f: impl FnOnce() -> T) -> (T, String) {
+    use std::sync::{Arc, Mutex};
+    #[derive(Clone, Default)]
+    struct Buffer(Arc<Mutex<Vec<u8>>>);
+    impl std::io::Write for Buffer {
+        fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().unwrap().extend_from_slice(bytes);
+            Ok(bytes.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+    let buffer = Buffer::default();
+    let writer = buffer.clone();
+    let subscriber = tracing_subscriber::fmt()
+        .with_writer(move || writer.clone())
+        .with_max_level(tracing::Level::WARN)
+        .with_ansi(false)
+        .finish();
+    let out = tracing::subscriber::with_default(subscriber, f);
+    let text = String::from_utf8(buffer.0.lock().unwrap().clone()).unwrap();
+    (out, text)
+}
+
+/// A fit of `random_gram(n, d, 3, 1.0)` with `p`, and what it warned.
+fn fit_warnings(n: usize, d: usize, p: FitParams) -> (gplvm::Fit, String) {
+    let g = random_gram(n, d, 3, 1.0);
+    let config = p.check().unwrap();
+    let (fit, said) = warnings_of(|| gplvm::fit_gram(g.as_ref(), d, &config));
+    (fit.unwrap(), said)
+}
+
+/// `fit_gram` warns exactly when a setting makes no sense for the data, each warning at its
+/// threshold: q beyond the centred data's span min(N - 1, D); a noise of at least the signal
+/// variance (fixed hyperparameters only); a noise below the rounding of `s^2 + mu`; a nearly
+/// singular K (condition above 1e12); most materials isolated in the latent space. A sensible
+/// fit warns of nothing.
+#[test]
+fn fits_warn_of_settings_that_make_no_sense() {
+    let base = || FitParams {
+        latent_dim: 2,
+        ..FitParams::default()
+    };
+    let (fit, said) = fit_warnings(10, 20, base());
+    assert_eq!(said, "", "a sensible fit");
+    assert!(fit.report.condition_number < 1e12);
+
+    // The span: N - 1 = 3 for 4 materials, D = 2 for 2 values each.
+    for (n, d, q, warns) in [
+        (4, 20, 3, false),
+        (4, 20, 4, true),
+        (10, 2, 2, false),
+        (10, 2, 3, true),
+    ] {
+        let p = FitParams {
+            latent_dim: q,
+            ..base()
+        };
+        let (_, said) = fit_warnings(n, d, p);
+        let expected = format!("latent dimension q = {q} for N = {n} materials of D = {d} values");
+        assert_eq!(
+            said.contains(&expected),
+            warns,
+            "N {n}, D {d}, q {q}: {said}"
+        );
+    }
+
+    // Noise against the signal variance s^2 = amplitude^2 = 4.
+    for (noise, learn, warns) in [(4.0, false, true), (3.99, false, false), (4.0, true, false)] {
+        let p = FitParams {
+            amplitude: 2.0,
+            noise,
+            learn_hyperparameters: learn,
+            ..base()
+        };
+        let (_, said) = fit_warnings(10, 20, p);
+        assert_eq!(
+            said.contains("is at least the kernel's signal variance s^2 = 4e0"),
+            warns,
+            "{noise} {learn}: {said}"
+        );
+    }
+
+    // Noise under the rounding of s^2 + mu = 1 + mu (half an ulp of 1 is 1.1e-16).
+    for (noise, warns) in [(1e-17, true), (1e-15, false)] {
+        let p = FitParams { noise, ..base() };
+        let (_, said) = fit_warnings(10, 20, p);
+        assert_eq!(
+            said.contains("is below the rounding of the kernel's diagonal"),
+            warns,
+            "{noise:e}: {said}"
+        );
+    }
+
+    // Two duplicate materials and almost no noise: K is nearly singular at the optimum.
+    let mut g = random_gram(10, 20, 3, 1.0);
+    for j in 0..10 {
+        g[(9, j)] = g[(8, j)];
+        g[(j, 9)] = g[(j, 8)];
+    }
+    g[(9, 9)] = g[(8, 8)];
+    let config = FitParams {
+        noise: 1e-14,
+        ..base()
+    }
+    .check()
+    .unwrap();
+    let (fit, said) = warnings_of(|| gplvm::fit_gram(g.as_ref(), 20, &config));
+    let fit = fit.unwrap();
+    assert!(fit.report.condition_number > 1e12, "{:?}", fit.report);
+    assert!(
+        said.contains("K is nearly singular at the optimum"),
+        "{said}"
+    );
+
+    // A length-scale of 1e-3 from a unit-variance PCA start, one iteration: every material is
+    // hundreds of length-scales from the next.
+    let p = FitParams {
+        lengthscale: 1e-3,
+        init_scaling: gplvm::InitScaling::Isotropic,
+        max_iterations: 1,
+        ..base()
+    };
+    let (_, said) = fit_warnings(10, 20, p);
+    assert!(
+        said.contains("10 of 10 materials correlate less than 1e-3"),
+        "{said}"
+    );
+}
+
+/// The fit configuration reaches the optimiser and the kernel: L-BFGS's iteration cap, gradient
+/// tolerance and value-change tolerance each decide where it stops; iterations and evaluations
+/// are summed over restarts; a fixed amplitude a gives the signal variance a^2.
+#[test]
+fn fit_settings_reach_the_optimiser_and_the_kernel() {
+    let g = random_gram(10, 20, 3, 1.0);
+    let fit = |p: FitParams| gplvm::fit_gram(g.as_ref(), 20, &p.check().unwrap()).unwrap();
+    let base = || FitParams {
+        latent_dim: 2,
+        ..FitParams::default()
+    };
+
+    let capped = fit(FitParams {
+        max_iterations: 3,
+        ..base()
+    });
+    assert_eq!(capped.report.stop_reason, "reached 3 iterations");
+    assert_eq!(capped.report.iterations, 3);
+    // Three capped runs: three times the iterations, and more evaluations than one.
+    let thrice = fit(FitParams {
+        max_iterations: 3,
+        restarts: 2,
+        ..base()
+    });
+    assert_eq!(thrice.report.iterations, 9);
+    assert!(
+        thrice.report.evaluations >= 3 * 3 + 3,
+        "{:?}",
+        thrice.report
+    );
+    assert!(thrice.report.evaluations > capped.report.evaluations);
+
+    let loose = fit(FitParams {
+        gradient_tolerance: 1e6,
+        ..base()
+    });
+    assert!(
+        loose.report.stop_reason.ends_with("below tolerance"),
+        "{:?}",
+        loose.report
+    );
+    assert_eq!(loose.report.iterations, 0);
+
+    let coarse = fit(FitParams {
+        cost_tolerance: 1e6,
+        ..base()
+    });
+    assert!(
+        coarse.report.stop_reason.contains("< 1.0e6 in one step"),
+        "{:?}",
+        coarse.report
+    );
+
+    let amplified = fit(FitParams {
+        amplitude: 2.0,
+        noise: 1e-3,
+        ..base()
+    });
+    assert_eq!(amplified.params.signal_variance(), 4.0);
+    assert_eq!(amplified.params.noise(), 1e-3);
 }
