@@ -403,6 +403,65 @@ fn nested_and_huge_arrays_are_errors() {
     assert!(e.contains("inconsistent sizes"), "{e}");
 }
 
+/// The load checks at their bounds: a coordinate of exactly +-1e100 loads and one an ulp
+/// beyond does not; a Gram entry may exceed sqrt(G_ii G_jj) by 1e-9 relative (rounding) and
+/// no more; a Gram matrix with N rows, one of them short, is a size error; a data scale of 0,
+/// infinity or NaN is named as such (not as a disagreement with the Gram matrix).
+#[test]
+fn load_checks_hold_at_their_bounds() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("m.toml");
+    let load = |m: &Model| {
+        m.save(&p).unwrap();
+        Model::load(&p).map_err(|e| e.to_string())
+    };
+    let model = valid_model();
+    for v in [1e100, -1e100] {
+        let mut m = model.clone();
+        m.materials[2].coords[1] = v;
+        assert!(load(&m).is_ok(), "{v:e}");
+        m.materials[2].coords[1] = v * (1.0 + f64::EPSILON);
+        let e = load(&m).unwrap_err();
+        assert!(e.contains("is beyond +-1e100"), "{e}");
+    }
+
+    // Cauchy-Schwarz at the bound; the data scale follows the edited Gram matrix (its centred
+    // trace per value), so only the bound decides.
+    let at_bound = |factor: f64| {
+        let mut m = model.clone();
+        let v = (m.gram[0][0] * m.gram[3][3]).sqrt() * factor;
+        (m.gram[0][3], m.gram[3][0]) = (v, v);
+        let g = Mat::from_fn(6, 6, |i, j| m.gram[i][j]);
+        m.data_scale = gplvm::fit::scaled_centred_gram(g.as_ref(), 40, m.config.data_scaling)
+            .unwrap()
+            .1;
+        load(&m)
+    };
+    assert!(at_bound(1.0).is_ok());
+    assert!(at_bound(1.0 + 5e-10).is_ok());
+    let e = at_bound(1.0 + 2e-9).unwrap_err();
+    assert!(
+        e.contains("Gram entry (3, 0)") && e.contains("exceeds"),
+        "{e}"
+    );
+
+    let mut m = model.clone();
+    m.gram[4].pop();
+    let e = load(&m).unwrap_err();
+    assert!(e.contains("the Gram matrix is not 6 x 6"), "{e}");
+
+    for bad in [0.0, f64::INFINITY, f64::NAN] {
+        let mut m = model.clone();
+        m.data_scale = bad;
+        // TOML writes these; the check, not the parser, refuses them.
+        let e = load(&m).unwrap_err();
+        assert!(
+            e.contains("data_scale must be finite and > 0"),
+            "{bad}: {e}"
+        );
+    }
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(64))]
 
