@@ -450,6 +450,34 @@ fn load_checks_hold_at_their_bounds() {
     let e = load(&m).unwrap_err();
     assert!(e.contains("the Gram matrix is not 6 x 6"), "{e}");
 
+    // The recorded data scale may differ from the recomputed one by 1e-9 relative, plus the
+    // rounding of centring, 64 N eps of the uncentred trace per value; no more.
+    let recorded_as = |m: &Model, factor: f64| {
+        let mut m = m.clone();
+        m.data_scale *= factor;
+        load(&m)
+    };
+    assert!(recorded_as(&model, 1.0 + 5e-10).is_ok());
+    let e = recorded_as(&model, 1.0 + 2e-9).unwrap_err();
+    assert!(e.contains("disagrees with the Gram matrix"), "{e}");
+    // A common component of 1e6 added to the Gram matrix (materials 1e3 from the origin, a
+    // centred variance of 0.07 per value): the rounding term dominates (3e-8 relative).
+    let offset = {
+        let mut m = model.clone();
+        let c = 1e6;
+        m.gram.iter_mut().flatten().for_each(|v| *v += c);
+        let g = Mat::from_fn(6, 6, |i, j| m.gram[i][j]);
+        m.data_scale = gplvm::fit::scaled_centred_gram(g.as_ref(), 40, m.config.data_scaling)
+            .unwrap()
+            .1;
+        m
+    };
+    let uncentred: f64 = (0..6).map(|i| offset.gram[i][i]).sum::<f64>() / 240.0;
+    let rounding = 64.0 * 6.0 * f64::EPSILON * uncentred / offset.data_scale;
+    assert!(rounding > 1e-9, "{rounding:e}");
+    assert!(recorded_as(&offset, 1.0 + 0.9 * rounding).is_ok());
+    assert!(recorded_as(&offset, 1.0 + 1.2 * rounding + 1e-9).is_err());
+
     for bad in [0.0, f64::INFINITY, f64::NAN] {
         let mut m = model.clone();
         m.data_scale = bad;
