@@ -893,24 +893,25 @@ fn fits_warn_of_settings_that_make_no_sense() {
         );
     }
 
-    // Noise against the signal variance s^2 = amplitude^2 = 4.
-    for (noise, learn, warns) in [(4.0, false, true), (3.99, false, false), (4.0, true, false)] {
+    // Noise against the signal variance s^2 = amplitude^2 = 9 (not 2 amplitude: 2 x 2 = 2 + 2).
+    for (noise, learn, warns) in [(9.0, false, true), (8.99, false, false), (9.0, true, false)] {
         let p = FitParams {
-            amplitude: 2.0,
+            amplitude: 3.0,
             noise,
             learn_hyperparameters: learn,
             ..base()
         };
         let (_, said) = fit_warnings(10, 20, p);
         assert_eq!(
-            said.contains("is at least the kernel's signal variance s^2 = 4e0"),
+            said.contains("is at least the kernel's signal variance s^2 = 9e0"),
             warns,
             "{noise} {learn}: {said}"
         );
     }
 
-    // Noise under the rounding of s^2 + mu = 1 + mu (half an ulp of 1 is 1.1e-16).
-    for (noise, warns) in [(1e-17, true), (1e-15, false)] {
+    // Noise under the rounding of s^2 + mu = 1 + mu (half an ulp above 1 is 1.1e-16; 8e-17
+    // would survive 1 - mu, whose half ulp is 5.6e-17).
+    for (noise, warns) in [(1e-17, true), (8e-17, true), (1e-15, false)] {
         let p = FitParams { noise, ..base() };
         let (_, said) = fit_warnings(10, 20, p);
         assert_eq!(
