@@ -1011,10 +1011,10 @@ fn fit_settings_reach_the_optimiser_and_the_kernel() {
     );
 
     let amplified = fit(FitParams {
-        amplitude: 2.0,
+        amplitude: 3.0,
         noise: 1e-3,
         ..base()
     });
-    assert_eq!(amplified.params.signal_variance(), 4.0);
+    assert_eq!(amplified.params.signal_variance(), 9.0);
     assert_eq!(amplified.params.noise(), 1e-3);
 }
