@@ -1365,4 +1365,27 @@ mod tests {
             assert!(batch_objective(&gp, g.as_ref(), &g_h, g_hh, &[], &one).is_empty());
         }
     }
+
+    /// The summary's mean and median of a column: the mean, and the middle value of the sorted
+    /// column, or the mean of the two middle ones for an even count (unsorted input, values
+    /// chosen so that every other order statistic or combination differs); NaN for none.
+    #[test]
+    fn mean_median_takes_the_middle_of_the_sorted_column() {
+        assert_eq!(mean_median(&[9.0, 2.0, 7.0, 1.0, 4.0]), (4.6, 4.0));
+        assert_eq!(mean_median(&[8.0, 1.0, 20.0, 3.0]), (8.0, 5.5));
+        assert_eq!(mean_median(&[2.5]), (2.5, 2.5));
+        let (mean, median) = mean_median(&[]);
+        assert!(mean.is_nan() && median.is_nan());
+    }
+
+    /// `best_lerp` between two identical materials (the same file imported twice: `y_i - y_j`
+    /// is 0, so every `a` gives the same blend) takes `a = 0.5` and the error of either one
+    /// against the target, exactly; not `0 / 0`, a NaN coefficient with its error clamped to 0.
+    #[test]
+    fn best_lerp_between_identical_materials_is_their_midpoint() {
+        // y0 = y1; the target y3 is |y3 - y0|^2 = 1 + 2.25 away from them (all exact in f64).
+        let y = [[1.0, 2.0], [1.0, 2.0], [3.0, -1.0], [2.0, 0.5]];
+        let g = Mat::from_fn(4, 4, |i, j| y[i][0] * y[j][0] + y[i][1] * y[j][1]);
+        assert_eq!(best_lerp(g.as_ref(), 3, 0, 1), (0.5, 3.25));
+    }
 }

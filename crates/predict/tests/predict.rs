@@ -412,10 +412,6 @@ fn dense_data(n: usize, d: usize) -> Mat<f64> {
     })
 }
 
-/// A near-exact reconstruction on data with a large offset (raw values of a bright specular
-/// peak): the Gram error keeps its relative accuracy instead of drowning in the rounding of
-/// `G_hh` (the expanded `G_hh - 2 c^T G_h + c^T G c` gave ~1e-16 G_hh of noise, here ~1e-3,
-/// against a true error of ~1e-12).
 /// A model whose K needs jitter (two materials at one latent point, noise 1e-20): far from
 /// every material the variance is the prior plus the jitter, and the support's variance
 /// fraction is 1 (it was (s^2 + mu + j) / (s^2 + mu), above 1).
@@ -446,6 +442,10 @@ fn variance_fractions_count_the_jitter_as_prior() {
     assert!(at.variance_fraction < 1e-3, "{at:?}");
 }
 
+/// A near-exact reconstruction on data with a large offset (raw values of a bright specular
+/// peak): the Gram error keeps its relative accuracy instead of drowning in the rounding of
+/// `G_hh` (the expanded `G_hh - 2 c^T G_h + c^T G c` gave ~1e-16 G_hh of noise, here ~1e-3,
+/// against a true error of ~1e-12).
 #[test]
 fn gram_error_of_a_near_exact_reconstruction_is_accurate_on_large_values() {
     let (n, d) = (9, 40);
@@ -601,6 +601,101 @@ fn leave_one_out_via_the_gram_matrix_equals_brute_force() {
                 );
             }
         }
+    }
+}
+
+/// A warm leave-one-out refit (`refit_warm`) stops by the fit configuration's own L-BFGS rules,
+/// not the optimiser's defaults (2000 iterations, tolerances 1e-6 and 1e-12): a gradient
+/// tolerance that the start meets returns the warm start itself, and an iteration cap of 1 or a
+/// cost tolerance that every step meets stops after a step or two, well short of the
+/// configured run's optimum.
+#[test]
+fn warm_refits_stop_by_the_configured_rules() {
+    let (n, d, h) = (9, 40, 4);
+    let y = dense_data(n, d);
+    let g = gp_core::gram_from_data(y.as_ref(), Par::Seq).unwrap();
+    let params = FitParams {
+        transform: "raw".into(),
+        max_iterations: 300,
+        ..FitParams::default()
+    };
+    let config = params.clone().check().unwrap();
+    assert_eq!(config.params.optimizer, gplvm::OptimizerKind::Lbfgs);
+    let full = gplvm::fit_gram(g.as_ref(), d, &config).unwrap();
+    let others: Vec<usize> = (0..n).filter(|&i| i != h).collect();
+    let g_oo = gp_core::subset_gram(g.as_ref(), &others).unwrap();
+    let x0 = Mat::from_fn(n - 1, full.x.ncols(), |i, k| full.x[(others[i], k)]);
+    let refit = |p: FitParams| {
+        predict::evaluate::refit_warm(
+            g_oo.as_ref(),
+            d,
+            &p.check().unwrap(),
+            x0.as_ref(),
+            &full.params,
+        )
+        .unwrap()
+    };
+    let configured = refit(params.clone());
+    let at_start = refit(FitParams {
+        gradient_tolerance: 1e10,
+        ..params.clone()
+    });
+    assert_eq!(at_start.x, x0);
+    let capped = refit(FitParams {
+        max_iterations: 1,
+        ..params.clone()
+    });
+    let by_cost = refit(FitParams {
+        cost_tolerance: 1e10,
+        ..params.clone()
+    });
+    // The configured run gains ~4 in log-likelihood over the start (53.7 to 58.0); one step
+    // (or two: the cost rule retries once from steepest descent) gains under 1.1.
+    for (rule, stopped) in [("1 iteration", &capped), ("cost tolerance", &by_cost)] {
+        assert!(
+            stopped.x != x0
+                && stopped.log_likelihood > at_start.log_likelihood
+                && stopped.log_likelihood < configured.log_likelihood - 1.0,
+            "{rule}: {} (start {}, configured {})",
+            stopped.log_likelihood,
+            at_start.log_likelihood,
+            configured.log_likelihood
+        );
+    }
+}
+
+/// `brdf_space_rmse` refuses a coefficient matrix and targets that do not fit the store, each
+/// mismatch alone (a matrix of another width, a target count other than its rows, a target
+/// past the materials), with an error giving the shapes, where the pass would otherwise panic
+/// or score a row against no target; fitting ones give one RMSE per row (raw data: 0 for a
+/// material's own row, more for another's).
+#[test]
+fn brdf_space_errors_refuse_shapes_that_do_not_fit_the_store() {
+    use predict::evaluate::brdf_space_rmse;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("data.sbrdf");
+    write_store(&path, 4, 0, grid());
+    let store = Store::open(&path).unwrap();
+    let identity =
+        |rows: usize, cols: usize| Mat::from_fn(rows, cols, |i, j| if i == j { 1.0 } else { 0.0 });
+    let run = |targets: &[usize], coef: &Mat<f64>| {
+        brdf_space_rmse(&store, Transform::Raw, targets, coef.as_ref(), &|_, _| {})
+    };
+    assert_eq!(run(&[0, 1], &identity(2, 4)).unwrap(), vec![0.0, 0.0]);
+    let swapped = run(&[1, 0], &identity(2, 4)).unwrap();
+    assert!(swapped.iter().all(|&e| e > 0.0), "{swapped:?}");
+    for (targets, coef) in [
+        (&[0, 1][..], identity(2, 3)),
+        (&[0][..], identity(2, 4)),
+        (&[0, 4][..], identity(2, 4)),
+    ] {
+        let e = run(targets, &coef).unwrap_err().to_string();
+        let want = format!(
+            "coefficient matrix 2x{} and {} targets for 4 materials",
+            coef.ncols(),
+            targets.len()
+        );
+        assert!(e.contains(&want), "{e}");
     }
 }
 
@@ -1308,6 +1403,207 @@ fn locate_refuses_targets_it_cannot_compare() {
         e.contains("huge.binary") && e.contains("NaN or infinite"),
         "{e}"
     );
+}
+
+/// `Target::from_store` reads the materials asked for, in the order asked (a repeat included),
+/// from a store of several chunks (a chunk holds value `d` of material `m` at
+/// `(d - start) N + m`): each target is named as the material, has the store's path as its
+/// source and every stored value. An index past the store's materials is an error naming it,
+/// the store and how many it holds.
+#[test]
+fn targets_from_a_store_hold_its_materials_values() {
+    use predict::locate::Target;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("chunked.sbrdf");
+    let presets = brdf_synth::preset(0);
+    let step = presets.len() / 5;
+    let picked: Vec<_> = (0..5).map(|i| presets[i * step].clone()).collect();
+    let options = StoreOptions {
+        chunk_len: Some(1000),
+        ..StoreOptions::default()
+    };
+    brdf_synth::write_store(&path, &picked, grid(), &channels(), options, 0, |_| {}).unwrap();
+    let store = Store::open(&path).unwrap();
+    assert!(store.n_chunks() > 2, "{} chunks", store.n_chunks());
+    let names = store.names();
+    let targets = Target::from_store(&store, &[3, 0, 3]).unwrap();
+    assert_eq!(targets.len(), 3);
+    for (t, m) in targets.iter().zip([3, 0, 3]) {
+        assert_eq!(t.name, names[m]);
+        assert_eq!(t.source, path.display().to_string());
+        assert_eq!(t.values, material_values(&path, names[m]), "{}", t.name);
+    }
+    assert_ne!(targets[0].values, targets[1].values);
+    let e = Target::from_store(&store, &[1, 5]).unwrap_err().to_string();
+    assert!(
+        e.contains("material 5 of") && e.contains("chunked.sbrdf") && e.contains("(it holds 5)"),
+        "{e}"
+    );
+}
+
+/// `Target::from_file` resamples an RGL `.bsdf` file onto the model's grid and channels as the
+/// file's own resampling does (values and report), named by the file's stem; a file whose
+/// channels cannot give the model's (a spectral file for RGB data, a MERL file, which is RGB,
+/// for spectral data) or of another kind is an error saying what the file and the model's data
+/// are ([`predict::locate::describe_channels`]).
+#[test]
+fn target_files_are_resampled_or_refused_by_their_channels() {
+    use brdf_io::rgl::{RglBsdf, RglWriteOptions, write_rgl};
+    use predict::locate::{Target, describe_channels};
+    assert_eq!(describe_channels(&Channels::Rgb), "RGB (R,G,B)");
+    assert_eq!(
+        describe_channels(&channels()),
+        "spectral (7 wavelengths 400-700 nm)"
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let Channels::Spectral(wavelengths) = channels() else {
+        unreachable!("the tests' channels are spectral")
+    };
+    let source = brdf_synth::preset(0)[0].prepare(&wavelengths);
+    let bsdf = dir.path().join("paint.bsdf");
+    let options = RglWriteOptions {
+        theta_samples: 4,
+        resolution: 8,
+        warp_resolution: 16,
+        tolerance: None,
+        ..RglWriteOptions::default()
+    };
+    write_rgl(&source, &bsdf, &options).unwrap();
+    let (target, report) = Target::from_file(&bsdf, &grid(), &channels()).unwrap();
+    let (want, want_report) = RglBsdf::open(&bsdf)
+        .unwrap()
+        .resample(&grid(), &channels())
+        .unwrap();
+    assert_eq!(target.name, "paint");
+    assert_eq!(target.source, bsdf.display().to_string());
+    assert_eq!(target.values, want);
+    assert!(target.values.iter().any(|&v| v > 0.0));
+    assert_eq!(report, want_report);
+
+    let e = Target::from_file(&bsdf, &grid(), &Channels::Rgb)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("paint.bsdf is a spectral file, but the model's data are RGB (R,G,B)"),
+        "{e}"
+    );
+    // A valid 2 x 2 x 2 MERL file (RGB) for spectral data.
+    let merl = dir.path().join("grey.binary");
+    let mut bytes: Vec<u8> = [2i32, 2, 2].iter().flat_map(|v| v.to_le_bytes()).collect();
+    bytes.extend((0..24).flat_map(|_| 0.1f64.to_le_bytes()));
+    std::fs::write(&merl, bytes).unwrap();
+    assert!(Target::from_file(&merl, &grid(), &Channels::Rgb).is_ok());
+    let e = Target::from_file(&merl, &grid(), &channels())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains(
+            "grey.binary is a MERL file (R,G,B), but the model's data are spectral (7 \
+             wavelengths 400-700 nm)"
+        ),
+        "{e}"
+    );
+    let e = Target::from_file(&dir.path().join("paint.csv"), &grid(), &channels())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("paint.csv: expected an RGL .bsdf or a MERL .binary file"),
+        "{e}"
+    );
+}
+
+/// `locate`'s progress counts the chunks of both passes over a store of several chunks: every
+/// call has the total 2 x chunks, the first pass (the cross products) reports 1..=chunks and
+/// the second (the errors) chunks + 1..=2 x chunks. A target located alone (one pair of rows in
+/// the error pass) gets the errors measured directly: its prediction's and, from the pair's
+/// second row, the nearest material's BRDF-space RMSE.
+#[test]
+fn locate_counts_both_passes_and_measures_the_nearest_material() {
+    use predict::locate::{Target, locate};
+    let dir = tempfile::tempdir().unwrap();
+    let store_path = dir.path().join("chunked.sbrdf");
+    let presets = brdf_synth::preset(0);
+    let step = presets.len() / 6;
+    let picked: Vec<_> = (0..6).map(|i| presets[i * step].clone()).collect();
+    let options = StoreOptions {
+        chunk_len: Some(1000),
+        ..StoreOptions::default()
+    };
+    brdf_synth::write_store(
+        &store_path,
+        &picked,
+        grid(),
+        &channels(),
+        options,
+        0,
+        |_| {},
+    )
+    .unwrap();
+    let params = FitParams {
+        latent_dim: 2,
+        transform: "log".into(),
+        max_iterations: 300,
+        ..FitParams::default()
+    };
+    let model = gplvm::fit_store(&store_path, &params.check().unwrap()).unwrap();
+    let model_path = dir.path().join("model.toml");
+    model.save(&model_path).unwrap();
+    let pred = Predictor::open(&model_path).unwrap();
+    let chunks = pred.store().n_chunks();
+    assert!(chunks > 2, "{chunks} chunks");
+    // A preset material between two of the picks: not in the training set.
+    let new_store = dir.path().join("new.sbrdf");
+    brdf_synth::write_store(
+        &new_store,
+        std::slice::from_ref(&presets[step / 2]),
+        grid(),
+        &channels(),
+        StoreOptions::default(),
+        7,
+        |_| {},
+    )
+    .unwrap();
+    let new_name = Store::open(&new_store).unwrap().names()[0].to_owned();
+    let target = Target {
+        values: material_values(&new_store, &new_name),
+        name: new_name,
+        source: new_store.display().to_string(),
+    };
+    let calls = std::sync::Mutex::new(Vec::new());
+    let located = locate(&pred, std::slice::from_ref(&target), 3, &|k, total| {
+        calls.lock().unwrap().push((k, total))
+    })
+    .unwrap();
+    let mut calls = calls.into_inner().unwrap();
+    assert!(
+        calls.iter().all(|&(_, total)| total == 2 * chunks),
+        "{calls:?}"
+    );
+    calls.sort_unstable();
+    let done: Vec<usize> = calls.iter().map(|&(k, _)| k).collect();
+    assert_eq!(done, (1..=2 * chunks).collect::<Vec<_>>());
+
+    assert_eq!(located.len(), 1);
+    let loc = &located[0];
+    let store = pred.store();
+    let (nc, mask) = (store.channels().len(), store.validity_mask().to_vec());
+    let nearest = material_values(&store_path, &loc.nearest);
+    let prediction = pred.predict(&loc.point, PredictorKind::Exact).unwrap();
+    let (mut nearest_sq, mut predicted_sq) = (0.0, 0.0);
+    for d in (0..store.d()).filter(|d| mask[d / nc]) {
+        let f = f64::from(target.values[d]);
+        nearest_sq += (f - f64::from(nearest[d])).powi(2);
+        predicted_sq += (f - prediction.value_at(d).unwrap()).powi(2);
+    }
+    let n_angles = pred.grid().len() as f64;
+    let (nearest_rmse, predicted_rmse) = (
+        (nearest_sq / n_angles).sqrt(),
+        (predicted_sq / n_angles).sqrt(),
+    );
+    assert!(rel(loc.nearest_brdf_rmse, nearest_rmse) < 1e-9, "{loc:?}");
+    assert!(rel(loc.brdf_rmse, predicted_rmse) < 1e-9, "{loc:?}");
+    // The two rows' errors differ here, so the check above tells them apart.
+    assert!(rel(nearest_rmse, predicted_rmse) > 1e-3, "{loc:?}");
 }
 
 /// Latent coordinates are bounded as model files bound them (`gplvm::model::MAX_COORDINATE`,
