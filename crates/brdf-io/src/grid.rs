@@ -764,6 +764,24 @@ mod tests {
         }
     }
 
+    /// Lookups at and past the grid's edges clamp to its first and last bins: theta_h and
+    /// theta_d of exactly pi/2 (where the floor gives bin n, one past the end), theta_h up to
+    /// pi (below the horizon) and negative angles; phi_d folds instead.
+    #[test]
+    fn locate_clamps_at_the_edges_of_the_grid() {
+        let g = AngularGrid::new(5, 7, 9).unwrap();
+        let at = |theta_h, theta_d, phi_d| {
+            g.locate(&HalfDiff {
+                theta_h,
+                theta_d,
+                phi_d,
+            })
+        };
+        assert_eq!(at(FRAC_PI_2, FRAC_PI_2, 0.0), (4, 6, 0));
+        assert_eq!(at(PI, 2.0, PI + 0.1), (4, 6, 0));
+        assert_eq!(at(-0.1, -0.1, -0.1), (0, 0, 8));
+    }
+
     #[test]
     fn interpolation_stencil_weights() {
         let g = AngularGrid::new(6, 5, 8).unwrap();
@@ -797,6 +815,27 @@ mod tests {
             close(w_first, 0.5, 1e-9) && close(w_last, 0.5, 1e-9),
             "{st:?}"
         );
+    }
+
+    /// theta_h past pi/2 (below the horizon; `from_dirs` gives up to pi) clamps to the last
+    /// theta_h bin, where the stencil still interpolates theta_d: half-way between the first
+    /// two theta_d centres at phi_d = pi/2 (both cells valid) it reads each with weight 1/2.
+    #[test]
+    fn stencils_clamp_theta_h_past_the_last_bin() {
+        let g = AngularGrid::new(5, 7, 9).unwrap();
+        assert!(g.is_valid_cell(4, 0, 4) && g.is_valid_cell(4, 1, 4));
+        for theta_h in [FRAC_PI_2 + 0.1, 2.5, PI] {
+            let hd = HalfDiff {
+                theta_h,
+                theta_d: FRAC_PI_2 / 7.0,
+                phi_d: FRAC_PI_2,
+            };
+            let st = g.interpolation_stencil(&hd);
+            let weight = |a: usize| -> f64 { st.iter().filter(|c| c.0 == a).map(|c| c.1).sum() };
+            let (a, b) = (g.index(4, 0, 4), g.index(4, 1, 4));
+            assert!(close(weight(a), 0.5, 1e-12), "{theta_h}: {st:?}");
+            assert!(close(weight(b), 0.5, 1e-12), "{theta_h}: {st:?}");
+        }
     }
 
     /// Near the horizon the stencil reads valid cells only, with weights summing to 1; away
@@ -851,6 +890,53 @@ mod tests {
         );
     }
 
+    /// When no corner of a stencil is valid, the fallback cell is at the theta_h and phi_d
+    /// corners nearer to the lookup (its index-space coordinates rounded), at the largest
+    /// valid theta_d up to the stencil's lower one; only a row without such a cell moves to
+    /// a smaller theta_h (at theta_d bin 0). Lookups nearer either corner on both axes occur.
+    #[test]
+    fn stencil_fallback_reads_the_nearer_theta_h_and_phi_d_corner() {
+        let g = AngularGrid::new(12, 10, 16).unwrap();
+        let mask = g.validity_mask();
+        let mut seen = [[0; 2]; 2];
+        for i in 0..80 {
+            for j in 0..80 {
+                for k in 0..17 {
+                    let hd = HalfDiff {
+                        theta_h: i as f64 / 79.0 * FRAC_PI_2,
+                        theta_d: j as f64 / 79.0 * FRAC_PI_2,
+                        phi_d: k as f64 / 17.0 * PI,
+                    };
+                    let st = g.interpolation_stencil(&hd);
+                    let fallback = st.iter().all(|&(a, _)| a == st[0].0) && st[0].1 == 1.0;
+                    if !fallback {
+                        continue;
+                    }
+                    let c = g.continuous_coords(&hd);
+                    let th = c[0].clamp(0.0, 11.0);
+                    let tp = c[2].rem_euclid(1.0);
+                    if th.fract() == 0.5 || tp == 0.5 {
+                        continue; // half-way: neither corner is nearer
+                    }
+                    let hn = th.round() as usize;
+                    let pn = c[2].rem_euclid(16.0).round() as usize % 16;
+                    let d0 = c[1].clamp(0.0, 9.0).floor() as usize;
+                    let (ci, cj, ck) = g.unindex(st[0].0);
+                    assert!(mask[st[0].0] && ck == pn, "{hd:?}: {st:?}");
+                    if ci == hn {
+                        assert!(cj <= d0, "{hd:?}: {st:?}");
+                        assert!(cj == d0 || !mask[g.index(hn, cj + 1, pn)], "{hd:?}");
+                    } else {
+                        assert!(ci < hn && cj == 0, "{hd:?}: {st:?}");
+                        assert!((0..=d0).all(|d| !mask[g.index(hn, d, pn)]), "{hd:?}");
+                    }
+                    seen[usize::from(th.fract() > 0.5)][usize::from(tp > 0.5)] += 1;
+                }
+            }
+        }
+        assert!(seen.iter().flatten().all(|&n| n > 0), "{seen:?}");
+    }
+
     /// Directions of any finite length give the angles of their unit vectors: a length below
     /// ~1e-154 or above ~1e154, whose squares underflow or overflow, used to give `None`.
     #[test]
@@ -902,6 +988,36 @@ mod tests {
         .to_dirs();
         assert!(close(wi[0], -wo[0], 1e-15) && close(wi[1], -wo[1], 1e-15));
         assert!(close(wi[2], wo[2], 1e-15) && close(wi[2], 0.7f64.cos(), 1e-15));
+    }
+
+    /// "Strictly above the horizon": a pair with one direction exactly on it (height 0.0 after
+    /// rounding; these angles were searched for that) is not above it, either direction.
+    #[test]
+    fn a_direction_exactly_on_the_horizon_is_not_above_it() {
+        let wi_on = HalfDiff {
+            theta_h: 1.2787789185589873,
+            theta_d: 0.2920174082359093,
+            phi_d: 0.0,
+        };
+        let (wi, wo) = wi_on.to_dirs();
+        assert!(wi[2] == 0.0 && wo[2] > 0.0, "{wi:?} {wo:?}");
+        assert!(!wi_on.is_above_horizon());
+        let wo_on = HalfDiff {
+            theta_h: 1.1574731975160903,
+            theta_d: 0.4133231292788062,
+            phi_d: PI,
+        };
+        let (wi, wo) = wo_on.to_dirs();
+        assert!(wi[2] > 0.0 && wo[2] == 0.0, "{wi:?} {wo:?}");
+        assert!(!wo_on.is_above_horizon());
+        // With theta_d 1e-12 smaller, both pairs are above.
+        for hd in [wi_on, wo_on] {
+            let inside = HalfDiff {
+                theta_d: hd.theta_d - 1e-12,
+                ..hd
+            };
+            assert!(inside.is_above_horizon(), "{inside:?}");
+        }
     }
 
     #[test]

@@ -652,6 +652,126 @@ mod tests {
         assert!(f.to_f32(Path::new("n.bsdf")).is_err());
     }
 
+    /// Every dtype code 1..=11 maps to its dtype and back (codes 0 and 12 are refused), the
+    /// sizes and the float flag are right, and a field of each dtype survives a round trip
+    /// through the file bytes with its values (negative ones for the signed types).
+    #[test]
+    fn every_dtype_round_trips_through_a_file() {
+        use DType::*;
+        let all = [U8, I8, U16, I16, U32, I32, U64, I64, F16, F32, F64];
+        for (k, &d) in all.iter().enumerate() {
+            assert_eq!(d.code() as usize, k + 1);
+            assert_eq!(DType::from_code(d.code()), Some(d));
+            assert_eq!(d.is_float(), matches!(d, F16 | F32 | F64), "{d:?}");
+        }
+        assert_eq!(DType::from_code(0), None);
+        assert_eq!(DType::from_code(12), None);
+        let sizes = all.map(DType::size);
+        assert_eq!(sizes, [1, 1, 2, 2, 4, 4, 8, 8, 2, 4, 8]);
+        // Two elements per field: 3 and -2 (the bytes of -2 read as 2^bits - 2 when unsigned).
+        let fields: Vec<Field> = all
+            .iter()
+            .map(|&d| {
+                let bytes = match d {
+                    U8 | I8 => vec![3, 0xfe],
+                    U16 | I16 => [3i16, -2].iter().flat_map(|v| v.to_le_bytes()).collect(),
+                    U32 | I32 => [3i32, -2].iter().flat_map(|v| v.to_le_bytes()).collect(),
+                    U64 | I64 => [3i64, -2].iter().flat_map(|v| v.to_le_bytes()).collect(),
+                    F16 => [3.0, -2.0]
+                        .iter()
+                        .flat_map(|&v| half::f16::from_f64(v).to_le_bytes())
+                        .collect(),
+                    F32 => [3.0f32, -2.0]
+                        .iter()
+                        .flat_map(|v| v.to_le_bytes())
+                        .collect(),
+                    F64 => [3.0f64, -2.0]
+                        .iter()
+                        .flat_map(|v| v.to_le_bytes())
+                        .collect(),
+                };
+                Field::from_raw(format!("{d:?}"), d, vec![2], bytes).unwrap()
+            })
+            .collect();
+        let bytes = TensorFile::to_bytes(&fields).unwrap();
+        let tf = TensorFile::from_bytes(&bytes, "all.bsdf").unwrap();
+        assert_eq!(tf.fields(), &fields[..]);
+        let p = Path::new("all.bsdf");
+        let want = |d: DType| match d {
+            U8 => 254.0,
+            U16 => 65534.0,
+            U32 => 4_294_967_294.0,
+            U64 => (u64::MAX - 1) as f64,
+            _ => -2.0,
+        };
+        for (f, &d) in tf.fields().iter().zip(&all) {
+            assert_eq!(f.dtype(), d);
+            assert_eq!(f.to_f64(p).unwrap(), vec![3.0, want(d)], "{d:?}");
+        }
+    }
+
+    /// The accessors: a field's raw bytes are the bytes it was made from, its length counts
+    /// elements (not bytes), and only a field of no element is empty.
+    #[test]
+    fn field_accessors_report_bytes_length_and_emptiness() {
+        let f = Field::from_f32("a", vec![2], &[1.0, -0.5]).unwrap();
+        let mut want = 1.0f32.to_le_bytes().to_vec();
+        want.extend_from_slice(&(-0.5f32).to_le_bytes());
+        assert_eq!(f.bytes(), &want[..]);
+        assert_eq!((f.len(), f.is_empty()), (2, false));
+        let e = Field::from_f64("e", vec![3, 0], &[]).unwrap();
+        assert_eq!((e.len(), e.is_empty(), e.bytes()), (0, true, &[][..]));
+    }
+
+    /// Names and ranks must fit the file's u16 length fields: 65535 bytes or axes are
+    /// accepted and round-trip, 65536 are refused (either one alone).
+    #[test]
+    fn field_names_and_ranks_up_to_u16_max() {
+        let max = u16::MAX as usize;
+        let long = Field::from_u8("n".repeat(max), vec![1], &[7]).unwrap();
+        let deep = Field::from_u8("d", vec![1; max], &[9]).unwrap();
+        let bytes = TensorFile::to_bytes(&[long.clone(), deep.clone()]).unwrap();
+        let tf = TensorFile::from_bytes(&bytes, "big.bsdf").unwrap();
+        assert_eq!(tf.fields(), &[long, deep][..]);
+        for (name, shape) in [
+            ("n".repeat(max + 1), vec![1]),
+            ("d".into(), vec![1; max + 1]),
+        ] {
+            let e = Field::from_u8(name, shape, &[1]).unwrap_err().to_string();
+            assert!(e.contains("name or rank too long"), "{e}");
+        }
+    }
+
+    /// A field count that cannot fit in the file (each field header takes at least 13 bytes)
+    /// is refused up front, before anything is allocated for it; a count that could fit but
+    /// whose headers are missing is a truncated file.
+    #[test]
+    fn field_counts_beyond_the_file_size_are_refused_up_front() {
+        let header = |count: u32, len: usize| {
+            let mut b = MAGIC.to_vec();
+            b.extend_from_slice(&[1, 0]);
+            b.extend_from_slice(&count.to_le_bytes());
+            b.resize(len, 0);
+            b
+        };
+        let e = TensorFile::from_bytes(&header(1000, 100), "c.bsdf")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("c.bsdf") && e.contains("field count 1000 cannot fit in a file of 100"),
+            "{e}"
+        );
+        // 26 bytes: room for 26 / 13 = 2 field headers by the bound, but no field in them.
+        let e = TensorFile::from_bytes(&header(2, 26), "c.bsdf")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("truncated tensor file"), "{e}");
+        let e = TensorFile::from_bytes(&header(3, 26), "c.bsdf")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("field count 3 cannot fit"), "{e}");
+    }
+
     #[test]
     fn writer_checks_lengths() {
         assert!(Field::from_f32("x", vec![2, 2], &[1.0; 3]).is_err());
