@@ -29,20 +29,16 @@ fn channels() -> Channels {
 }
 
 fn write_store(path: &Path, n: usize, seed: u64, grid: AngularGrid) {
+    write_store_with(path, n, seed, grid, StoreOptions::default());
+}
+
+/// As [`write_store`], with the store written with `options` (e.g. small chunks).
+fn write_store_with(path: &Path, n: usize, seed: u64, grid: AngularGrid, options: StoreOptions) {
     let materials = brdf_synth::preset(seed);
     // Spread the picks over the preset's families.
     let step = materials.len() / n;
     let picked: Vec<_> = (0..n).map(|i| materials[i * step].clone()).collect();
-    brdf_synth::write_store(
-        path,
-        &picked,
-        grid,
-        &channels(),
-        StoreOptions::default(),
-        seed,
-        |_| {},
-    )
-    .unwrap();
+    brdf_synth::write_store(path, &picked, grid, &channels(), options, seed, |_| {}).unwrap();
 }
 
 /// The model's material names, in order.
@@ -55,9 +51,14 @@ fn material_names(pred: &Predictor) -> Vec<String> {
 }
 
 fn fixture(n: usize, transform: &str) -> Fixture {
+    fixture_with(n, transform, StoreOptions::default())
+}
+
+/// As [`fixture`], with the store written with `options`.
+fn fixture_with(n: usize, transform: &str, options: StoreOptions) -> Fixture {
     let dir = tempfile::tempdir().unwrap();
     let store = dir.path().join("data.sbrdf");
-    write_store(&store, n, 0, grid());
+    write_store_with(&store, n, 0, grid(), options);
     // The tests use 2-D latent points (the default fit has q = 5).
     let params = FitParams {
         latent_dim: 2,
@@ -1415,14 +1416,11 @@ fn targets_from_a_store_hold_its_materials_values() {
     use predict::locate::Target;
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("chunked.sbrdf");
-    let presets = brdf_synth::preset(0);
-    let step = presets.len() / 5;
-    let picked: Vec<_> = (0..5).map(|i| presets[i * step].clone()).collect();
     let options = StoreOptions {
         chunk_len: Some(1000),
         ..StoreOptions::default()
     };
-    brdf_synth::write_store(&path, &picked, grid(), &channels(), options, 0, |_| {}).unwrap();
+    write_store_with(&path, 5, 0, grid(), options);
     let store = Store::open(&path).unwrap();
     assert!(store.n_chunks() > 2, "{} chunks", store.n_chunks());
     let names = store.names();
@@ -1520,38 +1518,22 @@ fn target_files_are_resampled_or_refused_by_their_channels() {
 #[test]
 fn locate_counts_both_passes_and_measures_the_nearest_material() {
     use predict::locate::{Target, locate};
-    let dir = tempfile::tempdir().unwrap();
-    let store_path = dir.path().join("chunked.sbrdf");
-    let presets = brdf_synth::preset(0);
-    let step = presets.len() / 6;
-    let picked: Vec<_> = (0..6).map(|i| presets[i * step].clone()).collect();
-    let options = StoreOptions {
-        chunk_len: Some(1000),
-        ..StoreOptions::default()
-    };
-    brdf_synth::write_store(
-        &store_path,
-        &picked,
-        grid(),
-        &channels(),
-        options,
-        0,
-        |_| {},
-    )
-    .unwrap();
-    let params = FitParams {
-        latent_dim: 2,
-        transform: "log".into(),
-        max_iterations: 300,
-        ..FitParams::default()
-    };
-    let model = gplvm::fit_store(&store_path, &params.check().unwrap()).unwrap();
-    let model_path = dir.path().join("model.toml");
-    model.save(&model_path).unwrap();
-    let pred = Predictor::open(&model_path).unwrap();
+    let f = fixture_with(
+        6,
+        "log",
+        StoreOptions {
+            chunk_len: Some(1000),
+            ..StoreOptions::default()
+        },
+    );
+    let store_path = &f.store;
+    let pred = Predictor::open(&f.model).unwrap();
     let chunks = pred.store().n_chunks();
     assert!(chunks > 2, "{chunks} chunks");
-    // A preset material between two of the picks: not in the training set.
+    // A preset material between two of the fixture's picks: not in the training set.
+    let presets = brdf_synth::preset(0);
+    let step = presets.len() / 6;
+    let dir = tempfile::tempdir().unwrap();
     let new_store = dir.path().join("new.sbrdf");
     brdf_synth::write_store(
         &new_store,
@@ -1587,7 +1569,7 @@ fn locate_counts_both_passes_and_measures_the_nearest_material() {
     let loc = &located[0];
     let store = pred.store();
     let (nc, mask) = (store.channels().len(), store.validity_mask().to_vec());
-    let nearest = material_values(&store_path, &loc.nearest);
+    let nearest = material_values(store_path, &loc.nearest);
     let prediction = pred.predict(&loc.point, PredictorKind::Exact).unwrap();
     let (mut nearest_sq, mut predicted_sq) = (0.0, 0.0);
     for d in (0..store.d()).filter(|d| mask[d / nc]) {
