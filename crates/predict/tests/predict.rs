@@ -1199,19 +1199,14 @@ fn material_values(path: &Path, name: &str) -> Vec<f32> {
     v
 }
 
-#[test]
-fn locating_a_new_material_agrees_with_direct_measurements() {
-    use predict::locate::{Target, cross_products, gram_sq_error, locate};
-    let f = fixture(6, "log");
-    let pred = Predictor::open(&f.model).unwrap();
-    // A preset material between two of the fixture's picks: not in the training set.
+/// Writes to `path` a store of one preset material between two of a 6-material fixture's picks
+/// (not in its training set) and returns its name.
+fn write_unseen_material(path: &Path) -> String {
     let presets = brdf_synth::preset(0);
     let step = presets.len() / 6;
-    let new = presets[step / 2].clone();
-    let new_store = f.store.with_file_name("new.sbrdf");
     brdf_synth::write_store(
-        &new_store,
-        std::slice::from_ref(&new),
+        path,
+        std::slice::from_ref(&presets[step / 2]),
         grid(),
         &channels(),
         StoreOptions::default(),
@@ -1219,7 +1214,16 @@ fn locating_a_new_material_agrees_with_direct_measurements() {
         |_| {},
     )
     .unwrap();
-    let new_name = Store::open(&new_store).unwrap().names()[0].to_owned();
+    Store::open(path).unwrap().names()[0].to_owned()
+}
+
+#[test]
+fn locating_a_new_material_agrees_with_direct_measurements() {
+    use predict::locate::{Target, cross_products, gram_sq_error, locate};
+    let f = fixture(6, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    let new_store = f.store.with_file_name("new.sbrdf");
+    let new_name = write_unseen_material(&new_store);
     assert!(
         pred.material_index(&new_name).is_err(),
         "{new_name} is a training material"
@@ -1530,22 +1534,8 @@ fn locate_counts_both_passes_and_measures_the_nearest_material() {
     let pred = Predictor::open(&f.model).unwrap();
     let chunks = pred.store().n_chunks();
     assert!(chunks > 2, "{chunks} chunks");
-    // A preset material between two of the fixture's picks: not in the training set.
-    let presets = brdf_synth::preset(0);
-    let step = presets.len() / 6;
-    let dir = tempfile::tempdir().unwrap();
-    let new_store = dir.path().join("new.sbrdf");
-    brdf_synth::write_store(
-        &new_store,
-        std::slice::from_ref(&presets[step / 2]),
-        grid(),
-        &channels(),
-        StoreOptions::default(),
-        7,
-        |_| {},
-    )
-    .unwrap();
-    let new_name = Store::open(&new_store).unwrap().names()[0].to_owned();
+    let new_store = f.store.with_file_name("new.sbrdf");
+    let new_name = write_unseen_material(&new_store);
     let target = Target {
         values: material_values(&new_store, &new_name),
         name: new_name,
