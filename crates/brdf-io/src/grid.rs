@@ -838,6 +838,26 @@ mod tests {
         }
     }
 
+    /// Lookups over [0, pi/2]^2 x [0, pi): `n_theta` evenly spaced theta_h and theta_d from 0
+    /// to pi/2 inclusive, `n_phi` phi_d from 0 in steps of pi / `n_phi`.
+    fn angle_sweep(n_theta: usize, n_phi: usize) -> impl Iterator<Item = HalfDiff> {
+        let theta = move |i: usize| i as f64 / (n_theta - 1) as f64 * FRAC_PI_2;
+        (0..n_theta).flat_map(move |i| {
+            (0..n_theta).flat_map(move |j| {
+                (0..n_phi).map(move |k| HalfDiff {
+                    theta_h: theta(i),
+                    theta_d: theta(j),
+                    phi_d: k as f64 / n_phi as f64 * PI,
+                })
+            })
+        })
+    }
+
+    /// Whether a stencil is the nearest-valid-cell fallback: one cell, weight 1.
+    fn is_fallback(st: &[(usize, f64)]) -> bool {
+        st.iter().all(|&(a, _)| a == st[0].0) && st[0].1 == 1.0
+    }
+
     /// Near the horizon the stencil reads valid cells only, with weights summing to 1; away
     /// from it (and wherever all eight corners are valid) it is the plain multilinear stencil.
     #[test]
@@ -845,42 +865,31 @@ mod tests {
         let g = AngularGrid::new(12, 10, 16).unwrap();
         let mask = g.validity_mask();
         let (mut partial, mut plain, mut nearest) = (0, 0, 0);
-        for i in 0..40 {
-            for j in 0..40 {
-                for k in 0..9 {
-                    let hd = HalfDiff {
-                        theta_h: i as f64 / 39.0 * FRAC_PI_2,
-                        theta_d: j as f64 / 39.0 * FRAC_PI_2,
-                        phi_d: k as f64 / 9.0 * PI,
-                    };
-                    let st = g.interpolation_stencil(&hd);
-                    let total: f64 = st.iter().map(|(_, w)| w).sum();
-                    let reads_invalid = st.iter().any(|&(a, w)| w > 0.0 && !mask[a]);
-                    assert!(!reads_invalid, "{hd:?}: {st:?}");
-                    assert!((total - 1.0).abs() < 1e-12, "{hd:?}: {total}");
-                    // The plain multilinear weights, for comparison.
-                    let c = g.continuous_coords(&hd);
-                    let all_valid = st.iter().all(|&(a, _)| mask[a]);
-                    // The nearest-valid-cell fallback: one cell, weight 1.
-                    let fallback = st.iter().all(|&(a, _)| a == st[0].0) && st[0].1 == 1.0;
-                    if fallback {
-                        nearest += 1;
-                    } else if all_valid {
-                        plain += 1;
-                        let th = c[0].clamp(0.0, 11.0);
-                        let w_h1 = th - th.floor();
-                        let w: f64 = st
-                            .iter()
-                            .filter(|&&(a, _)| g.unindex(a).0 == (th as usize + 1).min(11))
-                            .map(|(_, w)| w)
-                            .sum();
-                        if th < 11.0 {
-                            assert!((w - w_h1).abs() < 1e-12, "{hd:?}: {st:?}");
-                        }
-                    } else if total > 0.0 {
-                        partial += 1;
-                    }
+        for hd in angle_sweep(40, 9) {
+            let st = g.interpolation_stencil(&hd);
+            let total: f64 = st.iter().map(|(_, w)| w).sum();
+            let reads_invalid = st.iter().any(|&(a, w)| w > 0.0 && !mask[a]);
+            assert!(!reads_invalid, "{hd:?}: {st:?}");
+            assert!((total - 1.0).abs() < 1e-12, "{hd:?}: {total}");
+            // The plain multilinear weights, for comparison.
+            let c = g.continuous_coords(&hd);
+            let all_valid = st.iter().all(|&(a, _)| mask[a]);
+            if is_fallback(&st) {
+                nearest += 1;
+            } else if all_valid {
+                plain += 1;
+                let th = c[0].clamp(0.0, 11.0);
+                let w_h1 = th - th.floor();
+                let w: f64 = st
+                    .iter()
+                    .filter(|&&(a, _)| g.unindex(a).0 == (th as usize + 1).min(11))
+                    .map(|(_, w)| w)
+                    .sum();
+                if th < 11.0 {
+                    assert!((w - w_h1).abs() < 1e-12, "{hd:?}: {st:?}");
                 }
+            } else if total > 0.0 {
+                partial += 1;
             }
         }
         // All three kinds of lookup occur in the sweep.
@@ -899,40 +908,30 @@ mod tests {
         let g = AngularGrid::new(12, 10, 16).unwrap();
         let mask = g.validity_mask();
         let mut seen = [[0; 2]; 2];
-        for i in 0..80 {
-            for j in 0..80 {
-                for k in 0..17 {
-                    let hd = HalfDiff {
-                        theta_h: i as f64 / 79.0 * FRAC_PI_2,
-                        theta_d: j as f64 / 79.0 * FRAC_PI_2,
-                        phi_d: k as f64 / 17.0 * PI,
-                    };
-                    let st = g.interpolation_stencil(&hd);
-                    let fallback = st.iter().all(|&(a, _)| a == st[0].0) && st[0].1 == 1.0;
-                    if !fallback {
-                        continue;
-                    }
-                    let c = g.continuous_coords(&hd);
-                    let th = c[0].clamp(0.0, 11.0);
-                    let tp = c[2].rem_euclid(1.0);
-                    if th.fract() == 0.5 || tp == 0.5 {
-                        continue; // half-way: neither corner is nearer
-                    }
-                    let hn = th.round() as usize;
-                    let pn = c[2].rem_euclid(16.0).round() as usize % 16;
-                    let d0 = c[1].clamp(0.0, 9.0).floor() as usize;
-                    let (ci, cj, ck) = g.unindex(st[0].0);
-                    assert!(mask[st[0].0] && ck == pn, "{hd:?}: {st:?}");
-                    if ci == hn {
-                        assert!(cj <= d0, "{hd:?}: {st:?}");
-                        assert!(cj == d0 || !mask[g.index(hn, cj + 1, pn)], "{hd:?}");
-                    } else {
-                        assert!(ci < hn && cj == 0, "{hd:?}: {st:?}");
-                        assert!((0..=d0).all(|d| !mask[g.index(hn, d, pn)]), "{hd:?}");
-                    }
-                    seen[usize::from(th.fract() > 0.5)][usize::from(tp > 0.5)] += 1;
-                }
+        for hd in angle_sweep(80, 17) {
+            let st = g.interpolation_stencil(&hd);
+            if !is_fallback(&st) {
+                continue;
             }
+            let c = g.continuous_coords(&hd);
+            let th = c[0].clamp(0.0, 11.0);
+            let tp = c[2].rem_euclid(1.0);
+            if th.fract() == 0.5 || tp == 0.5 {
+                continue; // half-way: neither corner is nearer
+            }
+            let hn = th.round() as usize;
+            let pn = c[2].rem_euclid(16.0).round() as usize % 16;
+            let d0 = c[1].clamp(0.0, 9.0).floor() as usize;
+            let (ci, cj, ck) = g.unindex(st[0].0);
+            assert!(mask[st[0].0] && ck == pn, "{hd:?}: {st:?}");
+            if ci == hn {
+                assert!(cj <= d0, "{hd:?}: {st:?}");
+                assert!(cj == d0 || !mask[g.index(hn, cj + 1, pn)], "{hd:?}");
+            } else {
+                assert!(ci < hn && cj == 0, "{hd:?}: {st:?}");
+                assert!((0..=d0).all(|d| !mask[g.index(hn, d, pn)]), "{hd:?}");
+            }
+            seen[usize::from(th.fract() > 0.5)][usize::from(tp > 0.5)] += 1;
         }
         assert!(seen.iter().flatten().all(|&n| n > 0), "{seen:?}");
     }
