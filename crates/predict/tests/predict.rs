@@ -34,11 +34,23 @@ fn write_store(path: &Path, n: usize, seed: u64, grid: AngularGrid) {
 
 /// As [`write_store`], with the store written with `options` (e.g. small chunks).
 fn write_store_with(path: &Path, n: usize, seed: u64, grid: AngularGrid, options: StoreOptions) {
+    write_store_on(path, n, seed, grid, &channels(), options);
+}
+
+/// As [`write_store_with`], on `channels` in place of [`channels`].
+fn write_store_on(
+    path: &Path,
+    n: usize,
+    seed: u64,
+    grid: AngularGrid,
+    channels: &Channels,
+    options: StoreOptions,
+) {
     let materials = brdf_synth::preset(seed);
     // Spread the picks over the preset's families.
     let step = materials.len() / n;
     let picked: Vec<_> = (0..n).map(|i| materials[i * step].clone()).collect();
-    brdf_synth::write_store(path, &picked, grid, &channels(), options, seed, |_| {}).unwrap();
+    brdf_synth::write_store(path, &picked, grid, channels, options, seed, |_| {}).unwrap();
 }
 
 /// The model's material names, in order.
@@ -337,6 +349,55 @@ fn forward_cache_gives_the_uncached_bits() {
                     }
                 }
                 assert!(k == nc || k == 3);
+            }
+        }
+    }
+}
+
+/// A wavelength selection whose stored span starts after the first stored channel (475 nm
+/// between 450 and 500, 650 nm stored; one at 700 nm alone) reads each cell's own channels on
+/// every lookup path (the dataset, the forward cache, the sidecar), with prefetch hints before
+/// each cell as renders give them: its values are the interpolated single-value lookups of
+/// the stored channels. (Every other selection in these tests starts at the first channel,
+/// where the span's offset is 0 and any arithmetic on it reads the same values.)
+#[test]
+fn selections_starting_past_the_first_channel_read_their_own_channels() {
+    let f = fixture(6, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    let side = pred.transformed_store_path();
+    pred.build_transformed_store(&side, |_, _| {}).unwrap();
+    let nc = pred.channels().len();
+    for p in [
+        pred.clone(),
+        pred.with_forward_cache(),
+        pred.with_transformed_store(&side).unwrap(),
+    ] {
+        let full = p.predict(&[0.2, -0.3], PredictorKind::Smooth).unwrap();
+        for (wavelengths, taps) in [
+            ("475,650", vec![(1, 2, 0.5), (5, 5, 0.0)]),
+            ("700", vec![(6, 6, 0.0)]),
+        ] {
+            let sub = full
+                .with_wavelengths(&Channels::parse_wavelengths(wavelengths).unwrap())
+                .unwrap();
+            let mut out = vec![0.0; taps.len()];
+            for a in 0..p.grid().len() {
+                sub.prefetch_cell(a);
+                sub.eval_cell(a, &mut out).unwrap();
+                for (k, &(lo, hi, t)) in taps.iter().enumerate() {
+                    let v_lo = full.value_at(a * nc + lo).unwrap();
+                    let want = if t == 0.0 {
+                        v_lo
+                    } else {
+                        (1.0 - t) * v_lo + t * full.value_at(a * nc + hi).unwrap()
+                    };
+                    assert_eq!(
+                        out[k].to_bits(),
+                        want.to_bits(),
+                        "{wavelengths}, cell {a}, output {k}: {} vs {want}",
+                        out[k]
+                    );
+                }
             }
         }
     }
@@ -940,6 +1001,74 @@ fn bad_inputs_give_clear_errors() {
     assert!(matches!(e, Error::InvalidPoint { .. }), "{e}");
 }
 
+/// A store on the model's grid that is not the model's is named for what differs, before
+/// the checksum and the material names that follow from it: channels of another spacing by the
+/// first channel that differs, channels that stop early by the counts, fewer materials by the
+/// sizes.
+#[test]
+fn stores_of_other_channels_or_sizes_are_named_for_what_differs() {
+    let f = fixture(6, "log");
+    let model = Model::load(&f.model).unwrap();
+    let refusal = |path: &Path| {
+        let store = Arc::new(Store::open(path).unwrap());
+        let e = Predictor::with_store(model.clone(), &f.model, store).unwrap_err();
+        assert!(matches!(e, Error::DatasetMismatch { .. }), "{e}");
+        e.to_string()
+    };
+    let path = f._dir.path().join("other.sbrdf");
+    let wide = Channels::parse_wavelengths("400:700:100").unwrap();
+    for (theirs, want) in [
+        (
+            wide.clone(),
+            format!(
+                "channels differ (channel 1: model {}, store {})",
+                channels().labels()[1],
+                wide.labels()[1]
+            ),
+        ),
+        (
+            Channels::parse_wavelengths("400:650:50").unwrap(),
+            "channels differ (model 7 channels, store 6)".to_owned(),
+        ),
+    ] {
+        write_store_on(&path, 6, 0, grid(), &theirs, StoreOptions::default());
+        let e = refusal(&path);
+        assert!(e.contains(&want), "{e}");
+    }
+    write_store(&path, 5, 0, grid());
+    let d = model.dataset.d;
+    let e = refusal(&path);
+    assert!(
+        e.contains(&format!(
+            "size differs (model 6 materials x D = {d}, store 5 x {d})"
+        )),
+        "{e}"
+    );
+}
+
+/// Labels say how a material was made: `gp-<kind>@<point>` with each coordinate in its
+/// shortest form (exponent form when long), `lerp(a,b,t)`, a training material's own name;
+/// a materialised `.sbrdf` names its one material by the label.
+#[test]
+fn predicted_materials_are_labelled_by_how_they_were_made() {
+    let f = fixture(4, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    let names = material_names(&pred);
+    let m = pred.predict(&[0.25, -1e-5], PredictorKind::Smooth).unwrap();
+    assert_eq!(m.label(), "gp-smooth@0.25,-1e-5");
+    let far = pred.predict(&[0.0, 2e6], PredictorKind::Exact).unwrap();
+    assert_eq!(far.label(), "gp-exact@0,2e6");
+    let lerp = pred.lerp(&names[0], &names[2], 0.3).unwrap();
+    assert_eq!(lerp.label(), format!("lerp({},{},0.3)", names[0], names[2]));
+    assert_eq!(pred.training(&names[1]).unwrap().label(), names[1]);
+    let out = f._dir.path().join("m.sbrdf");
+    m.materialize(&out, |_, _| {}).unwrap();
+    assert_eq!(
+        Store::open(&out).unwrap().names(),
+        vec!["gp-smooth@0.25,-1e-5"]
+    );
+}
+
 /// A cell index beyond the grid is an error naming it, however large: `a * n_channels`
 /// overflowed (a panic in debug builds) and, in release builds, wrapped onto other cells'
 /// values: with 7 channels, cell (3 * 2^64 + 1) / 7 read the flat indices 1..8 and returned
@@ -1055,6 +1184,108 @@ fn the_transformed_sidecar_store_gives_the_same_predictions() {
     assert!(e.to_string().contains("forward-transformed"), "{e}");
 }
 
+/// A sidecar is refused by a predictor of the same dataset under another transform (a log
+/// offset of 1, raw): it holds the values of the transform it was built with, which lookups
+/// would take for their own. Its source names that transform and the dataset's checksum.
+#[test]
+fn sidecars_of_another_transform_are_refused() {
+    let f = fixture(4, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    let side = pred.transformed_store_path();
+    pred.build_transformed_store(&side, |_, _| {}).unwrap();
+    let source = format!(
+        "forward-transformed values (log(offset=0.01)) of dataset checksum {}",
+        pred.store().header().checksum
+    );
+    let written = Store::open(&side).unwrap();
+    assert!(
+        written
+            .header()
+            .materials
+            .iter()
+            .all(|m| m.source == source),
+        "{source}"
+    );
+    assert!(
+        pred.with_transformed_store(&side)
+            .unwrap()
+            .uses_transformed_store()
+    );
+    for spec in ["log:1", "raw"] {
+        let transform: Transform = spec.parse().unwrap();
+        let mut model = pred.model().clone();
+        (model.transform, model.config.transform) = (transform, spec.into());
+        let other = Predictor::with_store(model, &f.model, pred.store().clone()).unwrap();
+        let e = other.with_transformed_store(&side).unwrap_err();
+        assert!(matches!(e, Error::DatasetMismatch { .. }), "{e}");
+        assert!(
+            e.to_string()
+                .contains(&format!("forward-transformed values ({transform})")),
+            "{e}"
+        );
+    }
+}
+
+/// Below-horizon indices are 0 in a sidecar and in a materialised file whatever the dataset's
+/// payload holds there (here NaN for every material, a damaged payload: `StoreWriter` stores
+/// 0), not an error: both mask by the index's angular cell `d / n_channels` before transforming
+/// or checking a value. And the sidecar keeps the dataset's chunk length (1000 here, not the
+/// writer's default), counting chunks `(1, total)` to `(total, total)` as it writes them.
+#[test]
+fn sidecars_and_materialised_files_are_zero_below_the_horizon() {
+    let options = StoreOptions {
+        chunk_len: Some(1000),
+        ..StoreOptions::default()
+    };
+    let f = fixture_with(6, "log", options);
+    let store = Store::open(&f.store).unwrap();
+    let (n, nc) = (store.n_materials(), store.channels().len());
+    assert_eq!(store.header().layout.chunk_len, 1000);
+    let mask = store.validity_mask().to_vec();
+    // A below-horizon index whose channel, read as a cell, is above the horizon (masking by
+    // `d % nc` keeps it).
+    let d = (0..store.d())
+        .find(|&d| !mask[d / nc] && mask[d % nc])
+        .unwrap();
+    let patched = f.store.with_file_name("patched.sbrdf");
+    let mut bytes = std::fs::read(&f.store).unwrap();
+    // Uncompressed f32 payload from byte 4096, index-major: values (d, 0..n).
+    for m in 0..n {
+        let at = 4096 + (d * n + m) * 4;
+        bytes[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+    }
+    std::fs::write(&patched, bytes).unwrap();
+    let mut vals = vec![0f32; n];
+    Store::open(&patched)
+        .unwrap()
+        .values_at(d, &mut vals)
+        .unwrap();
+    assert!(vals.iter().all(|v| v.is_nan()), "{vals:?}");
+
+    let pred = Predictor::open_with_dataset(&f.model, Some(&patched)).unwrap();
+    let side = pred.transformed_store_path();
+    let mut calls = Vec::new();
+    pred.build_transformed_store(&side, |done, total| calls.push((done, total)))
+        .unwrap();
+    let written = Store::open(&side).unwrap();
+    assert_eq!(written.header().layout.chunk_len, 1000);
+    let chunks = store.n_chunks();
+    assert!(chunks > 2, "{chunks} chunks");
+    let counted: Vec<(usize, usize)> = (1..=chunks).map(|k| (k, chunks)).collect();
+    assert_eq!(calls, counted);
+    written.values_at(d, &mut vals).unwrap();
+    assert_eq!(vals, vec![0.0; n]);
+    let fast = pred.with_transformed_store(&side).unwrap();
+
+    let out = f._dir.path().join("pred.npy");
+    for p in [&pred, &fast] {
+        let m = p.predict(&[0.2, -0.3], PredictorKind::Smooth).unwrap();
+        m.materialize(&out, |_, _| {}).unwrap();
+        let values = brdf_io::npy::read(&out).unwrap().to_f32();
+        assert_eq!(values[d], 0.0);
+    }
+}
+
 /// The sidecar of a model with a tiny or huge log offset has a file name the file system
 /// takes: `log-{offset}` wrote 1e-300 with 300 digits (a 330-byte name, refused with "File
 /// name too long" by `predict --sidecar`). Distinct offsets keep distinct names.
@@ -1168,7 +1399,8 @@ fn damaged_stored_values_are_errors_not_nans() {
 }
 
 /// A prediction that overflows on sound data (a log-space blend far beyond its two
-/// materials) is an error that says so and clears the store, which it scanned.
+/// materials) is an error that says so and clears the store, which it scanned; a cell lookup
+/// names the flat index of the first overflowing value, as the single-value lookups do.
 #[test]
 fn overflowing_predictions_are_errors_that_clear_the_store() {
     let f = fixture(6, "log");
@@ -1178,16 +1410,24 @@ fn overflowing_predictions_are_errors_that_clear_the_store() {
     let m = pred.lerp(&names[0], &names[1], 1e6).unwrap();
     let mut out = vec![0.0; nc];
     let cells = pred.store().d() / nc;
-    let e = (0..cells)
-        .find_map(|a| m.eval_cell(a, &mut out).err())
-        .expect("a blend at 1e6 overflows somewhere")
-        .to_string();
-    assert!(
-        e.contains("prediction overflowed")
-            && e.contains(&f.store.display().to_string())
-            && e.contains("is inf"),
-        "{e}"
-    );
+    let failed: Vec<(usize, String)> = (0..cells)
+        .filter_map(|a| m.eval_cell(a, &mut out).err().map(|e| (a, e.to_string())))
+        .take(3)
+        .collect();
+    assert_eq!(failed.len(), 3, "a blend at 1e6 overflows in several cells");
+    for (a, e) in failed {
+        assert!(
+            e.contains("prediction overflowed")
+                && e.contains(&f.store.display().to_string())
+                && e.contains("is inf"),
+            "{e}"
+        );
+        let k = (0..nc).find(|&c| m.value_at(a * nc + c).is_err()).unwrap();
+        assert!(
+            e.contains(&format!("value {} of the prediction", a * nc + k)),
+            "cell {a}, channel {k}: {e}"
+        );
+    }
 }
 
 /// The D values of material `name` of the store at `path`.
@@ -1649,6 +1889,22 @@ fn support_distances_are_in_per_axis_length_scales() {
             ard.variance(&x).unwrap() / ard.prior_variance()
         );
     }
+}
+
+/// A point is far from every material only strictly above [`PointSupport::FAR`]: a variance
+/// fraction of exactly 0.9 is not far, the next float above it is.
+#[test]
+fn far_points_have_a_variance_fraction_strictly_above_the_threshold() {
+    use predict::PointSupport;
+    let at = |variance_fraction: f64| PointSupport {
+        nearest: "a".into(),
+        distance: 1.0,
+        variance_fraction,
+    };
+    assert_eq!(PointSupport::FAR, 0.9);
+    assert!(!at(PointSupport::FAR).is_far());
+    assert!(at(PointSupport::FAR.next_up()).is_far());
+    assert!(!at(0.5).is_far() && at(1.0).is_far());
 }
 
 /// Lookups by direction pair (`eval_dirs`, the `BrdfSource::eval` of a prediction): above the
