@@ -1,11 +1,13 @@
 //! Properties of the colour pipeline: the XYZ <-> sRGB matrices, white points, linearity of
 //! spectral integration and exposure, the 8-bit sRGB encoding at and beyond its ends, and
-//! CIEDE2000's metric basics.
+//! CIEDE2000's metric basics; CIELAB, the CIE tables' interpolation and the observer's
+//! quadrature against independent values.
 
 use proptest::prelude::*;
 use render::colour::{
-    ColourPipeline, Illuminant, SRGB_TO_XYZ, SpectralWeights, XYZ_TO_SRGB, delta_e_2000,
-    linear_srgb_to_xyz, srgb_decode, srgb_encode, to_srgb8, xyz_to_linear_srgb,
+    ColourPipeline, Illuminant, SRGB_TO_XYZ, SpectralWeights, XYZ_TO_SRGB, cmf, coverage_warning,
+    delta_e_2000, linear_srgb_to_lab, linear_srgb_to_xyz, srgb_decode, srgb_encode, to_srgb8,
+    xyz_to_lab, xyz_to_linear_srgb,
 };
 
 /// The two matrices are inverses to their 7 printed decimals, and D65's white maps to sRGB
@@ -186,4 +188,166 @@ fn spectra_of_the_wrong_length_are_refused() {
     assert!(p.reflectance_to_rgb(&wl, &[0.5; 3]).is_ok());
     let w = SpectralWeights::new(&wl, Illuminant::A).unwrap();
     assert!(w.xyz(&[1.0; 2]).is_err());
+}
+
+/// CIELAB of the sRGB primaries and greys (D65, the sRGB matrices' white) are Lindbloom's
+/// published values, and below the CIE's epsilon = 216/24389 the lightness is the linear
+/// kappa = 24389/27 times Y (the formula's dark segment, 6/29 form), not a cube root.
+#[test]
+fn cielab_matches_published_values_in_both_segments() {
+    for (rgb, want) in [
+        ([1.0, 0.0, 0.0], [53.2408, 80.0925, 67.2032]),
+        ([0.0, 1.0, 0.0], [87.7347, -86.1827, 83.1793]),
+        ([0.0, 0.0, 1.0], [32.2970, 79.1875, -107.8602]),
+        ([1.0, 1.0, 1.0], [100.0, 0.0, 0.0]),
+        ([0.18, 0.18, 0.18], [49.4961, 0.0, 0.0]),
+    ] {
+        let lab = linear_srgb_to_lab(rgb);
+        for c in 0..3 {
+            assert!(
+                (lab[c] - want[c]).abs() < 1e-4,
+                "{rgb:?}: {lab:?} vs {want:?}"
+            );
+        }
+    }
+    let white = [0.9, 1.1, 1.3];
+    let (epsilon, kappa) = (216.0 / 24389.0, 24389.0 / 27.0);
+    for t in [0.0, 1e-6, 0.002, 0.5 * epsilon, epsilon] {
+        // Equal ratios to the white: a neutral colour, a = b = 0.
+        let lab = xyz_to_lab(white.map(|w| t * w), white);
+        assert!((lab[0] - kappa * t).abs() < 1e-12, "{t}: {lab:?}");
+        assert!(lab[1].abs() < 1e-12 && lab[2].abs() < 1e-12, "{t}: {lab:?}");
+    }
+    // Each of a and b follows its own ratio: X alone at 0.5 of the white's X, Y and Z at 0.25.
+    let lab = xyz_to_lab([0.5 * white[0], 0.25 * white[1], 0.25 * white[2]], white);
+    let (fx, fy) = (0.5f64.cbrt(), 0.25f64.cbrt());
+    let want = [116.0 * fy - 16.0, 500.0 * (fx - fy), 0.0];
+    for c in 0..3 {
+        assert!((lab[c] - want[c]).abs() < 1e-12, "{lab:?} vs {want:?}");
+    }
+}
+
+/// Illuminant names parse case-insensitively with surrounding space, print as they parse, and
+/// an unknown name is an error that lists the known ones.
+#[test]
+fn illuminant_names_round_trip() {
+    for (text, ill) in [
+        ("D65", Illuminant::D65),
+        (" d50 ", Illuminant::D50),
+        ("a", Illuminant::A),
+    ] {
+        assert_eq!(text.parse::<Illuminant>().unwrap(), ill);
+        assert_eq!(ill.to_string().parse::<Illuminant>().unwrap(), ill);
+        assert_eq!(ill.to_string(), text.trim().to_ascii_uppercase());
+    }
+    let e = "F2".parse::<Illuminant>().unwrap_err().to_string();
+    assert!(e.contains("\"F2\"") && e.contains("D65, D50 or A"), "{e}");
+}
+
+/// The CIE tables are interpolated linearly between their 5 nm rows and are 0 outside
+/// 360-780 nm (not extrapolated from the end rows).
+#[test]
+fn cie_tables_interpolate_linearly_and_stop_at_their_ends() {
+    let row = |nm: usize| render::cie::CMF_1931_2DEG[(nm - 360) / 5];
+    for (nm, lo, t) in [(362.0, 360, 0.4), (557.5, 555, 0.5), (779.0, 775, 0.8)] {
+        let (a, b) = (row(lo), row(lo + 5));
+        let got = cmf(nm);
+        for c in 0..3 {
+            let want = (1.0 - t) * a[c] + t * b[c];
+            assert!((got[c] - want).abs() <= 1e-12 * want.abs(), "{nm}: {got:?}");
+        }
+        let d65 = |nm: usize| render::cie::D65[(nm - 360) / 5];
+        let want = (1.0 - t) * d65(lo) + t * d65(lo + 5);
+        assert!(
+            (Illuminant::D65.spd(nm) - want).abs() <= 1e-12 * want,
+            "{nm}"
+        );
+    }
+    assert_eq!(cmf(780.0), row(780));
+    for nm in [359.9, 780.5, 785.0, 790.0, 1000.0] {
+        assert_eq!(cmf(nm), [0.0; 3], "{nm}");
+        assert_eq!(Illuminant::A.spd(nm), 0.0, "{nm}");
+    }
+}
+
+/// The observer's weights are a 1 nm trapezoid rule over 360-780 nm of hat functions on the
+/// samples: on a 1 nm sampling each weight is its own wavelength's term, halved at both ends;
+/// and a spectrum linear in the wavelength, sampled unevenly over 360-780 nm, is interpolated
+/// exactly, so it has the colour of its 1 nm sampling.
+#[test]
+fn spectral_weights_are_a_trapezoid_rule_on_hat_functions() {
+    let fine: Vec<f64> = (360..=780).map(f64::from).collect();
+    let w = SpectralWeights::new(&fine, Illuminant::D65).unwrap();
+    assert!(!w.is_empty() && w.len() == fine.len());
+    let term = |nm: f64| cmf(nm).map(|c| c * Illuminant::D65.spd(nm));
+    // Y weights sum to 1 (white), so the normalisation is the sum of the Y terms.
+    let q = |k: usize| {
+        if k == 0 || k == fine.len() - 1 {
+            0.5
+        } else {
+            1.0
+        }
+    };
+    let norm: f64 = (0..fine.len()).map(|k| q(k) * term(fine[k])[1]).sum();
+    for k in [0, 1, 200, fine.len() - 2, fine.len() - 1] {
+        let want = term(fine[k]).map(|t| q(k) * t / norm);
+        let got = [w.x[k], w.y[k], w.z[k]];
+        for c in 0..3 {
+            assert!(
+                (got[c] - want[c]).abs() <= 1e-12 * want[c].abs(),
+                "{} nm: {got:?} vs {want:?}",
+                fine[k]
+            );
+        }
+    }
+    let coarse = [360.0, 420.0, 455.0, 500.0, 610.0, 700.0, 780.0];
+    let line = |nm: f64| 0.2 + (nm - 360.0) / 600.0;
+    let wc = SpectralWeights::new(&coarse, Illuminant::D65).unwrap();
+    let a = wc.xyz(&coarse.map(line)).unwrap();
+    let b = w
+        .xyz(&fine.iter().map(|&nm| line(nm)).collect::<Vec<_>>())
+        .unwrap();
+    for c in 0..3 {
+        assert!((a[c] - b[c]).abs() < 1e-12, "{a:?} vs {b:?}");
+    }
+}
+
+/// A render's per-channel weights give a spectrum the pipeline's colour (`rgb = W * values`),
+/// under every illuminant; RGB sources pass through unchanged.
+#[test]
+fn channel_weights_give_the_pipelines_colour() {
+    let wl = [380.0, 430.0, 470.0, 520.0, 560.0, 610.0, 650.0, 720.0];
+    let spectrum = [0.1, 0.7, 0.3, 0.9, 0.2, 0.5, 0.8, 0.4];
+    for ill in [Illuminant::D65, Illuminant::D50, Illuminant::A] {
+        let p = ColourPipeline::new(ill);
+        let weights = p
+            .channel_weights(&brdf_io::Channels::Spectral(wl.to_vec()))
+            .unwrap();
+        let want = p.reflectance_to_rgb(&wl, &spectrum).unwrap();
+        for (c, row) in weights.iter().enumerate() {
+            let got: f64 = row.iter().zip(&spectrum).map(|(w, s)| w * s).sum();
+            assert!(
+                (got - want[c]).abs() < 1e-13,
+                "{ill} channel {c}: {got} vs {want:?}"
+            );
+        }
+        let rgb = p.channel_weights(&brdf_io::Channels::Rgb).unwrap();
+        assert_eq!(
+            rgb,
+            [
+                vec![1.0, 0.0, 0.0],
+                vec![0.0, 1.0, 0.0],
+                vec![0.0, 0.0, 1.0]
+            ]
+        );
+    }
+}
+
+/// The coverage warning names a single sample's wavelength alone and a range by its ends.
+#[test]
+fn coverage_warnings_name_the_span_sampled() {
+    let one = coverage_warning(&[500.0], Illuminant::D65).unwrap();
+    assert!(one.contains("at 500 nm,"), "{one}");
+    let two = coverage_warning(&[425.0, 475.0], Illuminant::D65).unwrap();
+    assert!(two.contains("at 425-475 nm,"), "{two}");
 }
