@@ -847,6 +847,7 @@ fn phi2u(phi: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::tensor::Field;
 
     #[test]
     fn axis_weight_matches_mitsuba_find_interval() {
@@ -857,6 +858,9 @@ mod tests {
         assert_eq!(axis_weight(&v, 3.0), (2, 0.5));
         assert_eq!(axis_weight(&v, 9.0), (2, 1.0));
         assert_eq!(axis_weight(&[3.0], 9.0), (0, 0.0));
+        // Two values (a file with two phi_i samples) are one interval, not a single value.
+        assert_eq!(axis_weight(&[-1.0, 1.0], 0.5), (0, 0.75));
+        assert_eq!(axis_weight(&[-1.0, 1.0], 2.0), (0, 1.0));
     }
 
     #[test]
@@ -909,11 +913,67 @@ mod tests {
         0.5 * (lo + hi)
     }
 
+    /// `first_reaching` gives the first cell whose cumulative value reaches the target (on
+    /// plateaus too) and `None` when none does: against a linear scan.
+    #[test]
+    fn first_reaching_matches_a_scan() {
+        let cdf = [0.0, 0.5, 0.5, 0.5, 1.0, 2.0, 2.0];
+        for cells in 0..=cdf.len() {
+            for k in 0..=50 {
+                let target = k as f64 / 20.0 - 0.25;
+                let want = (0..cells).find(|&i| cdf[i] >= target);
+                assert_eq!(
+                    first_reaching(cells, target, |i| cdf[i]),
+                    want,
+                    "{cells} cells, target {target}"
+                );
+            }
+        }
+    }
+
+    /// `cell_root` is where the integral of a linear density across a cell reaches the mass
+    /// (bisection of `s (d0 + s (d1 - d0) / 2)`), 0 without mass (or NaN, or without density)
+    /// and 1 past the cell's.
+    #[test]
+    fn cell_root_matches_bisection() {
+        for d0 in [0.0, 0.25, 1.0, 3.0] {
+            for d1 in [0.0, 0.5, 1.0, 4.0] {
+                let cell = 0.5 * (d0 + d1);
+                // Short of the cell's mass: at the full mass a density falling to 0 has a double
+                // root, which bisection finds only to about 1e-8.
+                for k in 1..20 {
+                    let mass = cell * k as f64 / 20.0;
+                    let want = bisect(mass, |s| s * (d0 + s * (d1 - d0) / 2.0));
+                    let s = cell_root(d0, d1, mass);
+                    assert!((s - want).abs() < 1e-12, "{d0} {d1} {mass}: {s} vs {want}");
+                }
+                for mass in [0.0, -0.5, f64::NAN] {
+                    assert_eq!(cell_root(d0, d1, mass), 0.0, "{d0} {d1} {mass}");
+                }
+                if cell > 0.0 {
+                    assert!((cell_root(d0, d1, cell) - 1.0).abs() < 1e-12, "{d0} {d1}");
+                    assert_eq!(cell_root(d0, d1, 2.0 * cell), 1.0, "{d0} {d1}");
+                } else {
+                    // No density: no mass is ever reached, and 2 mass / 0 must not give 1.
+                    assert_eq!(cell_root(d0, d1, 0.5), 0.0);
+                }
+            }
+        }
+    }
+
     #[test]
     fn forward_warp_inverts_invert_and_matches_bisection() {
-        // Random densities on 3 x 2 slices of 7 x 6 tables, with empty cells, an empty row
-        // pair and an all-empty slice's neighbour, blended between slices as lookups blend them.
-        let (w, h, slices) = (7, 6, 6);
+        check_forward_warp(7, 6);
+        // 4 cells per row: the binary search of a row's CDF must stop at its last cell (a
+        // search over one cell more reads the next row there and gave 1 for s.x near 1).
+        check_forward_warp(5, 4);
+    }
+
+    /// `forward_y` / `forward_x` on random `w` x `h` tables against bisection of `invert`.
+    fn check_forward_warp(w: usize, h: usize) {
+        // Random densities on 3 x 2 slices, with empty cells, an empty row pair and an
+        // all-empty slice's neighbour, blended between slices as lookups blend them.
+        let slices = 6;
         let mut state = 0x9e37_79b9_7f4a_7c15u64;
         let mut next = || {
             state = state
@@ -980,6 +1040,194 @@ mod tests {
         assert_eq!(checked, 4 * 41 * 41);
         // Nearly every point is the bisection's to 1e-12; the rest sit on flat stretches.
         assert!(exact * 100 >= checked * 99, "{exact} of {checked}");
+    }
+
+    /// Slope of the `vndf` of incidence slice (`p`, `t`): density `1 + slope (x - 1/2)` along
+    /// x (integral 1 per row), the same on every row.
+    fn slope(p: usize, t: usize) -> f64 {
+        0.25 * (p + 2 * t) as f64 - 0.75
+    }
+
+    /// `[a, b, c]` of the value table of slice (`p`, `t`), channel `ch`: `a + b x + c y`.
+    fn plane(p: usize, t: usize, ch: usize) -> [f64; 3] {
+        let (p, t, ch) = (p as f64, t as f64, ch as f64);
+        [
+            1.0 + p + 2.0 * t + 6.0 * ch,
+            1.0 + 0.5 * p + 0.25 * t + 0.125 * ch,
+            0.5 + 0.25 * p + 0.125 * t + 0.75 * ch,
+        ]
+    }
+
+    /// An RGB file whose tables are linear, so that every step of the evaluation has a closed
+    /// form: incidences `phi_i` x `theta_i`; per slice a `vndf` (2 x 3, rows x columns) with
+    /// density `1 + slope(p, t) (x - 1/2)`, scaled by `1 + p + t` (normalisation removes it), and
+    /// 3 x 3 rgb tables `plane(p, t, ch)`; ndf (2 x 3) `1 + x + 2y`, sigma (3 x 2)
+    /// `2 + 3x + y`. Dyadic coefficients: the f32 tables hold them exactly.
+    fn linear_file(phi_i: &[f32], theta_i: &[f32], jacobian: bool) -> RglBsdf {
+        let (n_phi, n_theta) = (phi_i.len(), theta_i.len());
+        let (mut vndf, mut rgb) = (Vec::new(), Vec::new());
+        for p in 0..n_phi {
+            for t in 0..n_theta {
+                for _ in 0..2 {
+                    for ix in 0..3 {
+                        let x = ix as f64 / 2.0;
+                        let d = (1 + p + t) as f64 * (1.0 + slope(p, t) * (x - 0.5));
+                        vndf.push(d as f32);
+                    }
+                }
+                for ch in 0..3 {
+                    let [a, b, c] = plane(p, t, ch);
+                    for iy in 0..3 {
+                        for ix in 0..3 {
+                            let v = a + b * ix as f64 / 2.0 + c * iy as f64 / 2.0;
+                            rgb.push(v as f32);
+                        }
+                    }
+                }
+            }
+        }
+        let table = |h: usize, w: usize, f: &dyn Fn(f64, f64) -> f64| -> Vec<f32> {
+            let at = |k: usize| {
+                f(
+                    (k % w) as f64 / (w - 1) as f64,
+                    (k / w) as f64 / (h - 1) as f64,
+                )
+            };
+            (0..h * w).map(|k| at(k) as f32).collect()
+        };
+        let fields = vec![
+            Field::from_u8("description", vec![6], b"linear").unwrap(),
+            Field::from_f32("phi_i", vec![n_phi], phi_i).unwrap(),
+            Field::from_f32("theta_i", vec![n_theta], theta_i).unwrap(),
+            Field::from_f32("ndf", vec![2, 3], &table(2, 3, &|x, y| 1.0 + x + 2.0 * y)).unwrap(),
+            Field::from_f32("sigma", vec![3, 2], &table(3, 2, &|x, y| 2.0 + 3.0 * x + y)).unwrap(),
+            Field::from_f32("vndf", vec![n_phi, n_theta, 2, 3], &vndf).unwrap(),
+            Field::from_f32(
+                "luminance",
+                vec![n_phi, n_theta, 3, 3],
+                &vec![1.0; n_phi * n_theta * 9],
+            )
+            .unwrap(),
+            Field::from_f32("rgb", vec![n_phi, n_theta, 3, 3, 3], &rgb).unwrap(),
+            Field::from_u8("jacobian", vec![1], &[u8::from(jacobian)]).unwrap(),
+        ];
+        RglBsdf::from_tensor_file(&TensorFile::from_fields(fields, "linear.bsdf")).unwrap()
+    }
+
+    /// Tent weights of the nodes of an increasing axis at `p` (clamped to its ends), by
+    /// distance to the neighbours: the reference for the interval search of `axis_weight`.
+    fn tent(axis: &[f64], p: f64) -> Vec<f64> {
+        let n = axis.len();
+        let p = p.clamp(axis[0], axis[n - 1]);
+        (0..n)
+            .map(|j| {
+                let below = j > 0 && p <= axis[j] && p >= axis[j - 1];
+                let above = j + 1 < n && p >= axis[j] && p < axis[j + 1];
+                if n == 1 {
+                    1.0
+                } else if above {
+                    (axis[j + 1] - p) / (axis[j + 1] - axis[j])
+                } else if below {
+                    (p - axis[j - 1]) / (axis[j] - axis[j - 1])
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    }
+
+    /// f(wi, wo) of a `linear_file`, by hand: the warp inverse of the blended density
+    /// `1 + s (x - 1/2)` is its CDF `x + s (x^2 - x) / 2` at x = sqrt(2 theta_m / pi) and leaves
+    /// y = (phi_m - phi_i + pi) / 2pi mod 1 as it is; the blended planes are read there; the
+    /// jacobian scale is ndf(u_m) / (4 sigma(u_i)).
+    fn linear_file_value(bsdf: &RglBsdf, wi: Vec3, wo: Vec3) -> [f64; 3] {
+        let norm = |v: Vec3| {
+            let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            [v[0] / n, v[1] / n, v[2] / n]
+        };
+        let (wi, wo) = (norm(wi), norm(wo));
+        let m = norm([wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]]);
+        let polar = |d: Vec3| d[0].hypot(d[1]).atan2(d[2]);
+        let (theta_i, phi_i) = (polar(wi), wi[1].atan2(wi[0]));
+        let (theta_m, phi_m) = (polar(m), m[1].atan2(m[0]));
+        let x = (2.0 * theta_m / PI).sqrt();
+        let y = (phi_m - phi_i + PI).rem_euclid(2.0 * PI) / (2.0 * PI);
+        let wp = tent(&bsdf.phi_i, phi_i);
+        let wt = tent(&bsdf.theta_i, theta_i);
+        let mut s = 0.0;
+        for (p, a) in wp.iter().enumerate() {
+            for (t, b) in wt.iter().enumerate() {
+                s += a * b * slope(p, t);
+            }
+        }
+        let sx = x + s * (x * x - x) / 2.0;
+        let scale = if bsdf.jacobian {
+            let u_i = [(2.0 * theta_i / PI).sqrt(), (phi_i + PI) / (2.0 * PI)];
+            (1.0 + x + 2.0 * y) / (4.0 * (2.0 + 3.0 * u_i[0] + u_i[1]))
+        } else {
+            1.0
+        };
+        let mut out = [0.0; 3];
+        for (ch, o) in out.iter_mut().enumerate() {
+            for (p, a) in wp.iter().enumerate() {
+                for (t, b) in wt.iter().enumerate() {
+                    let [pa, pb, pc] = plane(p, t, ch);
+                    *o += a * b * (pa + pb * sx + pc * y);
+                }
+            }
+            *o *= scale / wo[2];
+        }
+        out
+    }
+
+    /// Evaluation of files with linear tables matches the closed form: interpolation over one
+    /// or two azimuths and three elevations of incidence, the half-vector coordinates, the warp
+    /// inverse of blended densities, the bilinear value lookup, the jacobian scale and 1 / cos
+    /// theta_o; 0 at and below the horizon.
+    #[test]
+    fn linear_tables_evaluate_to_their_closed_form() {
+        let half_pi = std::f32::consts::FRAC_PI_2;
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut dir = |max_theta: f64| {
+            let (t, p) = (max_theta * next(), 2.0 * PI * next() - PI);
+            [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]
+        };
+        let mut checked = 0;
+        for phi_i in [&[0.0f32][..], &[-half_pi, half_pi][..]] {
+            for jacobian in [false, true] {
+                let bsdf = linear_file(phi_i, &[0.0, 0.5, half_pi], jacobian);
+                let mut out = [0.0; 3];
+                for _ in 0..400 {
+                    let (wi, wo) = (dir(1.55), dir(1.55));
+                    // Lengths other than 1: directions are normalised first.
+                    let (wi2, wo2) = (wi.map(|v| 2.0 * v), wo.map(|v| 0.5 * v));
+                    bsdf.eval(wi2, wo2, &mut out).unwrap();
+                    let want = linear_file_value(&bsdf, wi, wo);
+                    for c in 0..3 {
+                        assert!(
+                            (out[c] - want[c]).abs() <= 1e-10 * want[c].abs(),
+                            "phi_i {phi_i:?}, jacobian {jacobian}, {wi:?} {wo:?}: {out:?} vs \
+                             {want:?}"
+                        );
+                    }
+                    checked += 1;
+                    // At and below the horizon (either direction): 0.
+                    let flat = [wo[0], wo[1], 0.0];
+                    let below = [wo[0], wo[1], -wo[2]];
+                    for (a, b) in [(wi, flat), (flat, wi), (wi, below), (below, wi)] {
+                        bsdf.eval(a, b, &mut out).unwrap();
+                        assert_eq!(out, [0.0; 3], "{a:?} {b:?}");
+                    }
+                }
+            }
+        }
+        assert_eq!(checked, 1600);
     }
 
     #[test]
