@@ -969,18 +969,23 @@ mod tests {
         check_forward_warp(5, 4);
     }
 
+    /// Seeded uniform numbers in [0, 1) (a 64-bit LCG's top 53 bits).
+    fn uniform(seed: u64) -> impl FnMut() -> f64 {
+        let mut state = seed;
+        move || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
     /// `forward_y` / `forward_x` on random `w` x `h` tables against bisection of `invert`.
     fn check_forward_warp(w: usize, h: usize) {
         // Random densities on 3 x 2 slices, with empty cells, an empty row pair and an
         // all-empty slice's neighbour, blended between slices as lookups blend them.
         let slices = 6;
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = uniform(0x9e37_79b9_7f4a_7c15);
         let mut raw: Vec<f64> = (0..slices * w * h)
             .map(|_| {
                 let v = next();
@@ -1187,13 +1192,7 @@ mod tests {
     #[test]
     fn linear_tables_evaluate_to_their_closed_form() {
         let half_pi = std::f32::consts::FRAC_PI_2;
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = uniform(0x2545_f491_4f6c_dd1d);
         let mut dir = |max_theta: f64| {
             let (t, p) = (max_theta * next(), 2.0 * PI * next() - PI);
             [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]
