@@ -6,8 +6,8 @@
 use proptest::prelude::*;
 use render::colour::{
     ColourPipeline, Illuminant, SRGB_TO_XYZ, SpectralWeights, XYZ_TO_SRGB, cmf, coverage_warning,
-    delta_e_2000, linear_srgb_to_lab, linear_srgb_to_xyz, srgb_decode, srgb_encode, to_srgb8,
-    xyz_to_lab, xyz_to_linear_srgb,
+    delta_e_2000, delta_e_2000_rgb, linear_srgb_to_lab, linear_srgb_to_xyz, srgb_decode,
+    srgb_encode, to_srgb8, xyz_to_lab, xyz_to_linear_srgb,
 };
 
 /// The two matrices are inverses to their 7 printed decimals, and D65's white maps to sRGB
@@ -350,4 +350,48 @@ fn coverage_warnings_name_the_span_sampled() {
     assert!(one.contains("at 500 nm,"), "{one}");
     let two = coverage_warning(&[425.0, 475.0], Illuminant::D65).unwrap();
     assert!(two.contains("at 425-475 nm,"), "{two}");
+}
+
+/// CIEDE2000 where Sharma's table has no pair: mean hues that wrap through 0 (352 and 27
+/// degrees), a mean hue near 275 degrees where the rotation term peaks, and hue sums either
+/// side of 360 degrees, with unequal chromas so that the rotation term counts. The references
+/// come from an independent implementation (Python, hue difference and mean hue as circular
+/// quantities via atan2 rather than the paper's case analysis; it reproduces Sharma's table).
+/// And a colour on the negative a axis (hue 180 degrees) is as close to its neighbours as
+/// anywhere else. Between linear sRGB colours the difference is taken in CIELAB (the
+/// ColorChecker test alone would pass any constant below 1.5).
+#[test]
+fn ciede2000_wraps_hue_means_and_differences_as_circular_quantities() {
+    for (p, q, want) in [
+        (
+            [50.0, 19.69615506024416, -3.472963553338608],
+            [50.0, 25.98076211353316, 14.999999999999998],
+            12.211278701714562,
+        ),
+        (
+            [60.0, 29.981724810572874, 1.0469849010750292],
+            [60.0, -19.805361374831406, -2.7834620192013104],
+            41.12802431616528,
+        ),
+        (
+            [55.0, 1.7431148549531628, 19.92389396183491],
+            [55.0, -1.0469849010750227, -29.981724810572874],
+            32.648553256091496,
+        ),
+    ] {
+        for (a, b) in [(p, q), (q, p)] {
+            let d = delta_e_2000(a, b);
+            assert!((d - want).abs() < 1e-9, "{a:?} {b:?}: {d} vs {want}");
+        }
+    }
+    let d = delta_e_2000([50.0, -20.0, 0.0], [50.0, -20.0, 1e-6]);
+    assert!((d - 7.251164537465866e-7).abs() < 1e-12, "{d}");
+    // Between linear sRGB colours, through CIELAB (references from the same implementation).
+    for (a, b, want) in [
+        ([1.0, 0.0, 0.0], [0.0, 0.0, 1.0], 52.88136527892262),
+        ([0.2, 0.5, 0.1], [0.25, 0.45, 0.12], 3.9875183560497933),
+    ] {
+        let d = delta_e_2000_rgb(a, b);
+        assert!((d - want).abs() < 1e-9, "{a:?} {b:?}: {d} vs {want}");
+    }
 }
