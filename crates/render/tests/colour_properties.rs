@@ -355,8 +355,9 @@ fn coverage_warnings_name_the_span_sampled() {
 /// CIEDE2000 where Sharma's table has no pair: mean hues that wrap through 0 (352 and 27
 /// degrees), a mean hue near 275 degrees where the rotation term peaks, and hue sums either
 /// side of 360 degrees, with unequal chromas so that the rotation term counts. The references
-/// come from an independent implementation (Python, hue difference and mean hue as circular
-/// quantities via atan2 rather than the paper's case analysis; it reproduces Sharma's table).
+/// come from an independent implementation, `scripts/ciede2000_reference.py` (hue difference and
+/// mean hue as circular quantities via atan2 rather than the paper's case analysis; it
+/// reproduces Sharma's table).
 /// And a colour on the negative a axis (hue 180 degrees) is as close to its neighbours as
 /// anywhere else. Between linear sRGB colours the difference is taken in CIELAB (the
 /// ColorChecker test alone would pass any constant below 1.5).
@@ -386,7 +387,7 @@ fn ciede2000_wraps_hue_means_and_differences_as_circular_quantities() {
     }
     let d = delta_e_2000([50.0, -20.0, 0.0], [50.0, -20.0, 1e-6]);
     assert!((d - 7.251164537465866e-7).abs() < 1e-12, "{d}");
-    // Between linear sRGB colours, through CIELAB (references from the same implementation).
+    // Between linear sRGB colours, through CIELAB (references from the same script).
     for (a, b, want) in [
         ([1.0, 0.0, 0.0], [0.0, 0.0, 1.0], 52.88136527892262),
         ([0.2, 0.5, 0.1], [0.25, 0.45, 0.12], 3.9875183560497933),
