@@ -1193,6 +1193,54 @@ proptest! {
     }
 }
 
+/// A zstd level outside zstd's range is refused before anything is written, for both
+/// compressed modes, with the level in the message; the range's own ends are accepted.
+#[test]
+fn zstd_level_outside_the_range_is_refused() {
+    assert_eq!(Compression::None.zstd_level(), None);
+    assert_eq!(Compression::Zstd { level: 5 }.zstd_level(), Some(5));
+    assert_eq!(Compression::ZstdShuffle { level: 7 }.zstd_level(), Some(7));
+    let d = dir();
+    let info = info(4, 4, 8, Channels::Rgb);
+    let range = zstd::compression_level_range();
+    let path = d.path().join("z.sbrdf");
+    for level in [*range.end() + 1, *range.start() - 1] {
+        for compression in [
+            Compression::Zstd { level },
+            Compression::ZstdShuffle { level },
+        ] {
+            let options = StoreOptions {
+                compression,
+                ..StoreOptions::default()
+            };
+            let e = StoreWriter::create(&path, info.clone(), options)
+                .err()
+                .unwrap_or_else(|| panic!("{compression:?} accepted"));
+            let msg = e.to_string();
+            assert!(
+                matches!(e, Error::StoreUsage { .. })
+                    && msg.contains(&format!("zstd level {level} outside"))
+                    && msg.contains("z.sbrdf"),
+                "{compression:?}: {msg}"
+            );
+            assert!(only_file(d.path()).is_empty(), "{compression:?}");
+        }
+    }
+    for level in [*range.start(), *range.end()] {
+        let options = StoreOptions {
+            compression: Compression::Zstd { level },
+            ..StoreOptions::default()
+        };
+        let rows: Vec<Vec<f32>> = (0..2).map(|s| material(&info, s)).collect();
+        write_materials(&path, &info, &rows, options, 1000).unwrap();
+        assert_eq!(
+            Store::open(&path).unwrap().n_materials(),
+            2,
+            "level {level}"
+        );
+    }
+}
+
 /// The size announced before writing an uncompressed store (what `synth` and `import` check
 /// against the free space) is the file's size, up to its JSON header's padding; compressed
 /// stores have no size before writing; an output its file system cannot hold is refused.
@@ -1217,6 +1265,20 @@ fn uncompressed_size_is_known_before_writing() {
                 announced >= values && announced.abs_diff(actual) <= 4096 + actual / 100,
                 "{dtype:?} {chunk_len:?}: announced {announced}, wrote {actual}"
             );
+            // Exactly: the file is the announced payload offset, values and chunk table, then
+            // the JSON header, whose length the fixed prefix records (its 5th u64 field, after
+            // magic and version: payload offset, payload bytes, table offset, header offset,
+            // header length).
+            let bytes = std::fs::read(&path).unwrap();
+            let field =
+                |i: usize| u64::from_le_bytes(bytes[16 + 8 * i..24 + 8 * i].try_into().unwrap());
+            assert_eq!(
+                announced + field(4),
+                actual,
+                "{dtype:?} {chunk_len:?}: announced {announced} + header {}",
+                field(4)
+            );
+            assert_eq!(announced, field(0) + field(1), "{dtype:?} {chunk_len:?}");
         }
     }
     let zstd = StoreOptions {
