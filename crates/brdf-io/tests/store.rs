@@ -1372,3 +1372,100 @@ fn overlapped_material_writes_match_and_stop_at_the_first_error() {
     assert!(w.finish().is_err());
     assert!(only_file(sub.path()).is_empty());
 }
+
+/// Merging statistics weights the means by their counts, and merging two empty ones keeps
+/// the empty mean (0, not the NaN of 0 / 0).
+#[test]
+fn value_stats_merge_weights_means_and_keeps_empty_ones_finite() {
+    use brdf_io::store::ValueStats;
+    let mut empty = ValueStats::default();
+    empty.merge(&ValueStats::default());
+    assert_eq!((empty.count, empty.mean), (0, 0.0));
+    let a = ValueStats {
+        count: 3,
+        min: -1.0,
+        max: 2.0,
+        mean: 1.0,
+        sum_sq: 6.0,
+        negatives: 1,
+        ..ValueStats::default()
+    };
+    let b = ValueStats {
+        count: 1,
+        min: 0.5,
+        max: 5.0,
+        mean: 5.0,
+        sum_sq: 25.0,
+        ..ValueStats::default()
+    };
+    let mut m = a.clone();
+    m.merge(&b);
+    assert_eq!(
+        (m.count, m.mean, m.min, m.max, m.sum_sq, m.negatives),
+        (4, 2.0, -1.0, 5.0, 31.0, 1)
+    );
+    // An empty side changes nothing.
+    let mut same = a.clone();
+    same.merge(&ValueStats::default());
+    assert_eq!(same, a);
+}
+
+/// A checksum prints as `algorithm:value`, as model files record their dataset's.
+#[test]
+fn checksum_displays_as_algorithm_and_value() {
+    let c = brdf_io::store::Checksum {
+        algorithm: "xxh3-64".into(),
+        value: "a5d06b176ea1a16a".into(),
+    };
+    assert_eq!(c.to_string(), "xxh3-64:a5d06b176ea1a16a");
+}
+
+/// Without a chunk length, a chunk holds about 1 MiB of values uncompressed and 256 KiB
+/// under zstd (at most one index of N values under the target), at least one index and at
+/// most the whole of d; an explicit length is kept (within 1..=d).
+#[test]
+fn default_chunk_length_targets_1_mib_or_256_kib() {
+    for (compression, target) in [
+        (Compression::None, 1usize << 20),
+        (Compression::Zstd { level: 3 }, 256 << 10),
+        (Compression::ZstdShuffle { level: 3 }, 256 << 10),
+    ] {
+        for dtype in [Dtype::F32, Dtype::F16] {
+            for n in [1usize, 7, 51] {
+                let o = StoreOptions {
+                    compression,
+                    dtype,
+                    ..StoreOptions::default()
+                };
+                let len = o.effective_chunk_len(n, 1 << 30);
+                let index_bytes = n * dtype.size();
+                assert!(
+                    len * index_bytes <= target && (len + 1) * index_bytes > target,
+                    "{compression:?} {dtype:?} n {n}: {len}"
+                );
+                assert_eq!(o.effective_chunk_len(n, 10), 10, "capped at d");
+                assert_eq!(o.effective_chunk_len(1 << 30, 10), 1, "at least one index");
+            }
+        }
+    }
+    let o = StoreOptions {
+        chunk_len: Some(100),
+        ..StoreOptions::default()
+    };
+    assert_eq!(o.effective_chunk_len(51, 1000), 100);
+    assert_eq!(o.effective_chunk_len(51, 40), 40);
+}
+
+/// The benchmarks' read baseline returns the file's size in bytes and a positive, finite
+/// time; a missing file is an error.
+#[test]
+fn sequential_read_reports_the_file_size_and_a_positive_time() {
+    let d = dir();
+    let path = d.path().join("r.bin");
+    let len = (8 << 20) + 12345;
+    std::fs::write(&path, vec![7u8; len]).unwrap();
+    let (bytes, seconds) = brdf_io::store::sequential_read_seconds(&path, 2).unwrap();
+    assert_eq!(bytes, len as u64);
+    assert!(seconds > 0.0 && seconds < 60.0, "{seconds}");
+    assert!(brdf_io::store::sequential_read_seconds(&d.path().join("none"), 1).is_err());
+}
