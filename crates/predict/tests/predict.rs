@@ -649,6 +649,32 @@ fn leave_one_out_via_the_gram_matrix_equals_brute_force() {
         for j in 0..d {
             assert!((dense[j] - via_c[j]).abs() < 1e-9 * (1.0 + dense[j].abs()));
         }
+        // Lerp-latent: the best blend of the two others whose refitted latent points are
+        // nearest to the GP's point (a = <y_h - y_j, y_i - y_j> / |y_i - y_j|^2 from the dense
+        // rows, clamped to [0, 1]), with no near tie for the second place.
+        let mut by_dist: Vec<(f64, usize)> = (0..others.len())
+            .map(|r| {
+                let d2 = (0..q).map(|k| (fit.x[(r, k)] - loo.gp_point[k]).powi(2));
+                (d2.sum(), others[r])
+            })
+            .collect();
+        by_dist.sort_by(|a, b| a.0.total_cmp(&b.0));
+        assert!(by_dist[1].0 < by_dist[2].0 * (1.0 - 1e-6), "{by_dist:?}");
+        let (i, j) = (by_dist[0].1, by_dist[1].1);
+        let u: Vec<f64> = (0..d).map(|c| y[(i, c)] - y[(j, c)]).collect();
+        let ru: f64 = (0..d).map(|c| (yh[c] - y[(j, c)]) * u[c]).sum();
+        let a = (ru / u.iter().map(|v| v * v).sum::<f64>()).clamp(0.0, 1.0);
+        let lat = &by(Method::LerpLatent).coefficients;
+        for k in 0..n {
+            let want = [(i, a), (j, 1.0 - a)]
+                .iter()
+                .find(|p| p.0 == k)
+                .map_or(0.0, |p| p.1);
+            assert!(
+                (lat[k] - want).abs() < 1e-9,
+                "held out {h}: lerp-latent {lat:?}, want a = {a} on {i}, 1 - a on {j}"
+            );
+        }
         // The GP's point is a local minimum: nudging it does not reduce the error.
         let e0 = dist2(&dense, h);
         for axis in 0..q {
@@ -662,6 +688,79 @@ fn leave_one_out_via_the_gram_matrix_equals_brute_force() {
                     "not a minimum along {axis}"
                 );
             }
+        }
+    }
+}
+
+/// `leave_one_out` refuses fewer than 3 materials (the refit without one would keep one) and
+/// a held-out index past the materials, each alone, with N and h in the message; 3 materials
+/// (a refit on 2) are enough.
+#[test]
+fn leave_one_out_needs_three_materials_and_a_held_out_index_among_them() {
+    let d = 40;
+    let config = FitParams {
+        transform: "raw".into(),
+        latent_dim: 1,
+        max_iterations: 50,
+        ..FitParams::default()
+    }
+    .check()
+    .unwrap();
+    let gram = |n: usize| gp_core::gram_from_data(dense_data(n, d).as_ref(), Par::Seq).unwrap();
+    for (n, h) in [(2, 0), (2, 1), (5, 5), (5, 7)] {
+        let e = leave_one_out(gram(n).as_ref(), d, &config, h, 1, None).unwrap_err();
+        let msg = e.to_string();
+        assert!(
+            matches!(e, Error::InvalidArgument { .. })
+                && msg.contains("at least 3 materials")
+                && msg.contains(&format!("got N = {n}, h = {h}")),
+            "{msg}"
+        );
+    }
+    let loo = leave_one_out(gram(3).as_ref(), d, &config, 2, 1, None).unwrap();
+    assert_eq!(loo.held_out, 2);
+    assert_eq!(loo.methods.len(), Method::ALL.len());
+}
+
+/// PCA of materials on a line (one nonzero principal component) asked for 4 components keeps
+/// only the real one: the coefficients are the closed form `1/n + t_i (v . (y_h - m)) / (|v|^2
+/// sum_i t_i^2)` (`t_i` the materials' centred positions along the direction `v`, `m` their
+/// mean), not the rounding of the null directions divided by their rounding-level eigenvalues
+/// (which moves the coefficients, though not their combination of the rows).
+#[test]
+fn pca_of_collinear_materials_keeps_only_their_component() {
+    use predict::evaluate::pca_projection;
+    let base = [0.7, 1.3, -0.4, 2.2, 0.9, -1.1];
+    let v = [0.31, -0.57, 1.13, 0.29, -0.83, 0.47];
+    let t = [0.3, 1.7, 2.9, 4.1, -1.3];
+    let targets = [
+        [1.9, -0.6, 0.8, 1.4, 2.3, 0.2],
+        [-0.3, 2.1, 1.7, -0.9, 0.6, 1.2],
+    ];
+    // Also with the line 100 times as long: the null directions' eigenvalues are then well
+    // above 1e-12 / top (and below 1e-12 top, the cut-off).
+    for (scale, target) in [1.0, 100.0].into_iter().zip(targets) {
+        let v = v.map(|x| scale * x);
+        // Rows 0..5 on the line base + t v, row 5 the target off it.
+        let y = Mat::from_fn(6, 6, |i, j| {
+            if i < 5 {
+                base[j] + t[i] * v[j]
+            } else {
+                target[j]
+            }
+        });
+        let g = gp_core::gram_from_data(y.as_ref(), Par::Seq).unwrap();
+        let c = pca_projection(g.as_ref(), &[0, 1, 2, 3, 4], 5, 4).unwrap();
+        let t_mean = t.iter().sum::<f64>() / 5.0;
+        let tc: Vec<f64> = t.iter().map(|x| x - t_mean).collect();
+        let v_r: f64 = (0..6)
+            .map(|j| v[j] * (target[j] - base[j] - t_mean * v[j]))
+            .sum();
+        let v2: f64 = v.iter().map(|x| x * x).sum();
+        let t2: f64 = tc.iter().map(|x| x * x).sum();
+        for i in 0..5 {
+            let want = 0.2 + tc[i] * v_r / (v2 * t2);
+            assert!((c[i] - want).abs() < 1e-9, "{i}: {c:?} vs {want}");
         }
     }
 }
