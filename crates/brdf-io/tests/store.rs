@@ -452,6 +452,18 @@ fn material_sampling_interpolates_on_the_grid() {
     src.eval(wi, wo, &mut out).unwrap();
     assert!((out[2] - 26.0).abs() < 1e-9, "{out:?}");
     assert!(brdf_io::store::parse_store_spec("x.bsdf").is_none());
+    // Both parts are needed: a `.sbrdf` path and a non-empty name.
+    assert!(brdf_io::store::parse_store_spec("x.bsdf:lin").is_none());
+    assert!(brdf_io::store::parse_store_spec("x.sbrdf:").is_none());
+    // Directions exactly on the horizon (either one) read 0, not the grazing cells' values.
+    for (wi, wo) in [
+        ([1.0, 0.0, 0.0], [0.0, 0.0, 1.0]),
+        ([0.0, 0.0, 1.0], [0.0, 1.0, 0.0]),
+    ] {
+        out = [9.0; 3];
+        src.eval(wi, wo, &mut out).unwrap();
+        assert_eq!(out, [0.0; 3], "{wi:?} {wo:?}");
+    }
     // Names may contain `:` (the store path ends at the first `.sbrdf:`).
     assert_eq!(
         brdf_io::store::parse_store_spec("d/x.sbrdf:a:b@0.5,1"),
@@ -587,6 +599,40 @@ fn stored_material_at_chosen_wavelengths_interpolates_between_stored_ones() {
         e.contains("s.sbrdf") && e.contains("no RGB channels"),
         "{e}"
     );
+    // A selection that starts past the first stored channel (525 nm reads 500 and 600 only).
+    let late = m
+        .with_wavelengths(&Channels::parse_wavelengths("525,600").unwrap())
+        .unwrap();
+    let mut two = [0.0; 2];
+    brdf_io::BrdfSource::eval_cell(&late, a, &mut two).unwrap();
+    assert_eq!(two, [4.0 + base, 7.0 + base]);
+    // A damaged payload value (lookups do not re-hash the payload) is an error naming the
+    // store, the material and its flat index, here cell a's 600 nm value. One uncompressed
+    // material: index d is stored at the payload offset (4096) + 4 d.
+    let d = a * 3 + 2;
+    let mut bytes = std::fs::read(&path).unwrap();
+    bytes[4096 + 4 * d..4096 + 4 * d + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+    let bad = t.path().join("bad.sbrdf");
+    std::fs::write(&bad, bytes).unwrap();
+    let late = StoreMaterial::open(&bad, "m")
+        .unwrap()
+        .with_wavelengths(&Channels::parse_wavelengths("525,600").unwrap())
+        .unwrap();
+    match brdf_io::BrdfSource::eval_cell(&late, a, &mut two) {
+        Err(Error::DamagedValue {
+            path,
+            material,
+            index,
+            value,
+        }) => {
+            assert!(
+                path.ends_with("bad.sbrdf") && material == "m" && index == d && value.is_nan(),
+                "{} {material} {index} {value}",
+                path.display()
+            );
+        }
+        other => panic!("{other:?}"),
+    }
 }
 
 // ---------------------------------------------------------------- bad input
@@ -1468,4 +1514,23 @@ fn sequential_read_reports_the_file_size_and_a_positive_time() {
     assert_eq!(bytes, len as u64);
     assert!(seconds > 0.0 && seconds < 60.0, "{seconds}");
     assert!(brdf_io::store::sequential_read_seconds(&d.path().join("none"), 1).is_err());
+}
+
+/// A stored material knows its row: by index and by name.
+#[test]
+fn store_material_index_is_its_row() {
+    let d = dir();
+    let info = info(2, 2, 4, Channels::Rgb);
+    let rows: Vec<Vec<f32>> = (0..3).map(|s| material(&info, s)).collect();
+    let path = d.path().join("i.sbrdf");
+    write_materials(&path, &info, &rows, StoreOptions::default(), 1000).unwrap();
+    let store = std::sync::Arc::new(Store::open(&path).unwrap());
+    for (i, name) in store.names().iter().enumerate() {
+        assert_eq!(
+            StoreMaterial::by_index(store.clone(), i).unwrap().index(),
+            i
+        );
+        assert_eq!(StoreMaterial::new(store.clone(), name).unwrap().index(), i);
+    }
+    assert_eq!(store.names().len(), 3);
 }
