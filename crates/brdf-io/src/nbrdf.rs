@@ -456,6 +456,57 @@ mod tests {
         assert_eq!(set.find("a"), Some(0));
     }
 
+    /// A set knows its size and hands out each network under its own name; an empty weights
+    /// file with an empty names file is an empty set, not an error.
+    #[test]
+    fn sets_report_their_size_and_name_their_networks() {
+        let dir = tempfile::tempdir().unwrap();
+        let (weights, names) = (dir.path().join("w.npy"), dir.path().join("n.txt"));
+        crate::npy::write_f64(
+            &weights,
+            &[2, WEIGHTS_PER_NETWORK],
+            &vec![0.25; 2 * WEIGHTS_PER_NETWORK],
+        )
+        .unwrap();
+        std::fs::write(&names, "first\nsecond\n").unwrap();
+        let set = NbrdfSet::open(&weights, &names).unwrap();
+        assert_eq!((set.len(), set.is_empty()), (2, false));
+        assert_eq!(set.material(1).unwrap().name(), "second");
+        assert_eq!(set.material(0).unwrap().name(), "first");
+        let e = set.material(2).unwrap_err().to_string();
+        assert!(
+            e.contains("w.npy: material index 2 out of range (2 networks)"),
+            "{e}"
+        );
+        crate::npy::write_f64(&weights, &[0, WEIGHTS_PER_NETWORK], &[]).unwrap();
+        std::fs::write(&names, "").unwrap();
+        let empty = NbrdfSet::open(&weights, &names).unwrap();
+        assert_eq!((empty.len(), empty.is_empty()), (0, true));
+    }
+
+    /// Through the [`BrdfSource`] trait a network gives its forward pass, refuses an output
+    /// buffer of the wrong length, and gives 0 when a direction lies exactly on the horizon
+    /// (z = 0 is not above it, even though the half vector is then well defined).
+    #[test]
+    fn source_eval_is_the_forward_pass_and_zero_on_the_horizon() {
+        let net = seeded_network(5);
+        let (wi, wo) = ([0.3, -0.2, 0.8], [-0.1, 0.4, 0.6]);
+        let want = net.forward(network_input(wi, wo).unwrap());
+        assert!(want.iter().any(|&v| v > 0.0), "{want:?}");
+        let mut out = [f64::NAN; 3];
+        BrdfSource::eval(&net, wi, wo, &mut out).unwrap();
+        assert_eq!(out.map(f64::to_bits), want.map(f64::to_bits));
+        let e = BrdfSource::eval(&net, wi, wo, &mut [0.0; 2]).unwrap_err();
+        assert!(e.to_string().contains("2 slots for 3 channels"), "{e}");
+        let (up, flat) = ([0.0, 0.0, 1.0], [1.0, 0.0, 0.0]);
+        assert_eq!(network_input(flat, up), None);
+        assert_eq!(network_input(up, flat), None);
+        assert_eq!(net.eval(flat, up), [0.0; 3]);
+        assert_eq!(net.eval(up, flat), [0.0; 3]);
+        // Just above the horizon there is an input.
+        assert!(network_input([1.0, 0.0, 1e-9], up).is_some());
+    }
+
     /// Weights that the networks cannot hold are refused naming the file, the network, the
     /// element and the problem: an f64 weight beyond the f32 range is not called non-finite.
     #[test]

@@ -605,6 +605,8 @@ mod tests {
             0.5,
             1.0,
             f64::NAN,
+            // Not a relative part, but the definition still puts it in the last bin.
+            f64::INFINITY,
         ] {
             same(r);
         }
@@ -672,6 +674,168 @@ mod tests {
         let mut ok = ImportReport::new();
         ok.record(1.0, None, false);
         assert!(ok.ensure_finite("net").is_ok());
+        // The edges are kept: the largest f32 is stored as it is, and a value equal to the
+        // outlier threshold is not an outlier.
+        let mut edges = ImportReport::new();
+        let largest = f64::from(f32::MAX);
+        assert_eq!(edges.record(largest, None, false), largest);
+        assert_eq!(edges.record(5.0, Some(5.0), true), 5.0);
+        assert_eq!(
+            (edges.non_finite, edges.outliers, edges.outliers_clamped),
+            (0, 0, 0)
+        );
+        assert_eq!((edges.min, edges.max), (5.0, largest));
+    }
+
+    /// `record_pair` by hand: the stored value is the weighted mean of the two orders; the sums
+    /// take the plain mean and half difference times the cosine weight; the histogram bins
+    /// `|a - b| / (|a| + |b|)`. A pair of zeros (no relative part) and a pair whose mean
+    /// overflows are not measured.
+    #[test]
+    fn record_pair_measures_finite_pairs_by_hand() {
+        let mut r = ImportReport::new();
+        // a = 3, b = 1: stored 0.25 x 3 + 0.75 x 1 = 1.5; mean 2, half difference 1, weight
+        // 0.5: sums 2 and 0.5; relative part 2 / 4 = 0.5, in bin floor((log10 0.5 + 4) x 8)
+        // = floor(29.59) = 29 (2 / (3 x 1) would be bin 30).
+        assert_eq!(r.record_pair(3.0, 1.0, 0.5, 0.25), 1.5);
+        assert_eq!((r.reciprocal_sq, r.non_reciprocal_sq), (2.0, 0.5));
+        let mut hist = [0u64; RECIPROCITY_BINS];
+        hist[29] = 1;
+        assert_eq!(r.non_reciprocal_hist, hist);
+        assert_eq!(r.non_reciprocity(), Some(0.5));
+        let median = r.non_reciprocity_median().unwrap();
+        assert!(
+            (median - 10f64.powf(29.5 / 8.0 - 4.0)).abs() < 1e-15,
+            "{median}"
+        );
+        let before = r;
+        assert_eq!(r.record_pair(0.0, 0.0, 1.0, 0.5), 0.0);
+        // 1.5e308 + 1.5e308 overflows: the mean is infinite, the half difference 0.
+        assert_eq!(r.record_pair(1.5e308, 1.5e308, 1.0, 0.5), 1.5e308);
+        assert_eq!(r, before);
+        assert_eq!(ImportReport::new().non_reciprocity_median(), None);
+    }
+
+    /// Merging adds every count, sum and histogram bin and keeps the extreme min and max.
+    #[test]
+    fn merge_adds_every_count_and_keeps_the_extremes() {
+        let report = |k: usize, min: f64, max: f64| {
+            let mut hist = [0u64; RECIPROCITY_BINS];
+            hist[k] = k as u64;
+            hist[0] = 1;
+            ImportReport {
+                values: 100 * k,
+                below_horizon_cells: 10 * k,
+                negatives_clamped: k,
+                markers_filled: k + 1,
+                non_finite: k + 2,
+                outliers: k + 3,
+                outliers_clamped: k + 4,
+                min,
+                max,
+                non_reciprocal_sq: k as f64,
+                reciprocal_sq: 10.0 * k as f64,
+                non_reciprocal_hist: hist,
+            }
+        };
+        let merged = report(3, 0.5, 2.0).merge(&report(5, 0.25, 1.0));
+        let mut hist = [0u64; RECIPROCITY_BINS];
+        (hist[0], hist[3], hist[5]) = (2, 3, 5);
+        assert_eq!(
+            merged,
+            ImportReport {
+                values: 800,
+                below_horizon_cells: 80,
+                negatives_clamped: 8,
+                markers_filled: 10,
+                non_finite: 12,
+                outliers: 14,
+                outliers_clamped: 16,
+                min: 0.25,
+                max: 2.0,
+                non_reciprocal_sq: 8.0,
+                reciprocal_sq: 80.0,
+                non_reciprocal_hist: hist,
+            }
+        );
+    }
+
+    /// The report's one-line summary, written out: the marker count only when there is one,
+    /// and the RMS alone for a report with sums but no histogram (one written before the
+    /// histogram existed: `serde(default)` reads it as empty).
+    #[test]
+    fn display_mentions_markers_and_reciprocity_only_when_known() {
+        let mut r = ImportReport {
+            values: 3,
+            below_horizon_cells: 1,
+            min: 1.0,
+            max: 2.0,
+            ..ImportReport::new()
+        };
+        let plain = "3 values (min 1.0000e0, max 2.0000e0), 1 below-horizon cells, 0 negatives \
+                     clamped, 0 non-finite, 0 outliers (0 clamped)";
+        assert_eq!(r.to_string(), plain);
+        (r.markers_filled, r.reciprocal_sq, r.non_reciprocal_sq) = (2, 4.0, 1.0);
+        assert_eq!(
+            r.to_string(),
+            format!(
+                "{plain}, 2 unmeasured (marker) values filled from their neighbours, \
+                 non-reciprocal part: RMS 50.00 % (cosine-weighted)"
+            )
+        );
+        let old: ImportReport = serde_json::from_str(
+            r#"{"values": 3, "below_horizon_cells": 1, "negatives_clamped": 0, "non_finite": 0,
+                "outliers": 0, "outliers_clamped": 0, "min": 1.0, "max": 2.0,
+                "non_reciprocal_sq": 1.0, "reciprocal_sq": 4.0}"#,
+        )
+        .unwrap();
+        assert_eq!(
+            old.to_string(),
+            format!("{plain}, non-reciprocal part: RMS 50.00 % (cosine-weighted)")
+        );
+    }
+
+    /// A block that does not fit the grid is refused with an error, never a panic: no
+    /// channels, a length that is not a whole number of cells, or cells past the grid's end.
+    #[test]
+    fn blocks_that_do_not_fit_the_grid_are_refused() {
+        let grid = crate::grid::AngularGrid::new(2, 2, 4).unwrap();
+        let eval = |_: Vec3, _: Vec3, out: &mut [f64]| {
+            out.fill(0.5);
+            Ok(())
+        };
+        let options = ResampleOptions::default();
+        let refuse = |first: usize, len: usize, channels: usize| {
+            let mut out = vec![0f32; len];
+            let r = resample_cells_into(
+                &grid,
+                first,
+                &mut out,
+                channels,
+                options,
+                PairWeights::Equal,
+                eval,
+            );
+            let e = r.unwrap_err();
+            assert!(matches!(e, Error::InvalidArgument { .. }), "{e}");
+            assert!(
+                e.to_string().contains(&format!(
+                    "block of {len} values from cell {first} does not fit grid"
+                )),
+                "{e}"
+            );
+        };
+        refuse(0, 0, 0);
+        refuse(0, 6, 0);
+        refuse(0, 5, 2);
+        refuse(10, 14, 2);
+        refuse(16, 2, 2);
+        // The last cells exactly: evaluated (or 0 below the horizon).
+        let mut out = vec![f32::NAN; 12];
+        let report =
+            resample_cells_into(&grid, 10, &mut out, 2, options, PairWeights::Equal, eval).unwrap();
+        assert!(out.iter().all(|&v| v == 0.5 || v == 0.0), "{out:?}");
+        assert_eq!(report.values + 2 * report.below_horizon_cells, 12);
     }
 
     /// A source like an RGL file: a table of `f cos(theta_o)` whose error does not vanish at
@@ -812,6 +976,64 @@ mod tests {
             }
             Ok(())
         }
+    }
+
+    /// A source without a grid (channels given) that records the prefetch hints it gets.
+    struct Hinted(Channels, std::sync::Mutex<Vec<usize>>);
+
+    impl Hinted {
+        fn new(channels: Channels) -> Self {
+            Self(channels, std::sync::Mutex::new(Vec::new()))
+        }
+        fn hints(&self) -> Vec<usize> {
+            self.1.lock().unwrap().clone()
+        }
+    }
+
+    impl BrdfSource for Hinted {
+        fn channels(&self) -> Channels {
+            self.0.clone()
+        }
+        fn eval(&self, _wi: Vec3, _wo: Vec3, out: &mut [f64]) -> Result<()> {
+            check_output_len(out, self.0.len())?;
+            out.fill(1.0);
+            Ok(())
+        }
+        fn prefetch_cell(&self, a: usize) {
+            self.1.lock().unwrap().push(a);
+        }
+    }
+
+    /// A source that is not a grid source refuses cell lookups (the trait's default), so does a
+    /// blend of such sources; a blend passes prefetch hints on to both of its sources; blends
+    /// need equal channels; and output buffers must have one slot per channel.
+    #[test]
+    fn non_grid_sources_refuse_cells_and_blends_pass_hints_on() {
+        let (a, b) = (Hinted::new(Channels::Rgb), Hinted::new(Channels::Rgb));
+        let e = a.eval_cell(0, &mut [0.0; 3]).unwrap_err();
+        assert!(matches!(e, Error::InvalidArgument { .. }), "{e}");
+        assert!(
+            e.to_string().contains("eval_cell: not a grid source"),
+            "{e}"
+        );
+        let blend = Blend::new(&a, &b, 0.5).unwrap();
+        assert_eq!(blend.grid(), None);
+        assert!(blend.eval_cell(0, &mut [0.0; 3]).is_err());
+        blend.prefetch_cell(7);
+        blend.prefetch_cell(2);
+        assert_eq!((a.hints(), b.hints()), (vec![7, 2], vec![7, 2]));
+        let up = [0.0, 0.0, 1.0];
+        let e = blend.eval(up, up, &mut [0.0; 4]).unwrap_err();
+        assert!(e.to_string().contains("4 slots for 3 channels"), "{e}");
+        let mut out = [0.0; 3];
+        blend.eval(up, up, &mut out).unwrap();
+        assert_eq!(out, [1.0; 3]);
+        assert!(check_output_len(&[0.0; 2], 2).is_ok());
+        let e = check_output_len(&[], 1).unwrap_err();
+        assert!(e.to_string().contains("0 slots for 1 channels"), "{e}");
+        let spectral = Hinted::new(Channels::spectral(vec![400.0, 500.0]).unwrap());
+        let e = Blend::new(&a, &spectral, 0.5).err().unwrap();
+        assert!(e.to_string().contains("same channels"), "{e}");
     }
 
     #[test]
