@@ -311,8 +311,8 @@ mod tests {
 
     #[test]
     fn png_round_trip_and_drawing() {
-        let dir = std::env::temp_dir().join(format!("render-img-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
         let mut img = Image::new(40, 20, [0.0; 3]);
         img.text(1, 1, "A1", 1, [1.0; 3]);
         img.disc(30.0, 10.0, 4.7, [1.0, 0.0, 0.0]);
@@ -329,16 +329,15 @@ mod tests {
         let edge = at(34, 10)[0];
         assert!(edge > 0 && edge < 255, "{edge}");
         assert!(
-            std::fs::read_dir(&dir).unwrap().count() == 1,
+            std::fs::read_dir(dir).unwrap().count() == 1,
             "no temp file left"
         );
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
     fn png_errors_name_the_file_once_and_say_what_failed() {
-        let dir = std::env::temp_dir().join(format!("render-img-err-{}", std::process::id()));
-        let p = dir.join("missing/t.png");
+        let tmp = tempfile::tempdir().unwrap();
+        let p = tmp.path().join("missing/t.png");
         let shown = p.display().to_string();
         let e = Image::new(2, 2, [0.5; 3])
             .save_png(&p)
