@@ -51,10 +51,23 @@ pub fn mean_delta_e(map: &[Option<f64>]) -> f64 {
     }
 }
 
+/// Checks the top `max` of a Delta E scale: positive and finite (0 coloured every value as
+/// the top, or NaN as the bottom, without a word).
+fn check_delta_e_scale(max: f64) -> Result<()> {
+    if max.is_finite() && max > 0.0 {
+        Ok(())
+    } else {
+        Err(Error::InvalidArgument {
+            reason: format!("Delta E scale {max} must be positive and finite"),
+        })
+    }
+}
+
 /// A Delta E map as a heat-map image (0 -> dark, `max` and above -> bright yellow; undefined
 /// pixels transparent). `map` holds whole rows of `width` pixels (a partial row, or a width of
-/// 0 with values, indexed past the image and panicked).
+/// 0 with values, indexed past the image and panicked); `max` is positive and finite.
 pub fn heat_map(map: &[Option<f64>], width: usize, max: f64) -> Result<Image> {
+    check_delta_e_scale(max)?;
     if !map.len().is_multiple_of(width) {
         return Err(Error::InvalidArgument {
             reason: format!(
@@ -148,19 +161,15 @@ pub fn comparison_sheet(
             ),
         });
     }
-    if !(de_max.is_finite() && de_max > 0.0) {
-        return Err(Error::InvalidArgument {
-            reason: format!("Delta E scale {de_max} must be positive"),
-        });
-    }
+    check_delta_e_scale(de_max)?;
     let s = opts.size;
-    let n_cells = 2 * columns.len() - 1;
     let label_w = label_width(rows);
-    // The colour bar under the heat maps is at least 60 px wide: small spheres get a sheet wide
-    // enough for it (it ran off the image, and its top label with it).
+    // The colour bar under the heat maps spans their C - 1 cells and is at least 60 px wide:
+    // small spheres get a sheet wide enough for it (it ran off the image, and its top label with
+    // it). The sheet is the label, C sphere cells and the bar, so never narrower than 2 C - 1
+    // cells.
     let bar_w = ((columns.len() - 1) * (s + PAD)).max(60);
-    let width = (label_w + PAD + n_cells * (s + PAD) + PAD)
-        .max(label_w + PAD + columns.len() * (s + PAD) + bar_w + PAD);
+    let width = label_w + PAD + columns.len() * (s + PAD) + bar_w + PAD;
     let header = PAD + LINE;
     let row_h = s + LINE + PAD;
     let height = header + rows.len() * row_h + LINE * 2 + PAD * 2;
@@ -405,6 +414,20 @@ mod tests {
         // overflows to infinity): the ramp's end, not its start.
         let img = heat_map(&[Some(0.0), Some(1.0)], 2, 5e-324).unwrap();
         assert_eq!(img.rgb, [ramp(0.0), ramp(1.0)]);
+    }
+
+    #[test]
+    fn heat_maps_refuse_a_scale_that_is_not_positive_and_finite() {
+        // A scale of 0 drew every value above 0 as the top and 0 itself (0 / 0 = NaN) as the
+        // bottom; a negative one swapped the ends; NaN coloured everything as 0.
+        let map = [Some(0.0), Some(1.0)];
+        for max in [0.0, -0.0, -1.0, f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            let err = heat_map(&map, 2, max).unwrap_err().to_string();
+            assert!(
+                err.contains(&format!("Delta E scale {max} must be positive and finite")),
+                "{max}: {err}"
+            );
+        }
     }
 
     #[test]
