@@ -146,4 +146,30 @@ mod tests {
         assert_eq!(out, [0.0; 3]);
         assert!(cache.eval(wi, wo, &mut [0.0; 2]).is_err());
     }
+
+    /// A direction exactly on the horizon (z = 0) reads 0, as for every other source, and
+    /// computes no cell; the same pair lifted just above it does not.
+    #[test]
+    fn directions_on_the_horizon_read_zero() {
+        let grid = AngularGrid::new(4, 4, 8).unwrap();
+        let cache = CellCache::new(
+            grid,
+            Channels::Rgb,
+            Box::new(|_, out: &mut [f64]| {
+                out.fill(1.0);
+                Ok(())
+            }),
+        );
+        let above = [0.6, 0.0, 0.8];
+        let mut out = [0.0; 3];
+        for (wi, wo) in [([1.0, 0.0, 0.0], above), (above, [0.0, 1.0, 0.0])] {
+            cache.eval(wi, wo, &mut out).unwrap();
+            assert_eq!(out, [0.0; 3], "{wi:?} {wo:?}");
+        }
+        assert_eq!(cache.computed_cells(), 0);
+        // Interpolation weights sum to 1 and every cell holds 1: the value is 1.
+        let lifted = [0.999_95, 0.0, 0.01];
+        cache.eval(lifted, above, &mut out).unwrap();
+        assert!(out.iter().all(|v| (v - 1.0).abs() < 1e-12), "{out:?}");
+    }
 }

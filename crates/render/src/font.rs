@@ -272,6 +272,25 @@ mod tests {
                 assert_ne!(a, b);
             }
         }
+        // Every supported character has a glyph of its own, not the box of unknown ones.
+        let unknown = glyph('\u{1}');
+        assert_eq!(
+            unknown,
+            [
+                0b11111, 0b10001, 0b10001, 0b10001, 0b10001, 0b10001, 0b11111
+            ]
+        );
+        for c in chars.chars() {
+            assert_ne!(
+                glyph(c),
+                unknown,
+                "{c} is drawn as the unknown-character box"
+            );
+        }
+        assert_eq!(glyph('~'), unknown);
+        // Bit 4 is the leftmost pixel: 'L' is a left bar and a bottom line, '7' leans left.
+        assert_eq!(glyph('L'), [16, 16, 16, 16, 16, 16, 31]);
+        assert_eq!(glyph('7'), [31, 1, 2, 4, 8, 8, 8]);
         assert_eq!(glyph('a'), glyph('A'));
         assert_eq!(glyph(' '), [0; 7]);
         assert_eq!(text_width("ab", 2), 22);
