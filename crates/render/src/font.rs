@@ -257,6 +257,23 @@ mod tests {
         }
     }
 
+    /// The last allowed line is cut like [`fit`] (not at a break); spaces after a break or a
+    /// hard cut never start the next line; at scale 2 a line holds half the characters.
+    #[test]
+    fn wrap_cuts_the_last_line_and_drops_leading_spaces() {
+        let four = text_width("abcd", 1);
+        // One line allowed: "ab_cdefgh" is cut to 4 characters, not broken after '_'.
+        assert_eq!(wrap("ab_cdefgh", four, 1, 1), ["ab_c"]);
+        assert_eq!(wrap("ab_cdefgh", four, 1, 2), ["ab_", "cdef"]);
+        // Two spaces after a break, one after a hard cut: none leads a line.
+        assert_eq!(wrap("ab  cd", text_width("abc", 1), 1, 3), ["ab", "cd"]);
+        assert_eq!(wrap("abcd efgh", four, 1, 3), ["abcd", "efgh"]);
+        // 35 px at scale 2 is 17 px at scale 1: (17 + 1) / 6 = 3 characters.
+        assert_eq!(fit("abcdef", 35, 2), "abc");
+        assert_eq!(text_width("abc", 2), 34);
+        assert_eq!(wrap("abcdef", 35, 2, 3), ["abc", "def"]);
+    }
+
     #[test]
     fn glyphs_are_distinct_and_five_wide() {
         let chars = "ABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-+.,:=/()%@";
