@@ -1046,6 +1046,45 @@ mod tests {
         assert!(nice_ticks(f64::NAN, 1.0, 5).is_empty());
     }
 
+    /// The extent pads each axis of the bounding box by 15 % (at least 0.5) and widens the
+    /// narrower axis about its centre to a square; the thumbnail box widens only an axis
+    /// narrower than 0.25, to 0.25 about its centre. Values by hand; 1e-12 covers rounding.
+    #[test]
+    fn extents_pad_and_square_and_thumbnail_boxes_widen_thin_axes() {
+        let near = |got: [f64; 4], want: [f64; 4]| {
+            assert!(
+                got.iter().zip(want).all(|(g, w)| (g - w).abs() < 1e-12),
+                "{got:?} vs {want:?}"
+            );
+        };
+        let points = |a: [f64; 2], b: [f64; 2]| vec![("A".to_owned(), a), ("B".to_owned(), b)];
+        // x: [-1, 1] and y: [0, 2], both padded by 0.5 (15 % is 0.3): x [-1.5, 1.5], y
+        // [-0.5, 2.5], already square.
+        near(
+            extent(&points([-1.0, 0.0], [1.0, 2.0])),
+            [-1.5, 1.5, -0.5, 2.5],
+        );
+        // x: [2, 6] padded by 0.6 to [1.4, 6.6]; y: [1, 3] padded by 0.5 to [0.5, 3.5], then
+        // widened to x's 5.2 about its centre 2; and the same with the axes swapped.
+        near(
+            extent(&points([2.0, 1.0], [6.0, 3.0])),
+            [1.4, 6.6, -0.6, 4.6],
+        );
+        near(
+            extent(&points([1.0, 2.0], [3.0, 6.0])),
+            [-0.6, 4.6, 1.4, 6.6],
+        );
+        // x spans 0.1: widened by 0.075 each side; y spans 3: left alone.
+        near(
+            thumbnail_box(&points([1.0, 2.0], [1.1, 5.0])),
+            [0.925, 1.175, 2.0, 5.0],
+        );
+        near(
+            thumbnail_box(&points([-4.0, 7.0], [-1.0, 7.0])),
+            [-4.0, -1.0, 6.875, 7.125],
+        );
+    }
+
     /// Points far from the origin (model files allow coordinates up to 1e100) still get a plot
     /// of positive width around them: a padding of 0.5 vanished in rounding next to 1e100, the
     /// extent had zero width, every point mapped to NaN pixels and no dot was drawn.
