@@ -992,6 +992,15 @@ mod tests {
             cell_centre_labels(1.0, 1.0 + 3e-6, 3),
             ["1.00000050E0", "1.00000150E0", "1.00000250E0"]
         );
+        // Cells of exactly 1e-4 (4e-4 / 4 is exact) are still plain: five decimals.
+        assert_eq!(
+            cell_centre_labels(0.0, 4e-4, 4),
+            ["0.00005", "0.00015", "0.00025", "0.00035"]
+        );
+        // Degenerate boxes (no width, reversed, NaN) print the centres as they are.
+        assert_eq!(cell_centre_labels(1.0, 1.0, 3), ["1", "1", "1"]);
+        assert_eq!(cell_centre_labels(2.0, 1.0, 2), ["1.75", "1.25"]);
+        assert_eq!(cell_centre_labels(f64::NAN, 1.0, 1), ["NaN"]);
         for labels in [
             cell_centre_labels(-1e-300, 1e-300, 5),
             cell_centre_labels(123.0, 456.0, 7),
