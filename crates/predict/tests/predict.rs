@@ -11,7 +11,7 @@ use brdf_io::store::Store;
 use brdf_io::{AngularGrid, BrdfSource, Channels, StoreOptions};
 use faer::{Mat, Par, Side};
 use gplvm::{FitParams, Model, Transform};
-use predict::evaluate::{EvalOptions, Method, evaluate, leave_one_out, sq_error};
+use predict::evaluate::{EvalOptions, Method, Stage, evaluate, leave_one_out, sq_error};
 use predict::{Error, Predictor, PredictorKind};
 
 struct Fixture {
@@ -893,6 +893,246 @@ fn brdf_space_errors_equal_model_space_errors_for_raw_data() {
         }
     }
     assert_eq!(ev.summary.len(), 2 + Method::ALL.len());
+}
+
+/// The BRDF-space RMSE of `coef`'s row `r` against material `targets[r]`, summed index by
+/// index in the test from the stored rows with the scalar transform (a different code path
+/// from the pass: no chunks, columns, batch transform or matrix product).
+fn direct_brdf_rmse(
+    store: &Store,
+    transform: Transform,
+    targets: &[usize],
+    coef: &Mat<f64>,
+) -> Vec<f64> {
+    let (n, d) = (store.n_materials(), store.d());
+    let rows: Vec<Vec<f32>> = (0..n)
+        .map(|i| {
+            let mut row = vec![0f32; d];
+            store.material_row(i, 0..d, &mut row).unwrap();
+            row
+        })
+        .collect();
+    let n_angles = store.grid().len() as f64;
+    targets
+        .iter()
+        .enumerate()
+        .map(|(r, &t)| {
+            let sum: f64 = (0..d)
+                .map(|k| {
+                    let y: f64 = (0..n)
+                        .map(|j| coef[(r, j)] * transform.forward(f64::from(rows[j][k])))
+                        .sum();
+                    let diff = f64::from(rows[t][k]) - transform.inverse(y);
+                    diff * diff
+                })
+                .sum();
+            (sum / n_angles).sqrt()
+        })
+        .collect()
+}
+
+/// `brdf_space_rmse` equals the Eq. 22 RMSE summed index by index ([`direct_brdf_rmse`]) for
+/// blends of several materials under the log and raw transforms, on a store of one chunk with
+/// more valid columns than the pass multiplies at once (its 512-column blocks must line up
+/// with their transformed values) and on a store of many small chunks (whose partial sums the
+/// pass adds up). The two sums differ only in rounding order and in the vectorised against
+/// scalar `ln_1p`/`exp_m1`: relative tolerance 1e-9, for errors of order 1e-2..1 of the values.
+#[test]
+fn brdf_space_errors_equal_a_direct_sum_over_every_index() {
+    use predict::evaluate::brdf_space_rmse;
+    let dir = tempfile::tempdir().unwrap();
+    let coef = Mat::from_fn(4, 5, |r, j| {
+        [
+            [0.0, 0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.3, 0.0, 0.7, 0.0],
+            [1.2, 0.0, 0.0, 0.0, -0.2],
+            [0.25, 0.25, 0.0, 0.25, 0.25],
+        ][r][j]
+    });
+    let targets = [1, 0, 3, 2];
+    for (name, chunk_len) in [("one.sbrdf", None), ("many.sbrdf", Some(700))] {
+        let path = dir.path().join(name);
+        let options = StoreOptions {
+            chunk_len,
+            ..StoreOptions::default()
+        };
+        write_store_with(&path, 5, 0, grid(), options);
+        let store = Store::open(&path).unwrap();
+        let nc = store.channels().len();
+        let mut buf = Vec::new();
+        let (range, _) = store.chunk(0, &mut buf).unwrap();
+        let valid = range.filter(|d| store.validity_mask()[d / nc]).count();
+        match chunk_len {
+            None => assert!(store.n_chunks() == 1 && valid > 2 * 512, "{valid}"),
+            Some(_) => assert!(store.n_chunks() >= 8, "{}", store.n_chunks()),
+        }
+        for transform in [Transform::Log { offset: 0.01 }, Transform::Raw] {
+            let got =
+                brdf_space_rmse(&store, transform, &targets, coef.as_ref(), &|_, _| {}).unwrap();
+            let want = direct_brdf_rmse(&store, transform, &targets, &coef);
+            for (r, (g, w)) in got.iter().zip(&want).enumerate() {
+                assert!(
+                    *w > 0.0 && rel(*g, *w) < 1e-9,
+                    "{name} {transform:?} row {r}: {g} vs {w}"
+                );
+            }
+        }
+    }
+}
+
+/// A blend whose BRDF-space error overflows on sound data (log space, 1e6 times the
+/// difference of two materials) is an error naming that row's target material, the store and
+/// the infinite value, not an RMSE of infinity; the finite row before it does not stop it.
+#[test]
+fn overflowing_brdf_space_errors_name_the_row_and_the_store() {
+    use predict::evaluate::brdf_space_rmse;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("data.sbrdf");
+    write_store(&path, 4, 0, grid());
+    let store = Store::open(&path).unwrap();
+    let coef = Mat::from_fn(2, 4, |r, j| match (r, j) {
+        (0, 0) => 1.0,
+        (1, 1) => 1e6,
+        (1, 2) => 1.0 - 1e6,
+        _ => 0.0,
+    });
+    let transform = Transform::Log { offset: 0.01 };
+    let e = brdf_space_rmse(&store, transform, &[0, 3], coef.as_ref(), &|_, _| {})
+        .unwrap_err()
+        .to_string();
+    let want = format!(
+        "the squared BRDF-space error of material {:?} in {} is inf: ",
+        store.names()[3],
+        path.display()
+    );
+    assert!(e.starts_with(&want) && e.contains("overflowed"), "{e}");
+}
+
+/// `evaluate` reports each leave-one-out refit once (counts 1..=N of N, in any order: the
+/// refits run in parallel) and each chunk of the error pass once (1..=chunks of chunks), on a
+/// store of several chunks.
+#[test]
+fn evaluate_reports_every_refit_and_every_chunk_once() {
+    let options = StoreOptions {
+        chunk_len: Some(1500),
+        ..StoreOptions::default()
+    };
+    let f = fixture_with(5, "log", options);
+    let pred = Predictor::open(&f.model).unwrap();
+    let chunks = pred.store().n_chunks();
+    assert!(chunks >= 4, "{chunks}");
+    let seen = std::sync::Mutex::new(Vec::new());
+    let options = EvalOptions {
+        loo: true,
+        starts: 1,
+        warm_start: true,
+        refit_iterations: Some(20),
+    };
+    evaluate(&pred, &options, &|stage, done, total| {
+        seen.lock().unwrap().push((stage, done, total))
+    })
+    .unwrap();
+    let seen = seen.into_inner().unwrap();
+    for (stage, total) in [(Stage::Refits, 5), (Stage::Pass, chunks)] {
+        let mut counts: Vec<usize> = seen
+            .iter()
+            .filter(|s| s.0 == stage)
+            .map(|&(_, done, t)| {
+                assert_eq!(t, total, "{stage:?}");
+                done
+            })
+            .collect();
+        counts.sort_unstable();
+        assert_eq!(counts, (1..=total).collect::<Vec<_>>(), "{stage:?}");
+    }
+}
+
+/// A leave-one-out refit cap of `c` iterations gives Hooke-Jeeves refits a budget of
+/// `c * 2 N q` evaluations (N = 5 materials of the model, q = 2): the same leave-one-out as a
+/// model whose configuration holds that budget (and at most `c` iterations) with no cap; a
+/// budget of `c * (2 + N) q` instead places some held-out material elsewhere, so the
+/// comparison can fail.
+#[test]
+fn a_refit_cap_gives_hooke_jeeves_refits_cap_times_2nq_evaluations() {
+    let f = fixture(5, "log");
+    let store = Arc::new(Store::open(&f.store).unwrap());
+    let run = |max_evaluations: usize, max_iterations: u64, cap: Option<u64>| {
+        let mut model = Model::load(&f.model).unwrap();
+        model.config.optimizer = gplvm::OptimizerKind::HookeJeeves;
+        model.config.max_evaluations = max_evaluations;
+        model.config.max_iterations = max_iterations;
+        let pred = Predictor::with_store(model, &f.model, store.clone()).unwrap();
+        let options = EvalOptions {
+            loo: true,
+            starts: 2,
+            warm_start: true,
+            refit_iterations: cap,
+        };
+        let ev = evaluate(&pred, &options, &|_, _, _| {}).unwrap();
+        ev.loo
+            .unwrap()
+            .into_iter()
+            .map(|r| r.gp_point)
+            .collect::<Vec<_>>()
+    };
+    let cap = 2u64;
+    let (n, q) = (5, 2);
+    let capped = run(3000, 1000, Some(cap));
+    let exact = run(cap as usize * 2 * n * q, cap, None);
+    assert_eq!(capped, exact);
+    let other = run(cap as usize * (2 + n) * q, cap, None);
+    assert_ne!(capped, other);
+}
+
+/// With leave-one-out, each baseline's summary counts the materials where the GP's
+/// BRDF-space error is strictly lower than the baseline's (counted here from the rows), the
+/// GP's own summary has no count, and every summary's mean and median are those of its
+/// column of rows (written out: sum / N, and the middle of the sorted column of N = 7).
+#[test]
+fn leave_one_out_summaries_count_where_the_gp_is_better() {
+    let f = fixture(7, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    let options = EvalOptions {
+        loo: true,
+        starts: 2,
+        warm_start: true,
+        refit_iterations: Some(50),
+    };
+    let ev = evaluate(&pred, &options, &|_, _, _| {}).unwrap();
+    let rows = ev.loo.as_ref().unwrap();
+    assert_eq!(rows.len(), 7);
+    let loo_summaries = &ev.summary[2..];
+    assert_eq!(loo_summaries.len(), Method::ALL.len());
+    let mut counts = Vec::new();
+    for (mi, (method, s)) in Method::ALL.iter().zip(loo_summaries).enumerate() {
+        assert_eq!(s.method, format!("loo-{}", method.name()));
+        let brdf: Vec<f64> = rows.iter().map(|r| r.methods[mi].brdf_rmse).collect();
+        let model: Vec<f64> = rows.iter().map(|r| r.methods[mi].model_rmse).collect();
+        for (column, mean, median) in [
+            (brdf, s.brdf_mean, s.brdf_median),
+            (model, s.model_mean, s.model_median),
+        ] {
+            let mut sorted = column.clone();
+            sorted.sort_by(f64::total_cmp);
+            assert_eq!(median, sorted[3], "{method:?}");
+            let want = column.iter().sum::<f64>() / 7.0;
+            // The same 7 terms summed in the same order: equal up to rounding.
+            assert!(rel(mean, want) < 1e-14, "{method:?}: {mean} vs {want}");
+        }
+        if *method == Method::Gp {
+            assert_eq!(s.gp_better, None);
+        } else {
+            let better = rows
+                .iter()
+                .filter(|r| r.methods[0].brdf_rmse < r.methods[mi].brdf_rmse)
+                .count();
+            assert_eq!(s.gp_better, Some(better), "{method:?}");
+            counts.push(better);
+        }
+    }
+    assert_eq!(rows[0].methods[0].method, Method::Gp);
+    // Counts strictly between 0 and N somewhere (so that "worse" or "never" would differ).
+    assert!(counts.iter().any(|&c| c > 0 && c < 7), "{counts:?}");
 }
 
 /// A leave-one-out refit cap beyond any budget (`evaluate --refit-iterations` takes any u64)
