@@ -441,4 +441,283 @@ mod tests {
         b.extend_from_slice(&[0; 4]);
         assert!(parse(&b, "x.npy").unwrap_err().to_string().contains(">f4"));
     }
+
+    /// Raw `.npy` bytes built by hand: magic, `version`.0, the header length (u16 for version
+    /// 1, u32 for 2 and 3), `header` unpadded, then `data` (a path independent of the writer).
+    fn raw_npy(version: u8, header: &str, data: &[u8]) -> Vec<u8> {
+        let mut b = b"\x93NUMPY".to_vec();
+        b.extend_from_slice(&[version, 0]);
+        if version == 1 {
+            b.extend_from_slice(&u16::try_from(header.len()).unwrap().to_le_bytes());
+        } else {
+            b.extend_from_slice(&u32::try_from(header.len()).unwrap().to_le_bytes());
+        }
+        b.extend_from_slice(header.as_bytes());
+        b.extend_from_slice(data);
+        b
+    }
+
+    /// Little-endian bytes of f64 values.
+    fn f64_bytes(values: &[f64]) -> Vec<u8> {
+        values.iter().flat_map(|v| v.to_le_bytes()).collect()
+    }
+
+    /// The error message of parsing `bytes` as `x.npy`.
+    fn parse_err(bytes: &[u8]) -> String {
+        parse(bytes, "x.npy").unwrap_err().to_string()
+    }
+
+    /// The writer's header is NumPy's, byte for byte: version 1.0, header length 118 (0x76,
+    /// what `np.save` writes for 1-D and 2-D arrays: 10 + 118 = 128 bytes), the dict with `(3,)`
+    /// for one axis, `(2, 3)` for two and `()` for none, space padding and a final newline; the
+    /// values follow in little-endian order.
+    #[test]
+    fn written_headers_are_numpys_byte_for_byte() {
+        let dir = tempfile::tempdir().unwrap();
+        let cases: [(&[usize], NpyDtype, &str); 3] = [
+            (&[3], NpyDtype::F64, "(3,)"),
+            (&[2, 3], NpyDtype::F32, "(2, 3)"),
+            (&[], NpyDtype::F64, "()"),
+        ];
+        for (shape, dtype, shape_text) in cases {
+            let p = dir.path().join("h.npy");
+            let count: usize = shape.iter().product();
+            let values: Vec<f64> = (0..count).map(|i| i as f64 + 0.5).collect();
+            let mut w = NpyWriter::create(&p, dtype, shape).unwrap();
+            w.write_f64(&values).unwrap();
+            w.finish().unwrap();
+            let bytes = std::fs::read(&p).unwrap();
+            let descr = if dtype == NpyDtype::F32 { "<f4" } else { "<f8" };
+            let dict =
+                format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape_text}, }}");
+            assert_eq!(&bytes[..10], b"\x93NUMPY\x01\x00\x76\x00", "{shape:?}");
+            assert_eq!(&bytes[10..10 + dict.len()], dict.as_bytes(), "{shape:?}");
+            assert!(
+                bytes[10 + dict.len()..127].iter().all(|&b| b == b' '),
+                "{shape:?}"
+            );
+            assert_eq!(bytes[127], b'\n', "{shape:?}");
+            let data: Vec<u8> = match dtype {
+                NpyDtype::F32 => values
+                    .iter()
+                    .flat_map(|&v| (v as f32).to_le_bytes())
+                    .collect(),
+                NpyDtype::F64 => f64_bytes(&values),
+            };
+            assert_eq!(&bytes[128..], &data[..], "{shape:?}");
+        }
+    }
+
+    /// A header too long for version 1.0's u16 length (a shape of 22 000 axes) is written as
+    /// version 2.0 with a u32 length, still padded to 64 bytes, and reads back; a dict of 65 524
+    /// bytes, the longest whose padded header (65 526 bytes) still fits the u16, stays 1.0 (as
+    /// NumPy writes it).
+    #[test]
+    fn long_headers_switch_to_version_2_only_when_they_must() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("v2.npy");
+        let shape = vec![1; 22_000];
+        write_f32(&p, &shape, &[2.5]).unwrap();
+        let bytes = std::fs::read(&p).unwrap();
+        assert_eq!(&bytes[6..8], &[2, 0]);
+        let hlen = u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize;
+        assert_eq!(12 + hlen + 4, bytes.len());
+        assert_eq!((12 + hlen) % 64, 0);
+        assert_eq!(bytes[12 + hlen - 1], b'\n');
+        let a = read(&p).unwrap();
+        assert_eq!((a.shape, a.data), (shape, NpyData::F32(vec![2.5])));
+
+        // The dict is 53 bytes plus 3 per axis of one digit, 4 per axis of two: 21 821 axes of
+        // 1 and two of 10 make 53 + 3 * 21 821 + 2 * 4 = 65 524 bytes.
+        let mut shape = vec![1; 21_821];
+        shape.extend([10, 10]);
+        let values: Vec<f32> = (0..100).map(|i| i as f32).collect();
+        write_f32(&p, &shape, &values).unwrap();
+        let bytes = std::fs::read(&p).unwrap();
+        assert_eq!(
+            &bytes[6..10],
+            &[1, 0, 0xf6, 0xff],
+            "version 1.0, length 65 526"
+        );
+        assert_eq!(bytes.len(), 65_536 + 400);
+        assert_eq!(read(&p).unwrap().to_f32(), values);
+    }
+
+    /// Hand-made headers as other writers make them parse: version 2.0 and 3.0 (u32 length),
+    /// double-quoted keys, another key order with the shape first and no trailing comma, extra
+    /// spaces; f64 values are decoded in C order.
+    #[test]
+    fn parses_other_writers_headers() {
+        let values = [1.5, -2.0, 0.1, 1e300, -0.0, 7.0];
+        let headers = [
+            (
+                1,
+                "{'descr': '<f8', 'fortran_order': False, 'shape': (2, 3), }\n",
+            ),
+            (
+                2,
+                "{'descr': '<f8', 'fortran_order': False, 'shape': (2, 3), }\n",
+            ),
+            (
+                3,
+                "{\"descr\": \"<f8\", \"fortran_order\": False, \"shape\": (2, 3)}",
+            ),
+            (
+                1,
+                "{'shape': ( 2 , 3 ),'fortran_order' :False,'descr':'<f8'}",
+            ),
+        ];
+        for (version, header) in headers {
+            let a = parse(&raw_npy(version, header, &f64_bytes(&values)), "x.npy").unwrap();
+            assert_eq!(a.shape, [2, 3], "{header}");
+            assert_eq!(a.data, NpyData::F64(values.to_vec()), "{header}");
+        }
+        // A scalar (shape `()`) holds one value.
+        let a = parse(
+            &raw_npy(
+                1,
+                "{'descr': '<f4', 'fortran_order': False, 'shape': ()}",
+                &[0, 0, 0x80, 0x3f],
+            ),
+            "x.npy",
+        )
+        .unwrap();
+        assert_eq!((a.shape.len(), a.data), (0, NpyData::F32(vec![1.0])));
+    }
+
+    /// An array with no values (a zero-length axis) is a header that ends the file: it parses,
+    /// and is empty.
+    #[test]
+    fn zero_length_arrays_end_at_the_header() {
+        for shape in ["(0,)", "(2, 0)"] {
+            let header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {shape}, }}");
+            let a = parse(&raw_npy(1, &header, &[]), "x.npy").unwrap();
+            assert_eq!((a.len(), a.is_empty()), (0, true), "{shape}");
+            assert_eq!(a.to_f64(), Vec::<f64>::new());
+        }
+    }
+
+    /// Length, emptiness and conversions: f32 values widen exactly, f64 values round to the
+    /// nearest f32 (0.1 is 0.100000001490116119384765625 as f32).
+    #[test]
+    fn arrays_report_their_length_and_convert() {
+        let a = NpyArray {
+            shape: vec![2],
+            data: NpyData::F32(vec![0.1, -3.0]),
+        };
+        assert_eq!((a.len(), a.is_empty()), (2, false));
+        assert_eq!(a.to_f64(), [0.10000000149011612, -3.0]);
+        assert_eq!(a.to_f32(), [0.1, -3.0]);
+        let b = NpyArray {
+            shape: vec![3],
+            data: NpyData::F64(vec![0.1, 1e-50, 2.0]),
+        };
+        assert_eq!((b.len(), b.is_empty()), (3, false));
+        assert_eq!(b.to_f32(), [0.1f32, 0.0, 2.0]);
+        assert_eq!(b.to_f64(), [0.1, 1e-50, 2.0]);
+    }
+
+    /// Files too short, of another kind or version, or with a header that does not hold what
+    /// an array needs, are errors that name the file and the problem; the shortest files are
+    /// judged by their header (10 bytes are a whole 1.0 prefix, 12 a 2.0 one).
+    #[test]
+    fn bad_headers_are_errors_naming_the_problem() {
+        let magic_err = "not an .npy file (missing \\x93NUMPY magic)";
+        assert_eq!(
+            parse_err(b"\x93NUMPY\x01\x00\x00"),
+            format!("x.npy: {magic_err}")
+        );
+        assert_eq!(
+            parse_err(b"\x93NUMPZ\x01\x00\x00\x00"),
+            format!("x.npy: {magic_err}")
+        );
+        // A whole (empty) header: judged by what it lacks.
+        assert!(parse_err(&raw_npy(1, "", &[])).contains("no 'descr' in .npy header \"\""));
+        assert!(parse_err(&raw_npy(2, "", &[])).contains("no 'descr'"));
+        assert_eq!(
+            parse_err(b"\x93NUMPY\x02\x00\x00\x00\x00"),
+            "x.npy: truncated .npy header"
+        );
+        assert_eq!(
+            parse_err(b"\x93NUMPY\x04\x01\x00\x00"),
+            "x.npy: unsupported .npy format version 4.1"
+        );
+        let mut long = raw_npy(1, "{'descr': '<f4'}", &[]);
+        long[8] += 1;
+        assert_eq!(parse_err(&long), "x.npy: truncated .npy header");
+        let mut not_text = raw_npy(1, "{'descr': '<f4'}", &[]);
+        not_text[12] = 0xff;
+        assert_eq!(parse_err(&not_text), "x.npy: .npy header is not text");
+        let e = |header: &str| parse_err(&raw_npy(1, header, &[0; 8]));
+        assert!(e("{'fortran_order': False, 'shape': (2,)}").contains("no 'descr'"));
+        assert!(e("{'descr': '<f4', 'shape': (2,)}").contains("no 'fortran_order'"));
+        assert!(e("{'descr': '<f4', 'fortran_order': False}").contains("no 'shape'"));
+        // A value with nothing after it (no `,` or `}`) is missing.
+        assert!(e("{'fortran_order': False, 'shape': (2,), 'descr': '<f4'").contains("no 'descr'"));
+        assert_eq!(
+            e("{'descr': '<f4', 'fortran_order': True, 'shape': (2,)}"),
+            "x.npy: Fortran-ordered .npy arrays are not supported"
+        );
+        assert!(
+            e("{'descr': '<i4', 'fortran_order': False, 'shape': (2,)}")
+                .contains("unsupported .npy dtype \"<i4\"")
+        );
+        assert!(
+            e("{'descr': '<f4', 'fortran_order': False, 'shape': (2, x)}")
+                .contains("bad .npy shape \"(2, x)\"")
+        );
+        let huge = "{'descr': '<f4', 'fortran_order': False, 'shape': (4294967296, 4294967296)}";
+        assert_eq!(e(huge), "x.npy: shape [4294967296, 4294967296] overflows");
+        assert_eq!(
+            e("{'descr': '<f8', 'fortran_order': False, 'shape': (3,)}"),
+            "x.npy: shape [3] of <f8 needs 24 data bytes, the file has 8"
+        );
+        // A byte count beyond usize is reported saturated, not wrapped.
+        let e = parse_err(&raw_npy(
+            1,
+            "{'descr': '<f8', 'fortran_order': False, 'shape': (4611686018427387904,)}",
+            &[],
+        ));
+        assert!(
+            e.ends_with(&format!("needs {} data bytes, the file has 0", usize::MAX)),
+            "{e}"
+        );
+    }
+
+    /// The writer refuses a shape whose count overflows before creating anything, a write past
+    /// the shape's count, and a finish before it (errors naming the file and the counts); f32
+    /// values written to an f64 file are widened exactly.
+    #[test]
+    fn writer_counts_values_and_widens_f32() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("w.npy");
+        let e = NpyWriter::create(&p, NpyDtype::F32, &[usize::MAX, 2]).unwrap_err();
+        assert!(matches!(e, Error::InvalidArgument { .. }), "{e}");
+        assert!(e.to_string().contains("overflows"), "{e}");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+
+        let mut w = NpyWriter::create(&p, NpyDtype::F64, &[3]).unwrap();
+        w.write_f32(&[0.1, 2.0]).unwrap();
+        let e = w.write_f64(&[1.0, 2.0]).unwrap_err().to_string();
+        assert!(
+            e.contains("w.npy: 4 values written to an array of 3"),
+            "{e}"
+        );
+        w.write_f64(&[-1.0]).unwrap();
+        w.finish().unwrap();
+        assert_eq!(
+            read(&p).unwrap().data,
+            NpyData::F64(vec![0.10000000149011612, 2.0, -1.0])
+        );
+
+        let mut w = NpyWriter::create(&p, NpyDtype::F32, &[2, 2]).unwrap();
+        w.write_f32(&[1.0]).unwrap();
+        let e = w.finish().unwrap_err().to_string();
+        assert!(e.contains("w.npy: only 1 of 4 values written"), "{e}");
+        assert_eq!(
+            read(&p).unwrap().data,
+            NpyData::F64(vec![0.10000000149011612, 2.0, -1.0]),
+            "the unfinished file does not replace the finished one"
+        );
+    }
 }
