@@ -1103,4 +1103,232 @@ mod tests {
                 .contains("must have")
         );
     }
+
+    /// A MERL file's bytes: the three resolutions, then `stored` (stored numbers, channel-major).
+    fn merl_bytes(dims: [i32; 3], stored: &[f64]) -> Vec<u8> {
+        let mut b: Vec<u8> = dims.iter().flat_map(|d| d.to_le_bytes()).collect();
+        b.extend(stored.iter().flat_map(|v| v.to_le_bytes()));
+        b
+    }
+
+    /// The neighbouring f64s of 1, -1 and 0, by their known values: 1 + 2^-52 above 1 and
+    /// 1 - 2^-53 below it (the spacing halves below a power of two), mirrored for -1, and the
+    /// smallest subnormal, 2^-1074, either side of 0.
+    #[test]
+    fn ulp_steps_reach_the_neighbouring_f64() {
+        assert_eq!(step_ulp(1.0, true), 1.0 + f64::EPSILON);
+        assert_eq!(step_ulp(1.0, false), 1.0 - f64::EPSILON / 2.0);
+        assert_eq!(step_ulp(-1.0, true), -1.0 + f64::EPSILON / 2.0);
+        assert_eq!(step_ulp(-1.0, false), -1.0 - f64::EPSILON);
+        assert_eq!(step_ulp(0.0, true), 5e-324);
+        assert_eq!(step_ulp(0.0, false), -5e-324);
+        assert_eq!(step_ulp(1500.0, true), 1500.0 + 1024.0 * f64::EPSILON);
+    }
+
+    /// For every stored number s of a sweep (fractions and integers, 1e-5 to 1e5), and each
+    /// channel's scale, the writer's stored number for the value s * scale reads back as
+    /// s * scale exactly, negative markers as well; it is within 4 ulps of the quotient
+    /// (s * scale) / scale (not always s itself: the product rounds). A stored number beyond
+    /// the f64 range stays infinite, for `write_merl` to refuse.
+    #[test]
+    fn stored_numbers_read_back_exactly() {
+        for scale in MERL_SCALE {
+            for e in -5..=5 {
+                for i in 1..400 {
+                    let s = (i as f64 * 0.0137 + (i % 7) as f64) * 10f64.powi(e);
+                    let value = s * scale;
+                    let got = stored_number(value, scale);
+                    assert_eq!(got * scale, value, "s = {s}, scale = {scale}");
+                    let quotient = value / scale;
+                    let ulps = (got.to_bits() as i64 - quotient.to_bits() as i64).abs();
+                    assert!(ulps <= 4, "{ulps} ulps from {quotient}");
+                    assert_eq!(stored_number(-value, scale) * scale, -value);
+                }
+            }
+        }
+        assert_eq!(stored_number(0.0, MERL_SCALE[0]), 0.0);
+        assert!(stored_number(1e306, MERL_SCALE[0]).is_infinite());
+    }
+
+    /// Files too short for the header, or of a resolution with an empty axis (zero or
+    /// negative), or the wrong size for their resolution, are errors naming the file and the
+    /// numbers (12 bytes are a whole header, judged by its size).
+    #[test]
+    fn bad_headers_and_sizes_are_named() {
+        let e = |b: &[u8]| parse_merl(b, "m.binary").unwrap_err().to_string();
+        assert_eq!(
+            e(&[0; 11]),
+            "m.binary: truncated MERL file: 11 bytes, the header alone needs 12"
+        );
+        assert_eq!(
+            e(&merl_bytes([1, 1, 1], &[])),
+            "m.binary: MERL file of resolution [1, 1, 1] must have 36 bytes, it has 12"
+        );
+        for dims in [[0, 2, 2], [2, -1, 2], [2, 2, 0]] {
+            assert_eq!(
+                e(&merl_bytes(dims, &[0.0; 24])),
+                format!("m.binary: bad MERL resolution {dims:?} (expected e.g. 90 90 180)")
+            );
+        }
+        let big = e(&merl_bytes([1 << 20, 2, 2], &[]));
+        assert!(
+            big.starts_with("m.binary: bad MERL resolution [1048576, 2, 2]: invalid grid"),
+            "{big}"
+        );
+        let m = parse_merl(&merl_bytes([1, 1, 1], &[1500.0, 1500.0, -3.0]), "m.binary").unwrap();
+        assert_eq!(m.values(), [1.0, 1.15, -3.0 * MERL_SCALE[2]]);
+        assert_eq!(m.grid(), &AngularGrid::new(1, 1, 1).unwrap());
+        // A NaN's message gives its byte offset: 12 + 8 * index.
+        let e = e(&merl_bytes([1, 1, 2], &[0.0, 0.0, 0.0, f64::NAN, 0.0, 0.0]));
+        assert!(
+            e.contains("value index 3 (byte offset 36; channel G, cell 0,0,1)"),
+            "{e}"
+        );
+    }
+
+    /// Folding a full file: each MERL cell is the mean of bins k and k + 180 when both are
+    /// measured, the measured one when the other is a marker, and the larger marker when both
+    /// are markers.
+    #[test]
+    fn full_files_fold_each_pair_of_phi_d_bins() {
+        let full = AngularGrid::new(90, 90, 360).unwrap();
+        let merl = AngularGrid::MERL;
+        let n = full.len();
+        let mut values = vec![0.25; 3 * n];
+        let mut set = |c: usize, i: usize, j: usize, k: usize, a: f64, b: f64| {
+            values[c * n + full.index(i, j, k)] = a;
+            values[c * n + full.index(i, j, k + 180)] = b;
+        };
+        set(0, 1, 2, 3, 1.0, 3.0);
+        set(1, 4, 5, 6, 2.0, -1.0);
+        set(2, 7, 8, 9, -1.0, 5.0);
+        set(2, 10, 11, 179, -3.0, -2.0);
+        set(0, 12, 13, 0, -2.0, -3.0);
+        let m = fold_full_phi_d(full, &values);
+        assert_eq!(m.grid(), &merl);
+        assert_eq!(m.values().len(), 3 * merl.len());
+        for (c, i, j, k, want) in [
+            (0, 1, 2, 3, 2.0),
+            (1, 4, 5, 6, 2.0),
+            (2, 7, 8, 9, 5.0),
+            (2, 10, 11, 179, -2.0),
+            (0, 12, 13, 0, -2.0),
+            (1, 89, 89, 179, 0.25),
+        ] {
+            assert_eq!(m.value(c, merl.index(i, j, k)), want, "{c} {i} {j} {k}");
+        }
+    }
+
+    /// A BRDF needs exactly 3 values per cell; `values` gives them back as given, channel-major,
+    /// and dataset order (`flat * 3 + c`) lands at `c * n + flat`.
+    #[test]
+    fn values_are_channel_major() {
+        let grid = AngularGrid::new(2, 2, 4).unwrap();
+        let n = grid.len();
+        let e = MerlBrdf::new(grid, vec![0.0; 3 * n - 1])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("needs 48 values, got 47"), "{e}");
+        let e = MerlBrdf::from_dataset_order(grid, &[0.0; 49])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("need 48 values, got 49"), "{e}");
+        let values: Vec<f64> = (0..3 * n).map(|i| i as f64).collect();
+        assert_eq!(
+            MerlBrdf::new(grid, values.clone()).unwrap().values(),
+            values
+        );
+        let dataset: Vec<f32> = (0..3 * n).map(|i| i as f32).collect();
+        let m = MerlBrdf::from_dataset_order(grid, &dataset).unwrap();
+        for flat in 0..n {
+            for c in 0..3 {
+                assert_eq!(m.value(c, flat), (flat * 3 + c) as f64);
+            }
+        }
+    }
+
+    /// On the file's own grid: cells below the horizon are counted and stored as 0; a measured
+    /// 0 is a value, not a marker (kept as 0, and counted in a marker's mean: the marker
+    /// between a 0 and a 4 is 2).
+    #[test]
+    fn measured_zeros_are_values_not_markers() {
+        let grid = AngularGrid::new(4, 4, 8).unwrap();
+        let n = grid.len();
+        let mask = grid.validity_mask();
+        let below = mask.iter().filter(|ok| !**ok).count();
+        assert!(below > 0);
+        // Channel 0 is 4 everywhere but a marker at (0, 0, 4) and a measured 0 at each of the
+        // other cells of its ring-1 box.
+        let mut values = vec![4.0; 3 * n];
+        let marker = grid.index(0, 0, 4);
+        for a in 0..2 {
+            for b in 0..2 {
+                for d in 3..6 {
+                    values[grid.index(a, b, d)] = 0.0;
+                }
+            }
+        }
+        values[marker] = -1.0;
+        // Its 11 neighbours are all 0: the mean is 0, and the cell counts as filled.
+        let (v, r) = MerlBrdf::new(grid, values.clone())
+            .unwrap()
+            .to_dataset_order();
+        assert_eq!(r.below_horizon_cells, below);
+        assert_eq!((r.markers_filled, r.negatives_clamped), (1, 0));
+        assert_eq!(v[marker * 3], 0.0);
+        assert_eq!(v[grid.index(1, 1, 4) * 3], 0.0, "a measured 0 stays 0");
+        // One neighbour 4 more, and the rest 0: 4 / 11.
+        values[grid.index(1, 1, 5)] = 4.0;
+        let (v, _) = MerlBrdf::new(grid, values).unwrap().to_dataset_order();
+        assert_eq!(v[marker * 3], (4.0f64 / 11.0) as f32);
+    }
+
+    /// `Average` resampling averages every measured value that falls in a target bin, zeros
+    /// included: fine phi_d bins 3K, 3K + 1, 3K + 2 (values 0, 2, 4) land in coarse bin K,
+    /// whose mean is 2 (3 if zeros were left out); near the pole every cell is above the
+    /// horizon, so each bin gets whole triples.
+    #[test]
+    fn average_resampling_counts_measured_zeros() {
+        let fine = AngularGrid::new(12, 12, 24).unwrap();
+        let coarse = AngularGrid::new(4, 4, 8).unwrap();
+        let n = fine.len();
+        let values = (0..3 * n)
+            .map(|i| 2.0 * (fine.unindex(i % n).2 % 3) as f64)
+            .collect();
+        let (v, r) = MerlBrdf::new(fine, values)
+            .unwrap()
+            .resample(&coarse, Resampling::Average);
+        for k in 0..8 {
+            let t = coarse.index(0, 0, k);
+            assert_eq!(&v[3 * t..3 * t + 3], &[2.0; 3], "bin {k}");
+        }
+        let below = coarse.validity_mask().iter().filter(|ok| !**ok).count();
+        assert_eq!(r.below_horizon_cells, below);
+        assert_eq!(r.values, 3 * (coarse.len() - below));
+    }
+
+    /// A lookup is 0 when either direction is at or below the horizon, a negative marker
+    /// reads as 0, the output needs exactly 3 slots, and the channels are RGB.
+    #[test]
+    fn lookups_below_the_horizon_or_at_markers_read_zero() {
+        let grid = AngularGrid::new(2, 2, 4).unwrap();
+        let n = grid.len();
+        let up = [0.0, 0.0, 1.0];
+        let down = [0.6, 0.0, -0.8];
+        let brdf = MerlBrdf::new(grid, vec![0.5; 3 * n]).unwrap();
+        assert_eq!(brdf.channels(), Channels::Rgb);
+        let read = |b: &MerlBrdf, wi: Vec3, wo: Vec3| {
+            let mut out = [9.0; 3];
+            b.eval(wi, wo, &mut out).unwrap();
+            out
+        };
+        assert_eq!(read(&brdf, up, up), [0.5; 3]);
+        assert_eq!(read(&brdf, up, down), [0.0; 3]);
+        assert_eq!(read(&brdf, down, up), [0.0; 3]);
+        assert_eq!(read(&brdf, [1.0, 0.0, 0.0], up), [0.0; 3]);
+        let markers = MerlBrdf::new(grid, vec![-0.5; 3 * n]).unwrap();
+        assert_eq!(read(&markers, up, up), [0.0; 3]);
+        let mut short = [0.0; 2];
+        assert!(brdf.eval(up, up, &mut short).is_err());
+    }
 }
