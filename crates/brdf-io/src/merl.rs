@@ -743,16 +743,14 @@ mod tests {
                 + (k % 180) as f64 * 1e-4
                 + if k >= 180 { 0.5 } else { 0.0 }
         };
-        let mut bytes = Vec::with_capacity(12 + 24 * full.len());
-        for d in [90i32, 90, 360] {
-            bytes.extend_from_slice(&d.to_le_bytes());
-        }
+        let mut values = Vec::with_capacity(3 * full.len());
         for c in 0..3 {
             for flat in 0..full.len() {
                 let (i, j, k) = full.unindex(flat);
-                bytes.extend_from_slice(&stored(c, i, j, k).to_le_bytes());
+                values.push(stored(c, i, j, k));
             }
         }
+        let bytes = merl_bytes([90, 90, 360], &values);
         let brdf = parse_merl(&bytes, "full.binary").unwrap();
         assert_eq!(brdf.grid(), &AngularGrid::MERL);
         let merl = AngularGrid::MERL;
@@ -796,14 +794,10 @@ mod tests {
     fn non_finite_values_are_refused_negative_markers_kept() {
         let grid = AngularGrid::new(2, 2, 4).unwrap();
         let n = grid.len();
-        let mut bytes = Vec::new();
-        for d in [2i32, 2, 4] {
-            bytes.extend_from_slice(&d.to_le_bytes());
-        }
-        for i in 0..3 * n {
-            let v = if i == 5 { -1.0 } else { 0.5 * i as f64 };
-            bytes.extend_from_slice(&v.to_le_bytes());
-        }
+        let values: Vec<f64> = (0..3 * n)
+            .map(|i| if i == 5 { -1.0 } else { 0.5 * i as f64 })
+            .collect();
+        let bytes = merl_bytes([2, 2, 4], &values);
         let ok = parse_merl(&bytes, "ok.binary").unwrap();
         assert_eq!(ok.value(0, 5), -MERL_SCALE[0]);
         assert_eq!(ok.value(1, 3), 0.5 * (n + 3) as f64 * MERL_SCALE[1]);
@@ -1091,11 +1085,8 @@ mod tests {
     fn rejects_bad_sizes() {
         let e = parse_merl(&[0u8; 5], "m.binary").unwrap_err().to_string();
         assert!(e.contains("m.binary") && e.contains("truncated"), "{e}");
-        let mut b = Vec::new();
-        for d in [2i32, 2, 2] {
-            b.extend_from_slice(&d.to_le_bytes());
-        }
-        b.extend_from_slice(&[0u8; 16]);
+        // Far fewer values than the resolutions in the header call for.
+        let b = merl_bytes([2, 2, 2], &[0.0; 2]);
         assert!(
             parse_merl(&b, "m.binary")
                 .unwrap_err()
