@@ -543,6 +543,73 @@ mod tests {
         assert_eq!(read(&p).unwrap().to_f32(), values);
     }
 
+    /// Padding at a 64-byte boundary, by hand from the format (prefix 10 + dict + newline,
+    /// rounded up to 64): a dict of 117 bytes (53 + 3 per one-digit axis + 4 per two-digit
+    /// one: `(10, 1, ...)` with 20 ones) exactly fills 128 bytes, so the header (length 118)
+    /// has no space before its newline; a dict of 118 (two 10s, 19 ones) leaves the newline
+    /// one byte over, so the header grows to 192 bytes (length 182) with 63 spaces.
+    #[test]
+    fn headers_ending_at_or_one_byte_past_a_64_byte_boundary_are_padded_to_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("edge.npy");
+        let one_ten: Vec<usize> = [10].into_iter().chain([1; 20]).collect();
+        let two_tens: Vec<usize> = [10, 10].into_iter().chain([1; 19]).collect();
+        let cases: [(Vec<usize>, usize, u16, usize); 2] =
+            [(one_ten, 117, 118, 0), (two_tens, 118, 182, 63)];
+        for (shape, dict_len, hlen, spaces) in cases {
+            let count: usize = shape.iter().product();
+            let values: Vec<f32> = (0..count).map(|i| i as f32 - 0.25).collect();
+            write_f32(&p, &shape, &values).unwrap();
+            let bytes = std::fs::read(&p).unwrap();
+            let axes: Vec<String> = shape.iter().map(|n| n.to_string()).collect();
+            let dict = format!(
+                "{{'descr': '<f4', 'fortran_order': False, 'shape': ({}), }}",
+                axes.join(", ")
+            );
+            assert_eq!(dict.len(), dict_len, "{dict}");
+            let data_at = 10 + usize::from(hlen);
+            assert_eq!(data_at % 64, 0);
+            assert_eq!(&bytes[..8], b"\x93NUMPY\x01\x00", "{dict_len}");
+            assert_eq!(&bytes[8..10], &hlen.to_le_bytes(), "{dict_len}");
+            assert_eq!(&bytes[10..10 + dict_len], dict.as_bytes(), "{dict_len}");
+            assert_eq!(
+                &bytes[10 + dict_len..data_at - 1],
+                &vec![b' '; spaces][..],
+                "{dict_len}"
+            );
+            assert_eq!(bytes[data_at - 1], b'\n', "{dict_len}");
+            assert_eq!(bytes.len(), data_at + 4 * count, "{dict_len}");
+            assert_eq!(read(&p).unwrap().to_f32(), values, "{dict_len}");
+        }
+    }
+
+    /// The first dicts too long for version 1.0, as NumPy decides it (its padding is 1 to 64
+    /// bytes, never 0, so 10 + dict + 1 + padding must stay within 10 + 65 535): a dict of
+    /// 65 525 bytes (21 824 axes of 1: 53 + 3 * 21 824) and one of 65 526 (one of them 10)
+    /// are written as 2.0, where 12 + dict + 1 rounds up to 65 600 bytes, a u32 header length
+    /// of 65 588 (0x0001_0034); both read back. (65 524 bytes stay 1.0, pinned above.)
+    #[test]
+    fn dicts_of_65525_and_65526_bytes_are_written_as_version_2() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("v2.npy");
+        let ones = vec![1; 21_824];
+        let one_ten: Vec<usize> = [10].into_iter().chain([1; 21_823]).collect();
+        for (shape, count) in [(ones, 1), (one_ten, 10)] {
+            let values: Vec<f32> = (0..count).map(|i| i as f32 + 0.5).collect();
+            write_f32(&p, &shape, &values).unwrap();
+            let bytes = std::fs::read(&p).unwrap();
+            assert_eq!(
+                &bytes[6..12],
+                &[2, 0, 0x34, 0x00, 0x01, 0x00],
+                "version 2.0, length 65 588 ({count} values)"
+            );
+            assert_eq!(bytes[65_599], b'\n', "{count} values");
+            assert_eq!(bytes.len(), 65_600 + 4 * count);
+            let a = read(&p).unwrap();
+            assert_eq!((a.to_f32(), a.shape), (values, shape));
+        }
+    }
+
     /// Hand-made headers as other writers make them parse: version 2.0 and 3.0 (u32 length),
     /// double-quoted keys, another key order with the shape first and no trailing comma, extra
     /// spaces; f64 values are decoded in C order.
