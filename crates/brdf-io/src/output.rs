@@ -1046,6 +1046,10 @@ mod tests {
         use std::io::Read;
         let dir = tempfile::tempdir().unwrap();
         let (p, mut reader) = fifo(dir.path(), "pipe");
+        assert!(
+            !is_fifo(dir.path()),
+            "the check tells a FIFO from a directory"
+        );
         write_file_atomic(&p, b"through the pipe").unwrap();
         assert!(is_fifo(&p));
         let mut got = [0u8; 16];
@@ -1073,5 +1077,423 @@ mod tests {
         // (Not committed when the check above fails: as root a rename would replace /dev/null.)
         out.commit().unwrap();
         assert!(std::fs::metadata(p).unwrap().file_type().is_char_device());
+    }
+
+    /// Bytes free for this user by `stat -f` (blocks available to non-root users times the
+    /// fundamental block size): another code path than `statvfs` through rustix.
+    #[cfg(target_os = "linux")]
+    fn stat_available(dir: &Path) -> u64 {
+        let out = std::process::Command::new("stat")
+            .args(["-f", "-c", "%a %S"])
+            .arg(dir)
+            .output()
+            .unwrap();
+        assert!(out.status.success());
+        let text = String::from_utf8(out.stdout).unwrap();
+        let (blocks, size) = text.trim().split_once(' ').unwrap();
+        blocks.parse::<u64>().unwrap() * size.parse::<u64>().unwrap()
+    }
+
+    /// Free space is what `stat -f` reports for the directory (within 5 %: other processes
+    /// write to the same file system between the two readings; a wrong formula is off by
+    /// orders of magnitude). `/proc` has none, so an output there is refused with an error
+    /// naming the output, what it is and both sizes; standard output always passes, and so
+    /// does an output that fits.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn free_space_is_the_file_systems_and_outputs_beyond_it_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let want = stat_available(dir.path());
+        let got = available_space(dir.path()).unwrap();
+        assert!(want > 1 << 20, "test file system nearly full: {want}");
+        assert!(got.abs_diff(want) <= want / 20, "{got} vs {want}");
+        assert_eq!(available_space(Path::new("/proc")), Some(0));
+
+        let e = ensure_space(Path::new("/proc/out.npy"), 5, "the table").unwrap_err();
+        let Error::NoSpace {
+            path,
+            what,
+            needed,
+            available,
+        } = &e
+        else {
+            panic!("{e}")
+        };
+        assert_eq!(
+            (path.as_path(), what.as_str(), *needed, *available),
+            (Path::new("/proc/out.npy"), "the table", 5, 0)
+        );
+        let out = dir.path().join("a.npy");
+        ensure_space(&out, 1, "the table").unwrap();
+        assert!(matches!(
+            ensure_space(&out, u64::MAX, "the table"),
+            Err(Error::NoSpace { .. })
+        ));
+        ensure_space(Path::new(STDOUT), u64::MAX, "the table").unwrap();
+    }
+
+    /// The length of an output is its file's; directories, missing files and special files
+    /// have none.
+    #[cfg(unix)]
+    #[test]
+    fn output_len_is_a_regular_files_length() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.csv");
+        std::fs::write(&p, b"12345").unwrap();
+        assert_eq!(output_len(&p), Some(5));
+        assert_eq!(output_len(dir.path()), None);
+        assert_eq!(output_len(&dir.path().join("missing")), None);
+        assert_eq!(output_len(Path::new("/dev/null")), None);
+    }
+
+    /// Append mode is read from the open file's flags: a file opened to append is, one opened
+    /// to write (or only to read) is not.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn append_mode_is_read_from_the_descriptor() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("log.txt");
+        std::fs::write(&p, b"x").unwrap();
+        let open = |append: bool| {
+            std::fs::OpenOptions::new()
+                .write(true)
+                .append(append)
+                .open(&p)
+                .unwrap()
+        };
+        assert!(is_append_mode(&open(true)));
+        assert!(!is_append_mode(&open(false)));
+        assert!(!is_append_mode(&File::open(&p).unwrap()));
+    }
+
+    /// An output writes, seeks and truncates its temporary file: `write` reports the bytes
+    /// taken, a seek back overwrites, `set_len` cuts the file; the committed file holds the
+    /// result. `path` is the path given; a regular file is a seekable, non-direct output.
+    #[test]
+    fn outputs_write_seek_and_set_their_length() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.bin");
+        let mut out = AtomicOutput::create_seekable(&p, "a dataset store").unwrap();
+        assert_eq!(out.path(), p);
+        assert!(!out.is_direct());
+        assert_eq!(out.write(b"abcdef").unwrap(), 6);
+        assert_eq!(out.seek(SeekFrom::Start(1)).unwrap(), 1);
+        out.write_all(b"XY").unwrap();
+        assert_eq!(out.seek(SeekFrom::End(0)).unwrap(), 6);
+        out.set_len(4).unwrap();
+        out.flush().unwrap();
+        assert_eq!(out.file().metadata().unwrap().len(), 4);
+        out.commit().unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"aXYd");
+    }
+
+    /// Special files are written in place and have no length to set (`set_len` on
+    /// `/dev/null` passes); standard output (`-`) is written directly and named as such.
+    #[cfg(unix)]
+    #[test]
+    fn special_outputs_are_direct_and_named() {
+        let null = AtomicOutput::create(Path::new("/dev/null")).unwrap();
+        assert!(null.is_direct());
+        null.set_len(10).unwrap();
+        assert_eq!(null.path(), Path::new("/dev/null"));
+        let stdout = AtomicOutput::create(STDOUT).unwrap();
+        assert!(stdout.is_direct());
+        assert_eq!(stdout.path(), Path::new("<standard output>"));
+        // Nothing written, so nothing to flush into the test's output.
+        drop(stdout);
+    }
+
+    /// A directory that does not exist cannot take an output: the check fails naming it.
+    #[test]
+    fn missing_directories_are_not_writable() {
+        let dir = tempfile::tempdir().unwrap();
+        let missing = dir.path().join("missing");
+        let e = check_writable_dir(&missing).unwrap_err();
+        let Error::Io { path, error } = &e else {
+            panic!("{e}")
+        };
+        assert_eq!(path, &missing);
+        assert_eq!(error.kind(), std::io::ErrorKind::NotFound);
+        check_writable_dir(dir.path()).unwrap();
+    }
+
+    /// The variable that makes a test binary run a child's part of a test (in a process of
+    /// its own: what it does would disturb the other tests running in this one).
+    #[cfg(target_os = "linux")]
+    const CHILD_DIR: &str = "SPECGP_OUTPUT_TEST_CHILD_DIR";
+
+    /// Runs this test binary's test `name` alone, as a child given `dir` (`setup` may change
+    /// its working directory or standard output); its status and stderr.
+    #[cfg(target_os = "linux")]
+    fn run_child_with(
+        name: &str,
+        dir: &Path,
+        setup: impl FnOnce(&mut std::process::Command),
+    ) -> (Option<i32>, String) {
+        let mut command = std::process::Command::new(std::env::current_exe().unwrap());
+        command
+            .args([name, "--exact", "--nocapture", "--test-threads=1"])
+            .env(CHILD_DIR, dir);
+        setup(&mut command);
+        let out = command.output().unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    }
+
+    /// [`run_child_with`] without changes.
+    #[cfg(target_os = "linux")]
+    fn run_child(name: &str, dir: &Path) -> (Option<i32>, String) {
+        run_child_with(name, dir, |_| {})
+    }
+
+    /// The names of the entries of `dir`, sorted.
+    #[cfg(target_os = "linux")]
+    fn names(dir: &Path) -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        v.sort();
+        v
+    }
+
+    /// `remove_unfinished_outputs` deletes every temporary file and staging directory (with
+    /// its files) of the process and counts them; an output committed afterwards fails, a
+    /// second call finds nothing left to delete, targets are untouched.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn unfinished_outputs_are_removed_and_counted() {
+        if let Some(dir) = std::env::var_os(CHILD_DIR) {
+            let dir = PathBuf::from(dir);
+            std::fs::write(dir.join("a.bin"), b"old").unwrap();
+            let mut out = AtomicOutput::create(dir.join("a.bin")).unwrap();
+            out.write_all(b"new").unwrap();
+            let stage = StagingDir::create(dir.join("out")).unwrap();
+            std::fs::write(stage.path().join("r.md"), b"r").unwrap();
+            assert_eq!(remove_unfinished_outputs(), 2);
+            assert!(out.commit().is_err());
+            assert_eq!(remove_unfinished_outputs(), 0);
+            drop(stage);
+            return;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let (code, stderr) = run_child(
+            "output::tests::unfinished_outputs_are_removed_and_counted",
+            dir.path(),
+        );
+        assert_eq!(code, Some(0), "{stderr}");
+        assert_eq!(names(dir.path()), ["a.bin", "out"]);
+        assert_eq!(std::fs::read(dir.path().join("a.bin")).unwrap(), b"old");
+        assert!(names(&dir.path().join("out")).is_empty());
+    }
+
+    /// The signal handler installs once (a second install is an error saying so); on SIGTERM
+    /// it removes the unfinished outputs, says how many as the program, and exits with
+    /// 128 + 15 = 143, as a shell reports a command SIGTERM ended.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn signals_remove_unfinished_outputs_and_exit_128_plus_the_signal() {
+        if let Some(dir) = std::env::var_os(CHILD_DIR) {
+            let dir = PathBuf::from(dir);
+            remove_unfinished_outputs_on_signal("prog").unwrap();
+            let e = remove_unfinished_outputs_on_signal("prog").unwrap_err();
+            eprintln!("second install: {e}");
+            let mut out = AtomicOutput::create(dir.join("a.bin")).unwrap();
+            out.write_all(b"half").unwrap();
+            signal_hook::low_level::raise(signal_hook::consts::SIGTERM).unwrap();
+            // The handler's thread exits the process.
+            std::thread::sleep(std::time::Duration::from_secs(30));
+            unreachable!("SIGTERM did not end the process");
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let (code, stderr) = run_child(
+            "output::tests::signals_remove_unfinished_outputs_and_exit_128_plus_the_signal",
+            dir.path(),
+        );
+        assert_eq!(code, Some(143), "{stderr}");
+        assert!(
+            stderr.contains(
+                "second install: invalid argument: cannot install the signal handler that \
+                 cleans up interrupted outputs: it is installed already"
+            ),
+            "{stderr}"
+        );
+        assert!(
+            stderr.contains("prog: interrupted; removed 1 unfinished output file(s)"),
+            "{stderr}"
+        );
+        assert!(names(dir.path()).is_empty(), "{:?}", names(dir.path()));
+    }
+
+    /// What `f` logs at WARN level and above (plain text), with its result.
+    fn warnings_of<T>(f: impl FnOnce() -> T) -> (T, String) {
+        use std::sync::Arc;
+        #[derive(Clone, Default)]
+        struct Buffer(Arc<Mutex<Vec<u8>>>);
+        impl Write for Buffer {
+            fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+                self.0.lock().unwrap().extend_from_slice(bytes);
+                Ok(bytes.len())
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+        }
+        let buffer = Buffer::default();
+        let writer = buffer.clone();
+        let subscriber = tracing_subscriber::fmt()
+            .with_writer(move || writer.clone())
+            .with_max_level(tracing::Level::WARN)
+            .with_ansi(false)
+            .finish();
+        let out = tracing::subscriber::with_default(subscriber, f);
+        let text = String::from_utf8(buffer.0.lock().unwrap().clone()).unwrap();
+        (out, text)
+    }
+
+    /// Another run's temporary files of the same output are warned of, by path, as "a
+    /// temporary file" / "it" for one and "temporary files" / "them" for several (listed with
+    /// ", "); another run's staging directory likewise; nothing is said when there is none.
+    #[test]
+    fn other_runs_leftovers_are_warned_of() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let (out, said) = warnings_of(|| AtomicOutput::create(d.join("a.csv")).unwrap());
+        assert_eq!(said, "");
+        drop(out);
+        let one = d.join(".a.csv.AbCdEf.tmp");
+        std::fs::write(&one, "x").unwrap();
+        let (out, said) = warnings_of(|| AtomicOutput::create(d.join("a.csv")).unwrap());
+        drop(out);
+        let want = format!(
+            "{} holds a temporary file of another run of this output (running now, or killed \
+             before it could clean up): {}; delete it when no run is using it",
+            d.display(),
+            one.display()
+        );
+        assert!(said.contains(&want), "{said}");
+        let two = d.join(".a.csv.GhIjKl.tmp");
+        std::fs::write(&two, "x").unwrap();
+        let (out, said) = warnings_of(|| AtomicOutput::create(d.join("a.csv")).unwrap());
+        drop(out);
+        let want = format!(
+            "{} holds temporary files of another run of this output (running now, or killed \
+             before it could clean up): {}, {}; delete them when no run is using them",
+            d.display(),
+            one.display(),
+            two.display()
+        );
+        assert!(said.contains(&want), "{said}");
+
+        let out_dir = d.join("out");
+        let (first, said) = warnings_of(|| StagingDir::create(&out_dir).unwrap());
+        assert_eq!(said, "");
+        let (second, said) = warnings_of(|| StagingDir::create(&out_dir).unwrap());
+        assert!(
+            said.contains(&format!(
+                "holds a staging directory of another run of this output (running now, or \
+                 killed before it could clean up): {}; delete it",
+                first.path().display()
+            )),
+            "{said}"
+        );
+        drop((first, second));
+    }
+
+    /// Relative outputs are created in the working directory, so a read-only one refuses
+    /// them, naming `.`, as any other read-only directory (a file, a staging directory, a
+    /// missing output directory), and is left empty.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn relative_outputs_in_a_read_only_working_directory_are_refused() {
+        use std::os::unix::fs::PermissionsExt;
+        if let Some(dir) = std::env::var_os(CHILD_DIR) {
+            assert_eq!(std::env::current_dir().unwrap(), Path::new(&dir));
+            let refused = |e: Error| {
+                let Error::Io { path, error } = &e else {
+                    panic!("{e}")
+                };
+                assert_eq!(path, Path::new("."), "{e}");
+                assert_eq!(error.kind(), std::io::ErrorKind::PermissionDenied, "{e}");
+            };
+            refused(write_file_atomic("a.csv", b"x").unwrap_err());
+            refused(StagingDir::create("out").unwrap_err());
+            refused(StagingDir::create("out/deeper").unwrap_err());
+            return;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let ro = dir.path().join("ro");
+        std::fs::create_dir(&ro).unwrap();
+        std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o555)).unwrap();
+        let (code, stderr) = run_child_with(
+            "output::tests::relative_outputs_in_a_read_only_working_directory_are_refused",
+            &ro,
+            |c| {
+                c.current_dir(&ro);
+            },
+        );
+        assert_eq!(code, Some(0), "{stderr}");
+        assert!(names(&ro).is_empty(), "{:?}", names(&ro));
+    }
+
+    /// An output path that is a symbolic link loop is an error naming it (its metadata cannot
+    /// be read), and the link is not replaced by a regular file.
+    #[cfg(unix)]
+    #[test]
+    fn symlink_loops_are_errors_and_stay_links() {
+        let dir = tempfile::tempdir().unwrap();
+        let link = dir.path().join("loop.csv");
+        std::os::unix::fs::symlink(&link, &link).unwrap();
+        let e = write_file_atomic(&link, b"x").unwrap_err();
+        let Error::Io { path, .. } = &e else {
+            panic!("{e}")
+        };
+        assert_eq!(path, &link);
+        let meta = std::fs::symlink_metadata(&link).unwrap();
+        assert!(meta.file_type().is_symlink());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    /// A seeking writer takes standard output only at offset 0 (`/dev/null`, whose offset
+    /// stays 0), and refuses it, naming it, once something was written to it (a file
+    /// truncated by `>`) or when it appends (`>>`).
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn seeking_writers_take_standard_output_only_at_its_start() {
+        if std::env::var_os(CHILD_DIR).is_some() {
+            println!("written first");
+            std::io::stdout().flush().unwrap();
+            match AtomicOutput::create_seekable(STDOUT, "a dataset store") {
+                Ok(out) => eprintln!("seekable: ok, direct {}", out.is_direct()),
+                Err(e) => eprintln!("seekable: {e}"),
+            }
+            return;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let name = "output::tests::seeking_writers_take_standard_output_only_at_its_start";
+        let refused = "seekable: <standard output>: cannot write a dataset store there";
+        let file = |append: bool| {
+            std::fs::OpenOptions::new()
+                .create(true)
+                .write(true)
+                .append(append)
+                .truncate(!append)
+                .open(dir.path().join(if append { "b.out" } else { "a.out" }))
+                .unwrap()
+        };
+        let (code, stderr) = run_child_with(name, dir.path(), |c| {
+            c.stdout(File::create("/dev/null").unwrap());
+        });
+        assert_eq!(code, Some(0), "{stderr}");
+        assert!(stderr.contains("seekable: ok, direct true"), "{stderr}");
+        for append in [false, true] {
+            let (code, stderr) = run_child_with(name, dir.path(), |c| {
+                c.stdout(file(append));
+            });
+            assert_eq!(code, Some(0), "{stderr}");
+            assert!(stderr.contains(refused), "append {append}: {stderr}");
+        }
     }
 }
