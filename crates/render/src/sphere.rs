@@ -1499,6 +1499,132 @@ mod tests {
         assert!(dot(t, b).abs() < 1e-12 && dot(t, [0.6, 0.0, 0.8]).abs() < 1e-12);
     }
 
+    /// `basis` completes any unit normal of the upper hemisphere (the pole and the horizon
+    /// included) to a right-handed orthonormal frame: t x b = n.
+    #[test]
+    fn basis_is_a_right_handed_orthonormal_frame() {
+        let g = (1.0f64 - 0.8 * 0.8 - 0.5 * 0.5).sqrt();
+        for n in [
+            [0.0, 0.0, 1.0],
+            [0.6, 0.0, 0.8],
+            [0.0, -0.6, 0.8],
+            [-0.8, 0.5, g],
+            [0.3, -0.4, 0.866_025_403_784_438_6],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+        ] {
+            let (t, b) = basis(n);
+            for (u, v) in [(t, t), (b, b), (n, n)] {
+                assert!((dot(u, v) - 1.0).abs() < 1e-12, "{n:?}: {t:?} {b:?}");
+            }
+            for (u, v) in [(t, b), (t, n), (b, n)] {
+                assert!(dot(u, v).abs() < 1e-12, "{n:?}: {t:?} {b:?}");
+            }
+            let cross = [
+                t[1] * b[2] - t[2] * b[1],
+                t[2] * b[0] - t[0] * b[2],
+                t[0] * b[1] - t[1] * b[0],
+            ];
+            assert!(cross.iter().zip(n).all(|(c, m)| (c - m).abs() < 1e-12));
+        }
+    }
+
+    /// The environment quadrature's samples are where and as heavy as its construction says
+    /// (views along the normal and 40 degrees off it, azimuth 120 degrees: the horizon cuts
+    /// none of the cones): per cone of half-angle 2, 7 and 25 degrees, [`ENV_CAP`] directions
+    /// about the mirror direction r at cos = inner - (k + 1/2) / m (inner - cos cap) (inner:
+    /// the cosine of the previous cone), at golden-angle azimuths in `basis(r)`'s frame, each
+    /// of weight 2 pi (inner - cos cap) / m times its cos theta_i; then the cosine-weighted
+    /// directions (cos theta = sqrt(1 - u), golden-angle azimuths about the normal) outside
+    /// the widest cone, sharing what is left of pi equally.
+    #[test]
+    fn env_quadrature_places_and_weights_its_samples_as_built() {
+        use std::f64::consts::{PI, TAU};
+        let golden = PI * (3.0 - 5f64.sqrt());
+        let on_azimuth = |x: Vec3, (t, b): (Vec3, Vec3), k: usize| {
+            let (u, v) = (dot(x, t), dot(x, b));
+            let r = u.hypot(v);
+            let phi = golden * k as f64;
+            (u / r - phi.cos()).abs() < 1e-9 && (v / r - phi.sin()).abs() < 1e-9
+        };
+        let (s, c) = 40f64.to_radians().sin_cos();
+        let (sa, ca) = 120f64.to_radians().sin_cos();
+        for wo in [[0.0, 0.0, 1.0], [s * ca, s * sa, c]] {
+            let r = [-wo[0], -wo[1], wo[2]];
+            let mut got = Vec::new();
+            EnvQuadrature::default().for_each(wo, |wi, w| got.push((wi, w)));
+            let (mut inner, mut next, mut cone_share) = (1.0, 0, 0.0);
+            for degrees in ENV_CAP_DEGREES {
+                let cm = degrees.to_radians().cos();
+                for k in 0..ENV_CAP {
+                    let (x, w) = got[next];
+                    let c = inner - (k as f64 + 0.5) / ENV_CAP as f64 * (inner - cm);
+                    assert!((dot(x, r) - c).abs() < 1e-12, "{wo:?} {degrees} {k}: {x:?}");
+                    assert!((dot(x, x) - 1.0).abs() < 1e-12, "{x:?}");
+                    assert!(on_azimuth(x, basis(r), k), "{wo:?} {degrees} {k}: {x:?}");
+                    let want = TAU * (inner - cm) / ENV_CAP as f64 * x[2];
+                    assert!((w - want).abs() < 1e-15, "{degrees} {k}: {w} vs {want}");
+                    cone_share += w;
+                    next += 1;
+                }
+                inner = cm;
+            }
+            let cosine = |k: usize| (1.0 - (k as f64 + 0.5) / ENV_COSINE as f64).sqrt();
+            let z = ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
+            let rest: Vec<usize> = (0..ENV_COSINE)
+                .filter(|&k| {
+                    let h = (1.0 - cosine(k).powi(2)).sqrt();
+                    let phi = golden * k as f64;
+                    dot([h * phi.cos(), h * phi.sin(), cosine(k)], r) < inner
+                })
+                .collect();
+            assert!(rest.len() >= ENV_COSINE - 2, "{wo:?}: {rest:?}");
+            assert_eq!(got.len(), next + rest.len());
+            let share = (PI - cone_share) / rest.len() as f64;
+            for (&(x, w), k) in got[next..].iter().zip(rest) {
+                assert!((x[2] - cosine(k)).abs() < 1e-12, "{k}: {x:?}");
+                assert!((dot(x, x) - 1.0).abs() < 1e-12, "{x:?}");
+                assert!(on_azimuth(x, z, k), "{k}: {x:?}");
+                assert!((w - share).abs() < 1e-15, "{k}: {w} vs {share}");
+            }
+        }
+    }
+
+    /// The half-vector quadrature (the table's default 128 x 8) integrates smooth functions
+    /// of wi that are symmetric about the plane of incidence (as an isotropic BRDF is) against
+    /// cos theta_i to their closed forms at every view angle and azimuth: z (2 pi / 3), z^3
+    /// (2 pi / 5), x^2 and y^2 along and across the view's azimuth (pi / 4 each) and x (0: no
+    /// side favoured). Measured: 1.5e-3 off at worst (z at 60 degrees, x at 60 degrees).
+    /// At normal view the plane of incidence is any, so only azimuth 0 is asked there.
+    #[test]
+    fn half_vector_quadrature_integrates_smooth_functions_to_their_closed_forms() {
+        use std::f64::consts::PI;
+        let q = HalfVectorQuadrature::new(ENV_TABLE_RINGS, ENV_TABLE_AZIMUTHS);
+        let want = [2.0 * PI / 3.0, 2.0 * PI / 5.0, PI / 4.0, PI / 4.0, 0.0];
+        for degrees in [0.0f64, 30.0, 60.0, 80.0, 89.0] {
+            for azimuth in [0.0f64, 70.0, 200.0] {
+                if degrees == 0.0 && azimuth != 0.0 {
+                    continue;
+                }
+                let (s, c) = degrees.to_radians().sin_cos();
+                let (sa, ca) = azimuth.to_radians().sin_cos();
+                let wo = [s * ca, s * sa, c];
+                let mut got = [0.0; 5];
+                q.for_each(wo, |wi, w| {
+                    let x = wi[0] * ca + wi[1] * sa;
+                    let y = wi[1] * ca - wi[0] * sa;
+                    let z = wi[2];
+                    for (g, f) in got.iter_mut().zip([z, z * z * z, x * x, y * y, x]) {
+                        *g += w * f;
+                    }
+                });
+                for (k, (g, w)) in got.iter().zip(want).enumerate() {
+                    assert!((g - w).abs() < 3e-3, "{degrees} {azimuth} #{k}: {g} vs {w}");
+                }
+            }
+        }
+    }
+
     /// The rings reach the horizon at every view angle (the last ring closes where wi meets
     /// the horizon in the plane of incidence): the band of directions within 17 degrees of
     /// the horizon gets its share of the cosine integral, pi sin^2(17 deg) (a last ring closed
