@@ -1430,4 +1430,98 @@ mod tests {
             }
         }
     }
+
+    /// The rectangle helpers the label layout's tests also lean on, by hand: overlap areas
+    /// (touching edges share nothing), containment up to equal edges, the nearest point of a
+    /// box, a dot's clearance square (rounded outwards) and a label's box (text plus a
+    /// 1-pixel border).
+    #[test]
+    fn rectangles_overlap_contain_and_clamp_by_hand() {
+        let r = |x0, y0, x1, y1| Rect { x0, y0, x1, y1 };
+        let a = r(0, 0, 10, 10);
+        for (b, area) in [
+            (r(5, 5, 15, 15), 25),
+            (r(2, 3, 4, 8), 10),
+            (r(-3, 4, 2, 20), 12),
+            (r(10, 0, 20, 10), 0),
+            (r(0, 10, 10, 20), 0),
+            (r(11, 11, 12, 12), 0),
+            (r(-5, -5, 0, 0), 0),
+        ] {
+            assert_eq!(a.overlap(&b), area, "{b:?}");
+            assert_eq!(b.overlap(&a), area, "{b:?}");
+        }
+        assert!(a.inside(&a) && r(1, 2, 9, 8).inside(&a));
+        for b in [
+            r(-1, 0, 10, 10),
+            r(0, -1, 10, 10),
+            r(0, 0, 11, 10),
+            r(0, 0, 10, 11),
+        ] {
+            assert!(!b.inside(&a) && a.inside(&b), "{b:?}");
+        }
+        assert_eq!(a.nearest_point(3.5, 4.0), (3.5, 4.0));
+        assert_eq!(a.nearest_point(-2.0, 12.5), (0.0, 10.0));
+        assert_eq!(a.nearest_point(14.0, -1.0), (10.0, 0.0));
+        assert_eq!(Rect::around_dot(10.2, 20.7), r(4, 15, 16, 27));
+        assert_eq!(Rect::around_dot(10.5, 20.5), r(5, 15, 16, 26));
+        let spot = LabelSpot {
+            x: 3,
+            y: 4,
+            leader: false,
+        };
+        assert_eq!(spot.label_box(10), r(2, 3, 14, 5 + font::GLYPH_H as i64));
+    }
+
+    /// Leader lines, by hand: two lines cross only through each other's interior (an X),
+    /// not when one ends on the other, runs beside it or along it; a line meets a box when
+    /// it passes through the box's inside (crossing it, entering it or lying in it), not when
+    /// it stops at an edge, runs along one or passes by.
+    #[test]
+    fn leader_lines_cross_and_meet_boxes_by_hand() {
+        let line = |a: (f64, f64), b: (f64, f64)| Leader { from: a, to: b };
+        let x = line((0.0, 0.0), (10.0, 10.0));
+        for (o, crossing) in [
+            (line((0.0, 10.0), (10.0, 0.0)), true),
+            (line((10.0, 0.0), (0.0, 10.0)), true),
+            (line((0.0, 10.0), (5.0, 5.0)), false),
+            (line((0.0, 10.0), (4.0, 6.0)), false),
+            (line((1.0, 0.0), (11.0, 10.0)), false),
+            (line((2.0, 2.0), (20.0, 20.0)), false),
+            (line((6.0, 0.0), (6.0, 5.0)), false),
+            (line((6.0, 0.0), (6.0, 7.0)), true),
+        ] {
+            assert_eq!(x.crosses(&o), crossing, "{o:?}");
+            assert_eq!(o.crosses(&x), crossing, "{o:?}");
+        }
+        let b = [0.0, 0.0, 10.0, 10.0];
+        for (l, meets) in [
+            (line((-5.0, 5.0), (15.0, 5.0)), true),
+            (line((5.0, -5.0), (5.0, 15.0)), true),
+            (line((-5.0, -5.0), (15.0, 15.0)), true),
+            (line((15.0, 15.0), (5.0, 5.0)), true),
+            (line((2.0, 3.0), (4.0, 5.0)), true),
+            (line((5.0, 5.0), (20.0, 8.0)), true),
+            (line((-5.0, 5.0), (0.0, 5.0)), false),
+            (line((15.0, 5.0), (10.0, 5.0)), false),
+            (line((5.0, 15.0), (5.0, 10.0)), false),
+            (line((5.0, -3.0), (5.0, 0.0)), false),
+            (line((0.0, -5.0), (0.0, 15.0)), false),
+            (line((-5.0, 10.0), (15.0, 10.0)), false),
+            (line((-5.0, 11.0), (15.0, 11.0)), false),
+            (line((-5.0, 0.0), (5.0, -10.0)), false),
+            (line((11.0, -5.0), (11.0, 15.0)), false),
+        ] {
+            assert_eq!(l.meets(b), meets, "{l:?}");
+        }
+        let r = Rect {
+            x0: 0,
+            y0: 0,
+            x1: 10,
+            y1: 10,
+        };
+        assert!(line((-5.0, 5.0), (15.0, 5.0)).meets_rect(&r));
+        assert!(!line((-5.0, 10.0), (15.0, 10.0)).meets_rect(&r));
+        assert!(!line((-5.0, 5.0), (-1.0, 5.0)).meets_rect(&r));
+    }
 }
