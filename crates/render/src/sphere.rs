@@ -1843,6 +1843,200 @@ mod tests {
         assert!(render_sphere(&src, &table(2, 1, 1)).is_ok());
     }
 
+    /// Every option's accepted range, at its ends and one step past them: the size in
+    /// 1..=MAX_MAP_PIXELS, the light's theta in [0, 180] and both angles finite, the light
+    /// and environment finite and >= 0 (-0.0 is 0), the table's nodes in 2..=2^16 with rings
+    /// x azimuths in 1..=2^20, the exposure finite within +-64 stops; each refusal names the
+    /// value.
+    #[test]
+    fn options_are_checked_at_both_ends_of_every_range() {
+        use crate::map::MAX_MAP_PIXELS;
+        let up = |x: f64| f64::from_bits(x.to_bits() + 1);
+        let table = |nodes, rings, azimuths| {
+            EnvMode::Table(EnvTableSpec {
+                nodes,
+                rings,
+                azimuths,
+            })
+        };
+        let o = SphereOptions::default;
+        let accepted = [
+            SphereOptions { size: 1, ..o() },
+            SphereOptions {
+                size: MAX_MAP_PIXELS,
+                ..o()
+            },
+            SphereOptions {
+                light: (0.0, -720.0),
+                ..o()
+            },
+            SphereOptions {
+                light: (180.0, 1e300),
+                ..o()
+            },
+            SphereOptions {
+                light_irradiance: 0.0,
+                env_radiance: -0.0,
+                ..o()
+            },
+            SphereOptions {
+                light_irradiance: f64::MAX,
+                env_radiance: f64::MAX,
+                ..o()
+            },
+            SphereOptions {
+                env_mode: table(2, 1, 1),
+                ..o()
+            },
+            SphereOptions {
+                env_mode: table(1 << 16, 1 << 20, 1),
+                ..o()
+            },
+            SphereOptions {
+                env_mode: table(16, 1 << 10, 1 << 10),
+                ..o()
+            },
+            SphereOptions {
+                exposure: 64.0,
+                ..o()
+            },
+            SphereOptions {
+                exposure: -64.0,
+                ..o()
+            },
+        ];
+        for opts in accepted {
+            assert!(opts.check().is_ok(), "{opts:?}");
+        }
+        let refused = [
+            (SphereOptions { size: 0, ..o() }, "image size 0 pixels"),
+            (
+                SphereOptions {
+                    size: MAX_MAP_PIXELS + 1,
+                    ..o()
+                },
+                "is not in 1..=",
+            ),
+            (
+                SphereOptions {
+                    light: (-1e-300, 0.0),
+                    ..o()
+                },
+                "light (-1e-300, 0.0)",
+            ),
+            (
+                SphereOptions {
+                    light: (up(180.0), 0.0),
+                    ..o()
+                },
+                "theta must be in [0, 180]",
+            ),
+            (
+                SphereOptions {
+                    light: (f64::NAN, 0.0),
+                    ..o()
+                },
+                "light (NaN, 0.0)",
+            ),
+            (
+                SphereOptions {
+                    light: (45.0, f64::INFINITY),
+                    ..o()
+                },
+                "light (45.0, inf)",
+            ),
+            (
+                SphereOptions {
+                    light_irradiance: -1e-300,
+                    ..o()
+                },
+                "light irradiance -1e-300",
+            ),
+            (
+                SphereOptions {
+                    light_irradiance: f64::NAN,
+                    ..o()
+                },
+                "light irradiance NaN",
+            ),
+            (
+                SphereOptions {
+                    env_radiance: -1e-300,
+                    ..o()
+                },
+                "environment radiance -1e-300",
+            ),
+            (
+                SphereOptions {
+                    env_radiance: f64::INFINITY,
+                    ..o()
+                },
+                "environment radiance inf",
+            ),
+            (
+                SphereOptions {
+                    env_mode: table(1, 8, 2),
+                    ..o()
+                },
+                "nodes: 1",
+            ),
+            (
+                SphereOptions {
+                    env_mode: table((1 << 16) + 1, 8, 2),
+                    ..o()
+                },
+                "nodes: 65537",
+            ),
+            (
+                SphereOptions {
+                    env_mode: table(16, 0, 2),
+                    ..o()
+                },
+                "rings: 0",
+            ),
+            (
+                SphereOptions {
+                    env_mode: table(16, 8, 0),
+                    ..o()
+                },
+                "azimuths: 0",
+            ),
+            (
+                SphereOptions {
+                    env_mode: table(16, (1 << 20) + 1, 1),
+                    ..o()
+                },
+                "rings: 1048577",
+            ),
+            (
+                SphereOptions {
+                    exposure: up(64.0),
+                    ..o()
+                },
+                "exposure 64.00000000000001",
+            ),
+            (
+                SphereOptions {
+                    exposure: -up(64.0),
+                    ..o()
+                },
+                "exposure -64.00000000000001",
+            ),
+            (
+                SphereOptions {
+                    exposure: f64::NAN,
+                    ..o()
+                },
+                "exposure NaN",
+            ),
+        ];
+        for (opts, says) in refused {
+            let e = opts.check().unwrap_err();
+            assert!(matches!(e, Error::InvalidArgument { .. }), "{e:?}");
+            assert!(e.to_string().contains(says), "{opts:?}: {e}");
+        }
+    }
+
     /// Lambertian plus a normalised Blinn-Phong lobe of exponent `e` (isotropic), grey.
     #[derive(Clone, Copy)]
     struct Glossy(f64, f64, f64);
