@@ -1843,6 +1843,70 @@ mod tests {
         assert!(render_sphere(&src, &table(2, 1, 1)).is_ok());
     }
 
+    /// What each pixel of a sphere image sees, as the module docs define it, for odd and
+    /// even sizes: coverage is the fraction of the 8 x 8 sub-pixel positions inside the disc
+    /// (recounted here on the disc's own coordinates, radius size / 2 pixels), exactly 1
+    /// where the whole pixel is inside; a pixel with none inside sees nothing; the surface
+    /// point is the pixel centre inside the disc, else the centroid of the covered positions;
+    /// the normal is that point lifted onto the unit sphere, the view is +z.
+    #[test]
+    fn sphere_pixels_see_their_covered_part_of_the_disc() {
+        for size in [1usize, 2, 5, 16, 33] {
+            let sight = sphere_sight(size);
+            let r = size as f64 / 2.0;
+            let mut seen = 0;
+            for py in 0..size {
+                for px in 0..size {
+                    let (mut n, mut sx, mut sy) = (0, 0.0, 0.0);
+                    for j in 0..COVERAGE_SUB {
+                        for i in 0..COVERAGE_SUB {
+                            let u = px as f64 + (i as f64 + 0.5) / COVERAGE_SUB as f64;
+                            let v = py as f64 + (j as f64 + 0.5) / COVERAGE_SUB as f64;
+                            let (x, y) = ((u - r) / r, (r - v) / r);
+                            if x * x + y * y < 1.0 {
+                                n += 1;
+                                sx += x;
+                                sy += y;
+                            }
+                        }
+                    }
+                    let got = sight(px, py);
+                    if n == 0 {
+                        assert!(got.is_none(), "{size} ({px}, {py}): {got:?}");
+                        continue;
+                    }
+                    seen += 1;
+                    let (normal, view, cov) = got.unwrap_or_else(|| panic!("{size} ({px}, {py})"));
+                    assert_eq!(view, [0.0, 0.0, 1.0]);
+                    let whole =
+                        [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
+                            .iter()
+                            .all(|&(a, b)| {
+                                let (x, y) = ((px as f64 + a - r) / r, (r - py as f64 - b) / r);
+                                x * x + y * y <= 1.0
+                            });
+                    let (want, (x, y)) = if whole {
+                        let c = ((px as f64 + 0.5 - r) / r, (r - py as f64 - 0.5) / r);
+                        (1.0, c)
+                    } else {
+                        let k = n as f64;
+                        (k / (COVERAGE_SUB * COVERAGE_SUB) as f64, (sx / k, sy / k))
+                    };
+                    assert!(
+                        (cov - want).abs() < 1e-12,
+                        "{size} ({px}, {py}): {cov} vs {want}"
+                    );
+                    assert!(
+                        (normal[0] - x).abs() < 1e-12 && (normal[1] - y).abs() < 1e-12,
+                        "{size} ({px}, {py}): {normal:?} vs ({x}, {y})"
+                    );
+                    assert!((dot(normal, normal) - 1.0).abs() < 1e-12 && normal[2] >= 0.0);
+                }
+            }
+            assert!(seen >= 1, "{size}");
+        }
+    }
+
     /// Every option's accepted range, at its ends and one step past them: the size in
     /// 1..=MAX_MAP_PIXELS, the light's theta in [0, 180] and both angles finite, the light
     /// and environment finite and >= 0 (-0.0 is 0), the table's nodes in 2..=2^16 with rings
