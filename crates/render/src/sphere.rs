@@ -1907,6 +1907,29 @@ mod tests {
         }
     }
 
+    /// The studio sky by hand: the floor 0.15 up to y = -0.08, the smoothstep across the
+    /// horizon (t = 1/4, 1/2, 3/4 give 5/32, 1/2, 27/32 of the way to the sky), the sky
+    /// 1.5 + 1.5 y above it.
+    #[test]
+    fn studio_radiance_by_hand() {
+        let floor = 0.15;
+        let sky = |y: f64| 1.5 + 1.5 * y;
+        for (y, want) in [
+            (-1.0, floor),
+            (-0.5, floor),
+            (-0.08, floor),
+            (-0.04, floor + 5.0 / 32.0 * (sky(0.0) - floor)),
+            (0.0, floor + 0.5 * (sky(0.0) - floor)),
+            (0.04, floor + 27.0 / 32.0 * (sky(0.04) - floor)),
+            (0.08, sky(0.08)),
+            (0.5, 2.25),
+            (1.0, 3.0),
+        ] {
+            let got = studio_radiance(y);
+            assert!((got - want).abs() < 1e-14, "{y}: {got} vs {want}");
+        }
+    }
+
     /// Every option's accepted range, at its ends and one step past them: the size in
     /// 1..=MAX_MAP_PIXELS, the light's theta in [0, 180] and both angles finite, the light
     /// and environment finite and >= 0 (-0.0 is 0), the table's nodes in 2..=2^16 with rings

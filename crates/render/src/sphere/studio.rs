@@ -171,6 +171,42 @@ mod tests {
         }
     }
 
+    /// K(y) against its definition, the integral of max(0, w.n) over the circle of directions
+    /// of height y (azimuth by a 20 000-point midpoint rule), for normals up, down, level and
+    /// between, heights on and off the kinks; by hand, K = 2 pi y facing up and 2 sqrt(1 - y^2)
+    /// for a level normal.
+    #[test]
+    fn ring_kernel_is_the_clamped_cosine_around_a_circle() {
+        let m = 20_000;
+        let brute = |y: f64, ny: f64| {
+            let (s, sn) = ((1.0 - y * y).sqrt(), (1.0 - ny * ny).sqrt());
+            (0..m)
+                .map(|k| {
+                    let phi = 2.0 * PI * (k as f64 + 0.5) / m as f64;
+                    (s * sn * phi.cos() + y * ny).max(0.0)
+                })
+                .sum::<f64>()
+                * 2.0
+                * PI
+                / m as f64
+        };
+        for ny in [1.0, 0.8, 0.3, 0.0, -0.45, -1.0] {
+            let edge = (1.0f64 - ny * ny).sqrt();
+            for y in [-1.0, -0.9, -edge, -0.2, 0.0, 0.35, edge, 0.95, 1.0] {
+                let (k, want) = (ring_kernel(y, ny), brute(y, ny));
+                assert!((k - want).abs() < 1e-7, "y {y} ny {ny}: {k} vs {want}");
+            }
+        }
+        for y in [-0.7, 0.0, 0.25, 1.0] {
+            assert!(
+                (ring_kernel(y, 1.0) - 2.0 * PI * y.max(0.0)).abs() < 1e-15,
+                "{y}"
+            );
+            let level = 2.0 * (1.0 - y * y).sqrt();
+            assert!((ring_kernel(y, 0.0) - level).abs() < 1e-15, "{y}");
+        }
+    }
+
     /// The n-point rule on [0, 1]: n distinct nodes inside, in decreasing order, positive
     /// weights, symmetric about 1/2, and x^k integrated to 1 / (k + 1) for every degree
     /// k <= 2n - 1 (and not for 2n: the rule is Gauss's); one point is the midpoint.
