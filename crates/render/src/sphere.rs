@@ -1938,7 +1938,6 @@ mod tests {
     #[test]
     fn options_are_checked_at_both_ends_of_every_range() {
         use crate::map::MAX_MAP_PIXELS;
-        let up = |x: f64| f64::from_bits(x.to_bits() + 1);
         let table = |nodes, rings, azimuths| {
             EnvMode::Table(EnvTableSpec {
                 nodes,
@@ -2013,7 +2012,7 @@ mod tests {
             ),
             (
                 SphereOptions {
-                    light: (up(180.0), 0.0),
+                    light: (180f64.next_up(), 0.0),
                     ..o()
                 },
                 "theta must be in [0, 180]",
@@ -2097,14 +2096,14 @@ mod tests {
             ),
             (
                 SphereOptions {
-                    exposure: up(64.0),
+                    exposure: 64f64.next_up(),
                     ..o()
                 },
                 "exposure 64.00000000000001",
             ),
             (
                 SphereOptions {
-                    exposure: -up(64.0),
+                    exposure: -64f64.next_up(),
                     ..o()
                 },
                 "exposure -64.00000000000001",
