@@ -1023,4 +1023,105 @@ mod tests {
             );
         }
     }
+
+    /// A store of 3 materials in chunks of 1 index (D = 4 x 4 x 8 x 3 = 384 chunks) with
+    /// `compression`, opened with a cache of `cache_chunks`.
+    fn one_index_chunks(
+        dir: &Path,
+        compression: crate::store::Compression,
+        cache_chunks: usize,
+    ) -> Store {
+        let p = dir.join(format!("{compression:?}.sbrdf"));
+        let info = StoreInfo {
+            grid: AngularGrid::new(4, 4, 8).unwrap(),
+            channels: Channels::Rgb,
+        };
+        let options = StoreOptions {
+            chunk_len: Some(1),
+            compression,
+            ..StoreOptions::default()
+        };
+        let mut w = StoreWriter::create(&p, info, options).unwrap();
+        let d = w.d();
+        for m in 0..3u8 {
+            let values: Vec<f32> = (0..d).map(|i| f32::from(m) + i as f32 / 1000.0).collect();
+            w.add_material(&format!("m{m}"), "test", &values).unwrap();
+        }
+        w.finish().unwrap();
+        let options = OpenOptions {
+            mode: ReadMode::Mmap,
+            cache_chunks,
+        };
+        Store::open_with(&p, options).unwrap()
+    }
+
+    /// How many chunks the cache holds, over all shards.
+    fn cached(store: &Store) -> usize {
+        let shards = &store.cache.shards;
+        shards.iter().map(|s| s.lock().unwrap().len()).sum()
+    }
+
+    /// The zstd chunk cache keeps a decoded chunk (the same allocation comes back) in shard
+    /// `c % 16`, up to `cache_chunks / 16` chunks per shard, evicting the least recently used
+    /// of a full shard and never holding a chunk twice; uncompressed stores read straight from
+    /// the file and cache nothing.
+    #[test]
+    fn the_chunk_cache_keeps_evicts_and_shards_by_chunk_index() {
+        use crate::store::Compression;
+        let dir = tempfile::tempdir().unwrap();
+        // One chunk per shard: chunks 0 and 1 live side by side, chunk 16 evicts chunk 0.
+        let store = one_index_chunks(dir.path(), Compression::Zstd { level: 1 }, CACHE_SHARDS);
+        assert_eq!(store.cache.per_shard, 1);
+        let first = store.cached_chunk(0).unwrap();
+        assert_eq!(&first[..], &[0.0, 1.0, 2.0]);
+        assert!(Arc::ptr_eq(&first, &store.cached_chunk(0).unwrap()));
+        let one = store.cached_chunk(1).unwrap();
+        assert!(
+            Arc::ptr_eq(&first, &store.cached_chunk(0).unwrap()),
+            "chunk 1 evicted 0"
+        );
+        assert!(Arc::ptr_eq(&one, &store.cached_chunk(1).unwrap()));
+        assert_eq!(cached(&store), 2);
+        let sixteen = store.cached_chunk(16).unwrap();
+        assert_eq!(&sixteen[..], &[0.016, 1.016, 2.016]);
+        assert_eq!(store.cache.shards[0].lock().unwrap().len(), 1);
+        assert!(
+            !Arc::ptr_eq(&first, &store.cached_chunk(0).unwrap()),
+            "0 not evicted"
+        );
+        assert!(
+            Arc::ptr_eq(&one, &store.cached_chunk(1).unwrap()),
+            "1 evicted"
+        );
+        assert_eq!(cached(&store), 2);
+
+        // Two per shard: 0 and 16 share shard 0; reading 0 again makes 16 the older one, so
+        // 32 evicts 16 and keeps 0.
+        let store = one_index_chunks(dir.path(), Compression::Zstd { level: 1 }, 32);
+        assert_eq!(store.cache.per_shard, 2);
+        let zero = store.cached_chunk(0).unwrap();
+        let sixteen = store.cached_chunk(16).unwrap();
+        assert!(Arc::ptr_eq(&sixteen, &store.cached_chunk(16).unwrap()));
+        assert!(Arc::ptr_eq(&zero, &store.cached_chunk(0).unwrap()));
+        store.cached_chunk(32).unwrap();
+        assert_eq!(store.cache.shards[0].lock().unwrap().len(), 2);
+        assert!(
+            Arc::ptr_eq(&zero, &store.cached_chunk(0).unwrap()),
+            "0 evicted"
+        );
+        assert!(
+            !Arc::ptr_eq(&sixteen, &store.cached_chunk(16).unwrap()),
+            "16 kept"
+        );
+        assert_eq!(cached(&store), 2);
+
+        // values_at reads through the cache on zstd stores, around it otherwise.
+        let mut out = [0f32; 3];
+        let store = one_index_chunks(dir.path(), Compression::Zstd { level: 1 }, 64);
+        store.values_at(5, &mut out).unwrap();
+        assert_eq!((out, cached(&store)), ([0.005, 1.005, 2.005], 1));
+        let store = one_index_chunks(dir.path(), Compression::None, 64);
+        store.values_at(5, &mut out).unwrap();
+        assert_eq!((out, cached(&store)), ([0.005, 1.005, 2.005], 0));
+    }
 }
