@@ -1625,6 +1625,35 @@ mod tests {
         }
     }
 
+    /// The last ring is cut where the valid arc closes, u_max = sqrt((pi/4 + theta_o / 2) /
+    /// (pi/2)), and sits at the centroid of its cut band [u0, u_max]: the samples' largest
+    /// theta_h is that ring's (not the uncut band's), below pi/4 + theta_o / 2.
+    #[test]
+    fn half_vector_quadrature_cuts_the_last_ring_at_the_horizon() {
+        use std::f64::consts::{FRAC_PI_2, FRAC_PI_4};
+        let rings = 16;
+        let q = HalfVectorQuadrature::new(rings, 4);
+        for degrees in [0.0f64, 30.0, 60.0, 85.0] {
+            let theta_o = degrees.to_radians();
+            let u_max = ((FRAC_PI_4 + 0.5 * theta_o) / FRAC_PI_2).sqrt().min(1.0);
+            let u0 = (u_max * rings as f64).floor() / rings as f64;
+            assert!(
+                u0 < u_max,
+                "{degrees}: pick a view whose u_max is inside a band"
+            );
+            let want = Ring::new(u0, u_max).theta_h;
+            let uncut = Ring::new(u0, (u0 + 1.0 / rings as f64).min(1.0)).theta_h;
+            let mut last = 0.0f64;
+            let wo = [theta_o.sin(), 0.0, theta_o.cos()];
+            q.for_each_pair_with_angles(wo, |_, _, hd, _| last = last.max(hd.theta_h));
+            assert!((last - want).abs() < 1e-12, "{degrees}: {last} vs {want}");
+            assert!(
+                last < FRAC_PI_4 + 0.5 * theta_o && want < uncut,
+                "{degrees}"
+            );
+        }
+    }
+
     /// The rings reach the horizon at every view angle (the last ring closes where wi meets
     /// the horizon in the plane of incidence): the band of directions within 17 degrees of
     /// the horizon gets its share of the cosine integral, pi sin^2(17 deg) (a last ring closed
