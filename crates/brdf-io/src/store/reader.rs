@@ -1064,7 +1064,7 @@ mod tests {
     /// The zstd chunk cache keeps a decoded chunk (the same allocation comes back) in shard
     /// `c % 16`, up to `cache_chunks / 16` chunks per shard, evicting the least recently used
     /// of a full shard and never holding a chunk twice; uncompressed stores read straight from
-    /// the file and cache nothing.
+    /// the file and cache nothing (`values_at`, `values_in`).
     #[test]
     fn the_chunk_cache_keeps_evicts_and_shards_by_chunk_index() {
         use crate::store::Compression;
@@ -1115,13 +1115,18 @@ mod tests {
         );
         assert_eq!(cached(&store), 2);
 
-        // values_at reads through the cache on zstd stores, around it otherwise.
-        let mut out = [0f32; 3];
+        // values_at and values_in read through the cache on zstd stores, around it otherwise.
+        let (mut out, mut two) = ([0f32; 3], [0f32; 6]);
+        let pair = [0.005, 1.005, 2.005, 0.006, 1.006, 2.006];
         let store = one_index_chunks(dir.path(), Compression::Zstd { level: 1 }, 64);
         store.values_at(5, &mut out).unwrap();
         assert_eq!((out, cached(&store)), ([0.005, 1.005, 2.005], 1));
+        store.values_in(5..7, &mut two).unwrap();
+        assert_eq!((two, cached(&store)), (pair, 2));
         let store = one_index_chunks(dir.path(), Compression::None, 64);
         store.values_at(5, &mut out).unwrap();
         assert_eq!((out, cached(&store)), ([0.005, 1.005, 2.005], 0));
+        store.values_in(5..7, &mut two).unwrap();
+        assert_eq!((two, cached(&store)), (pair, 0));
     }
 }
