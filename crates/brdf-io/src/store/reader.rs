@@ -1064,7 +1064,7 @@ mod tests {
     /// The zstd chunk cache keeps a decoded chunk (the same allocation comes back) in shard
     /// `c % 16`, up to `cache_chunks / 16` chunks per shard, evicting the least recently used
     /// of a full shard and never holding a chunk twice; uncompressed stores read straight from
-    /// the file and cache nothing (`values_at`, `values_in`).
+    /// the file and cache nothing (`values_at`, `values_in`, `material_row`).
     #[test]
     fn the_chunk_cache_keeps_evicts_and_shards_by_chunk_index() {
         use crate::store::Compression;
@@ -1128,5 +1128,15 @@ mod tests {
         assert_eq!((out, cached(&store)), ([0.005, 1.005, 2.005], 0));
         store.values_in(5..7, &mut two).unwrap();
         assert_eq!((two, cached(&store)), (pair, 0));
+        // material_row likewise; on zstd stores a row over several chunks reads them into a
+        // scratch buffer, one within a chunk through the cache.
+        let mut row = [0f32; 2];
+        store.material_row(1, 5..7, &mut row).unwrap();
+        assert_eq!((row, cached(&store)), ([1.005, 1.006], 0));
+        let store = one_index_chunks(dir.path(), Compression::Zstd { level: 1 }, 64);
+        store.material_row(1, 5..7, &mut row).unwrap();
+        assert_eq!((row, cached(&store)), ([1.005, 1.006], 0));
+        store.material_row(2, 9..10, &mut row[..1]).unwrap();
+        assert_eq!((row[0], cached(&store)), (2.009, 1));
     }
 }
