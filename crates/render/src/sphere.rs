@@ -1723,6 +1723,19 @@ mod tests {
                 assert!((wi[2] - wm[2]).abs() < 1e-12);
                 let between = [wi[0] - wm[0], wi[1] - wm[1], wi[2] - wm[2]];
                 assert!(dot(between, wo).abs() < 1e-12 && between[2].abs() < 1e-12);
+                // wm is wi reflected through that plane, whose normal is p (y at normal view).
+                let so = wo[0].hypot(wo[1]);
+                let p = if so > 0.0 {
+                    [-wo[1] / so, wo[0] / so, 0.0]
+                } else {
+                    [0.0, 1.0, 0.0]
+                };
+                let k = 2.0 * dot(wi, p);
+                let reflected = [wi[0] - k * p[0], wi[1] - k * p[1], wi[2] - k * p[2]];
+                assert!(
+                    reflected.iter().zip(wm).all(|(a, b)| (a - b).abs() < 1e-12),
+                    "{wo:?}: {wi:?} -> {wm:?}, not {reflected:?}"
+                );
             });
             // The weights sum to the integral of cos theta_i, pi (normalised), on either side.
             assert!(
