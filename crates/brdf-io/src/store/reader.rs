@@ -1133,6 +1133,8 @@ mod tests {
         let mut row = [0f32; 2];
         store.material_row(1, 5..7, &mut row).unwrap();
         assert_eq!((row, cached(&store)), ([1.005, 1.006], 0));
+        store.material_row(2, 9..10, &mut row[..1]).unwrap();
+        assert_eq!((row[0], cached(&store)), (2.009, 0));
         let store = one_index_chunks(dir.path(), Compression::Zstd { level: 1 }, 64);
         store.material_row(1, 5..7, &mut row).unwrap();
         assert_eq!((row, cached(&store)), ([1.005, 1.006], 0));
