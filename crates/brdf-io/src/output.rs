@@ -747,6 +747,7 @@ mod tests {
 
     #[cfg(target_os = "linux")]
     use super::test_util::{fifo, is_fifo, mode, umask};
+    use test_warnings::warnings_of;
 
     /// A staged run replaces the earlier run's files as a set, deletes its stale ones, keeps
     /// other files; an unpublished stage leaves the directory as it was.
@@ -1325,32 +1326,6 @@ mod tests {
             "{stderr}"
         );
         assert!(names(dir.path()).is_empty(), "{:?}", names(dir.path()));
-    }
-
-    /// What `f` logs at WARN level and above (plain text), with its result.
-    fn warnings_of<T>(f: impl FnOnce() -> T) -> (T, String) {
-        use std::sync::Arc;
-        #[derive(Clone, Default)]
-        struct Buffer(Arc<Mutex<Vec<u8>>>);
-        impl Write for Buffer {
-            fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
-                self.0.lock().unwrap().extend_from_slice(bytes);
-                Ok(bytes.len())
-            }
-            fn flush(&mut self) -> std::io::Result<()> {
-                Ok(())
-            }
-        }
-        let buffer = Buffer::default();
-        let writer = buffer.clone();
-        let subscriber = tracing_subscriber::fmt()
-            .with_writer(move || writer.clone())
-            .with_max_level(tracing::Level::WARN)
-            .with_ansi(false)
-            .finish();
-        let out = tracing::subscriber::with_default(subscriber, f);
-        let text = String::from_utf8(buffer.0.lock().unwrap().clone()).unwrap();
-        (out, text)
     }
 
     /// Another run's temporary files of the same output are warned of, by path, as "a

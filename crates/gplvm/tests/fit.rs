@@ -8,6 +8,7 @@ use brdf_synth::{preset, write_store};
 use faer::{Mat, Par};
 use gp_core::KernelParams;
 use gplvm::{FitParams, Model, OptimizerKind, fit_store};
+use test_warnings::warnings_of;
 
 fn grid() -> AngularGrid {
     AngularGrid::new(8, 8, 16).unwrap()
@@ -822,32 +823,6 @@ fn hooke_jeeves_by_point_moves_matches_full_evaluations() {
         assert_eq!(c.evaluations, by_moves.evaluations);
         assert!(c.cheap * 2 > c.evaluations, "{c:?}");
     }
-}
-
-/// What `f` logs at WARN level and above (plain text), with its result.
-fn warnings_of<T>(f: impl FnOnce() -> T) -> (T, String) {
-    use std::sync::{Arc, Mutex};
-    #[derive(Clone, Default)]
-    struct Buffer(Arc<Mutex<Vec<u8>>>);
-    impl std::io::Write for Buffer {
-        fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
-            self.0.lock().unwrap().extend_from_slice(bytes);
-            Ok(bytes.len())
-        }
-        fn flush(&mut self) -> std::io::Result<()> {
-            Ok(())
-        }
-    }
-    let buffer = Buffer::default();
-    let writer = buffer.clone();
-    let subscriber = tracing_subscriber::fmt()
-        .with_writer(move || writer.clone())
-        .with_max_level(tracing::Level::WARN)
-        .with_ansi(false)
-        .finish();
-    let out = tracing::subscriber::with_default(subscriber, f);
-    let text = String::from_utf8(buffer.0.lock().unwrap().clone()).unwrap();
-    (out, text)
 }
 
 /// A fit of `random_gram(n, d, 3, 1.0)` with `p`, and what it warned.
