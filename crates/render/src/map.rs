@@ -1475,8 +1475,8 @@ mod tests {
 
     /// Leader lines, by hand: two lines cross only through each other's interior (an X),
     /// not when one ends on the other, runs beside it or along it; a line meets a box when
-    /// it passes through the box's inside (crossing it, entering it or lying in it), not when
-    /// it stops at an edge, runs along one or passes by.
+    /// it passes through the box's inside (crossing it, entering it, lying in it or cutting a
+    /// corner), not when it stops at an edge, runs along one or passes by (a corner too).
     #[test]
     fn leader_lines_cross_and_meet_boxes_by_hand() {
         let line = |a: (f64, f64), b: (f64, f64)| Leader { from: a, to: b };
@@ -1511,6 +1511,8 @@ mod tests {
             (line((-5.0, 11.0), (15.0, 11.0)), false),
             (line((-5.0, 0.0), (5.0, -10.0)), false),
             (line((11.0, -5.0), (11.0, 15.0)), false),
+            (line((8.0, -5.0), (15.0, 5.0)), false),
+            (line((6.0, -5.0), (12.0, 5.0)), true),
         ] {
             assert_eq!(l.meets(b), meets, "{l:?}");
         }
