@@ -772,22 +772,17 @@ mod tests {
         let staged = stage.path().to_owned();
         drop(stage);
         assert!(!staged.exists() && !unfinished_outputs().contains(&staged));
-        let list = |d: &Path| {
-            let mut v: Vec<String> = std::fs::read_dir(d)
-                .unwrap()
-                .map(|e| e.unwrap().file_name().into_string().unwrap())
-                .collect();
-            v.sort();
-            v
-        };
-        assert_eq!(list(&out), ["notes.txt", "p-1.npy", "p-2.npy", "report.md"]);
+        assert_eq!(
+            names(&out),
+            ["notes.txt", "p-1.npy", "p-2.npy", "report.md"]
+        );
         // A run that writes one prediction: p-2.npy is stale, notes.txt is not the run's.
         let stage = StagingDir::create(&out).unwrap();
         std::fs::write(stage.path().join("report.md"), "new").unwrap();
         std::fs::write(stage.path().join("p-1.npy"), "new").unwrap();
         let published = stage.publish(stale).unwrap();
         assert_eq!(published, [out.join("p-1.npy"), out.join("report.md")]);
-        assert_eq!(list(&out), ["notes.txt", "p-1.npy", "report.md"]);
+        assert_eq!(names(&out), ["notes.txt", "p-1.npy", "report.md"]);
         assert_eq!(
             std::fs::read_to_string(out.join("report.md")).unwrap(),
             "new"
@@ -1250,7 +1245,6 @@ mod tests {
     }
 
     /// The names of the entries of `dir`, sorted.
-    #[cfg(target_os = "linux")]
     fn names(dir: &Path) -> Vec<String> {
         let mut v: Vec<String> = std::fs::read_dir(dir)
             .unwrap()
