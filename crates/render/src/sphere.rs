@@ -2338,6 +2338,81 @@ mod tests {
         }
     }
 
+    /// The studio sky's shading against an independent integral: at normals facing up, down,
+    /// sideways and obliquely, `shade` (environment only) agrees with a dense cosine-weighted
+    /// midpoint rule over the normal's hemisphere of the BRDF times the studio radiance of
+    /// each world direction's height, to 1.5 % (measured worst 0.45 %; the shader's
+    /// reflected-sky term, mutated, is off by 8-27 % here).
+    #[test]
+    fn studio_shading_matches_a_dense_hemisphere_integral() {
+        use std::f64::consts::PI;
+        let opts = SphereOptions {
+            size: 16,
+            light_irradiance: 0.0,
+            env_radiance: 0.7,
+            env_mode: EnvMode::Studio,
+            exposure: 0.5,
+            ..SphereOptions::default()
+        };
+        let view = [0.0, 0.0, 1.0];
+        let normals: [Vec3; 7] = [
+            [0.0, 0.0, 1.0],
+            [0.0, 0.8, 0.6],
+            [0.0, -0.8, 0.6],
+            [0.9, 0.0, 0.4359],
+            [-0.5, 0.5, 0.7],
+            [0.3, -0.6, 0.7416],
+            [0.6, 0.75, 0.2784],
+        ];
+        let sources: [(&str, &dyn BrdfSource); 3] = [
+            ("lobe 10", &Glossy(0.0, 1.0, 10.0)),
+            ("lobe 30", &Glossy(0.0, 1.0, 30.0)),
+            ("glossy 100", &Glossy(0.3, 0.5, 100.0)),
+        ];
+        let (rings, azimuths) = (1000, 360);
+        let mut worst = 0.0f64;
+        for (name, src) in sources {
+            let shader = Shader::new(src, &opts).unwrap();
+            let mut f = vec![0.0; shader.n_channels];
+            for n in normals {
+                let n = {
+                    let l = dot(n, n).sqrt();
+                    n.map(|c| c / l)
+                };
+                let got = shader.shade(n, view, &mut f).unwrap();
+                let (t, b) = basis(n);
+                let wo = [dot(view, t), dot(view, b), dot(view, n)];
+                let mut sum = [0.0; 3];
+                for i in 0..rings {
+                    // cos theta = sqrt(u): cells of equal projected solid angle pi / (rings azimuths).
+                    let ct = ((i as f64 + 0.5) / rings as f64).sqrt();
+                    let st = (1.0 - ct * ct).sqrt();
+                    for j in 0..azimuths {
+                        let phi = 2.0 * PI * (j as f64 + 0.5) / azimuths as f64;
+                        let wi = [st * phi.cos(), st * phi.sin(), ct];
+                        let world: Vec3 =
+                            std::array::from_fn(|k| wi[0] * t[k] + wi[1] * b[k] + wi[2] * n[k]);
+                        let rgb = shader.rgb_of(wi, wo, &mut f).unwrap();
+                        let l = studio_radiance(world[1]);
+                        (0..3).for_each(|c| sum[c] += l * rgb[c]);
+                    }
+                }
+                let k =
+                    2f64.powf(opts.exposure) * opts.env_radiance * PI / (rings * azimuths) as f64;
+                for c in 0..3 {
+                    let want = k * sum[c];
+                    let e = (got[c] / want - 1.0).abs();
+                    worst = worst.max(e);
+                    assert!(
+                        e < 0.015,
+                        "{name} at {n:?}: {got:?} vs {want} (channel {c})"
+                    );
+                }
+            }
+        }
+        eprintln!("worst relative error {worst:.3e}");
+    }
+
     /// Hides a source's grid, so the shader takes the generic path (one `eval` per lookup).
     struct Opaque<'a>(&'a dyn BrdfSource);
 
