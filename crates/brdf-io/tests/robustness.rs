@@ -788,6 +788,95 @@ mod store {
         }
     }
 
+    /// Each of the prefix's offset conditions refuses a file on its own (the others holding,
+    /// the hash fixed up), and a prefix that is consistent by itself but disagrees with the
+    /// header's chunk count is refused by the offset table's size. The header may take up to
+    /// 64 MiB: one of exactly that size (padded with JSON whitespace) opens and reads back, one
+    /// byte more is refused before anything is allocated for it.
+    #[test]
+    fn each_prefix_offset_condition_is_checked_on_its_own() {
+        let t = dir();
+        let p = t.path().join("whole.sbrdf");
+        let want = small_store(&p, Compression::None, Dtype::F32);
+        let bytes = std::fs::read(&p).unwrap();
+        let field =
+            |b: &[u8], i: usize| u64::from_le_bytes(b[16 + 8 * i..24 + 8 * i].try_into().unwrap());
+        let (payload_offset, payload_len, table_offset, header_offset) = (
+            field(&bytes, 0),
+            field(&bytes, 1),
+            field(&bytes, 2),
+            field(&bytes, 3),
+        );
+        assert_eq!(payload_offset + payload_len, header_offset);
+        assert!(payload_offset < table_offset && table_offset < header_offset);
+        const INCONSISTENT: &str = "inconsistent offsets in the prefix";
+        const TABLE_SIZE: &str = "offset table size does not match the chunk count";
+        // (what, edits of (field, value), the reason expected).
+        let cases = [
+            (
+                "payload moved, its end kept",
+                vec![(0, payload_offset + 8), (1, payload_len - 8)],
+                INCONSISTENT,
+            ),
+            (
+                "payload ending before the header",
+                vec![(1, payload_len - 8)],
+                INCONSISTENT,
+            ),
+            (
+                "table before the payload",
+                vec![(2, payload_offset - 8)],
+                INCONSISTENT,
+            ),
+            (
+                "table at the payload's start",
+                vec![(2, payload_offset)],
+                TABLE_SIZE,
+            ),
+            ("table at the header", vec![(2, header_offset)], TABLE_SIZE),
+            (
+                "table after the header",
+                vec![(2, header_offset + 8)],
+                INCONSISTENT,
+            ),
+        ];
+        let bad = t.path().join("bad.sbrdf");
+        for (what, edits, reason) in cases {
+            let mut b = bytes.clone();
+            for (i, v) in edits {
+                b[16 + 8 * i..24 + 8 * i].copy_from_slice(&v.to_le_bytes());
+            }
+            fix_hash(&mut b);
+            std::fs::write(&bad, &b).unwrap();
+            let e = Store::open(&bad).unwrap_err().to_string();
+            assert!(e.contains(&bad.display().to_string()), "{what}: {e}");
+            assert!(e.contains(reason), "{what}: {e}");
+        }
+        // The header padded to the limit, and one byte past it.
+        let limit = 64usize << 20;
+        for (len, opens) in [(limit, true), (limit + 1, false)] {
+            let mut b = bytes.clone();
+            b.resize(header_offset as usize + len, b' ');
+            b[48..56].copy_from_slice(&(len as u64).to_le_bytes());
+            fix_hash(&mut b);
+            std::fs::write(&bad, &b).unwrap();
+            match Store::open(&bad) {
+                Ok(store) => {
+                    assert!(opens, "a header of {len} bytes opened");
+                    let mut row = vec![0.0; store.d()];
+                    for (m, w) in want.iter().enumerate() {
+                        store.material_row(m, 0..store.d(), &mut row).unwrap();
+                        assert_eq!(&row, w);
+                    }
+                }
+                Err(e) => {
+                    assert!(!opens, "a header of {len} bytes: {e}");
+                    assert!(e.to_string().contains(INCONSISTENT), "{len}: {e}");
+                }
+            }
+        }
+    }
+
     /// A flipped bit in the chunks is found by the payload checksum; reads of a compressed
     /// store never return wrong values (zstd frames carry their content checksum; a few bits,
     /// such as the frame header's unused bit, change nothing).
