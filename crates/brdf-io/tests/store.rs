@@ -1389,7 +1389,8 @@ fn zstd_level_outside_the_range_is_refused() {
 
 /// The size announced before writing an uncompressed store (what `synth` and `import` check
 /// against the free space) is the file's size, up to its JSON header's padding; compressed
-/// stores have no size before writing; an output its file system cannot hold is refused.
+/// stores have no size before writing; an output its file system cannot hold is refused. An
+/// opened store reports the file's size.
 #[test]
 fn uncompressed_size_is_known_before_writing() {
     let d = dir();
@@ -1425,6 +1426,7 @@ fn uncompressed_size_is_known_before_writing() {
                 field(4)
             );
             assert_eq!(announced, field(0) + field(1), "{dtype:?} {chunk_len:?}");
+            assert_eq!(Store::open(&path).unwrap().file_bytes(), actual);
         }
     }
     let zstd = StoreOptions {
