@@ -2481,6 +2481,31 @@ mod tests {
         }
     }
 
+    /// Through the shader, a grid source is black for pairs at or below the horizon on either
+    /// side, as an analytic BRDF is (its stencil would otherwise interpolate the nearest cells
+    /// above the horizon).
+    #[test]
+    fn grid_sources_are_black_at_and_below_the_horizon() {
+        let src = Tabulated::new(1.0);
+        let shader = Shader::new(&src, &SphereOptions::default()).unwrap();
+        assert!(shader.cells.is_some());
+        let mut f = vec![0.0; shader.n_channels];
+        let (up, level) = ([0.0, 0.0, 1.0], [1.0, 0.0, 0.0]);
+        let (above, below) = ([0.8, 0.0, 0.6], [0.8, 0.0, -0.6]);
+        let lit = shader.rgb_of(above, up, &mut f).unwrap();
+        assert!(lit.iter().all(|&v| v > 0.0), "{lit:?}");
+        for (wi, wo) in [
+            (level, up),
+            (up, level),
+            (below, up),
+            (up, below),
+            (below, below),
+        ] {
+            let rgb = shader.rgb_of(wi, wo, &mut f).unwrap();
+            assert_eq!(rgb, [0.0; 3], "{wi:?} {wo:?}");
+        }
+    }
+
     /// The sphere through the per-pixel [`Shader`] (its own per-render cell colours), without
     /// a plan.
     fn render_sphere_unplanned(source: &dyn BrdfSource, opts: &SphereOptions) -> Image {
