@@ -1059,6 +1059,36 @@ fn corrupt_payload_fails_checksum_and_damaged_header_fails_open() {
     }
 }
 
+/// The payload checksum covers all of a payload larger than the 8 MiB the check hashes at a
+/// time: damage in the last chunk is found. An intact store passes, and its `Debug` names the
+/// file and its shape.
+#[test]
+fn checksum_covers_a_payload_of_several_steps() {
+    let t = dir();
+    let path = t.path().join("big.sbrdf");
+    let info = info(32, 32, 64, Channels::Rgb);
+    let rows: Vec<Vec<f32>> = (0..16).map(|s| material(&info, s)).collect();
+    write_materials(&path, &info, &rows, StoreOptions::default(), 1 << 20).unwrap();
+    let store = Store::open(&path).unwrap();
+    store.verify_checksum().unwrap();
+    let debug = format!("{store:?}");
+    for part in [
+        format!("{:?}", path),
+        "n_materials: 16".into(),
+        format!("d: {}", info.d()),
+    ] {
+        assert!(debug.contains(&part), "{debug} lacks {part}");
+    }
+    drop(store);
+    let mut bytes = std::fs::read(&path).unwrap();
+    let table = u64::from_le_bytes(bytes[32..40].try_into().unwrap()) as usize;
+    assert!(table > 4096 + (8 << 20) + 1024, "{table}");
+    bytes[table - 7] ^= 0x10;
+    std::fs::write(&path, &bytes).unwrap();
+    let e = Store::open(&path).unwrap().verify_checksum().unwrap_err();
+    assert!(matches!(e, Error::StoreChecksum { .. }), "{e}");
+}
+
 #[test]
 fn writer_rejects_non_finite_and_bad_lengths_and_leaves_nothing() {
     let t = dir();
