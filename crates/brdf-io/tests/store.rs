@@ -710,6 +710,16 @@ fn missing_file_and_wrong_magic() {
             vec![0u8, 1, 2, 3, 250, 251, 252, 253, 7],
             "file starts with [00, 01",
         ),
+        // A MERL-like header with a zero dimension holds no BRDF, though its 12 bytes are the
+        // size such dimensions imply.
+        (
+            "zero.sbrdf",
+            [0i32, 90, 180]
+                .iter()
+                .flat_map(|d| d.to_le_bytes())
+                .collect(),
+            "file starts with [00, 00, 00, 00, 5a",
+        ),
     ] {
         let path = t.path().join(name);
         std::fs::write(&path, bytes).unwrap();
