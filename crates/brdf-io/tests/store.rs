@@ -48,6 +48,7 @@ fn write_materials(
             m.write(part)?;
         }
         m.finish()?;
+        assert_eq!(w.n_materials(), i + 1);
     }
     w.finish()
 }
