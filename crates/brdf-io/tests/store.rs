@@ -357,6 +357,142 @@ fn f16_store_within_half_precision() {
     }
 }
 
+/// An f16 store keeps values up to f16's largest, 65504, exactly, and refuses the next f32
+/// above it (alone in its block: no other value makes the writer look closer) above the
+/// horizon, in both write modes; below the horizon any finite value is zeroed. The first
+/// offence in writing order is named (65504 before it is none). After a refusal the writer
+/// stays unusable, naming the first error.
+#[test]
+fn f16_range_is_checked_at_its_edge_in_both_write_modes() {
+    let info = info(2, 2, 4, Channels::Rgb);
+    let mask = info.grid.validity_mask();
+    let (valid, invalid) = (
+        mask.iter().position(|&v| v).unwrap() * 3,
+        mask.iter().position(|&v| !v).unwrap() * 3,
+    );
+    let max = f32::from(half::f16::MAX);
+    let t = dir();
+    let path = t.path().join("edge.sbrdf");
+    let opts = StoreOptions {
+        dtype: Dtype::F16,
+        ..Default::default()
+    };
+    // Two materials' rows with the values `set` (material, index, value); block mode writes
+    // them index-major.
+    let rows = |set: &[(usize, usize, f32)]| {
+        let mut rows = [vec![0.5f32; info.d()], vec![0.25f32; info.d()]];
+        for &(m, at, v) in set {
+            rows[m][at] = v;
+        }
+        rows
+    };
+    let write = |rows: &[Vec<f32>; 2], blocks: bool| -> brdf_io::Result<()> {
+        let mut w = StoreWriter::create(&path, info.clone(), opts.clone())?;
+        let result = if blocks {
+            w.declare_materials(&[("a", "s"), ("b", "s")])?;
+            let block: Vec<f32> = (0..info.d())
+                .flat_map(|d| [rows[0][d], rows[1][d]])
+                .collect();
+            w.write_block(0..info.d(), &block)
+        } else {
+            rows.iter().enumerate().try_for_each(|(i, row)| {
+                let mut m = w.begin_material(["a", "b"][i], "s")?;
+                m.write(row)?;
+                m.finish()
+            })
+        };
+        if let Err(e) = result {
+            let again = w.finish().unwrap_err().to_string();
+            assert!(
+                again.contains("writer unusable after an earlier error")
+                    && again.contains("exceeds the f16 range"),
+                "{again}"
+            );
+            return Err(e);
+        }
+        w.finish().map(drop)
+    };
+    let above = max.next_up();
+    for blocks in [false, true] {
+        for (at, v) in [(valid, max), (valid, -max), (invalid, 1e30)] {
+            write(&rows(&[(0, at, v)]), blocks).unwrap();
+            let store = Store::open(&path).unwrap();
+            let mut row = vec![0f32; info.d()];
+            store.material_row(0, 0..info.d(), &mut row).unwrap();
+            let want = if at == valid { v } else { 0.0 };
+            assert_eq!(row[at], want, "blocks {blocks}: {v} at {at}");
+        }
+        // The first offence in writing order is named; 65504 before it is none.
+        let first = if blocks {
+            ("b", valid)
+        } else {
+            ("a", valid + 1)
+        };
+        for (set, (name, index), v) in [
+            (vec![(0, valid, above)], ("a", valid), above),
+            (vec![(0, valid, -above)], ("a", valid), -above),
+            (vec![(0, valid, 7e4)], ("a", valid), 7e4),
+            (
+                vec![(0, valid, max), (1, valid, above), (0, valid + 1, above)],
+                first,
+                above,
+            ),
+        ] {
+            let e = write(&rows(&set), blocks).unwrap_err();
+            let text = e.to_string();
+            assert!(
+                text.contains(&format!("material \"{name}\": value {v} at index {index}"))
+                    && text.contains("exceeds the f16 range"),
+                "blocks {blocks}: {text}"
+            );
+            names_file(&e, &path);
+        }
+    }
+    std::fs::remove_file(&path).unwrap();
+    assert!(only_file(t.path()).is_empty());
+}
+
+/// Blocks must follow each other: a reversed range or one past D is refused (never a panic),
+/// naming the expected start; an empty block where the next one starts is no change.
+#[test]
+fn block_ranges_out_of_order_or_past_the_end_are_refused() {
+    let info = info(2, 2, 4, Channels::Rgb);
+    let d = info.d();
+    let t = dir();
+    let path = t.path().join("blocks.sbrdf");
+    let values = |r: std::ops::Range<usize>| vec![0.5f32; r.len() * 2];
+    // Each writer has written the block 0..6.
+    let writer = || {
+        let mut w = StoreWriter::create(&path, info.clone(), StoreOptions::default()).unwrap();
+        w.declare_materials(&[("a", "s"), ("b", "s")]).unwrap();
+        w.write_block(0..6, &values(0..6)).unwrap();
+        w
+    };
+    #[allow(clippy::reversed_empty_ranges)]
+    for bad in [6..4, 6..d + 1, 7..9, 0..6] {
+        let mut w = writer();
+        let e = w
+            .write_block(bad.clone(), &values(bad.clone()))
+            .unwrap_err();
+        let text = e.to_string();
+        let expected =
+            format!("block {bad:?} out of order: expected a range starting at 6 and ending <= {d}");
+        assert!(text.contains(&expected), "{text}");
+        names_file(&e, &path);
+    }
+    let mut w = writer();
+    w.write_block(6..6, &[]).unwrap();
+    w.write_block(6..d, &values(6..d)).unwrap();
+    w.finish().unwrap();
+    let store = Store::open(&path).unwrap();
+    let mut row = vec![0f32; d];
+    store.material_row(1, 0..d, &mut row).unwrap();
+    let mask = info.grid.validity_mask();
+    for (i, v) in row.iter().enumerate() {
+        assert_eq!(*v, if mask[i / 3] { 0.5 } else { 0.0 }, "{i}");
+    }
+}
+
 /// f16 statistics describe the stored values, and inputs too small for f16 are counted (they
 /// used to vanish silently, the header describing the f32 input), in both write modes.
 #[test]
