@@ -494,7 +494,8 @@ fn block_ranges_out_of_order_or_past_the_end_are_refused() {
 }
 
 /// f16 statistics describe the stored values, and inputs too small for f16 are counted (they
-/// used to vanish silently, the header describing the f32 input), in both write modes.
+/// used to vanish silently, the header describing the f32 input) and warned of, in both write
+/// modes.
 #[test]
 fn f16_statistics_describe_stored_values_and_count_flushed_inputs() {
     let info = info(3, 3, 6, Channels::Rgb);
@@ -514,12 +515,25 @@ fn f16_statistics_describe_stored_values_and_count_flushed_inputs() {
             ..Default::default()
         };
         let a = t.path().join(format!("{}-materials.sbrdf", dtype.name()));
-        let ha = write_materials(&a, &info, std::slice::from_ref(&row), opts.clone(), 7).unwrap();
+        let (ha, said_a) = test_warnings::warnings_of(|| {
+            write_materials(&a, &info, std::slice::from_ref(&row), opts.clone(), 7).unwrap()
+        });
         let b = t.path().join(format!("{}-blocks.sbrdf", dtype.name()));
         let mut w = StoreWriter::create(&b, info.clone(), opts).unwrap();
         w.declare_materials(&[("mat0", "test:0")]).unwrap();
         w.write_block(0..info.d(), &row).unwrap();
-        let hb = w.finish().unwrap();
+        let (hb, said_b) = test_warnings::warnings_of(|| w.finish().unwrap());
+        // The values stored as 0 are a warning naming the material; none, no warning.
+        for said in [&said_a, &said_b] {
+            if dtype == Dtype::F16 {
+                let what = format!(
+                    "{tiny} of {valid} values are below the f16 range and were stored as 0"
+                );
+                assert!(said.contains(&what) && said.contains("mat0"), "{said}");
+            } else {
+                assert_eq!(said, "", "{dtype:?}");
+            }
+        }
         for h in [&ha, &hb] {
             let s = &h.materials[0].stats;
             assert_eq!(s.count, valid);
