@@ -57,9 +57,9 @@ enum Mode {
         sink: Box<ChunkSink>,
         chunk_len: usize,
         next_d: usize,
-        /// Index-major values of the chunk(s) being filled, starting at `pending_start`.
+        /// Index-major values of the chunk(s) being filled: the indices before `next_d` that
+        /// are not yet written (a whole number of chunks are written at a time).
         pending: Vec<f32>,
-        pending_start: usize,
     },
 }
 
@@ -485,7 +485,6 @@ impl StoreWriter {
             chunk_len,
             next_d: 0,
             pending: Vec::new(),
-            pending_start: 0,
         };
         Ok(())
     }
@@ -540,7 +539,6 @@ impl StoreWriter {
             chunk_len,
             next_d,
             pending,
-            pending_start,
         } = &mut self.mode
         else {
             unreachable!("checked above")
@@ -567,7 +565,6 @@ impl StoreWriter {
             let chunks: Vec<&[f32]> = pending[..complete * n].chunks(*chunk_len * n).collect();
             let res = sink.write_chunks(&chunks, &path);
             pending.drain(..complete * n);
-            *pending_start += complete;
             if let Err(e) = res {
                 return self.fail(e);
             }
