@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use brdf_io::store::{Compression, Dtype, OpenOptions, ReadMode, StoreMaterial};
+use brdf_io::store::{Compression, Dtype, OpenOptions, ReadMode, StoreHeader, StoreMaterial};
 use brdf_io::{AngularGrid, Channels, Error, Store, StoreInfo, StoreOptions, StoreWriter};
 use proptest::prelude::*;
 
@@ -360,8 +360,9 @@ fn f16_store_within_half_precision() {
 /// An f16 store keeps values up to f16's largest, 65504, exactly, and refuses the next f32
 /// above it (alone in its block: no other value makes the writer look closer) above the
 /// horizon, in both write modes; below the horizon any finite value is zeroed. The first
-/// offence in writing order is named (65504 before it is none). After a refusal the writer
-/// stays unusable, naming the first error.
+/// offence in writing order is named (65504 before it is none), also where every value at an
+/// index is out of range. Non-zero values below the horizon are counted in both modes. After a
+/// refusal the writer stays unusable, naming the first error.
 #[test]
 fn f16_range_is_checked_at_its_edge_in_both_write_modes() {
     let info = info(2, 2, 4, Channels::Rgb);
@@ -386,7 +387,7 @@ fn f16_range_is_checked_at_its_edge_in_both_write_modes() {
         }
         rows
     };
-    let write = |rows: &[Vec<f32>; 2], blocks: bool| -> brdf_io::Result<()> {
+    let write = |rows: &[Vec<f32>; 2], blocks: bool| -> brdf_io::Result<StoreHeader> {
         let mut w = StoreWriter::create(&path, info.clone(), opts.clone())?;
         let result = if blocks {
             w.declare_materials(&[("a", "s"), ("b", "s")])?;
@@ -410,12 +411,17 @@ fn f16_range_is_checked_at_its_edge_in_both_write_modes() {
             );
             return Err(e);
         }
-        w.finish().map(drop)
+        w.finish()
     };
+    // Every value below the horizon is non-zero, and counted as zeroed.
+    let below = 3 * mask.iter().filter(|&&v| !v).count() as u64;
     let above = max.next_up();
     for blocks in [false, true] {
         for (at, v) in [(valid, max), (valid, -max), (invalid, 1e30)] {
-            write(&rows(&[(0, at, v)]), blocks).unwrap();
+            let header = write(&rows(&[(0, at, v)]), blocks).unwrap();
+            for m in &header.materials {
+                assert_eq!(m.stats.zeroed_below_horizon, below, "blocks {blocks}");
+            }
             let store = Store::open(&path).unwrap();
             let mut row = vec![0f32; info.d()];
             store.material_row(0, 0..info.d(), &mut row).unwrap();
@@ -435,6 +441,12 @@ fn f16_range_is_checked_at_its_edge_in_both_write_modes() {
             (
                 vec![(0, valid, max), (1, valid, above), (0, valid + 1, above)],
                 first,
+                above,
+            ),
+            // Every material out of range at one index (no value in range beside them).
+            (
+                vec![(0, valid, above), (1, valid, above)],
+                ("a", valid),
                 above,
             ),
         ] {
