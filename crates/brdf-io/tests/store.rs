@@ -44,8 +44,11 @@ fn write_materials(
     let mut w = StoreWriter::create(path, info.clone(), options)?;
     for (i, row) in rows.iter().enumerate() {
         let mut m = w.begin_material(&format!("mat{i}"), &format!("test:{i}"))?;
+        let mut written = 0;
         for part in row.chunks(slice.max(1)) {
             m.write(part)?;
+            written += part.len();
+            assert_eq!(m.written(), written);
         }
         m.finish()?;
         assert_eq!(w.n_materials(), i + 1);
