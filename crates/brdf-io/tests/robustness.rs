@@ -279,6 +279,56 @@ fn negative_densities_and_an_empty_ndf_are_errors() {
     );
 }
 
+/// The real file with field `name` replaced by `field(old)`, parsed as if read from
+/// "retyped.bsdf", and the error of building the BSDF from it.
+fn retyped_error(name: &str, field: impl Fn(&Field, &Path) -> Field) -> Option<String> {
+    let (path, _) = real_file()?;
+    let tf = TensorFile::open(&path).unwrap();
+    let fields: Vec<Field> = tf
+        .fields()
+        .iter()
+        .map(|f| match f.name() == name {
+            true => field(f, &path),
+            false => f.clone(),
+        })
+        .collect();
+    let bytes = TensorFile::to_bytes(&fields).unwrap();
+    let tf = TensorFile::from_bytes(&bytes, "retyped.bsdf").unwrap();
+    Some(RglBsdf::from_tensor_file(&tf).unwrap_err().to_string())
+}
+
+/// A field of the wrong dtype with the right rank, or of the right dtype with the wrong rank,
+/// is refused, naming the file, the field, what it holds and what was expected.
+#[test]
+fn fields_of_the_wrong_dtype_or_rank_are_errors() {
+    // theta_i in f64: same values, same rank.
+    let Some(e) = retyped_error("theta_i", |f, p| {
+        Field::from_f64("theta_i", f.shape().to_vec(), &f.to_f64(p).unwrap()).unwrap()
+    }) else {
+        return;
+    };
+    for w in [
+        "retyped.bsdf",
+        "\"theta_i\" is F64",
+        "expected F32 of rank 1",
+    ] {
+        assert!(e.contains(w), "{w:?} missing from: {e}");
+    }
+    // ndf in f32 with a leading axis of 1: same values, rank 3.
+    let e = retyped_error("ndf", |f, p| {
+        let shape = [&[1][..], f.shape()].concat();
+        Field::from_f32("ndf", shape, &f.to_f32(p).unwrap()).unwrap()
+    })
+    .unwrap();
+    for w in [
+        "retyped.bsdf",
+        "\"ndf\" is F32 with shape [1, ",
+        "expected F32 of rank 2",
+    ] {
+        assert!(e.contains(w), "{w:?} missing from: {e}");
+    }
+}
+
 /// A vndf slice whose rows are partly empty (as the 90-degree slice of every RGL file is, on
 /// the half facing away from wi) inverted 0/0 = NaN wherever a half vector fell in the empty
 /// rows and the incidence used that slice alone. Here the empty rows are in the slice of normal
