@@ -154,18 +154,28 @@ fn zero_sigma_and_negative_ndf_are_errors() {
 /// The real file with field `name` replaced by `edit` of its values (as f32), parsed as if read
 /// from `file_name`.
 fn with_field(name: &str, file_name: &str, edit: impl Fn(&mut Vec<f32>)) -> Option<TensorFile> {
+    with_replaced(name, file_name, |f, path| {
+        let mut v = f.to_f32(path).unwrap();
+        edit(&mut v);
+        Field::from_f32(name, f.shape().to_vec(), &v).unwrap()
+    })
+}
+
+/// The real file with field `name` replaced by `field(old, real file's path)`, parsed as if read
+/// from `file_name`.
+fn with_replaced(
+    name: &str,
+    file_name: &str,
+    field: impl Fn(&Field, &Path) -> Field,
+) -> Option<TensorFile> {
     let (path, _) = real_file()?;
     let tf = TensorFile::open(&path).unwrap();
     let fields: Vec<Field> = tf
         .fields()
         .iter()
-        .map(|f| {
-            if f.name() != name {
-                return f.clone();
-            }
-            let mut v = f.to_f32(&path).unwrap();
-            edit(&mut v);
-            Field::from_f32(name, f.shape().to_vec(), &v).unwrap()
+        .map(|f| match f.name() == name {
+            true => field(f, &path),
+            false => f.clone(),
         })
         .collect();
     let bytes = TensorFile::to_bytes(&fields).unwrap();
@@ -279,21 +289,10 @@ fn negative_densities_and_an_empty_ndf_are_errors() {
     );
 }
 
-/// The real file with field `name` replaced by `field(old)`, parsed as if read from
-/// "retyped.bsdf", and the error of building the BSDF from it.
+/// The error of building the BSDF from the real file with field `name` replaced by
+/// `field(old, path)`, read as "retyped.bsdf".
 fn retyped_error(name: &str, field: impl Fn(&Field, &Path) -> Field) -> Option<String> {
-    let (path, _) = real_file()?;
-    let tf = TensorFile::open(&path).unwrap();
-    let fields: Vec<Field> = tf
-        .fields()
-        .iter()
-        .map(|f| match f.name() == name {
-            true => field(f, &path),
-            false => f.clone(),
-        })
-        .collect();
-    let bytes = TensorFile::to_bytes(&fields).unwrap();
-    let tf = TensorFile::from_bytes(&bytes, "retyped.bsdf").unwrap();
+    let tf = with_replaced(name, "retyped.bsdf", field)?;
     Some(RglBsdf::from_tensor_file(&tf).unwrap_err().to_string())
 }
 
