@@ -5,6 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
+use brdf_io::Channels;
 use brdf_io::rgl::RglBsdf;
 use brdf_io::tensor::{Field, TensorFile};
 use proptest::prelude::*;
@@ -117,10 +118,9 @@ fn corrupted_offsets_and_data_are_errors() {
 /// values) or a negative NDF is an error naming the file and the field.
 #[test]
 fn zero_sigma_and_negative_ndf_are_errors() {
-    let Some((path, _)) = real_file() else {
+    if real_file().is_none() {
         return;
-    };
-    let tf = TensorFile::open(&path).unwrap();
+    }
     for (name, bad, rule) in [("sigma", 0.0f32, "> 0"), ("ndf", -1.0, ">= 0")] {
         let tf = with_field(name, "bad.bsdf", |v| v[7] = bad).unwrap();
         let e = RglBsdf::from_tensor_file(&tf).unwrap_err().to_string();
@@ -131,24 +131,100 @@ fn zero_sigma_and_negative_ndf_are_errors() {
         assert!(e.contains("value 7 of"), "{e}");
     }
     // A spectral table without its wavelengths is named as such (not "missing field rgb").
-    let renamed: Vec<Field> = tf
-        .fields()
-        .iter()
-        .map(|f| {
-            if f.name() != "rgb" {
-                return f.clone();
-            }
-            let v: Vec<f32> = f.to_f64(&path).unwrap().iter().map(|&x| x as f32).collect();
-            Field::from_f32("spectra", f.shape().to_vec(), &v).unwrap()
+    let renamed = |name: &str| {
+        with_replaced("rgb", "spec.bsdf", |f, path| {
+            Field::from_f32(name, f.shape().to_vec(), &f.to_f32(path).unwrap()).unwrap()
         })
-        .collect();
-    let bytes = TensorFile::to_bytes(&renamed).unwrap();
-    let tf = TensorFile::from_bytes(&bytes, "spec.bsdf").unwrap();
-    let e = RglBsdf::from_tensor_file(&tf).unwrap_err().to_string();
+        .unwrap()
+    };
+    let e = RglBsdf::from_tensor_file(&renamed("spectra"))
+        .unwrap_err()
+        .to_string();
     assert!(
         e.contains("spec.bsdf") && e.contains("without its field \"wavelengths\""),
         "{e}"
     );
+    // With neither table, the RGB one is missing.
+    let e = RglBsdf::from_tensor_file(&renamed("table"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("spec.bsdf") && e.contains("missing field \"rgb\""),
+        "{e}"
+    );
+}
+
+/// A stray "spectra" field in an RGB file (no wavelengths) is ignored: the file is the RGB
+/// file it was, value for value.
+#[test]
+fn an_rgb_file_with_a_stray_spectra_field_is_read_as_rgb() {
+    let Some((path, _)) = real_file() else {
+        return;
+    };
+    let tf = TensorFile::open(&path).unwrap();
+    let mut fields = tf.fields().to_vec();
+    fields.push(Field::from_f32("spectra", vec![2], &[1.0, 2.0]).unwrap());
+    let bytes = TensorFile::to_bytes(&fields).unwrap();
+    let stray = TensorFile::from_bytes(&bytes, "stray.bsdf").unwrap();
+    let (a, b) = (
+        RglBsdf::from_tensor_file(&tf).unwrap(),
+        RglBsdf::from_tensor_file(&stray).unwrap(),
+    );
+    assert_eq!(b.channels(), Channels::Rgb);
+    let (mut fa, mut fb) = ([0.0; 3], [0.0; 3]);
+    for (wi, wo) in [
+        ([0.0, 0.0, 1.0], [0.0, 0.0, 1.0]),
+        ([0.3, 0.1, 0.9], [-0.5, 0.2, 0.4]),
+    ] {
+        a.eval(wi, wo, &mut fa).unwrap();
+        b.eval(wi, wo, &mut fb).unwrap();
+        assert_eq!(fa, fb);
+        assert!(fa[0] > 0.1, "{fa:?}");
+    }
+}
+
+/// The value, VNDF and luminance tables must agree in shape: a square luminance table of
+/// another size than the value table, and empty incident axes (every table then empty along
+/// them), are refused with the reason.
+#[test]
+fn table_shapes_must_agree_and_incident_axes_be_non_empty() {
+    // Luminance at half the value table's size (square, finite, >= 0; evaluation never reads it).
+    let Some(tf) = with_replaced("luminance", "lum.bsdf", |f, _| {
+        let s = f.shape();
+        let shape = vec![s[0], s[1], s[2] / 2, s[3] / 2];
+        Field::from_f32(
+            "luminance",
+            shape.clone(),
+            &vec![0.5; shape.iter().product()],
+        )
+        .unwrap()
+    }) else {
+        return;
+    };
+    let e = RglBsdf::from_tensor_file(&tf).unwrap_err().to_string();
+    assert!(
+        e.contains("lum.bsdf") && e.contains("need equal square tables"),
+        "{e}"
+    );
+    // Empty phi_i (axis 0 of the tables) or theta_i (axis 1), consistently everywhere.
+    for axis in [0, 1] {
+        let name = ["phi_i", "theta_i"][axis];
+        let tf = rebuilt("empty.bsdf", |f, _| {
+            let mut shape = f.shape().to_vec();
+            match f.name() {
+                n if n == name => shape[0] = 0,
+                "vndf" | "luminance" | "rgb" => shape[axis] = 0,
+                _ => return None,
+            }
+            Some(Field::from_f32(f.name(), shape, &[]).unwrap())
+        })
+        .unwrap();
+        let e = RglBsdf::from_tensor_file(&tf).unwrap_err().to_string();
+        assert!(
+            e.contains("empty.bsdf") && e.contains("empty phi_i or theta_i"),
+            "{name}: {e}"
+        );
+    }
 }
 
 /// The real file with field `name` replaced by `edit` of its values (as f32), parsed as if read
@@ -168,15 +244,23 @@ fn with_replaced(
     file_name: &str,
     field: impl Fn(&Field, &Path) -> Field,
 ) -> Option<TensorFile> {
+    rebuilt(file_name, |f, path| {
+        (f.name() == name).then(|| field(f, path))
+    })
+}
+
+/// The real file with every field `f` for which `replace(f, real file's path)` gives one
+/// replaced by it, parsed as if read from `file_name`.
+fn rebuilt(
+    file_name: &str,
+    replace: impl Fn(&Field, &Path) -> Option<Field>,
+) -> Option<TensorFile> {
     let (path, _) = real_file()?;
     let tf = TensorFile::open(&path).unwrap();
     let fields: Vec<Field> = tf
         .fields()
         .iter()
-        .map(|f| match f.name() == name {
-            true => field(f, &path),
-            false => f.clone(),
-        })
+        .map(|f| replace(f, &path).unwrap_or_else(|| f.clone()))
         .collect();
     let bytes = TensorFile::to_bytes(&fields).unwrap();
     Some(TensorFile::from_bytes(&bytes, file_name).unwrap())
