@@ -327,6 +327,24 @@ fn spectral_copy(rgb_file: &Path, out: &Path) {
     TensorFile::write(out, &fields).unwrap();
 }
 
+/// What `RglBsdf` reports of a real file: its path, description, tables' sizes and flags, as
+/// the file's header holds them (paper_white: `rgb` 1 x 8 x 3 x 32 x 32, `vndf` 1 x 8 x 128 x
+/// 128, `jacobian` 1).
+#[test]
+fn rgl_file_properties_are_the_file_header_ones() {
+    let Some(data) = shared_data() else { return };
+    let file = data.join("rgl-rgb/paper_white_rgb.bsdf");
+    let b = RglBsdf::open(&file).unwrap();
+    assert_eq!(b.path(), file);
+    assert_eq!(b.description(), "White A4 paper (160 gsm)");
+    assert_eq!(b.table_size(), (32, 32));
+    assert_eq!(b.warp_size(), (128, 128));
+    assert!(b.jacobian());
+    assert_eq!(b.theta_i().len(), 8);
+    assert_eq!(b.native_channels(), &Channels::Rgb);
+    assert_eq!(b.channels(), Channels::Rgb);
+}
+
 #[test]
 fn tensor_writer_round_trips_a_real_file_and_spectral_files_evaluate() {
     use brdf_io::tensor::TensorFile;
