@@ -1201,12 +1201,19 @@ mod tests {
         for phi_i in [&[0.0f32][..], &[-half_pi, half_pi][..]] {
             for jacobian in [false, true] {
                 let bsdf = linear_file(phi_i, &[0.0, 0.5, half_pi], jacobian);
-                let mut out = [0.0; 3];
+                // What it reports: the vndf tables are 2 rows x 3 columns, rgb 3 x 3.
+                assert_eq!(bsdf.jacobian(), jacobian);
+                assert_eq!((bsdf.warp_size(), bsdf.table_size()), ((3, 2), (3, 3)));
+                assert_eq!(bsdf.description(), "linear");
+                let source: &dyn BrdfSource = &bsdf;
+                let (mut out, mut via_source) = ([0.0; 3], [0.0; 3]);
                 for _ in 0..400 {
                     let (wi, wo) = (dir(1.55), dir(1.55));
                     // Lengths other than 1: directions are normalised first.
                     let (wi2, wo2) = (wi.map(|v| 2.0 * v), wo.map(|v| 0.5 * v));
                     bsdf.eval(wi2, wo2, &mut out).unwrap();
+                    source.eval(wi2, wo2, &mut via_source).unwrap();
+                    assert_eq!(out, via_source);
                     let want = linear_file_value(&bsdf, wi, wo);
                     for c in 0..3 {
                         assert!(
