@@ -130,28 +130,19 @@ fn zero_sigma_and_negative_ndf_are_errors() {
         );
         assert!(e.contains("value 7 of"), "{e}");
     }
-    // A spectral table without its wavelengths is named as such (not "missing field rgb").
-    let renamed = |name: &str| {
-        with_replaced("rgb", "spec.bsdf", |f, path| {
+    // The rgb table renamed: a spectral table without its wavelengths is named as such (not
+    // "missing field rgb"); with neither table, the RGB one is missing.
+    for (name, reason) in [
+        ("spectra", "without its field \"wavelengths\""),
+        ("table", "missing field \"rgb\""),
+    ] {
+        let tf = with_replaced("rgb", "spec.bsdf", |f, path| {
             Field::from_f32(name, f.shape().to_vec(), &f.to_f32(path).unwrap()).unwrap()
         })
-        .unwrap()
-    };
-    let e = RglBsdf::from_tensor_file(&renamed("spectra"))
-        .unwrap_err()
-        .to_string();
-    assert!(
-        e.contains("spec.bsdf") && e.contains("without its field \"wavelengths\""),
-        "{e}"
-    );
-    // With neither table, the RGB one is missing.
-    let e = RglBsdf::from_tensor_file(&renamed("table"))
-        .unwrap_err()
-        .to_string();
-    assert!(
-        e.contains("spec.bsdf") && e.contains("missing field \"rgb\""),
-        "{e}"
-    );
+        .unwrap();
+        let e = RglBsdf::from_tensor_file(&tf).unwrap_err().to_string();
+        assert!(e.contains("spec.bsdf") && e.contains(reason), "{name}: {e}");
+    }
 }
 
 /// A stray "spectra" field in an RGB file (no wavelengths) is ignored: the file is the RGB
