@@ -2867,6 +2867,35 @@ mod tests {
         );
     }
 
+    /// A light to one side of the plane of the view and the normal puts a glossy sample's sheen
+    /// on that side of the image: the mirror of a light with +x (right) in the camera frame has
+    /// -x, and the eye sees it from the points to the right of the centre.
+    #[test]
+    fn plane_sheen_follows_a_light_to_the_side() {
+        let plane = PlaneOptions::default();
+        let glossy = Glossy(0.1, 1.0, 100.0);
+        let halves = |phi: f64| {
+            let opts = SphereOptions {
+                size: 64,
+                light: (plane.sheen_light().0, phi),
+                ..SphereOptions::default()
+            };
+            let img = render_plane(&glossy, &opts, &plane).unwrap();
+            let mut sums = [0.0; 2];
+            for y in 0..64 {
+                for x in 0..64 {
+                    if img.alpha[y * 64 + x] >= 1.0 {
+                        sums[x / 32] += img.get(x, y).iter().sum::<f64>();
+                    }
+                }
+            }
+            sums
+        };
+        let (right, left) = (halves(70.0), halves(110.0));
+        assert!(right[1] > 1.5 * right[0], "light right: {right:?}");
+        assert!(left[0] > 1.5 * left[1], "light left: {left:?}");
+    }
+
     #[test]
     fn white_diffuser_plane_is_uniform_analytic_grey_with_antialiased_edges() {
         let src = Lambert(Channels::parse_wavelengths("360:1000:20").unwrap(), 1.0);
