@@ -1370,27 +1370,30 @@ mod tests {
         }
     }
 
+    /// A non-reciprocal grey source f(wi, wo) = wi_z / pi: the first direction's cosine only.
+    struct FirstCosine;
+
+    impl BrdfSource for FirstCosine {
+        fn channels(&self) -> Channels {
+            Channels::Rgb
+        }
+        fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
+            let v = if wi[2] > 0.0 && wo[2] > 0.0 {
+                wi[2] / std::f64::consts::PI
+            } else {
+                0.0
+            };
+            out.fill(v);
+            Ok(())
+        }
+    }
+
     /// Sources are called with the view first, as Mitsuba 3 and pbrt-v4 call an RGL file: a
     /// non-reciprocal grey source f(wi, wo) = wi_z / pi (the first direction's cosine only)
     /// renders E (n.v) (n.l) / pi under the light alone; the other order would give
     /// E (n.l)^2 / pi, up to 1/2 - 1/4 = 1/4 of E / pi apart at the sphere's interior pixels.
     #[test]
     fn sources_are_evaluated_with_the_view_as_the_first_direction() {
-        struct FirstCosine;
-        impl BrdfSource for FirstCosine {
-            fn channels(&self) -> Channels {
-                Channels::Rgb
-            }
-            fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
-                let v = if wi[2] > 0.0 && wo[2] > 0.0 {
-                    wi[2] / std::f64::consts::PI
-                } else {
-                    0.0
-                };
-                out.fill(v);
-                Ok(())
-            }
-        }
         let size = 32;
         let opts = SphereOptions {
             size,
@@ -2865,6 +2868,72 @@ mod tests {
             row(&sheen, bottom),
             row(&sheen, top)
         );
+    }
+
+    /// Each pixel of the plane covers its part of the projected sample and is shaded with the
+    /// view from the point it sees. The reference traces rays by itself: coverage from 32 x 32
+    /// rays per pixel (the renderer uses 8 x 8, so edge pixels may differ by a few of its
+    /// sub-samples: 1/64 each), and under the light alone, `FirstCosine` renders a covered pixel
+    /// E (n.v) (n.l) / pi with v towards the eye from the point at the pixel's centre.
+    #[test]
+    fn plane_pixels_cover_and_see_their_point_of_the_sample() {
+        let size = 48;
+        let plane = PlaneOptions::default();
+        let opts = SphereOptions {
+            size,
+            env_radiance: 0.0,
+            ..SphereOptions::default()
+        };
+        let img = render_plane(&FirstCosine, &opts, &plane).unwrap();
+        let scene = PlaneScene::new(&plane, size).unwrap();
+        let (s, c) = 78f64.to_radians().sin_cos();
+        let (n, d) = ([0.0, s, c], plane.distance);
+        // The point of the sample (within |a|, |b| <= 1 along (1, 0, 0) and (0, c, -s)) seen
+        // through image position (x, y) pixels, by the pixel scale and centre of the scene.
+        let seen = |x: f64, y: f64| -> Option<Vec3> {
+            let ray = [
+                scene.centre.0 + (x - 0.5 * size as f64) / scene.k,
+                scene.centre.1 - (y - 0.5 * size as f64) / scene.k,
+                -1.0,
+            ];
+            let t = -d * n[2] / dot(n, ray);
+            let p = [t * ray[0], t * ray[1], d - t];
+            let b = p[1] * c - p[2] * s;
+            (t > 0.0 && p[0].abs() <= 1.0 && b.abs() <= 1.0).then_some(p)
+        };
+        let l = opts.light_dir();
+        let k = opts.light_irradiance * 2f64.powf(opts.exposure) / std::f64::consts::PI;
+        let (mut interior, mut edge, mut worst) = (0, 0, 0.0f64);
+        for py in 0..size {
+            for px in 0..size {
+                let (x0, y0) = (px as f64, py as f64);
+                let hits = (0..32 * 32)
+                    .filter(|i| {
+                        let (u, v) = ((i % 32) as f64 + 0.5, (i / 32) as f64 + 0.5);
+                        seen(x0 + u / 32.0, y0 + v / 32.0).is_some()
+                    })
+                    .count();
+                let (want, alpha) = (hits as f64 / 1024.0, img.alpha[py * size + px]);
+                worst = worst.max((alpha - want).abs());
+                if alpha < 1.0 {
+                    edge += usize::from(alpha > 0.0);
+                    continue;
+                }
+                let p = seen(x0 + 0.5, y0 + 0.5).unwrap();
+                let to_eye = [-p[0], -p[1], d - p[2]];
+                let nv = dot(n, to_eye) / dot(to_eye, to_eye).sqrt();
+                let expect = k * nv * dot(n, l).max(0.0);
+                for v in img.rgb[py * size + px] {
+                    assert!((v - expect).abs() < 1e-9, "({px}, {py}): {v} vs {expect}");
+                }
+                interior += 1;
+            }
+        }
+        assert!(
+            interior > 180 && edge > 60,
+            "{interior} interior, {edge} edge pixels"
+        );
+        assert!(worst < 0.04, "coverage off by {worst}");
     }
 
     /// A light to one side of the plane of the view and the normal puts a glossy sample's sheen
