@@ -1071,6 +1071,10 @@ mod tests {
         );
         assert!("90,90".parse::<AngularGrid>().is_err());
         assert!("0,90,180".parse::<AngularGrid>().is_err());
+        // Displayed as it is written.
+        let g = AngularGrid::new(12, 10, 16).unwrap();
+        assert_eq!(g.to_string(), "12,10,16");
+        assert_eq!(g.to_string().parse::<AngularGrid>().unwrap(), g);
         let c = Channels::parse_wavelengths("360:1000:10").unwrap();
         assert_eq!(c.len(), 65);
         assert_eq!(c.labels()[1], "370");
@@ -1079,7 +1083,14 @@ mod tests {
             3
         );
         assert!(Channels::parse_wavelengths("550,450").is_err());
-        assert!(Channels::parse_wavelengths("400:300:10").is_err());
+        // Each rule of a range on its own, with its reason.
+        for spec in ["400:300:10", "400:700:0", "400:700:-10"] {
+            let e = Channels::parse_wavelengths(spec).unwrap_err().to_string();
+            assert!(
+                e.contains(spec) && e.contains("STEP > 0 and END >= START"),
+                "{e}"
+            );
+        }
         assert!(Channels::parse_wavelengths("a:b").is_err());
         // Non-finite ends and steps so small that the count overflows, or just too many.
         for spec in [
@@ -1102,7 +1113,11 @@ mod tests {
         );
         assert_eq!(Channels::parse_wavelengths("550:550:10").unwrap().len(), 1);
         // An END off the step is refused, naming where the range would stop.
-        for (spec, stop) in [("400:700:70", "680"), ("400:700:1000", "400")] {
+        for (spec, stop) in [
+            ("400:700:70", "680"),
+            ("400:700:1000", "400"),
+            ("400:410:3", "409"),
+        ] {
             let e = Channels::parse_wavelengths(spec).unwrap_err().to_string();
             assert!(
                 e.contains(spec) && e.contains(&format!("would stop at {stop})")),
