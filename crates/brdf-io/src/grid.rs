@@ -715,7 +715,17 @@ mod tests {
             ]
         );
         assert!(!sel.is_identity(3));
+        assert_eq!(sel.span(), (0, 2));
         assert!(ChannelSelection::all(&stored).is_identity(3));
+        assert!(!stored.is_empty());
+        // The first stored channels alone are not the identity on all of them; the taps read
+        // channels up to the upper neighbour of an interpolated wavelength.
+        let part =
+            |w: Vec<f64>| ChannelSelection::new(path, &stored, &Channels::Spectral(w)).unwrap();
+        assert!(!part(vec![400.0, 500.0]).is_identity(3));
+        assert_eq!(part(vec![450.0]).span(), (0, 1));
+        assert_eq!(part(vec![500.0, 600.0]).span(), (1, 2));
+        assert_eq!(part(vec![500.0]).span(), (1, 1));
         let refused = |stored: &Channels, wanted: &Channels, want: &str| {
             let e = ChannelSelection::new(path, stored, wanted)
                 .err()
