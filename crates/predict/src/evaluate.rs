@@ -1291,6 +1291,15 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
 
+    /// The methods' names are the ones reports, JSON and configs use, in report order.
+    #[test]
+    fn method_names_are_the_reported_ones() {
+        assert_eq!(
+            Method::ALL.map(Method::name),
+            ["gp", "nearest", "lerp-latent", "lerp-best", "pca"]
+        );
+    }
+
     /// The row-by-row form `sq_error_expanded` had before it read `G` by columns.
     fn sq_error_by_rows(g: MatRef<'_, f64>, g_h: &[f64], g_hh: f64, c: &[f64]) -> f64 {
         let n = g.nrows();
