@@ -810,6 +810,23 @@ fn warm_refits_stop_by_the_configured_rules() {
         cost_tolerance: 1e10,
         ..params.clone()
     });
+    // Each reported log-likelihood is the GPLVM objective's at the returned point, recomputed
+    // from the scaled Gram matrix (not from the optimiser's per-value scale).
+    let (s, _) =
+        gplvm::fit::scaled_centred_gram(g_oo.as_ref(), d, config.params.data_scaling).unwrap();
+    let objective = gp_core::GplvmObjective::new(s, d)
+        .unwrap()
+        .with_prior(config.params.prior);
+    for r in [&configured, &at_start, &capped, &by_cost] {
+        let (ll, _) = objective
+            .log_likelihood(r.x.as_ref(), &r.params, Par::Seq)
+            .unwrap();
+        assert!(
+            (r.log_likelihood - ll).abs() <= 1e-9 * ll.abs(),
+            "{} vs {ll}",
+            r.log_likelihood
+        );
+    }
     // The configured run gains ~4 in log-likelihood over the start (53.7 to 58.0); one step
     // (or two: the cost rule retries once from steepest descent) gains under 1.1.
     for (rule, stopped) in [("1 iteration", &capped), ("cost tolerance", &by_cost)] {
