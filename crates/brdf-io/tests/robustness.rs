@@ -260,12 +260,18 @@ fn rebuilt(
 /// The error of building the BSDF from the real file with field `name` edited; it must name the
 /// file, the field (in quotes) and contain every one of `words`.
 fn assert_refused(name: &str, edit: impl Fn(&mut Vec<f32>), words: &[&str]) {
-    let Some(tf) = with_field(name, "damaged.bsdf", edit) else {
+    assert_file_refused(with_field(name, "damaged.bsdf", edit), name, words);
+}
+
+/// Building the BSDF from `tf` (`None`: no shared data, nothing to check) fails with an error
+/// naming the file, the field `name` (in quotes) and containing every one of `words`.
+fn assert_file_refused(tf: Option<TensorFile>, name: &str, words: &[&str]) {
+    let Some(tf) = tf else {
         return;
     };
     let e = RglBsdf::from_tensor_file(&tf).unwrap_err().to_string();
     assert!(
-        e.contains("damaged.bsdf") && e.contains(&format!("\"{name}\"")),
+        e.contains(&tf.path().display().to_string()) && e.contains(&format!("\"{name}\"")),
         "{e}"
     );
     for w in words {
@@ -364,43 +370,23 @@ fn negative_densities_and_an_empty_ndf_are_errors() {
     );
 }
 
-/// The error of building the BSDF from the real file with field `name` replaced by
-/// `field(old, path)`, read as "retyped.bsdf".
-fn retyped_error(name: &str, field: impl Fn(&Field, &Path) -> Field) -> Option<String> {
-    let tf = with_replaced(name, "retyped.bsdf", field)?;
-    Some(RglBsdf::from_tensor_file(&tf).unwrap_err().to_string())
-}
-
 /// A field of the wrong dtype with the right rank, or of the right dtype with the wrong rank,
 /// is refused, naming the file, the field, what it holds and what was expected.
 #[test]
 fn fields_of_the_wrong_dtype_or_rank_are_errors() {
     // theta_i in f64: same values, same rank.
-    let Some(e) = retyped_error("theta_i", |f, p| {
+    let theta_f64 = with_replaced("theta_i", "retyped.bsdf", |f, p| {
         Field::from_f64("theta_i", f.shape().to_vec(), &f.to_f64(p).unwrap()).unwrap()
-    }) else {
-        return;
-    };
-    for w in [
-        "retyped.bsdf",
-        "\"theta_i\" is F64",
-        "expected F32 of rank 1",
-    ] {
-        assert!(e.contains(w), "{w:?} missing from: {e}");
-    }
+    });
+    let words = ["\"theta_i\" is F64", "expected F32 of rank 1"];
+    assert_file_refused(theta_f64, "theta_i", &words);
     // ndf in f32 with a leading axis of 1: same values, rank 3.
-    let e = retyped_error("ndf", |f, p| {
+    let ndf_rank_3 = with_replaced("ndf", "retyped.bsdf", |f, p| {
         let shape = [&[1][..], f.shape()].concat();
         Field::from_f32("ndf", shape, &f.to_f32(p).unwrap()).unwrap()
-    })
-    .unwrap();
-    for w in [
-        "retyped.bsdf",
-        "\"ndf\" is F32 with shape [1, ",
-        "expected F32 of rank 2",
-    ] {
-        assert!(e.contains(w), "{w:?} missing from: {e}");
-    }
+    });
+    let words = ["\"ndf\" is F32 with shape [1, ", "expected F32 of rank 2"];
+    assert_file_refused(ndf_rank_3, "ndf", &words);
 }
 
 /// A vndf slice whose rows are partly empty (as the 90-degree slice of every RGL file is, on
