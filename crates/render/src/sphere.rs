@@ -2886,7 +2886,7 @@ mod tests {
         };
         let img = render_plane(&FirstCosine, &opts, &plane).unwrap();
         let scene = PlaneScene::new(&plane, size).unwrap();
-        let (s, c) = 78f64.to_radians().sin_cos();
+        let (s, c) = plane.view.to_radians().sin_cos();
         let (n, d) = ([0.0, s, c], plane.distance);
         // The point of the sample (within |a|, |b| <= 1 along (1, 0, 0) and (0, c, -s)) seen
         // through image position (x, y) pixels, by the pixel scale and centre of the scene.
