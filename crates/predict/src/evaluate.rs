@@ -1337,6 +1337,19 @@ mod tests {
         GpRegression::new(x, params, Par::Seq).unwrap()
     }
 
+    /// The one-point objective of `best_latent_point` at `p`: the smooth prediction's squared
+    /// error against the target.
+    fn point_error(
+        gp: &GpRegression,
+        g: MatRef<'_, f64>,
+        g_h: &[f64],
+        g_hh: f64,
+        p: &[f64],
+    ) -> f64 {
+        let w = gp.weights(p, gp_core::Predictor::Smooth).unwrap();
+        sq_error_expanded(g, g_h, g_hh, &weights_to_coefficients(&w))
+    }
+
     #[test]
     fn the_column_wise_error_has_the_bits_of_the_row_wise_one() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
@@ -1364,10 +1377,7 @@ mod tests {
             let (g, g_h, g_hh) = gram_case(&mut rng, n, 30);
             let x = Mat::from_fn(n, q, |_, _| rng.random_range(-2.0..2.0));
             let gp = gp_on(x.as_ref(), gp_core::LengthScale::Isotropic(1.0));
-            let one = |p: &[f64]| -> f64 {
-                let w = gp.weights(p, gp_core::Predictor::Smooth).unwrap();
-                sq_error_expanded(g.as_ref(), &g_h, g_hh, &weights_to_coefficients(&w))
-            };
+            let one = |p: &[f64]| point_error(&gp, g.as_ref(), &g_h, g_hh, p);
             let candidates: Vec<Vec<f64>> = (0..25)
                 .map(|_| (0..q).map(|_| rng.random_range(-3.0..3.0)).collect())
                 .collect();
@@ -1395,10 +1405,7 @@ mod tests {
                 gp_on(x.as_ref(), gp_core::LengthScale::Isotropic(0.9)),
                 gp_on(x.as_ref(), gp_core::LengthScale::Ard(ls)),
             ] {
-                let value = |p: &[f64]| {
-                    let w = gp.weights(p, gp_core::Predictor::Smooth).unwrap();
-                    sq_error_expanded(g.as_ref(), &g_h, g_hh, &weights_to_coefficients(&w))
-                };
+                let value = |p: &[f64]| point_error(&gp, g.as_ref(), &g_h, g_hh, p);
                 for _ in 0..5 {
                     let p: Vec<f64> = (0..q).map(|_| rng.random_range(-2.0..2.0)).collect();
                     let (e, grad) =
