@@ -265,10 +265,13 @@ pub fn latent_map(
         // White -> deep blue (linear).
         [1.0 - 0.95 * t, 1.0 - 0.85 * t, 1.0 - 0.45 * t]
     };
+    // Each pixel is shaded by the variance at its centre, in the coordinates `to_px` draws the
+    // dots in (sampling pixel corners, from x0 at the first to x1 at the last, stretched the
+    // shading by size / (size - 1) against the dots, up to half a pixel at the edges).
     for py in 0..size {
         for px in 0..size {
-            let u = px as f64 / (size - 1) as f64 * (m - 1) as f64;
-            let v = py as f64 / (size - 1) as f64 * (m - 1) as f64;
+            let u = (px as f64 + 0.5) / size as f64 * (m - 1) as f64;
+            let v = (py as f64 + 0.5) / size as f64 * (m - 1) as f64;
             let (i, j) = ((u as usize).min(m - 2), (v as usize).min(m - 2));
             let (fu, fv) = (u - i as f64, v - j as f64);
             let g = |a: usize, b: usize| grid[b * m + a];
@@ -1202,6 +1205,66 @@ mod tests {
         assert_eq!(big.get(39 + 160, y), [1.0; 3]);
         assert_ne!(big.get(39 + 161, y), [1.0; 3]);
         assert_eq!(big.get(39 + 159, y), [1.0; 3]);
+    }
+
+    /// The plot's shading is the bilinear interpolation of the sampled variance, drawn as
+    /// `shade(sqrt(v / vmax))`, sampled at each pixel's centre in the coordinates the dots are
+    /// drawn in. A variance bilinear in the latent coordinates is interpolated exactly, so every
+    /// pixel away from the grid lines, the dots and their labels has a known colour.
+    #[test]
+    fn the_shading_is_the_interpolated_standard_deviation_at_each_pixel_centre() {
+        let points = vec![("A".to_owned(), [-1.0, -0.5]), ("B".to_owned(), [1.0, 0.5])];
+        let variance = |p: [f64; 2]| 2.0 + p[0] + 0.5 * p[1] + 0.25 * p[0] * p[1];
+        let (size, margin) = (150usize, 40usize);
+        let opts = MapOptions {
+            size,
+            variance_samples: 7,
+            ..MapOptions::default()
+        };
+        let img = latent_map(&points, &|p| Ok(variance(p)), None, &opts).unwrap();
+        let [x0, x1, y0, y1] = extent(&points);
+        // The largest sample is at a corner of the plot (the grid's corners are samples).
+        let vmax = [[x0, y0], [x0, y1], [x1, y0], [x1, y1]]
+            .map(variance)
+            .into_iter()
+            .fold(0.0, f64::max);
+        let to_px = |x: f64, lo: f64, hi: f64| (x - lo) / (hi - lo) * size as f64;
+        let grid_cols: Vec<usize> = nice_ticks(x0, x1, 5)
+            .iter()
+            .map(|(v, _)| to_px(*v, x0, x1).round() as usize)
+            .collect();
+        let grid_rows: Vec<usize> = nice_ticks(y0, y1, 5)
+            .iter()
+            .map(|(v, _)| to_px(y1 - (*v - y0), y0, y1).round() as usize)
+            .collect();
+        let dots: Vec<(f64, f64)> = points
+            .iter()
+            .map(|(_, p)| (to_px(p[0], x0, x1), to_px(y1 - (p[1] - y0), y0, y1)))
+            .collect();
+        let mut checked = 0;
+        for py in 0..size {
+            for px in 0..size {
+                let near_dot = dots.iter().any(|&(dx, dy)| {
+                    (px as f64 - dx).abs() < 60.0 && (py as f64 - dy).abs() < 20.0
+                });
+                if near_dot || grid_cols.contains(&px) || grid_rows.contains(&py) {
+                    continue;
+                }
+                let p = [
+                    x0 + (px as f64 + 0.5) / size as f64 * (x1 - x0),
+                    y1 - (py as f64 + 0.5) / size as f64 * (y1 - y0),
+                ];
+                let t = (variance(p) / vmax).sqrt();
+                let want = [1.0 - 0.95 * t, 1.0 - 0.85 * t, 1.0 - 0.45 * t];
+                let got = img.get(margin + px, margin + py);
+                assert!(
+                    (0..3).all(|c| (got[c] - want[c]).abs() < 1e-12),
+                    "pixel ({px}, {py}): {got:?}, not {want:?}"
+                );
+                checked += 1;
+            }
+        }
+        assert!(checked > size * size / 2, "{checked}");
     }
 
     #[test]
