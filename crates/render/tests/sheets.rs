@@ -287,6 +287,49 @@ fn path_comparison_and_map_draw() {
     assert_eq!(map.get(between, 40 + 160 + 2), [1.0; 3]);
 }
 
+/// A thumbnail is framed as far from every material when its variance is above the limit,
+/// not at it: a variance of 0.5 everywhere frames every thumbnail under a limit one ulp below
+/// 0.5, and none under 0.5 itself.
+#[test]
+fn thumbnails_are_framed_above_the_far_limit_only() {
+    let (a, b) = (synth("acrylic_felt_white"), synth("carpaint_solid_red"));
+    let points = vec![
+        ("WHITE".to_string(), [-1.0, 0.0]),
+        ("RED".to_string(), [1.0, 0.5]),
+    ];
+    let var = |_: [f64; 2]| -> render::Result<f64> { Ok(0.5) };
+    let src = |p: [f64; 2]| -> render::Result<Box<dyn BrdfSource + '_>> {
+        Ok(Box::new(Mix(&b, &a, ((p[0] + 1.0) / 2.0).clamp(0.0, 1.0))))
+    };
+    let (g, ts) = (2usize, 16usize);
+    let map = |limit: f64| {
+        let opts = MapOptions {
+            size: 64,
+            thumbnails: g,
+            sphere: SphereOptions {
+                size: ts,
+                ..SphereOptions::default()
+            },
+            variance_samples: 4,
+            far_variance: Some(limit),
+            ..MapOptions::default()
+        };
+        latent_map(&points, &var, Some(&src), &opts).unwrap()
+    };
+    let framed = |m: &render::Image| {
+        // The panel starts 40 px right of the 64 px plot.
+        let panel_x = 40 + 64 + 40;
+        (0..g * g)
+            .filter(|k| {
+                let p = m.get(panel_x + (k % g) * ts, 40 + (k / g) * ts + ts / 2);
+                p == [1.0, 0.45, 0.0]
+            })
+            .count()
+    };
+    assert_eq!(framed(&map(f64::from_bits(0.5f64.to_bits() - 1))), g * g);
+    assert_eq!(framed(&map(0.5)), 0);
+}
+
 /// A thumbnail panel taller than a small plot makes the image taller (it was cut off at the
 /// plot's height: specgp map --size 128 --thumbnails showed 3 of its 6 rows); a one-axis model's
 /// panel is one row (its rows repeated the same materials).
@@ -315,10 +358,19 @@ fn thumbnail_panels_fit_the_image_and_one_axis_maps_have_one_row() {
     let square = latent_map(&points, &var, Some(&src), &opts).unwrap();
     // 5 rows of 32 px between 40 px margins: 240 px, more than the plot's 64 + 112.
     assert_eq!(square.height, 40 + 5 * 32 + 40);
-    let x0 = square.width - 40 - 5 * 32;
+    // The spheres start 40 px right of the plot (the panel is as wide as its title, wider
+    // than the 5 spheres).
+    let x0 = 40 + 64 + 40;
+    assert!(square.width > x0 + 5 * 32 + 40);
     // The last row is drawn: the bottom sphere's centre is lit, not the white background.
     let last = square.get(x0 + 16, 40 + 4 * 32 + 16);
     assert!(last.iter().all(|c| *c < 0.95), "{last:?}");
+    // Around the spheres (transparent in the thumbnails), the panel is dark: every cell's
+    // far corner, up to the last row's and column's.
+    for k in 0..25 {
+        let (x, y) = (x0 + (k % 5) * 32 + 31, 40 + (k / 5) * 32 + 31);
+        assert_eq!(square.get(x, y), [0.02; 3], "cell {k}");
+    }
     let one = latent_map(
         &points,
         &var,
@@ -451,6 +503,37 @@ fn small_maps_with_thumbnails_keep_bar_title_and_labels_in_place() {
             .count();
         assert!(ink >= 4, "column {i}: {ink} inked columns of its X1 label");
     }
+    // The X1 row, from the axis name (18 px left of the panel) to the row labels' column:
+    // runs of ink split where 5 or more columns are blank (a label has gaps of at most 3, and
+    // one drawn label ends 6 px before the next). None is wider than the widest label (the
+    // ones left out would run into their neighbours), and at least every other is drawn.
+    let [bx0, bx1, ..] = render::map::thumbnail_box(&points);
+    let widest = render::map::cell_centre_labels(bx0, bx1, g)
+        .iter()
+        .map(|l| render::font::text_width(l, 1))
+        .max()
+        .unwrap();
+    let inked: Vec<usize> = (panel_x - 18..labels_x)
+        .filter(|&x| (31..38).any(|y| dark(x, y)))
+        .collect();
+    let mut runs = vec![(inked[0], inked[0])];
+    for &x in &inked[1..] {
+        let last = runs.last_mut().unwrap();
+        if x - last.1 > 5 {
+            runs.push((x, x));
+        } else {
+            last.1 = x;
+        }
+    }
+    assert!(
+        runs.len() > g / 2 && runs.iter().all(|&(a, z)| z - a < widest),
+        "runs of ink {runs:?} in the X1 row, labels up to {widest} px"
+    );
+    let x2 = render::font::text_width("X2", 1);
+    let x2_ink = (labels_x..labels_x + x2)
+        .filter(|&x| (31..38).any(|y| dark(x, y)))
+        .count();
+    assert!(x2_ink >= x2 / 2, "{x2_ink} inked columns of the name X2");
 }
 
 /// The Delta E heat maps' rims are anti-aliased like the spheres beside them: a pixel the
