@@ -1267,6 +1267,31 @@ mod tests {
         assert!(checked > size * size / 2, "{checked}");
     }
 
+    /// Thumbnails asked for without a source of materials draw no panel: the image is the
+    /// plain map, at the plot's height, not the height 8 rows of 64 px spheres would need.
+    #[test]
+    fn thumbnails_without_a_source_leave_the_plain_map() {
+        let points = vec![("A".to_owned(), [0.0, 0.0]), ("B".to_owned(), [1.0, 0.5])];
+        let plain = MapOptions {
+            size: 64,
+            variance_samples: 4,
+            ..MapOptions::default()
+        };
+        let asked = MapOptions {
+            thumbnails: 8,
+            sphere: SphereOptions {
+                size: 64,
+                ..SphereOptions::default()
+            },
+            ..plain.clone()
+        };
+        let a = latent_map(&points, &|_| Ok(1.0), None, &plain).unwrap();
+        let b = latent_map(&points, &|_| Ok(1.0), None, &asked).unwrap();
+        assert_eq!((a.width, a.height), (40 + 64 + 40, 40 + 64 + 40 + 32));
+        assert_eq!((b.width, b.height), (a.width, a.height));
+        assert!(a.rgb == b.rgb);
+    }
+
     #[test]
     fn captions_name_the_units_and_the_slice() {
         assert_eq!(

@@ -253,6 +253,19 @@ fn path_comparison_and_map_draw() {
                 );
                 assert!(!orange(&map, x, y), "unframed map, thumbnail {i},{j}");
             }
+            // The frame is 2 px wide: the third column in from either side is the sphere's
+            // (a frame drawn wider would run into the neighbouring thumbnail).
+            for dx in [2, 21] {
+                let x = panel_x + i * 24 + dx;
+                assert!(!orange(&far_map, x, y), "thumbnail {i},{j}, column {x}");
+            }
+            // Down the middle of the thumbnail, the same: 2 px of frame at the top and bottom.
+            let x = panel_x + i * 24 + 12;
+            for dy in [0, 1, 2, 21, 22, 23] {
+                let y = 40 + j * 24 + dy;
+                let want = framed && ![2, 21].contains(&dy);
+                assert_eq!(orange(&far_map, x, y), want, "thumbnail {i},{j}, row {y}");
+            }
         }
     }
     let note_ink = |m: &render::Image| {
@@ -326,8 +339,25 @@ fn thumbnails_are_framed_above_the_far_limit_only() {
             })
             .count()
     };
-    assert_eq!(framed(&map(f64::from_bits(0.5f64.to_bits() - 1))), g * g);
-    assert_eq!(framed(&map(0.5)), 0);
+    let (all, none) = (map(f64::from_bits(0.5f64.to_bits() - 1)), map(0.5));
+    assert_eq!(framed(&all), g * g);
+    assert_eq!(framed(&none), 0);
+    // The note under the panel (8 px under the spheres) counts the framed thumbnails, in its
+    // shorter form that ends inside the panel (before the image's 40 px right margin); with
+    // none framed there is no note.
+    let note_ink = |m: &render::Image| -> Vec<usize> {
+        (40 + 64 + 40..m.width)
+            .filter(|&x| (80..87).any(|y| m.get(x, y).iter().all(|c| *c < 0.5)))
+            .collect()
+    };
+    let ink = note_ink(&all);
+    let end = render::font::text_width("ORANGE: 4 FAR FROM EVERY MATERIAL", 1);
+    assert!(
+        ink.len() > end / 2 && *ink.last().unwrap() < 40 + 64 + 40 + end,
+        "note ink at {ink:?}"
+    );
+    assert!(all.width >= 40 + 64 + 40 + end + 40);
+    assert_eq!(note_ink(&none), Vec::<usize>::new());
 }
 
 /// A thumbnail panel taller than a small plot makes the image taller (it was cut off at the
@@ -529,6 +559,13 @@ fn small_maps_with_thumbnails_keep_bar_title_and_labels_in_place() {
         runs.len() > g / 2 && runs.iter().all(|&(a, z)| z - a < widest),
         "runs of ink {runs:?} in the X1 row, labels up to {widest} px"
     );
+    // The first run is the name X1, 18 px left of the panel; each other is centred on its
+    // column (to 2 px: the ink of a label's glyphs is not quite centred in its box).
+    assert_eq!(runs[0].0, panel_x - 18, "{runs:?}");
+    for &(a, z) in &runs[1..] {
+        let off = ((a + z) / 2 - panel_x) % ts;
+        assert!(off.abs_diff(ts / 2) <= 2, "run {a}..={z} in {runs:?}");
+    }
     let x2 = render::font::text_width("X2", 1);
     let x2_ink = (labels_x..labels_x + x2)
         .filter(|&x| (31..38).any(|y| dark(x, y)))
