@@ -1209,24 +1209,28 @@ mod tests {
 
     /// The plot's shading is the bilinear interpolation of the sampled variance, drawn as
     /// `shade(sqrt(v / vmax))`, sampled at each pixel's centre in the coordinates the dots are
-    /// drawn in. A variance bilinear in the latent coordinates is interpolated exactly, so every
-    /// pixel away from the grid lines, the dots and their labels has a known colour.
+    /// drawn in. A variance bilinear within each cell of the sample grid (its kinks, at
+    /// x = 0.5 and y = -0.5, on sample lines) is interpolated exactly, so every pixel away from
+    /// the grid lines, the dots and their labels has a known colour; interpolating from another
+    /// cell than the pixel's own (extrapolating) would cross a kink.
     #[test]
     fn the_shading_is_the_interpolated_standard_deviation_at_each_pixel_centre() {
         let points = vec![("A".to_owned(), [-1.0, -0.5]), ("B".to_owned(), [1.0, 0.5])];
-        let variance = |p: [f64; 2]| 2.0 + p[0] + 0.5 * p[1] + 0.25 * p[0] * p[1];
-        let (size, margin) = (150usize, 40usize);
+        let variance =
+            |p: [f64; 2]| 2.0 + (p[0] - 0.5).abs() + 0.5 * (p[1] + 0.5).abs() + 0.25 * p[0] * p[1];
+        let (size, margin, m) = (150usize, 40usize, 7usize);
         let opts = MapOptions {
             size,
-            variance_samples: 7,
+            variance_samples: m,
             ..MapOptions::default()
         };
         let img = latent_map(&points, &|p| Ok(variance(p)), None, &opts).unwrap();
         let [x0, x1, y0, y1] = extent(&points);
-        // The largest sample is at a corner of the plot (the grid's corners are samples).
-        let vmax = [[x0, y0], [x0, y1], [x1, y0], [x1, y1]]
-            .map(variance)
-            .into_iter()
+        // Samples every 0.5 from -1.5 to 1.5 on both axes; the shading's scale is the largest.
+        assert_eq!([x0, x1, y0, y1], [-1.5, 1.5, -1.5, 1.5]);
+        let at = |k: usize| -1.5 + 3.0 * k as f64 / (m - 1) as f64;
+        let vmax = (0..m * m)
+            .map(|k| variance([at(k % m), at(k / m)]))
             .fold(0.0, f64::max);
         let to_px = |x: f64, lo: f64, hi: f64| (x - lo) / (hi - lo) * size as f64;
         let grid_cols: Vec<usize> = nice_ticks(x0, x1, 5)
