@@ -537,24 +537,8 @@ fn small_maps_with_thumbnails_keep_bar_title_and_labels_in_place() {
     // runs of ink split where 5 or more columns are blank (a label has gaps of at most 3, and
     // one drawn label ends 6 px before the next). None is wider than the widest label (the
     // ones left out would run into their neighbours), and at least every other is drawn.
-    let [bx0, bx1, ..] = render::map::thumbnail_box(&points);
-    let widest = render::map::cell_centre_labels(bx0, bx1, g)
-        .iter()
-        .map(|l| render::font::text_width(l, 1))
-        .max()
-        .unwrap();
-    let inked: Vec<usize> = (panel_x - 18..labels_x)
-        .filter(|&x| (31..38).any(|y| dark(x, y)))
-        .collect();
-    let mut runs = vec![(inked[0], inked[0])];
-    for &x in &inked[1..] {
-        let last = runs.last_mut().unwrap();
-        if x - last.1 > 5 {
-            runs.push((x, x));
-        } else {
-            last.1 = x;
-        }
-    }
+    let widest = widest_column_label(&points, g);
+    let runs = ink_runs(&map, panel_x - 18..labels_x, 31..38);
     assert!(
         runs.len() > g / 2 && runs.iter().all(|&(a, z)| z - a < widest),
         "runs of ink {runs:?} in the X1 row, labels up to {widest} px"
@@ -571,6 +555,71 @@ fn small_maps_with_thumbnails_keep_bar_title_and_labels_in_place() {
         .filter(|&x| (31..38).any(|y| dark(x, y)))
         .count();
     assert!(x2_ink >= x2 / 2, "{x2_ink} inked columns of the name X2");
+}
+
+/// The widest of the X1 labels of `g` thumbnail columns over `points`' box.
+fn widest_column_label(points: &[(String, [f64; 2])], g: usize) -> usize {
+    let [bx0, bx1, ..] = render::map::thumbnail_box(points);
+    render::map::cell_centre_labels(bx0, bx1, g)
+        .iter()
+        .map(|l| render::font::text_width(l, 1))
+        .max()
+        .unwrap()
+}
+
+/// The runs of dark ink (first and last column) in columns `xs` of rows `ys`, split where 5 or
+/// more columns are blank (a label's glyphs leave gaps of at most 3 between them).
+fn ink_runs(
+    map: &render::Image,
+    xs: std::ops::Range<usize>,
+    ys: std::ops::Range<usize>,
+) -> Vec<(usize, usize)> {
+    let mut runs: Vec<(usize, usize)> = Vec::new();
+    for x in xs.filter(|&x| ys.clone().any(|y| map.get(x, y).iter().all(|c| *c < 0.3))) {
+        match runs.last_mut() {
+            Some(last) if x - last.1 <= 5 => last.1 = x,
+            _ => runs.push((x, x)),
+        }
+    }
+    runs
+}
+
+/// Thumbnails of 8 px, far narrower than their X1 labels: a label is drawn only 6 px clear of
+/// the name X1 and of the label before it, and the name X2 only 6 px clear of the last label,
+/// so every run of ink in the row is one name or one label.
+#[test]
+fn narrow_thumbnails_keep_their_coordinate_labels_apart() {
+    let (a, b) = (synth("acrylic_felt_white"), synth("carpaint_solid_red"));
+    let points = vec![
+        ("WHITE".to_string(), [-1.0, 0.0]),
+        ("RED".to_string(), [1.0, 0.5]),
+    ];
+    let var = |_: [f64; 2]| -> render::Result<f64> { Ok(0.5) };
+    let src = |p: [f64; 2]| -> render::Result<Box<dyn BrdfSource + '_>> {
+        Ok(Box::new(Mix(&b, &a, ((p[0] + 1.0) / 2.0).clamp(0.0, 1.0))))
+    };
+    let (g, ts) = (8usize, 8usize);
+    let opts = MapOptions {
+        size: 64,
+        thumbnails: g,
+        sphere: SphereOptions {
+            size: ts,
+            ..SphereOptions::default()
+        },
+        variance_samples: 4,
+        ..MapOptions::default()
+    };
+    let map = latent_map(&points, &var, Some(&src), &opts).unwrap();
+    keep(&map, "narrow-thumbnails.png");
+    let panel_x = 40 + 64 + 40;
+    let widest = widest_column_label(&points, g);
+    assert!(widest > 3 * ts, "{widest}");
+    let runs = ink_runs(&map, panel_x - 18..map.width, 31..38);
+    assert_eq!(runs[0].0, panel_x - 18, "{runs:?}");
+    assert!(
+        runs.len() >= 3 && runs.iter().all(|&(a, z)| z - a < widest),
+        "runs of ink {runs:?} in the X1 row, labels up to {widest} px"
+    );
 }
 
 /// The Delta E heat maps' rims are anti-aliased like the spheres beside them: a pixel the
