@@ -300,35 +300,45 @@ fn path_comparison_and_map_draw() {
     assert_eq!(map.get(between, 40 + 160 + 2), [1.0; 3]);
 }
 
+/// A 64 px map of two points, WHITE at (-1, 0) and RED at (1, 0.5), with a variance of 0.5
+/// everywhere, `g` x `g` thumbnails of `ts` px (blends of the two along X1) and the far limit
+/// `far`.
+fn two_point_map(g: usize, ts: usize, far: Option<f64>) -> render::Image {
+    let (a, b) = (synth("acrylic_felt_white"), synth("carpaint_solid_red"));
+    let points = two_points();
+    let var = |_: [f64; 2]| -> render::Result<f64> { Ok(0.5) };
+    let src = |p: [f64; 2]| -> render::Result<Box<dyn BrdfSource + '_>> {
+        Ok(Box::new(Mix(&b, &a, ((p[0] + 1.0) / 2.0).clamp(0.0, 1.0))))
+    };
+    let opts = MapOptions {
+        size: 64,
+        thumbnails: g,
+        sphere: SphereOptions {
+            size: ts,
+            ..SphereOptions::default()
+        },
+        variance_samples: 4,
+        far_variance: far,
+        ..MapOptions::default()
+    };
+    latent_map(&points, &var, Some(&src), &opts).unwrap()
+}
+
+/// The points of [`two_point_map`].
+fn two_points() -> Vec<(String, [f64; 2])> {
+    vec![
+        ("WHITE".to_string(), [-1.0, 0.0]),
+        ("RED".to_string(), [1.0, 0.5]),
+    ]
+}
+
 /// A thumbnail is framed as far from every material when its variance is above the limit,
 /// not at it: a variance of 0.5 everywhere frames every thumbnail under a limit one ulp below
 /// 0.5, and none under 0.5 itself.
 #[test]
 fn thumbnails_are_framed_above_the_far_limit_only() {
-    let (a, b) = (synth("acrylic_felt_white"), synth("carpaint_solid_red"));
-    let points = vec![
-        ("WHITE".to_string(), [-1.0, 0.0]),
-        ("RED".to_string(), [1.0, 0.5]),
-    ];
-    let var = |_: [f64; 2]| -> render::Result<f64> { Ok(0.5) };
-    let src = |p: [f64; 2]| -> render::Result<Box<dyn BrdfSource + '_>> {
-        Ok(Box::new(Mix(&b, &a, ((p[0] + 1.0) / 2.0).clamp(0.0, 1.0))))
-    };
     let (g, ts) = (2usize, 16usize);
-    let map = |limit: f64| {
-        let opts = MapOptions {
-            size: 64,
-            thumbnails: g,
-            sphere: SphereOptions {
-                size: ts,
-                ..SphereOptions::default()
-            },
-            variance_samples: 4,
-            far_variance: Some(limit),
-            ..MapOptions::default()
-        };
-        latent_map(&points, &var, Some(&src), &opts).unwrap()
-    };
+    let map = |limit: f64| two_point_map(g, ts, Some(limit));
     let framed = |m: &render::Image| {
         // The panel starts 40 px right of the 64 px plot.
         let panel_x = 40 + 64 + 40;
@@ -589,27 +599,8 @@ fn ink_runs(
 /// so every run of ink in the row is one name or one label.
 #[test]
 fn narrow_thumbnails_keep_their_coordinate_labels_apart() {
-    let (a, b) = (synth("acrylic_felt_white"), synth("carpaint_solid_red"));
-    let points = vec![
-        ("WHITE".to_string(), [-1.0, 0.0]),
-        ("RED".to_string(), [1.0, 0.5]),
-    ];
-    let var = |_: [f64; 2]| -> render::Result<f64> { Ok(0.5) };
-    let src = |p: [f64; 2]| -> render::Result<Box<dyn BrdfSource + '_>> {
-        Ok(Box::new(Mix(&b, &a, ((p[0] + 1.0) / 2.0).clamp(0.0, 1.0))))
-    };
     let (g, ts) = (8usize, 8usize);
-    let opts = MapOptions {
-        size: 64,
-        thumbnails: g,
-        sphere: SphereOptions {
-            size: ts,
-            ..SphereOptions::default()
-        },
-        variance_samples: 4,
-        ..MapOptions::default()
-    };
-    let map = latent_map(&points, &var, Some(&src), &opts).unwrap();
+    let (map, points) = (two_point_map(g, ts, None), two_points());
     keep(&map, "narrow-thumbnails.png");
     let panel_x = 40 + 64 + 40;
     let widest = widest_column_label(&points, g);
