@@ -1232,18 +1232,20 @@ mod tests {
         let vmax = (0..m * m)
             .map(|k| variance([at(k % m), at(k / m)]))
             .fold(0.0, f64::max);
-        let to_px = |x: f64, lo: f64, hi: f64| (x - lo) / (hi - lo) * size as f64;
+        // Plot pixel coordinates of a latent x (from the left) and y (from the top).
+        let to_col = |x: f64| (x - x0) / (x1 - x0) * size as f64;
+        let to_row = |y: f64| (y1 - y) / (y1 - y0) * size as f64;
         let grid_cols: Vec<usize> = nice_ticks(x0, x1, 5)
             .iter()
-            .map(|(v, _)| to_px(*v, x0, x1).round() as usize)
+            .map(|(v, _)| to_col(*v).round() as usize)
             .collect();
         let grid_rows: Vec<usize> = nice_ticks(y0, y1, 5)
             .iter()
-            .map(|(v, _)| to_px(y1 - (*v - y0), y0, y1).round() as usize)
+            .map(|(v, _)| to_row(*v).round() as usize)
             .collect();
         let dots: Vec<(f64, f64)> = points
             .iter()
-            .map(|(_, p)| (to_px(p[0], x0, x1), to_px(y1 - (p[1] - y0), y0, y1)))
+            .map(|(_, p)| (to_col(p[0]), to_row(p[1])))
             .collect();
         let mut checked = 0;
         for py in 0..size {
