@@ -1207,6 +1207,156 @@ mod tests {
         assert_eq!(big.get(39 + 159, y), [1.0; 3]);
     }
 
+    /// Whether `text` is drawn in `colour` with its top-left corner at (x, y): within the
+    /// text's box and a 1-pixel border around it, exactly the text's own pixels are `colour`.
+    fn drawn_at(img: &Image, x: i64, y: i64, text: &str, colour: [f64; 3]) -> bool {
+        let (w, h) = (font::text_width(text, 1), font::GLYPH_H);
+        let mut alone = Image::new(w + 2, h + 2, [1.0; 3]);
+        alone.text(1, 1, text, 1, [0.0; 3]);
+        (0..h + 2).all(|j| {
+            (0..w + 2).all(|i| {
+                let ink = alone.get(i, j) == [0.0; 3];
+                let (u, v) = ((x - 1) as usize + i, (y - 1) as usize + j);
+                (img.get(u, v) == colour) == ink
+            })
+        })
+    }
+
+    /// The map's furniture on a 400-pixel plot of a constant variance 2 over the square
+    /// [-1.5, 1.5]^2 (ticks every 0.5, one at the middle of each axis): the frame, every grid
+    /// line and tick mark, each tick label centred under (or right-aligned left of) its tick,
+    /// the axis names moved past the middle tick's label, the title, the caption, the full
+    /// colour bar with its two labels, a red training dot and a blue predicted ring, and a
+    /// label right of each dot on a white box.
+    #[test]
+    fn frame_ticks_names_bar_dots_and_labels_sit_where_they_belong() {
+        let points = vec![("A".to_owned(), [-1.0, -0.5]), ("B".to_owned(), [1.0, 0.5])];
+        let size = 400usize;
+        let opts = MapOptions {
+            size,
+            variance_samples: 4,
+            caption: "STD OF LOG".to_owned(),
+            predicted_points: 1,
+            ..MapOptions::default()
+        };
+        let img = latent_map(&points, &|_| Ok(2.0), None, &opts).unwrap();
+        assert_eq!(extent(&points), [-1.5, 1.5, -1.5, 1.5]);
+        // The tick labels are narrow enough for the 40-pixel margin: the frame is at 39.
+        let (l, t, b) = (39i64, 39i64, 40 + size as i64);
+        assert_eq!(
+            (img.width, img.height),
+            (40 + size + 40, 40 + size + 40 + 32)
+        );
+        let (black, white) = ([0.0; 3], [1.0; 3]);
+        // shade(1): the constant variance is the largest.
+        let base = [1.0 - 0.95, 1.0 - 0.85, 1.0 - 0.45];
+        let grid = base.map(|c| c * (1.0 - 0.12));
+        let at = |x: i64, y: i64| img.get(x as usize, y as usize);
+        for k in l..=b {
+            for (x, y) in [(k, t), (k, b), (l, k), (b, k)] {
+                assert_eq!(at(x, y), black, "frame at ({x}, {y})");
+            }
+        }
+        let ticks = nice_ticks(-1.5, 1.5, 5);
+        let labels: Vec<&str> = ticks.iter().map(|(_, s)| s.as_str()).collect();
+        assert_eq!(labels, ["-1.5", "-1.0", "-0.5", "0", "0.5", "1.0", "1.5"]);
+        let lines: Vec<i64> = (0..7)
+            .map(|k| 40 + (k as f64 * size as f64 / 6.0).round() as i64)
+            .collect();
+        assert_eq!(lines, [40, 107, 173, 240, 307, 373, 440]);
+        // Rows and columns clear of the dots (at 107, 307 and 373, 173) and their labels.
+        let clear = |v: i64, dots: [i64; 2]| dots.iter().all(|d| (v - d).abs() > 16);
+        for (&p, label) in lines.iter().zip(&labels) {
+            for q in l + 1..b {
+                if lines.contains(&q) {
+                    continue;
+                }
+                // Grid lines (the last ones lie on the frame), plain shading beside them.
+                let want = if p == b { black } else { grid };
+                let beside = [p - 1, p + 1].into_iter().filter(|n| l < *n && *n < b);
+                let beside: Vec<i64> = beside.filter(|n| !lines.contains(n)).collect();
+                if clear(q, [173, 307]) {
+                    assert_eq!(at(p, q), want, "x grid line at ({p}, {q})");
+                    for &n in &beside {
+                        assert_eq!(at(n, q), base, "beside the x grid line: ({n}, {q})");
+                    }
+                }
+                if clear(q, [107, 373]) {
+                    assert_eq!(at(q, p), want, "y grid line at ({q}, {p})");
+                    for &n in &beside {
+                        assert_eq!(at(q, n), base, "beside the y grid line: ({q}, {n})");
+                    }
+                }
+            }
+            // Tick marks 4 px long outside the frame, then white.
+            for d in 1..=4 {
+                assert_eq!(at(p, b + d), black, "x tick at {p}");
+                assert_eq!(at(l - d, p), black, "y tick at {p}");
+            }
+            for d in 5..=6 {
+                assert_eq!(at(p, b + d), white, "past the x tick at {p}");
+                assert_eq!(at(l - d, p), white, "past the y tick at {p}");
+            }
+            assert_eq!(at(p + 1, b + 1), white, "beside the x tick at {p}");
+            let w = font::text_width(label, 1) as i64;
+            // X labels centred under their ticks, y labels 6 px left of the frame, centred.
+            assert!(
+                drawn_at(&img, p - w / 2, b + 7, label, black),
+                "x label {label}"
+            );
+            // y runs up: the first y tick (-1.5) is at the bottom.
+            let y_label = labels[6 - lines.iter().position(|&v| v == p).unwrap()];
+            let wy = font::text_width(y_label, 1) as i64;
+            assert!(
+                drawn_at(&img, l - 6 - wy, p - 3, y_label, black),
+                "y label {y_label}"
+            );
+        }
+        // The middle ticks' labels hold the middles of the axes: X1 starts 6 px right of the
+        // label "0" (ending at 242), X2 12 px below the middle.
+        assert!(drawn_at(&img, 248, b + 18, "X1", black));
+        assert!(drawn_at(&img, 2, t + 200 + 12, "X2", black));
+        let title = "LATENT SPACE, SHADED BY PREDICTIVE STANDARD DEVIATION";
+        assert!(drawn_at(&img, l, 8, title, black));
+        assert!(drawn_at(&img, l, 20, "STD OF LOG", NOTE_GREY));
+        // The colour bar: "0", then 120 px of ramp from 160 px right of the corner, then the
+        // largest standard deviation, sqrt(2).
+        let bar_y = b + 34;
+        assert!(drawn_at(&img, l + 130, bar_y, "0", black));
+        assert!(drawn_at(&img, l + 160 + 130, bar_y, "1.414", black));
+        for y in bar_y..bar_y + 8 {
+            assert_eq!(at(l + 159, y), white);
+            assert_eq!(at(l + 280, y), white);
+            for i in 0..120 {
+                let t = i as f64 / 119.0;
+                let want = [1.0 - 0.95 * t, 1.0 - 0.85 * t, 1.0 - 0.45 * t];
+                assert_eq!(at(l + 160 + i, y), want, "ramp pixel {i}, row {y}");
+            }
+        }
+        for x in l + 160..l + 280 {
+            assert_eq!((at(x, bar_y - 1), at(x, bar_y + 8)), (white, white));
+        }
+        // A (training): red core in a white ring; B (predicted): blue ring around white. Each
+        // label sits 7 px right of its dot, vertically centred, on a white box (60 %).
+        let third: f64 = 400.0 / 3.0;
+        let (a, bb) = (
+            (40.0 + third / 2.0, 40.0 + 2.0 * third),
+            (440.0 - third / 2.0, 40.0 + third),
+        );
+        assert_eq!(at(106, 306), [0.8, 0.05, 0.02]);
+        assert_eq!(at(100, 306), base);
+        assert_eq!(at(373, 173), white);
+        assert_eq!(at(376, 173), [0.05, 0.25, 0.85]);
+        assert_eq!(at(367, 172), base);
+        let boxed = base.map(|c| c * (1.0 - 0.6) + 0.6);
+        for ((x, y), name) in [(a, "A"), (bb, "B")] {
+            let (x, y) = (x.round() as i64 + 7, y.round() as i64 - 3);
+            assert!(drawn_at(&img, x, y, name, black), "label {name}");
+            assert_eq!(at(x - 1, y - 1), boxed, "label {name}'s box");
+            assert_eq!(at(x - 2, y - 1), base, "left of label {name}'s box");
+        }
+    }
+
     /// The plot's shading is the bilinear interpolation of the sampled variance, drawn as
     /// `shade(sqrt(v / vmax))`, sampled at each pixel's centre in the coordinates the dots are
     /// drawn in. A variance bilinear within each cell of the sample grid (its kinks, at
