@@ -1357,6 +1357,74 @@ mod tests {
         }
     }
 
+    /// X tick labels are drawn greedily from the left, each centred under its tick: one that
+    /// would start left of the image, end past its right edge or start less than 6 px after
+    /// the previous drawn label ends is left out (its tick stays). Maps of every size from 64
+    /// to 512 px with labels up to 101 px wide (ticks near 1e20, 5e8 apart) meet each case,
+    /// including labels exactly at the image's edges and exactly 6 px apart; the row of x
+    /// labels must be exactly the labels the rule keeps, at their places, and nothing else.
+    #[test]
+    fn x_tick_labels_that_would_overlap_or_leave_the_image_are_left_out() {
+        // [off the left edge, off the right edge, too close, drawn at 0, ending at the right
+        // edge, drawn exactly 6 px after the previous]
+        let mut seen = [0usize; 6];
+        // The left end of the first pair's plot is just left of a tick, the right end of the
+        // second's just right of one.
+        for shift in [-2e7, 6e7] {
+            let points = vec![
+                ("A".to_owned(), [1e20 + shift, 0.0]),
+                ("B".to_owned(), [1e20 + 5e8 + shift, 3e8]),
+            ];
+            let [x0, x1, ..] = extent(&points);
+            let ticks = nice_ticks(x0, x1, 5);
+            for size in 64..=512usize {
+                let opts = MapOptions {
+                    size,
+                    variance_samples: 2,
+                    ..MapOptions::default()
+                };
+                let img = latent_map(&points, &|_| Ok(1.0), None, &opts).unwrap();
+                // The y labels (up to "-1E9") fit the 40 px margin.
+                let (left, b) = (40i64, 40 + size as i64);
+                let mut want = Image::new(img.width, 9, [1.0; 3]);
+                let mut last_end: Option<i64> = None;
+                for (v, label) in &ticks {
+                    let px = (left as f64 + (v - x0) / (x1 - x0) * size as f64).round() as i64;
+                    let w = font::text_width(label, 1) as i64;
+                    let (a, z) = (px - w / 2, px - w / 2 + w);
+                    let cases = [
+                        a < 0,
+                        z > img.width as i64,
+                        last_end.is_some_and(|e| a < e + 6),
+                    ];
+                    for (n, &hit) in cases.iter().enumerate() {
+                        seen[n] += usize::from(hit);
+                    }
+                    if cases.contains(&true) {
+                        continue;
+                    }
+                    seen[3] += usize::from(a == 0);
+                    seen[4] += usize::from(z == img.width as i64);
+                    seen[5] += usize::from(last_end.is_some_and(|e| a == e + 6));
+                    want.text(a, 1, label, 1, [0.0; 3]);
+                    last_end = Some(px + w / 2);
+                }
+                for y in 0..9 {
+                    for x in 0..img.width {
+                        let ink = img.get(x, (b + 6) as usize + y) == [0.0; 3];
+                        assert_eq!(
+                            ink,
+                            want.get(x, y) == [0.0; 3],
+                            "size {size}: pixel ({x}, {}) of the x labels' row",
+                            b as usize + 6 + y
+                        );
+                    }
+                }
+            }
+        }
+        assert!(seen.iter().all(|&n| n > 0), "cases met: {seen:?}");
+    }
+
     /// The plot's shading is the bilinear interpolation of the sampled variance, drawn as
     /// `shade(sqrt(v / vmax))`, sampled at each pixel's centre in the coordinates the dots are
     /// drawn in. A variance bilinear within each cell of the sample grid (its kinks, at
