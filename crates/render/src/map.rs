@@ -128,6 +128,18 @@ pub fn thumbnail_box(points: &[LabelledPoint]) -> [f64; 4] {
     [x0, x1, y0, y1]
 }
 
+/// The first column of the plot area of a map of `points` (its top row is 40): the left margin
+/// holds the axis name X2 (from column 2) and, at least 4 px after it, the y tick labels
+/// (right-aligned 6 px left of the frame), and is at least 40 px wide. (On small maps the name
+/// ran into the label beside it, "X2-0.5".)
+pub fn plot_left(points: &[LabelledPoint]) -> usize {
+    let [.., y0, y1] = extent(points);
+    nice_ticks(y0, y1, 5)
+        .iter()
+        .map(|(_, label)| Y_NAME_END + 4 + font::text_width(label, 1) + 7)
+        .fold(40, usize::max)
+}
+
 /// Draws the map: shading by the predictive standard deviation (the square root of `variance`:
 /// white = 0, deep blue = the largest sampled; a linear variance scale drew a standard
 /// deviation of half the largest, a factor of ~2 in log units, nearly white), training materials as red dots and predictions as blue rings (see
@@ -202,13 +214,7 @@ pub fn latent_map(
     let size = opts.size;
     let margin = 40usize;
     let (xt, yt) = (nice_ticks(x0, x1, 5), nice_ticks(y0, y1, 5));
-    // The left margin holds the y tick labels (right-aligned 6 px left of the frame).
-    let left = yt
-        .iter()
-        .map(|(_, label)| font::text_width(label, 1) + 8)
-        .max()
-        .unwrap_or(0)
-        .max(margin);
+    let left = plot_left(points);
     let panel_title = if opts.caption.contains("SLICE") {
         "PREDICTED MATERIALS OVER THE GREY BOX, ON THE SLICE"
     } else {
@@ -335,13 +341,17 @@ pub fn latent_map(
         mid_x - 6
     };
     img.text(x_name, b + 18, "X1", 1, black);
-    let mid_y = t + (size / 2) as i64;
-    let y_name = if y_labels.iter().any(|&y| (y - mid_y).abs() < 10) {
-        mid_y + 12
-    } else {
-        mid_y - 3
-    };
-    img.text(2, y_name, "X2", 1, black);
+    // X2 centred on the y axis, or on the nearest row of the plot at least 2 px clear of every
+    // y tick label (a name on a label's rows reads as part of it); where the labels leave no
+    // such row (ticks under 18 px apart), centred.
+    let centred = t + (size / 2) as i64 - 3;
+    let glyph_h = font::GLYPH_H as i64;
+    let clear = |r: i64| (y_labels.iter()).all(|&py| r + glyph_h + 2 <= py - 3 || py + 3 + 2 < r);
+    let y_name = (0..size as i64)
+        .flat_map(|k| [centred + k, centred - k])
+        .find(|&r| t < r && r + glyph_h <= b && clear(r))
+        .unwrap_or(centred);
+    img.text(Y_NAME_X, y_name, "X2", 1, black);
     // The title and the colour bar end 8 px before the thumbnail panel (or 4 px before the
     // image's edge without one) on small maps, where they ran into it and off the image.
     let right_edge = if panel > 0 {
@@ -703,6 +713,11 @@ impl LabelSpot {
         }
     }
 }
+
+/// Column where the y axis name (X2) starts, at the image's left edge.
+const Y_NAME_X: i64 = 2;
+/// The first column right of the y axis name (X2, 11 px wide).
+const Y_NAME_END: usize = Y_NAME_X as usize + 11;
 
 /// Linear RGB of the map's secondary text (the caption and the notes): a dark grey, 89 of 255
 /// in sRGB (0.3, 149 of 255, was hard to read on white).
@@ -1202,9 +1217,10 @@ mod tests {
         )
         .unwrap();
         let y = 40 + 400 + 34 + 2;
-        assert_eq!(big.get(39 + 160, y), [1.0; 3]);
-        assert_ne!(big.get(39 + 161, y), [1.0; 3]);
-        assert_eq!(big.get(39 + 159, y), [1.0; 3]);
+        // (The y labels, up to "-0.5", put the frame's corner at column 46.)
+        assert_eq!(big.get(46 + 160, y), [1.0; 3]);
+        assert_ne!(big.get(46 + 161, y), [1.0; 3]);
+        assert_eq!(big.get(46 + 159, y), [1.0; 3]);
     }
 
     /// Whether `text` is drawn in `colour` with its top-left corner at (x, y): within the
@@ -1241,81 +1257,87 @@ mod tests {
         };
         let img = latent_map(&points, &|_| Ok(2.0), None, &opts).unwrap();
         assert_eq!(extent(&points), [-1.5, 1.5, -1.5, 1.5]);
-        // The tick labels are narrow enough for the 40-pixel margin: the frame is at 39.
-        let (l, t, b) = (39i64, 39i64, 40 + size as i64);
+        // The widest y label, "-1.5" (23 px), starts 4 px after X2 (columns 2 to 12) and ends
+        // 7 px before the plot: the plot starts at column 47, 40 px from the top. The frame
+        // lies around it: columns l and r, rows t and b.
+        let (left, top) = (47i64, 40i64);
+        assert_eq!(plot_left(&points), 47);
+        let (l, t) = (left - 1, top - 1);
+        let (r, b) = (left + size as i64, top + size as i64);
         assert_eq!(
             (img.width, img.height),
-            (40 + size + 40, 40 + size + 40 + 32)
+            (47 + size + 40, 40 + size + 40 + 32)
         );
         let (black, white) = ([0.0; 3], [1.0; 3]);
         // shade(1): the constant variance is the largest.
         let base = [1.0 - 0.95, 1.0 - 0.85, 1.0 - 0.45];
         let grid = base.map(|c| c * (1.0 - 0.12));
         let at = |x: i64, y: i64| img.get(x as usize, y as usize);
-        for k in l..=b {
-            for (x, y) in [(k, t), (k, b), (l, k), (b, k)] {
+        for k in 0..size as i64 + 2 {
+            for (x, y) in [(l + k, t), (l + k, b), (l, t + k), (r, t + k)] {
                 assert_eq!(at(x, y), black, "frame at ({x}, {y})");
             }
         }
         let ticks = nice_ticks(-1.5, 1.5, 5);
         let labels: Vec<&str> = ticks.iter().map(|(_, s)| s.as_str()).collect();
         assert_eq!(labels, ["-1.5", "-1.0", "-0.5", "0", "0.5", "1.0", "1.5"]);
-        let lines: Vec<i64> = (0..7)
-            .map(|k| 40 + (k as f64 * size as f64 / 6.0).round() as i64)
+        // Grid line k of each axis lies k sixths of the plot from its start (y runs up).
+        let offsets: Vec<i64> = (0..7)
+            .map(|k| (k as f64 * size as f64 / 6.0).round() as i64)
             .collect();
-        assert_eq!(lines, [40, 107, 173, 240, 307, 373, 440]);
-        // Rows and columns clear of the dots (at 107, 307 and 373, 173) and their labels.
+        assert_eq!(offsets, [0, 67, 133, 200, 267, 333, 400]);
+        let columns: Vec<i64> = offsets.iter().map(|o| left + o).collect();
+        let rows: Vec<i64> = offsets.iter().rev().map(|o| top + o).collect();
+        // Rows and columns clear of the dots (at 114, 307 and 380, 173) and their labels.
         let clear = |v: i64, dots: [i64; 2]| dots.iter().all(|d| (v - d).abs() > 16);
-        for (&p, label) in lines.iter().zip(&labels) {
-            for q in l + 1..b {
-                if lines.contains(&q) {
-                    continue;
-                }
-                // Grid lines (the last ones lie on the frame), plain shading beside them.
-                let want = if p == b { black } else { grid };
-                let beside = [p - 1, p + 1].into_iter().filter(|n| l < *n && *n < b);
-                let beside: Vec<i64> = beside.filter(|n| !lines.contains(n)).collect();
-                if clear(q, [173, 307]) {
-                    assert_eq!(at(p, q), want, "x grid line at ({p}, {q})");
-                    for &n in &beside {
+        // Grid lines (the last ones lie on the frame), plain shading beside them.
+        let beside = |p: i64, lines: &[i64], (start, end): (i64, i64)| {
+            let next = [p - 1, p + 1].into_iter();
+            next.filter(|n| start < *n && *n < end && !lines.contains(n))
+                .collect::<Vec<i64>>()
+        };
+        for (&x, &y) in columns.iter().zip(&rows) {
+            for q in t + 1..b {
+                if clear(q, [173, 307]) && !rows.contains(&q) {
+                    let want = if x == r { black } else { grid };
+                    assert_eq!(at(x, q), want, "x grid line at ({x}, {q})");
+                    for n in beside(x, &columns, (l, r)) {
                         assert_eq!(at(n, q), base, "beside the x grid line: ({n}, {q})");
                     }
                 }
-                if clear(q, [107, 373]) {
-                    assert_eq!(at(q, p), want, "y grid line at ({q}, {p})");
-                    for &n in &beside {
+            }
+            for q in l + 1..r {
+                if clear(q, [114, 380]) && !columns.contains(&q) {
+                    let want = if y == b { black } else { grid };
+                    assert_eq!(at(q, y), want, "y grid line at ({q}, {y})");
+                    for n in beside(y, &rows, (t, b)) {
                         assert_eq!(at(q, n), base, "beside the y grid line: ({q}, {n})");
                     }
                 }
             }
+        }
+        for ((&x, &y), label) in columns.iter().zip(&rows).zip(&labels) {
             // Tick marks 4 px long outside the frame, then white.
             for d in 1..=4 {
-                assert_eq!(at(p, b + d), black, "x tick at {p}");
-                assert_eq!(at(l - d, p), black, "y tick at {p}");
+                assert_eq!(at(x, b + d), black, "x tick at {x}");
+                assert_eq!(at(l - d, y), black, "y tick at {y}");
             }
             for d in 5..=6 {
-                assert_eq!(at(p, b + d), white, "past the x tick at {p}");
-                assert_eq!(at(l - d, p), white, "past the y tick at {p}");
+                assert_eq!(at(x, b + d), white, "past the x tick at {x}");
+                assert_eq!(at(l - d, y), white, "past the y tick at {y}");
             }
-            assert_eq!(at(p + 1, b + 1), white, "beside the x tick at {p}");
-            let w = font::text_width(label, 1) as i64;
+            assert_eq!(at(x + 1, b + 1), white, "beside the x tick at {x}");
             // X labels centred under their ticks, y labels 6 px left of the frame, centred.
-            assert!(
-                drawn_at(&img, p - w / 2, b + 7, label, black),
-                "x label {label}"
-            );
-            // y runs up: the first y tick (-1.5) is at the bottom.
-            let y_label = labels[6 - lines.iter().position(|&v| v == p).unwrap()];
-            let wy = font::text_width(y_label, 1) as i64;
-            assert!(
-                drawn_at(&img, l - 6 - wy, p - 3, y_label, black),
-                "y label {y_label}"
-            );
+            let w = font::text_width(label, 1) as i64;
+            assert!(drawn_at(&img, x - w / 2, b + 7, label, black), "x {label}");
+            assert!(drawn_at(&img, l - 6 - w, y - 3, label, black), "y {label}");
         }
         // The middle ticks' labels hold the middles of the axes: X1 starts 6 px right of the
-        // label "0" (ending at 242), X2 12 px below the middle.
-        assert!(drawn_at(&img, 248, b + 18, "X1", black));
-        assert!(drawn_at(&img, 2, t + 200 + 12, "X2", black));
+        // label "0" (ending at 249). X2 goes from the middle (rows 236 to 242) to the nearest
+        // rows 2 px clear of every y label: 8 px up, ending 2 rows above the label "0" (rows
+        // 237 to 243).
+        assert!(drawn_at(&img, 255, b + 18, "X1", black));
+        assert!(drawn_at(&img, 2, 228, "X2", black));
         let title = "LATENT SPACE, SHADED BY PREDICTIVE STANDARD DEVIATION";
         assert!(drawn_at(&img, l, 8, title, black));
         assert!(drawn_at(&img, l, 20, "STD OF LOG", NOTE_GREY));
@@ -1340,14 +1362,14 @@ mod tests {
         // label sits 7 px right of its dot, vertically centred, on a white box (60 %).
         let third: f64 = 400.0 / 3.0;
         let (a, bb) = (
-            (40.0 + third / 2.0, 40.0 + 2.0 * third),
-            (440.0 - third / 2.0, 40.0 + third),
+            (47.0 + third / 2.0, 40.0 + 2.0 * third),
+            (447.0 - third / 2.0, 40.0 + third),
         );
-        assert_eq!(at(106, 306), [0.8, 0.05, 0.02]);
-        assert_eq!(at(100, 306), base);
-        assert_eq!(at(373, 173), white);
-        assert_eq!(at(376, 173), [0.05, 0.25, 0.85]);
-        assert_eq!(at(367, 172), base);
+        assert_eq!(at(113, 306), [0.8, 0.05, 0.02]);
+        assert_eq!(at(107, 306), base);
+        assert_eq!(at(380, 173), white);
+        assert_eq!(at(383, 173), [0.05, 0.25, 0.85]);
+        assert_eq!(at(374, 172), base);
         let boxed = base.map(|c| c * (1.0 - 0.6) + 0.6);
         for ((x, y), name) in [(a, "A"), (bb, "B")] {
             let (x, y) = (x.round() as i64 + 7, y.round() as i64 - 3);
@@ -1355,6 +1377,36 @@ mod tests {
             assert_eq!(at(x - 1, y - 1), boxed, "label {name}'s box");
             assert_eq!(at(x - 2, y - 1), base, "left of label {name}'s box");
         }
+    }
+
+    /// Where `latent_map` puts each x tick label over [x0, x1] on a plot of `size` px from
+    /// column `left` in an image `width` px wide: centred under its tick, its first and last
+    /// columns, and why it is left out: [starts left of the image, ends past its right edge,
+    /// starts under 6 px after the last label kept ends] (kept when none holds).
+    fn x_label_spans(
+        ticks: &[(f64, String)],
+        [x0, x1]: [f64; 2],
+        (left, size): (i64, usize),
+        width: usize,
+    ) -> Vec<(i64, i64, [bool; 3])> {
+        let mut last_end: Option<i64> = None;
+        let mut spans = Vec::new();
+        for (v, label) in ticks {
+            let px = (left as f64 + (v - x0) / (x1 - x0) * size as f64).round() as i64;
+            let w = font::text_width(label, 1) as i64;
+            // Label widths are odd (6 n - 1 px): the label spans px - w / 2 ..= px + w / 2.
+            let (a, end) = (px - w / 2, px + w / 2);
+            let reasons = [
+                a < 0,
+                end >= width as i64,
+                last_end.is_some_and(|e| a < e + 6),
+            ];
+            if !reasons.contains(&true) {
+                last_end = Some(end);
+            }
+            spans.push((a, end, reasons));
+        }
+        spans
     }
 
     /// X tick labels are drawn greedily from the left, each centred under its tick: one that
@@ -1370,7 +1422,7 @@ mod tests {
         let mut seen = [0usize; 6];
         // The left end of the first pair's plot is just left of a tick, the right end of the
         // second's just right of one.
-        for shift in [-2e7, 6e7] {
+        for shift in [1.44e9, 1.56e9] {
             let points = vec![
                 ("A".to_owned(), [1e20 + shift, 0.0]),
                 ("B".to_owned(), [1e20 + 5e8 + shift, 3e8]),
@@ -1384,30 +1436,23 @@ mod tests {
                     ..MapOptions::default()
                 };
                 let img = latent_map(&points, &|_| Ok(1.0), None, &opts).unwrap();
-                // The y labels (up to "-1E9") fit the 40 px margin.
-                let (left, b) = (40i64, 40 + size as i64);
+                // The y labels (up to "-1E9", 23 px) put the plot at column 47.
+                let b = 40 + size as i64;
                 let mut want = Image::new(img.width, 9, [1.0; 3]);
                 let mut last_end: Option<i64> = None;
-                for (v, label) in &ticks {
-                    let px = (left as f64 + (v - x0) / (x1 - x0) * size as f64).round() as i64;
-                    let w = font::text_width(label, 1) as i64;
-                    let (a, z) = (px - w / 2, px - w / 2 + w);
-                    let cases = [
-                        a < 0,
-                        z > img.width as i64,
-                        last_end.is_some_and(|e| a < e + 6),
-                    ];
-                    for (n, &hit) in cases.iter().enumerate() {
+                let spans = x_label_spans(&ticks, [x0, x1], (47, size), img.width);
+                for ((_, label), (a, end, reasons)) in ticks.iter().zip(spans) {
+                    for (n, &hit) in reasons.iter().enumerate() {
                         seen[n] += usize::from(hit);
                     }
-                    if cases.contains(&true) {
+                    if reasons.contains(&true) {
                         continue;
                     }
                     seen[3] += usize::from(a == 0);
-                    seen[4] += usize::from(z == img.width as i64);
+                    seen[4] += usize::from(end + 1 == img.width as i64);
                     seen[5] += usize::from(last_end.is_some_and(|e| a == e + 6));
                     want.text(a, 1, label, 1, [0.0; 3]);
-                    last_end = Some(px + w / 2);
+                    last_end = Some(end);
                 }
                 for y in 0..9 {
                     for x in 0..img.width {
@@ -1425,6 +1470,123 @@ mod tests {
         assert!(seen.iter().all(|&n| n > 0), "cases met: {seen:?}");
     }
 
+    /// The axis names sit at the middles of their axes, moved aside where tick labels are:
+    /// X1 (under the x labels) starts 6 px left of the middle unless a kept x label spans from
+    /// 13 px right of the middle to 3 px left of it, when it starts 6 px after the first kept
+    /// label that ends past the middle. X2 (at column 2, always 4 px or more left of the y
+    /// labels) is centred on the middle or, where it would come within 2 px of a y label's
+    /// rows, on the nearest rows of the plot that do not (centred if there are none). Maps of
+    /// every size from 64 to 400 px over [-1.3, 1.7] x [-1.7, 1.3] meet both branches of
+    /// each rule, X2 moved both ways, and every boundary of the X1 rule.
+    #[test]
+    fn axis_names_sit_at_the_middles_clear_of_the_tick_labels() {
+        let points = vec![("A".to_owned(), [-0.8, -0.7]), ("B".to_owned(), [1.2, 0.3])];
+        let [x0, x1, y0, y1] = extent(&points);
+        let (xt, yt) = (nice_ticks(x0, x1, 5), nice_ticks(y0, y1, 5));
+        let widest = yt.iter().map(|(_, s)| font::text_width(s, 1)).max();
+        // The y labels, up to "-1.5" (23 px), put the plot at column 47.
+        assert_eq!(widest, Some(23));
+        let left = 47;
+        // [X1 moved, a label starting 13 px right of the middle (moves X1), 14 px (does not),
+        // one ending 3 px left of it (moves X1), 4 px (does not), X1 moved with a label ending
+        // 6 px left of the middle, X2 moved up, X2 moved down, X2 centred with no clear rows]
+        let mut seen = [0usize; 9];
+        for size in 64..=400usize {
+            let opts = MapOptions {
+                size,
+                variance_samples: 2,
+                ..MapOptions::default()
+            };
+            let img = latent_map(&points, &|_| Ok(1.0), None, &opts).unwrap();
+            let (t, b) = (39, 40 + size as i64);
+            let mid = left - 1 + (size / 2) as i64;
+            let kept: Vec<(i64, i64)> = x_label_spans(&xt, [x0, x1], (left, size), img.width)
+                .into_iter()
+                .filter(|(_, _, reasons)| !reasons.contains(&true))
+                .map(|(a, end, _)| (a, end))
+                .collect();
+            let near = kept.iter().any(|&(a, end)| a - 13 <= mid && mid <= end + 3);
+            let x_name = if near {
+                kept.iter()
+                    .map(|&(_, end)| end + 6)
+                    .find(|&x| x > mid)
+                    .unwrap()
+            } else {
+                mid - 6
+            };
+            assert!(
+                drawn_at(&img, x_name, b + 18, "X1", [0.0; 3]),
+                "size {size}: X1"
+            );
+            // X2: the first row of the name at the left edge, and where it would be centred.
+            let y_name = (1..img.height as i64 - 8)
+                .find(|&r| drawn_at(&img, 2, r, "X2", [0.0; 3]))
+                .unwrap_or_else(|| panic!("size {size}: no X2"));
+            let centred = 39 + (size / 2) as i64 - 3;
+            let ticks = yt.iter().map(|(v, _)| (y1 - v) / (y1 - y0) * size as f64);
+            let ticks: Vec<i64> = ticks.map(|y| 40 + y.round() as i64).collect();
+            // Rows r..r + 7 of the name, 2 blank rows, rows y - 3..=y + 3 of a label, or back.
+            let clear = |r: i64| ticks.iter().all(|&y| r + 7 + 2 <= y - 3 || y + 3 + 2 < r);
+            let fits = |r: i64| t < r && r + 7 <= b;
+            let nearest = (t + 1..=b - 7)
+                .filter(|&r| clear(r))
+                .map(|r| (r - centred).abs())
+                .min();
+            match nearest {
+                Some(d) => {
+                    assert!(fits(y_name) && clear(y_name), "size {size}: X2 at {y_name}");
+                    assert_eq!((y_name - centred).abs(), d, "size {size}: X2 at {y_name}");
+                }
+                None => assert_eq!(y_name, centred, "size {size}"),
+            }
+            let count = |f: &dyn Fn(&(i64, i64)) -> bool| kept.iter().filter(|s| f(s)).count();
+            let counts = [
+                usize::from(near),
+                count(&|&(a, _)| a - 13 == mid),
+                count(&|&(a, _)| a - 14 == mid),
+                count(&|&(_, end)| end + 3 == mid),
+                count(&|&(_, end)| end + 4 == mid),
+                usize::from(near) * count(&|&(_, end)| end + 6 == mid),
+                usize::from(y_name < centred),
+                usize::from(y_name > centred),
+                usize::from(nearest.is_none() && !clear(centred)),
+            ];
+            for (s, c) in seen.iter_mut().zip(counts) {
+                *s += c;
+            }
+        }
+        assert!(seen.iter().all(|&n| n > 0), "cases met: {seen:?}");
+        assert!(seen[0] < 337, "both branches: {seen:?}");
+    }
+
+    /// Every y tick label starts at least 4 px right of the axis name X2 (columns 2 to 12),
+    /// however wide the labels: on small maps the two ran together ("X2-0.5").
+    #[test]
+    fn y_tick_labels_keep_clear_of_the_axis_name() {
+        for (c, size) in [(0.2, 64), (0.2, 128), (1e7, 100), (-3e-9, 200), (1e100, 96)] {
+            let points = vec![("A".to_owned(), [0.0, c]), ("B".to_owned(), [0.3, c * 1.1])];
+            let opts = MapOptions {
+                size,
+                variance_samples: 2,
+                ..MapOptions::default()
+            };
+            let img = latent_map(&points, &|_| Ok(1.0), None, &opts).unwrap();
+            // X2 is drawn whole, and nothing else is drawn between it and the y tick labels
+            // (columns 13 to 16), from under the title to the last label.
+            let b = 40 + size as i64;
+            assert!(
+                (1..b).any(|r| drawn_at(&img, 2, r, "X2", [0.0; 3])),
+                "{c}: X2"
+            );
+            let dark = |x: usize, y: usize| img.get(x, y).iter().all(|v| *v < 0.5);
+            for y in 30..=b as usize + 3 {
+                for x in 13..17 {
+                    assert!(!dark(x, y), "{c}, size {size}: ink at ({x}, {y})");
+                }
+            }
+        }
+    }
+
     /// The plot's shading is the bilinear interpolation of the sampled variance, drawn as
     /// `shade(sqrt(v / vmax))`, sampled at each pixel's centre in the coordinates the dots are
     /// drawn in. A variance bilinear within each cell of the sample grid (its kinks, at
@@ -1436,7 +1598,8 @@ mod tests {
         let points = vec![("A".to_owned(), [-1.0, -0.5]), ("B".to_owned(), [1.0, 0.5])];
         let variance =
             |p: [f64; 2]| 2.0 + (p[0] - 0.5).abs() + 0.5 * (p[1] + 0.5).abs() + 0.25 * p[0] * p[1];
-        let (size, margin, m) = (150usize, 40usize, 7usize);
+        // The y labels, up to "-1.5" (23 px), put the plot at column 47.
+        let (size, left, top, m) = (150usize, 47usize, 40usize, 7usize);
         let opts = MapOptions {
             size,
             variance_samples: m,
@@ -1480,7 +1643,7 @@ mod tests {
                 ];
                 let t = (variance(p) / vmax).sqrt();
                 let want = [1.0 - 0.95 * t, 1.0 - 0.85 * t, 1.0 - 0.45 * t];
-                let got = img.get(margin + px, margin + py);
+                let got = img.get(left + px, top + py);
                 assert!(
                     (0..3).all(|c| (got[c] - want[c]).abs() < 1e-12),
                     "pixel ({px}, {py}): {got:?}, not {want:?}"
@@ -1511,7 +1674,8 @@ mod tests {
         };
         let a = latent_map(&points, &|_| Ok(1.0), None, &plain).unwrap();
         let b = latent_map(&points, &|_| Ok(1.0), None, &asked).unwrap();
-        assert_eq!((a.width, a.height), (40 + 64 + 40, 40 + 64 + 40 + 32));
+        // (The y labels, up to "-0.5", put the plot at column 47.)
+        assert_eq!((a.width, a.height), (47 + 64 + 40, 40 + 64 + 40 + 32));
         assert_eq!((b.width, b.height), (a.width, a.height));
         assert!(a.rgb == b.rgb);
     }

@@ -112,6 +112,8 @@ fn path_comparison_and_map_draw() {
         ("WHITE".to_string(), [-1.0, 0.0]),
         ("RED".to_string(), [1.0, 0.5]),
     ];
+    // The plot's first column, right of the y tick labels.
+    let plot_x = render::map::plot_left(&points);
     let var = |p: [f64; 2]| -> render::Result<f64> {
         let d = |q: [f64; 2]| ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2)).min(4.0);
         Ok(d(points[0].1).min(d(points[1].1)))
@@ -164,7 +166,7 @@ fn path_comparison_and_map_draw() {
     let map = latent_map(&points, &var, Some(&src), &mopts).unwrap();
     keep(&map, "map.png");
     // Every label found room: no note under the colour bar (rows 250..257, left of the panel).
-    let note = (39..240)
+    let note = (plot_x - 1..plot_x + 200)
         .filter(|&x| (250..257).any(|y| map.get(x, y).iter().all(|c| *c < 0.5)))
         .count();
     assert_eq!(
@@ -175,9 +177,9 @@ fn path_comparison_and_map_draw() {
     let title = "PREDICTED MATERIALS OVER THE GREY BOX, ON THE SLICE";
     let title_w = render::font::text_width(title, 1);
     assert!(title_w > 3 * 24);
-    assert_eq!(map.width, 40 + 160 + 40 + title_w + 40);
+    assert_eq!(map.width, plot_x + 160 + 40 + title_w + 40);
     let title_ink = (0..title_w)
-        .filter(|&x| (8..15).any(|y| map.get(40 + 160 + 40 + x, y)[0] < 0.5))
+        .filter(|&x| (8..15).any(|y| map.get(plot_x + 160 + 40 + x, y)[0] < 0.5))
         .count();
     assert!(
         title_ink > title_w / 2,
@@ -186,7 +188,7 @@ fn path_comparison_and_map_draw() {
     // Near a point the variance is low (light background), far away high (darker).
     let [x0, x1, y0, y1] = render::map::extent(&points);
     let px = |p: [f64; 2]| {
-        let x = 40.0 + (p[0] - x0) / (x1 - x0) * 160.0;
+        let x = plot_x as f64 + (p[0] - x0) / (x1 - x0) * 160.0;
         let y = 40.0 + (y1 - p[1]) / (y1 - y0) * 160.0;
         map.get(x as usize, y as usize)
     };
@@ -200,13 +202,13 @@ fn path_comparison_and_map_draw() {
     let centre = px(red_point);
     assert!(centre.iter().all(|c| *c > 0.9), "{centre:?}");
     let ring = {
-        let x = 40.0 + (red_point[0] - x0) / (x1 - x0) * 160.0 + 3.0;
+        let x = plot_x as f64 + (red_point[0] - x0) / (x1 - x0) * 160.0 + 3.0;
         let y = 40.0 + (y1 - red_point[1]) / (y1 - y0) * 160.0;
         map.get(x as usize, y as usize)
     };
     assert!(ring[2] > 0.6 && ring[0] < 0.3, "{ring:?}");
     // The caption line is drawn (grey text under the title).
-    let caption_ink = (40..200)
+    let caption_ink = (plot_x..plot_x + 160)
         .flat_map(|x| (20..27).map(move |y| (x, y)))
         .filter(|&(x, y)| map.get(x, y)[0] < 0.5)
         .count();
@@ -216,8 +218,8 @@ fn path_comparison_and_map_draw() {
     // red on the right.
     assert_eq!(render::map::thumbnail_box(&points), [-1.0, 1.0, 0.0, 0.5]);
     let row = 40 + 24 + 12;
-    let left = map.get(40 + 160 + 40 + 12, row);
-    let right = map.get(40 + 160 + 40 + 2 * 24 + 12, row);
+    let left = map.get(plot_x + 160 + 40 + 12, row);
+    let right = map.get(plot_x + 160 + 40 + 2 * 24 + 12, row);
     assert!(
         right[0] > 2.0 * right[2] && (left[0] - left[2]).abs() < 0.2 * left[0],
         "{left:?} {right:?}"
@@ -240,7 +242,7 @@ fn path_comparison_and_map_draw() {
         let p = m.get(x, y);
         p[0] > 0.9 && (0.3..0.6).contains(&p[1]) && p[2] < 0.1
     };
-    let panel_x = 40 + 160 + 40;
+    let panel_x = plot_x + 160 + 40;
     for j in 0..3 {
         let y = 40 + j * 24 + 12;
         for (i, framed) in [(0, false), (1, true), (2, false)] {
@@ -277,7 +279,7 @@ fn path_comparison_and_map_draw() {
     assert!(note_ink(&far_map) > 20 && note_ink(&map) == 0);
     // The box is outlined in grey on the map, 6 px outside the points.
     let (bx, by) = (
-        40.0 + (-1.0 - x0) / (x1 - x0) * 160.0 - 6.0,
+        plot_x as f64 + (-1.0 - x0) / (x1 - x0) * 160.0 - 6.0,
         40.0 + (y1 - 0.25) / (y1 - y0) * 160.0,
     );
     let edge = map.get(bx as usize, by as usize);
@@ -290,13 +292,13 @@ fn path_comparison_and_map_draw() {
         "{ticks:?}"
     );
     let (tx, ty) = (
-        (40.0 + (0.0 - x0) / (x1 - x0) * 160.0).round() as usize,
+        (plot_x as f64 + (0.0 - x0) / (x1 - x0) * 160.0).round() as usize,
         (40.0 + (y1 - 0.0) / (y1 - y0) * 160.0).round() as usize,
     );
     assert_eq!(map.get(tx, 40 + 160 + 2), [0.0; 3]);
-    assert_eq!(map.get(40 - 3, ty), [0.0; 3]);
+    assert_eq!(map.get(plot_x - 3, ty), [0.0; 3]);
     let step = ticks[1].0 - ticks[0].0;
-    let between = (40.0 + (0.5 * step - x0) / (x1 - x0) * 160.0).round() as usize;
+    let between = (plot_x as f64 + (0.5 * step - x0) / (x1 - x0) * 160.0).round() as usize;
     assert_eq!(map.get(between, 40 + 160 + 2), [1.0; 3]);
 }
 
@@ -339,9 +341,9 @@ fn two_points() -> Vec<(String, [f64; 2])> {
 fn thumbnails_are_framed_above_the_far_limit_only() {
     let (g, ts) = (2usize, 16usize);
     let map = |limit: f64| two_point_map(g, ts, Some(limit));
+    // The panel starts 40 px right of the 64 px plot.
+    let panel_x = render::map::plot_left(&two_points()) + 64 + 40;
     let framed = |m: &render::Image| {
-        // The panel starts 40 px right of the 64 px plot.
-        let panel_x = 40 + 64 + 40;
         (0..g * g)
             .filter(|k| {
                 let p = m.get(panel_x + (k % g) * ts, 40 + (k / g) * ts + ts / 2);
@@ -356,17 +358,17 @@ fn thumbnails_are_framed_above_the_far_limit_only() {
     // shorter form that ends inside the panel (before the image's 40 px right margin); with
     // none framed there is no note.
     let note_ink = |m: &render::Image| -> Vec<usize> {
-        (40 + 64 + 40..m.width)
+        (panel_x..m.width)
             .filter(|&x| (80..87).any(|y| m.get(x, y).iter().all(|c| *c < 0.5)))
             .collect()
     };
     let ink = note_ink(&all);
     let end = render::font::text_width("ORANGE: 4 FAR FROM EVERY MATERIAL", 1);
     assert!(
-        ink.len() > end / 2 && *ink.last().unwrap() < 40 + 64 + 40 + end,
+        ink.len() > end / 2 && *ink.last().unwrap() < panel_x + end,
         "note ink at {ink:?}"
     );
-    assert!(all.width >= 40 + 64 + 40 + end + 40);
+    assert!(all.width >= panel_x + end + 40);
     assert_eq!(note_ink(&none), Vec::<usize>::new());
 }
 
@@ -400,7 +402,7 @@ fn thumbnail_panels_fit_the_image_and_one_axis_maps_have_one_row() {
     assert_eq!(square.height, 40 + 5 * 32 + 40);
     // The spheres start 40 px right of the plot (the panel is as wide as its title, wider
     // than the 5 spheres).
-    let x0 = 40 + 64 + 40;
+    let x0 = render::map::plot_left(&points) + 64 + 40;
     assert!(square.width > x0 + 5 * 32 + 40);
     // The last row is drawn: the bottom sphere's centre is lit, not the white background.
     let last = square.get(x0 + 16, 40 + 4 * 32 + 16);
@@ -466,8 +468,10 @@ fn small_maps_with_thumbnails_keep_bar_title_and_labels_in_place() {
     };
     let map = latent_map(&points, &var, Some(&src), &opts).unwrap();
     keep(&map, "small-map.png");
-    // Plot at x 40..168 (y tick labels fit the 40 px margin), panel from x 208.
-    let (left, panel_x) = (40usize, 40 + size + 40);
+    // The plot (from x = 40: the y tick labels are narrow), then 40 px before the panel.
+    let left = render::map::plot_left(&points);
+    assert_eq!(left, 40);
+    let panel_x = left + size + 40;
     let dark = |x: usize, y: usize| map.get(x, y).iter().all(|c| *c < 0.3);
     // Colour bar: its deepest blue (shade 1 = (0.05, 0.15, 0.55)) and the largest standard
     // deviation's label are left of the panel, on the bar's rows.
@@ -602,7 +606,7 @@ fn narrow_thumbnails_keep_their_coordinate_labels_apart() {
     let (g, ts) = (8usize, 8usize);
     let (map, points) = (two_point_map(g, ts, None), two_points());
     keep(&map, "narrow-thumbnails.png");
-    let panel_x = 40 + 64 + 40;
+    let panel_x = render::map::plot_left(&points) + 64 + 40;
     let widest = widest_column_label(&points, g);
     assert!(widest > 3 * ts, "{widest}");
     let runs = ink_runs(&map, panel_x - 18..map.width, 31..38);
