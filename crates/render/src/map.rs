@@ -1199,11 +1199,12 @@ mod tests {
                 assert!(!dark(x, y), "ink at ({x}, {y}) on the right edge");
             }
         }
-        // The bar's label (the largest standard deviation) is drawn: ink right of the ramp,
-        // whose darkest end is blue, not black.
-        let bar_y = 40 + 64 + 34;
-        let ink = (0..img.width).filter(|&x| dark(x, bar_y + 1)).count();
-        assert!(ink >= 4, "{ink} dark pixels on the colour bar's row");
+        // The bar starts at the frame's corner (the y labels, up to "-0.5", put it at column
+        // 46): "0", then the ramp, then the largest standard deviation, sqrt(1 + 1.5^2), 4 px
+        // before the image's right edge (151 px wide): a ramp of 151 - 4 - 29 - 10 - 46 - 10
+        // = 52 px.
+        assert_eq!(img.width, 47 + 64 + 40);
+        assert_colour_bar(&img, [46, 56, 52, 40 + 64 + 34], "1.803");
         // Default maps keep their layout: the 120-pixel ramp starts 160 px right of the corner.
         let big = latent_map(
             &points,
@@ -1221,6 +1222,27 @@ mod tests {
         assert_eq!(big.get(46 + 160, y), [1.0; 3]);
         assert_ne!(big.get(46 + 161, y), [1.0; 3]);
         assert_eq!(big.get(46 + 159, y), [1.0; 3]);
+    }
+
+    /// Asserts that `img` has a colour bar at `[zero_x, bar_x, len, y]`: "0" at (zero_x, y), a
+    /// ramp of `len` px from (bar_x, y), 8 px high, from shade(0) to shade(1) with white around
+    /// it, and the label `top` 10 px after it.
+    fn assert_colour_bar(img: &Image, [zero_x, bar_x, len, y]: [i64; 4], top: &str) {
+        let white = [1.0; 3];
+        let at = |x: i64, y: i64| img.get(x as usize, y as usize);
+        assert!(drawn_at(img, zero_x, y, "0", [0.0; 3]), "0 at {zero_x}");
+        assert!(drawn_at(img, bar_x + len + 10, y, top, [0.0; 3]), "{top}");
+        for v in y..y + 8 {
+            assert_eq!((at(bar_x - 1, v), at(bar_x + len, v)), (white, white));
+            for i in 0..len {
+                let t = i as f64 / (len - 1) as f64;
+                let want = [1.0 - 0.95 * t, 1.0 - 0.85 * t, 1.0 - 0.45 * t];
+                assert_eq!(at(bar_x + i, v), want, "ramp pixel {i}, row {v}");
+            }
+        }
+        for x in bar_x..bar_x + len {
+            assert_eq!((at(x, y - 1), at(x, y + 8)), (white, white));
+        }
     }
 
     /// Whether `text` is drawn in `colour` with its top-left corner at (x, y): within the
@@ -1251,7 +1273,7 @@ mod tests {
         let opts = MapOptions {
             size,
             variance_samples: 4,
-            caption: "STD OF LOG".to_owned(),
+            caption: format!("STD OF LOG {}", "X".repeat(100)),
             predicted_points: 1,
             ..MapOptions::default()
         };
@@ -1340,24 +1362,19 @@ mod tests {
         assert!(drawn_at(&img, 2, 228, "X2", black));
         let title = "LATENT SPACE, SHADED BY PREDICTIVE STANDARD DEVIATION";
         assert!(drawn_at(&img, l, 8, title, black));
-        assert!(drawn_at(&img, l, 20, "STD OF LOG", NOTE_GREY));
+        // The caption is cut to the 73 characters (437 px) that end 4 px before the image's
+        // right edge; nothing of it is drawn further right.
+        let caption = format!("STD OF LOG {}", "X".repeat(62));
+        assert!(drawn_at(&img, l, 20, &caption, NOTE_GREY));
+        for x in l + 438..img.width as i64 {
+            assert!(
+                (20..27).all(|y| at(x, y) == white),
+                "caption ink in column {x}"
+            );
+        }
         // The colour bar: "0", then 120 px of ramp from 160 px right of the corner, then the
         // largest standard deviation, sqrt(2).
-        let bar_y = b + 34;
-        assert!(drawn_at(&img, l + 130, bar_y, "0", black));
-        assert!(drawn_at(&img, l + 160 + 130, bar_y, "1.414", black));
-        for y in bar_y..bar_y + 8 {
-            assert_eq!(at(l + 159, y), white);
-            assert_eq!(at(l + 280, y), white);
-            for i in 0..120 {
-                let t = i as f64 / 119.0;
-                let want = [1.0 - 0.95 * t, 1.0 - 0.85 * t, 1.0 - 0.45 * t];
-                assert_eq!(at(l + 160 + i, y), want, "ramp pixel {i}, row {y}");
-            }
-        }
-        for x in l + 160..l + 280 {
-            assert_eq!((at(x, bar_y - 1), at(x, bar_y + 8)), (white, white));
-        }
+        assert_colour_bar(&img, [l + 130, l + 160, 120, b + 34], "1.414");
         // A (training): red core in a white ring; B (predicted): blue ring around white. Each
         // label sits 7 px right of its dot, vertically centred, on a white box (60 %).
         let third: f64 = 400.0 / 3.0;
@@ -1374,8 +1391,12 @@ mod tests {
         for ((x, y), name) in [(a, "A"), (bb, "B")] {
             let (x, y) = (x.round() as i64 + 7, y.round() as i64 - 3);
             assert!(drawn_at(&img, x, y, name, black), "label {name}");
+            // The box: the text and a 1-pixel border (the label is one 5 px glyph).
             assert_eq!(at(x - 1, y - 1), boxed, "label {name}'s box");
+            assert_eq!(at(x + 5, y + 7), boxed, "label {name}'s box");
             assert_eq!(at(x - 2, y - 1), base, "left of label {name}'s box");
+            assert_eq!(at(x + 6, y + 7), base, "right of label {name}'s box");
+            assert_eq!(at(x + 5, y + 8), base, "under label {name}'s box");
         }
     }
 
