@@ -1433,7 +1433,7 @@ mod tests {
     /// X tick labels are drawn greedily from the left, each centred under its tick: one that
     /// would start left of the image, end past its right edge or start less than 6 px after
     /// the previous drawn label ends is left out (its tick stays). Maps of every size from 64
-    /// to 512 px with labels up to 101 px wide (ticks near 1e20, 5e8 apart) meet each case,
+    /// to 330 px with labels up to 101 px wide (ticks near 1e20, 5e8 apart) meet each case,
     /// including labels exactly at the image's edges and exactly 6 px apart; the row of x
     /// labels must be exactly the labels the rule keeps, at their places, and nothing else.
     #[test]
@@ -1450,7 +1450,7 @@ mod tests {
             ];
             let [x0, x1, ..] = extent(&points);
             let ticks = nice_ticks(x0, x1, 5);
-            for size in 64..=512usize {
+            for size in 64..=330usize {
                 let opts = MapOptions {
                     size,
                     variance_samples: 2,
