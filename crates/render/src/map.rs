@@ -1496,12 +1496,16 @@ mod tests {
     /// 13 px right of the middle to 3 px left of it, when it starts 6 px after the first kept
     /// label that ends past the middle. X2 (at column 2, always 4 px or more left of the y
     /// labels) is centred on the middle or, where it would come within 2 px of a y label's
-    /// rows, on the nearest rows of the plot that do not (centred if there are none). Maps of
-    /// every size from 64 to 400 px over [-1.3, 1.7] x [-1.7, 1.3] meet both branches of
-    /// each rule, X2 moved both ways, and every boundary of the X1 rule.
+    /// rows, on the nearest rows of the plot that do not (the lower of two as near; centred
+    /// if there are none). Maps of every size from 64 to 400 px over [-1.3, 1.7] x
+    /// [-1.53, 1.47] meet both branches of each rule, X2 moved both ways and with a choice of
+    /// two, and every boundary of the X1 rule.
     #[test]
     fn axis_names_sit_at_the_middles_clear_of_the_tick_labels() {
-        let points = vec![("A".to_owned(), [-0.8, -0.7]), ("B".to_owned(), [1.2, 0.3])];
+        let points = vec![
+            ("A".to_owned(), [-0.8, -0.53]),
+            ("B".to_owned(), [1.2, 0.47]),
+        ];
         let [x0, x1, y0, y1] = extent(&points);
         let (xt, yt) = (nice_ticks(x0, x1, 5), nice_ticks(y0, y1, 5));
         let widest = yt.iter().map(|(_, s)| font::text_width(s, 1)).max();
@@ -1510,8 +1514,9 @@ mod tests {
         let left = 47;
         // [X1 moved, a label starting 13 px right of the middle (moves X1), 14 px (does not),
         // one ending 3 px left of it (moves X1), 4 px (does not), X1 moved with a label ending
-        // 6 px left of the middle, X2 moved up, X2 moved down, X2 centred with no clear rows]
-        let mut seen = [0usize; 9];
+        // 6 px left of the middle, X2 moved up, X2 moved down, X2 centred with no clear rows,
+        // X2 moved with rows as near above as below]
+        let mut seen = [0usize; 10];
         for size in 64..=400usize {
             let opts = MapOptions {
                 size,
@@ -1557,6 +1562,10 @@ mod tests {
                 Some(d) => {
                     assert!(fits(y_name) && clear(y_name), "size {size}: X2 at {y_name}");
                     assert_eq!((y_name - centred).abs(), d, "size {size}: X2 at {y_name}");
+                    // Of two rows as near, the lower.
+                    if d > 0 && fits(centred + d) && clear(centred + d) {
+                        assert_eq!(y_name, centred + d, "size {size}");
+                    }
                 }
                 None => assert_eq!(y_name, centred, "size {size}"),
             }
@@ -1571,6 +1580,9 @@ mod tests {
                 usize::from(y_name < centred),
                 usize::from(y_name > centred),
                 usize::from(nearest.is_none() && !clear(centred)),
+                usize::from(
+                    nearest.is_some_and(|d| d > 0 && clear(centred - d) && clear(centred + d)),
+                ),
             ];
             for (s, c) in seen.iter_mut().zip(counts) {
                 *s += c;
