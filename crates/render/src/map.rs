@@ -744,11 +744,14 @@ impl Leader {
 
     /// Whether the two lines cross (touching at an end does not count).
     fn crosses(&self, o: &Leader) -> bool {
+        // -1 or 1: the side of the line through a and b that c lies on; 0: on the line.
+        // (`f64::signum` is 1 for 0: a line ending on the other crossed it from one side.)
         let side = |a: (f64, f64), b: (f64, f64), c: (f64, f64)| {
-            ((b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0)).signum()
+            let v = (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0);
+            i8::from(v > 0.0) - i8::from(v < 0.0)
         };
         let (p, q, r, t) = (self.from, self.to, o.from, o.to);
-        side(p, q, r) * side(p, q, t) < 0.0 && side(r, t, p) * side(r, t, q) < 0.0
+        side(p, q, r) * side(p, q, t) < 0 && side(r, t, p) * side(r, t, q) < 0
     }
 
     /// Whether the line passes through the open box `[x0, x1] x [y0, y1]` (Liang-Barsky
@@ -1999,6 +2002,9 @@ mod tests {
             (line((2.0, 2.0), (20.0, 20.0)), false),
             (line((6.0, 0.0), (6.0, 5.0)), false),
             (line((6.0, 0.0), (6.0, 7.0)), true),
+            // Ending on the other line, from either side, is touching, not crossing.
+            (line((10.0, 0.0), (5.0, 5.0)), false),
+            (line((0.0, 10.0), (5.0, 5.0)), false),
         ] {
             assert_eq!(x.crosses(&o), crossing, "{o:?}");
             assert_eq!(o.crosses(&x), crossing, "{o:?}");
@@ -2022,6 +2028,9 @@ mod tests {
             (line((11.0, -5.0), (11.0, 15.0)), false),
             (line((8.0, -5.0), (15.0, 5.0)), false),
             (line((6.0, -5.0), (12.0, 5.0)), true),
+            // Touching a corner only.
+            (line((5.0, 15.0), (15.0, 5.0)), false),
+            (line((-5.0, 5.0), (5.0, -5.0)), false),
         ] {
             assert_eq!(l.meets(b), meets, "{l:?}");
         }
