@@ -1845,6 +1845,100 @@ mod tests {
         }
     }
 
+    /// A label's cost: every pixel of its box (text and 1-pixel border) outside the bounds
+    /// costs 2^24, one left of them twice that; overlaps with dots' clearance squares and
+    /// other labels cost a pixel each.
+    #[test]
+    fn labels_pay_for_pixels_out_of_bounds_left_ones_twice_and_for_overlaps() {
+        let dots = [(50.0, 50.0)];
+        let layout = Layout {
+            dots: &dots,
+            widths: &[11],
+            bounds: Rect {
+                x0: 0,
+                y0: 0,
+                x1: 100,
+                y1: 100,
+            },
+            dot_boxes: vec![Rect::around_dot(50.0, 50.0)],
+            labels: vec![None],
+        };
+        let at = |x: i64, y: i64| LabelSpot {
+            x,
+            y,
+            leader: false,
+        };
+        // The box is 13 x 9 px: x - 1..x + 12, y - 1..y + 8.
+        assert_eq!(layout.cost(0, &at(20, 20), &[]), 0);
+        assert_eq!(layout.cost(0, &at(1, 1), &[]), 0);
+        assert_eq!(layout.cost(0, &at(88, 92), &[]), 0);
+        let out = 1i64 << 24;
+        assert_eq!(layout.cost(0, &at(92, 20), &[]), 4 * 9 * out);
+        assert_eq!(layout.cost(0, &at(-3, 20), &[]), 2 * 4 * 9 * out);
+        assert_eq!(layout.cost(0, &at(20, -3), &[]), 4 * 13 * out);
+        assert_eq!(layout.cost(0, &at(20, 96), &[]), 4 * 13 * out);
+        // 2 columns out at the left and 3 rows at the top: the corner's pixels count once as
+        // out, then the left columns again.
+        assert_eq!(
+            layout.cost(0, &at(-1, -2), &[]),
+            (3 * 13 + 2 * 9 - 3 * 2 + 2 * 9) * out
+        );
+        // The dot's clearance square is 44..56 on both axes; another label at 30..40 x 30..39.
+        assert_eq!(
+            Rect::around_dot(50.0, 50.0),
+            Rect {
+                x0: 44,
+                y0: 44,
+                x1: 56,
+                y1: 56
+            }
+        );
+        let other = Rect {
+            x0: 30,
+            y0: 30,
+            x1: 40,
+            y1: 39,
+        };
+        // Boxes 40..53 x 40..49 and 32..45 x 37..46 (1 x 2 px over the dot, 8 x 2 over the
+        // other label).
+        assert_eq!(layout.cost(0, &at(41, 41), &[]), 9 * 5);
+        assert_eq!(layout.cost(0, &at(33, 38), &[(other, None)]), 2 + 8 * 2);
+    }
+
+    /// A prediction's label takes its least bad spot even where none is free; a training label
+    /// it then covers moves (refinement) to a free spot. In a 60 x 24 px plot, T's label goes
+    /// first (right of T) and P's 47 px label, too wide to be free anywhere, covers its top
+    /// row; T's label then moves down and right on a leader line, clear of P's.
+    #[test]
+    fn a_label_covered_by_a_later_prediction_moves_to_a_free_spot() {
+        let bounds = Rect {
+            x0: 0,
+            y0: 0,
+            x1: 60,
+            y1: 24,
+        };
+        let (dots, widths) = ([(10.0, 12.0), (40.0, 12.0)], [5, 47]);
+        let spots = place_labels(&dots, &widths, bounds, 1);
+        let [Some(t), Some(p)] = spots[..] else {
+            panic!("{spots:?}")
+        };
+        let (tb, pb) = (t.label_box(5), p.label_box(47));
+        assert!(tb.inside(&bounds) && pb.inside(&bounds), "{tb:?} {pb:?}");
+        assert_eq!(tb.overlap(&pb), 0, "{tb:?} {pb:?}");
+        assert!(
+            dots.iter()
+                .all(|&(x, y)| tb.overlap(&Rect::around_dot(x, y)) == 0)
+        );
+        assert!(t.leader, "{t:?}");
+        // Where T's label went first (beside it, on the right), P's label covers it.
+        let first = LabelSpot {
+            x: 17,
+            y: 9,
+            leader: false,
+        };
+        assert!(first.label_box(5).overlap(&pb) > 0, "{pb:?}");
+    }
+
     #[test]
     fn labels_near_the_border_stay_inside() {
         let dots = [(675.0, 45.0), (45.0, 675.0)];
