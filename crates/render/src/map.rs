@@ -938,10 +938,10 @@ impl Layout<'_> {
             (x - 7 - w, y - h / 2),
             (x - w / 2, y - 7 - h),
             (x - w / 2, y + 7),
-            (x + 5, y - 5 - h),
-            (x + 5, y + 5),
-            (x - 5 - w, y - 5 - h),
-            (x - 5 - w, y + 5),
+            (x + 7, y - 7 - h),
+            (x + 7, y + 7),
+            (x - 7 - w, y - 7 - h),
+            (x - 7 - w, y + 7),
         ]
         .map(|(x, y)| LabelSpot {
             x,
@@ -1842,6 +1842,49 @@ mod tests {
             } else {
                 assert_eq!(b.x0, 40, "label {} ({w} px): {b:?}", 48 + k);
             }
+        }
+    }
+
+    /// The spots beside a dot, each taken when the ones before it are not free: right, left,
+    /// above and below it, 7 px clear of its centre's pixel (vertically and horizontally
+    /// centred), then the corners, diagonally 7 px clear (a corner 5 px clear met the dot's own
+    /// clearance square, so a label never went there when every side was taken: it went onto
+    /// a ring, with a leader line).
+    #[test]
+    fn labels_take_the_first_free_spot_beside_their_dot() {
+        let (w, h) = (11i64, font::GLYPH_H as i64);
+        let bounds = |x0, y0, x1, y1| Rect { x0, y0, x1, y1 };
+        let spot = |x, y| LabelSpot {
+            x,
+            y,
+            leader: false,
+        };
+        let alone = |b: Rect| place_labels(&[(100.0, 100.0)], &[11], b, 1)[0];
+        assert_eq!(alone(bounds(0, 0, 400, 400)), Some(spot(107, 97)));
+        // The right spot's box ends at 107 + 11 + 1 = 119, the left spot's starts at 81 and
+        // the one above's at 85.
+        assert_eq!(alone(bounds(0, 0, 118, 400)), Some(spot(100 - 7 - w, 97)));
+        assert_eq!(
+            alone(bounds(82, 0, 118, 400)),
+            Some(spot(100 - w / 2, 100 - 7 - h))
+        );
+        assert_eq!(
+            alone(bounds(82, 86, 118, 400)),
+            Some(spot(100 - w / 2, 107))
+        );
+        // Every side taken by another dot 12 px away: the corners.
+        let sides = [(112.0, 100.0), (88.0, 100.0), (100.0, 88.0), (100.0, 112.0)];
+        let big = bounds(0, 0, 400, 400);
+        let corners = [
+            (spot(107, 100 - 7 - h), big),
+            (spot(107, 107), bounds(0, 86, 400, 400)),
+            (spot(100 - 7 - w, 100 - 7 - h), bounds(0, 0, 118, 400)),
+            (spot(100 - 7 - w, 107), bounds(0, 86, 118, 400)),
+        ];
+        for (want, b) in corners {
+            let dots: Vec<(f64, f64)> = [(100.0, 100.0)].into_iter().chain(sides).collect();
+            let got = place_labels(&dots, &[11; 5], b, 5)[0];
+            assert_eq!(got, Some(want), "bounds {b:?}");
         }
     }
 
