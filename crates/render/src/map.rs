@@ -809,14 +809,7 @@ fn place_labels(
     bounds: Rect,
     always: usize,
 ) -> Vec<Option<LabelSpot>> {
-    let crowd = |i: usize| {
-        let (x, y) = dots[i];
-        dots.iter()
-            .filter(|&&(u, v)| (u - x).hypot(v - y) < 48.0)
-            .count()
-    };
-    let mut order: Vec<usize> = (0..dots.len()).collect();
-    order.sort_by_key(|&i| (std::cmp::Reverse(crowd(i)), i));
+    let order = placing_order(dots);
     let mut layout = Layout {
         dots,
         widths,
@@ -853,6 +846,20 @@ fn place_labels(
         }
     }
     layout.labels
+}
+
+/// The order [`place_labels`] labels `dots` in: those with more dots (themselves included)
+/// under 48 px away first, in index order among equals.
+fn placing_order(dots: &[(f64, f64)]) -> Vec<usize> {
+    let crowd = |i: usize| {
+        let (x, y) = dots[i];
+        dots.iter()
+            .filter(|&&(u, v)| (u - x).hypot(v - y) < 48.0)
+            .count()
+    };
+    let mut order: Vec<usize> = (0..dots.len()).collect();
+    order.sort_by_key(|&i| (std::cmp::Reverse(crowd(i)), i));
+    order
 }
 
 /// How many times [`place_labels`] revisits the tangled labels.
@@ -1843,6 +1850,25 @@ mod tests {
                 assert_eq!(b.x0, 40, "label {} ({w} px): {b:?}", 48 + k);
             }
         }
+    }
+
+    /// Dots with more neighbours under 48 px away are labelled first, in index order among
+    /// equals; a neighbour exactly 48 px away does not count.
+    #[test]
+    fn crowded_dots_are_labelled_first() {
+        let dots = [
+            (300.0, 300.0),
+            (100.0, 100.0),
+            (130.0, 100.0),
+            (0.0, 0.0),
+            (118.0, 132.0),
+            (48.0, 0.0),
+            (400.0, 100.0),
+            (400.0, 200.0),
+        ];
+        // Dots 1, 2 and 4 are 30, 34.2 and 36.7 px apart: three in each one's crowd. Dots 3
+        // and 5 are 48 px apart, 6 and 7 100 px: each alone in its crowd, as is dot 0.
+        assert_eq!(placing_order(&dots), [1, 2, 4, 0, 3, 5, 6, 7]);
     }
 
     /// The spots beside a dot, each taken when the ones before it are not free: right, left,
