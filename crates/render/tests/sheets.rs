@@ -497,6 +497,13 @@ fn small_maps_with_thumbnails_keep_bar_title_and_labels_in_place() {
         label_ink >= 10,
         "{label_ink} inked columns of the bar's label"
     );
+    // The label ("1.449", 29 px) ends 8 px before the panel (its last column, of a "9", is
+    // inked), 10 px after the ramp.
+    let label_end = (bar_end + 1..panel_x)
+        .rev()
+        .find(|&x| (bar_y..bar_y + 7).any(|y| dark(x, y)));
+    assert_eq!(label_end, Some(panel_x - 9));
+    assert_eq!(bar_end, panel_x - 9 - 29 - 10);
     // Title: "LATENT SPACE" (12 characters from x 39), then nothing up to the panel's title.
     let title_end = 39 + render::font::text_width("LATENT SPACE", 1);
     let title_ink: Vec<usize> = (title_end + 1..panel_x)
