@@ -399,13 +399,12 @@ pub fn latent_map(
     if let Some([bx0, bx1, by0, by1]) = thumbs_box {
         let (px0, py0) = to_px([bx0, by1]);
         let (px1, py1) = to_px([bx1, by0]);
-        let (px0, py0, px1, py1) = (px0 - 6.0, py0 - 6.0, px1 + 6.0, py1 + 6.0);
-        let grey = [0.35; 3];
-        let (w, h) = ((px1 - px0).max(1.0) as usize, (py1 - py0).max(1.0) as usize);
-        img.fill_rect(px0 as i64, py0 as i64, w, 1, grey);
-        img.fill_rect(px0 as i64, py1 as i64, w + 1, 1, grey);
-        img.fill_rect(px0 as i64, py0 as i64, 1, h, grey);
-        img.fill_rect(px1 as i64, py0 as i64, 1, h, grey);
+        // The pixels of the corners, then the rectangle through them (widths taken from the
+        // unrounded corners left a corner open where the edges fell at different fractions).
+        let [c0, r0, c1, r1] =
+            [px0 - 6.0, py0 - 6.0, px1 + 6.0, py1 + 6.0].map(|v| v.floor() as i64);
+        let (w, h) = ((c1 - c0 + 1) as usize, (r1 - r0 + 1) as usize);
+        img.outline_rect(c0, r0, w, h, [0.35; 3]);
     }
     // Dots and labels: each label beside its dot where there is room, else on a ring further
     // out with a leader line; none covers another label or a dot.

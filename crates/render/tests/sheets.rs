@@ -334,6 +334,46 @@ fn two_points() -> Vec<(String, [f64; 2])> {
     ]
 }
 
+/// The grey box the thumbnails cover is outlined 6 px outside the points' box as a closed
+/// one-pixel rectangle (its corners were left open by a pixel where the box's edges fell at
+/// different fractions of a pixel), under the labels; a map without thumbnails has none.
+#[test]
+fn the_thumbnails_box_is_outlined_whole_and_only_with_thumbnails() {
+    let points = two_points();
+    let left = render::map::plot_left(&points) as f64;
+    let [x0, x1, y0, y1] = render::map::extent(&points);
+    let [bx0, bx1, by0, by1] = render::map::thumbnail_box(&points);
+    // The outline's columns and rows on the 64 px plot.
+    let col = |x: f64| (left + (x - x0) / (x1 - x0) * 64.0).floor() as usize;
+    let row = |y: f64| (40.0 + (y1 - y) / (y1 - y0) * 64.0).floor() as usize;
+    let (c0, c1, r0, r1) = (col(bx0) - 6, col(bx1) + 6, row(by1) - 6, row(by0) + 6);
+    let outline: Vec<(usize, usize)> = (c0..=c1)
+        .flat_map(|x| [(x, r0), (x, r1)])
+        .chain((r0..=r1).flat_map(|y| [(c0, y), (c1, y)]))
+        .collect();
+    let grey = [0.35; 3];
+    // Under a label's box (white at 60 %), or its text.
+    let boxed = grey.map(|c| c * (1.0 - 0.6) + 0.6);
+    let with = two_point_map(2, 16, None);
+    for &(x, y) in &outline {
+        let p = with.get(x, y);
+        assert!(
+            p == grey || p == boxed || p == [0.0; 3],
+            "({x}, {y}) of the outline {c0}..={c1} x {r0}..={r1}: {p:?}"
+        );
+    }
+    // The four corners are on it.
+    for (x, y) in [(c0, r0), (c1, r0), (c0, r1), (c1, r1)] {
+        assert_eq!(with.get(x, y), grey, "corner ({x}, {y})");
+    }
+    let without = two_point_map(0, 16, None);
+    let grey_pixels = (0..without.height)
+        .flat_map(|y| (0..without.width).map(move |x| (x, y)))
+        .filter(|&(x, y)| [grey, boxed].contains(&without.get(x, y)))
+        .count();
+    assert_eq!(grey_pixels, 0);
+}
+
 /// A thumbnail is framed as far from every material when its variance is above the limit,
 /// not at it: a variance of 0.5 everywhere frames every thumbnail under a limit one ulp below
 /// 0.5, and none under 0.5 itself.
