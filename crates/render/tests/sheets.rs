@@ -334,6 +334,50 @@ fn two_points() -> Vec<(String, [f64; 2])> {
     ]
 }
 
+/// The thumbnails are the materials at the centres of a g x g grid of cells over the points'
+/// box ([-1, 1] x [0, 0.5] here), the top row at the largest X2: with materials redder with
+/// X2, the top row's spheres are the redder.
+#[test]
+fn thumbnails_show_the_cell_centres_of_the_grey_box() {
+    let (a, b) = (synth("acrylic_felt_white"), synth("carpaint_solid_red"));
+    let points = two_points();
+    assert_eq!(render::map::thumbnail_box(&points), [-1.0, 1.0, 0.0, 0.5]);
+    let asked = std::sync::Mutex::new(Vec::new());
+    let src = |p: [f64; 2]| -> render::Result<Box<dyn BrdfSource + '_>> {
+        asked.lock().unwrap().push(p);
+        Ok(Box::new(Mix(&b, &a, p[1] / 0.5)))
+    };
+    let (g, ts) = (2usize, 16usize);
+    let opts = MapOptions {
+        size: 64,
+        thumbnails: g,
+        sphere: SphereOptions {
+            size: ts,
+            ..SphereOptions::default()
+        },
+        variance_samples: 4,
+        ..MapOptions::default()
+    };
+    let map = latent_map(&points, &|_| Ok(0.5), Some(&src), &opts).unwrap();
+    let mut asked = asked.into_inner().unwrap();
+    asked.sort_by(|p, q| p.partial_cmp(q).unwrap());
+    assert_eq!(
+        asked,
+        [[-0.5, 0.125], [-0.5, 0.375], [0.5, 0.125], [0.5, 0.375]]
+    );
+    let panel_x = render::map::plot_left(&points) + 64 + 40;
+    let redness = |j: usize| {
+        let p = map.get(panel_x + ts / 2, 40 + j * ts + ts / 2);
+        p[0] / p[1]
+    };
+    assert!(
+        redness(0) > 1.2 * redness(1),
+        "{} {}",
+        redness(0),
+        redness(1)
+    );
+}
+
 /// The grey box the thumbnails cover is outlined 6 px outside the points' box as a closed
 /// one-pixel rectangle (its corners were left open by a pixel where the box's edges fell at
 /// different fractions of a pixel), under the labels; a map without thumbnails has none.
