@@ -1916,6 +1916,27 @@ mod tests {
         }
     }
 
+    /// A label with no free spot beside its dot takes the first free spot on the rings around
+    /// it (16 px, then 26 px, ...; from the right, turning down), vertically centred on the
+    /// ring, with the side of its box nearest the dot facing it: for a dot left of the bounds,
+    /// 26 px to the right; for one right of them, 26 px out at 157.5 degrees, its box's right
+    /// side there.
+    #[test]
+    fn labels_with_no_room_beside_take_the_first_free_ring_spot() {
+        let ring = |dot: (f64, f64), bounds: Rect| place_labels(&[dot], &[11], bounds, 1)[0];
+        let bounds = |x0, x1| Rect {
+            x0,
+            y0: 0,
+            x1,
+            y1: 400,
+        };
+        let leader = |x, y| Some(LabelSpot { x, y, leader: true });
+        // (100 + 26, 100 - 3.5 rounded)
+        assert_eq!(ring((100.0, 100.0), bounds(120, 400)), leader(126, 97));
+        // (300 - 26 cos 22.5 - 11, 100 + 26 sin 22.5 - 3.5) = (264.98, 106.45)
+        assert_eq!(ring((300.0, 100.0), bounds(0, 280)), leader(265, 106));
+    }
+
     /// A label's cost: every pixel of its box (text and 1-pixel border) outside the bounds
     /// costs 2^24, one left of them twice that; overlaps with dots' clearance squares and
     /// other labels cost a pixel each.
@@ -1974,6 +1995,42 @@ mod tests {
         // other label).
         assert_eq!(layout.cost(0, &at(41, 41), &[]), 9 * 5);
         assert_eq!(layout.cost(0, &at(33, 38), &[(other, None)]), 2 + 8 * 2);
+    }
+
+    /// A leader line through another dot (within its drawn radius) counts as 3 tangles; one
+    /// that passes beside, before or after a dot, none.
+    #[test]
+    fn a_leader_line_through_a_dot_counts_three_tangles() {
+        // The label's dot, one on its leader line, one left of where it starts, one beside it.
+        let dots = [
+            (100.0, 100.0),
+            (130.0, 100.0),
+            (90.0, 100.0),
+            (130.0, 110.0),
+        ];
+        let layout = Layout {
+            dots: &dots,
+            widths: &[11; 4],
+            bounds: Rect {
+                x0: 0,
+                y0: 0,
+                x1: 400,
+                y1: 400,
+            },
+            dot_boxes: dots.iter().map(|&(x, y)| Rect::around_dot(x, y)).collect(),
+            labels: vec![None; 4],
+        };
+        let leader = |x, y| LabelSpot { x, y, leader: true };
+        // Along y = 100 to the box at x = 149, through (130, 100) only.
+        assert_eq!(layout.tangles(0, &leader(150, 97), &[]), 3);
+        // Up and right to (149, 48): clear of every dot.
+        assert_eq!(layout.tangles(0, &leader(150, 40), &[]), 0);
+        // Beside its dot, without a leader line: nothing to cross.
+        let beside = LabelSpot {
+            leader: false,
+            ..leader(150, 97)
+        };
+        assert_eq!(layout.tangles(0, &beside, &[]), 0);
     }
 
     /// A prediction's label takes its least bad spot even where none is free; a training label
