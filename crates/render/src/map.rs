@@ -1937,6 +1937,37 @@ mod tests {
         assert_eq!(ring((300.0, 100.0), bounds(0, 280)), leader(265, 106));
     }
 
+    /// A prediction's label with no free spot is moved into the bounds where it fits them (a
+    /// label out of them costs more than any overlap): in bounds exactly as large as its box,
+    /// it fills them, over its own dot or from a dot beyond any of their sides.
+    #[test]
+    fn a_label_that_just_fits_the_bounds_is_placed_inside_them() {
+        let h = font::GLYPH_H as i64;
+        let cases = [
+            (11usize, (10.0, 6.0)),
+            (23, (5.0, 2.0)),
+            (5, (3.0, 7.0)),
+            (11, (200.0, 6.0)),
+            (11, (6.0, 250.0)),
+            (11, (-200.0, 6.0)),
+            (11, (6.0, -250.0)),
+        ];
+        for (w, (dx, dy)) in cases {
+            let bounds = Rect {
+                x0: 100,
+                y0: 50,
+                x1: 100 + w as i64 + 2,
+                y1: 50 + h + 2,
+            };
+            let spot = place_labels(&[(100.0 + dx, 50.0 + dy)], &[w], bounds, 0)[0];
+            assert_eq!(
+                spot.map(|s| (s.x, s.y)),
+                Some((101, 51)),
+                "{w} px, {dx}, {dy}"
+            );
+        }
+    }
+
     /// A label's cost: every pixel of its box (text and 1-pixel border) outside the bounds
     /// costs 2^24, one left of them twice that; overlaps with dots' clearance squares and
     /// other labels cost a pixel each.
