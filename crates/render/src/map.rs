@@ -1409,6 +1409,16 @@ mod tests {
         }
     }
 
+    /// A map of `points` on a plot of `size` px over a variance of 1 everywhere.
+    fn plain_map(points: &[LabelledPoint], size: usize) -> Image {
+        let opts = MapOptions {
+            size,
+            variance_samples: 2,
+            ..MapOptions::default()
+        };
+        latent_map(points, &|_| Ok(1.0), None, &opts).unwrap()
+    }
+
     /// Where `latent_map` puts each x tick label over [x0, x1] on a plot of `size` px from
     /// column `left` in an image `width` px wide: centred under its tick, its first and last
     /// columns, and why it is left out: [starts left of the image, ends past its right edge,
@@ -1460,12 +1470,7 @@ mod tests {
             let [x0, x1, ..] = extent(&points);
             let ticks = nice_ticks(x0, x1, 5);
             for size in 64..=330usize {
-                let opts = MapOptions {
-                    size,
-                    variance_samples: 2,
-                    ..MapOptions::default()
-                };
-                let img = latent_map(&points, &|_| Ok(1.0), None, &opts).unwrap();
+                let img = plain_map(&points, size);
                 // The y labels (up to "-1E9", 23 px) put the plot at column 47.
                 let b = 40 + size as i64;
                 let mut want = Image::new(img.width, 9, [1.0; 3]);
@@ -1527,12 +1532,7 @@ mod tests {
         // centred with no clear rows, X2 moved with rows as near above as below]
         let mut seen = [0usize; 10];
         for size in 64..=400usize {
-            let opts = MapOptions {
-                size,
-                variance_samples: 2,
-                ..MapOptions::default()
-            };
-            let img = latent_map(&points, &|_| Ok(1.0), None, &opts).unwrap();
+            let img = plain_map(&points, size);
             let (t, b) = (39, 40 + size as i64);
             let mid = left - 1 + (size / 2) as i64;
             let kept: Vec<(i64, i64)> = x_label_spans(&xt, [x0, x1], (left, size), img.width)
@@ -1610,12 +1610,7 @@ mod tests {
     fn y_tick_labels_keep_clear_of_the_axis_name() {
         for (c, size) in [(0.2, 64), (0.2, 128), (1e7, 100), (-3e-9, 200), (1e100, 96)] {
             let points = vec![("A".to_owned(), [0.0, c]), ("B".to_owned(), [0.3, c * 1.1])];
-            let opts = MapOptions {
-                size,
-                variance_samples: 2,
-                ..MapOptions::default()
-            };
-            let img = latent_map(&points, &|_| Ok(1.0), None, &opts).unwrap();
+            let img = plain_map(&points, size);
             // X2 is drawn whole, and nothing else is drawn between it and the y tick labels
             // (columns 13 to 16), from under the title to the last label.
             let b = 40 + size as i64;

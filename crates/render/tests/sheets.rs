@@ -306,11 +306,21 @@ fn path_comparison_and_map_draw() {
 /// everywhere, `g` x `g` thumbnails of `ts` px (blends of the two along X1) and the far limit
 /// `far`.
 fn two_point_map(g: usize, ts: usize, far: Option<f64>) -> render::Image {
+    two_point_map_by(g, ts, far, &|p| ((p[0] + 1.0) / 2.0).clamp(0.0, 1.0))
+}
+
+/// [`two_point_map`] with thumbnails that blend `red(p)` of RED at the latent point `p`.
+fn two_point_map_by(
+    g: usize,
+    ts: usize,
+    far: Option<f64>,
+    red: &(dyn Fn([f64; 2]) -> f64 + Sync),
+) -> render::Image {
     let (a, b) = (synth("acrylic_felt_white"), synth("carpaint_solid_red"));
     let points = two_points();
     let var = |_: [f64; 2]| -> render::Result<f64> { Ok(0.5) };
     let src = |p: [f64; 2]| -> render::Result<Box<dyn BrdfSource + '_>> {
-        Ok(Box::new(Mix(&b, &a, ((p[0] + 1.0) / 2.0).clamp(0.0, 1.0))))
+        Ok(Box::new(Mix(&b, &a, red(p))))
     };
     let opts = MapOptions {
         size: 64,
@@ -339,26 +349,14 @@ fn two_points() -> Vec<(String, [f64; 2])> {
 /// X2, the top row's spheres are the redder.
 #[test]
 fn thumbnails_show_the_cell_centres_of_the_grey_box() {
-    let (a, b) = (synth("acrylic_felt_white"), synth("carpaint_solid_red"));
     let points = two_points();
     assert_eq!(render::map::thumbnail_box(&points), [-1.0, 1.0, 0.0, 0.5]);
     let asked = std::sync::Mutex::new(Vec::new());
-    let src = |p: [f64; 2]| -> render::Result<Box<dyn BrdfSource + '_>> {
+    let ts = 16;
+    let map = two_point_map_by(2, ts, None, &|p| {
         asked.lock().unwrap().push(p);
-        Ok(Box::new(Mix(&b, &a, p[1] / 0.5)))
-    };
-    let (g, ts) = (2usize, 16usize);
-    let opts = MapOptions {
-        size: 64,
-        thumbnails: g,
-        sphere: SphereOptions {
-            size: ts,
-            ..SphereOptions::default()
-        },
-        variance_samples: 4,
-        ..MapOptions::default()
-    };
-    let map = latent_map(&points, &|_| Ok(0.5), Some(&src), &opts).unwrap();
+        p[1] / 0.5
+    });
     let mut asked = asked.into_inner().unwrap();
     asked.sort_by(|p, q| p.partial_cmp(q).unwrap());
     assert_eq!(
