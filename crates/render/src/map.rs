@@ -134,7 +134,12 @@ pub fn thumbnail_box(points: &[LabelledPoint]) -> [f64; 4] {
 /// ran into the label beside it, "X2-0.5".)
 pub fn plot_left(points: &[LabelledPoint]) -> usize {
     let [.., y0, y1] = extent(points);
-    nice_ticks(y0, y1, 5)
+    left_of_y_ticks(&nice_ticks(y0, y1, 5))
+}
+
+/// [`plot_left`] of a map with the y ticks `ticks`.
+fn left_of_y_ticks(ticks: &[(f64, String)]) -> usize {
+    ticks
         .iter()
         .map(|(_, label)| Y_NAME_END + 4 + font::text_width(label, 1) + 7)
         .fold(40, usize::max)
@@ -214,7 +219,7 @@ pub fn latent_map(
     let size = opts.size;
     let margin = 40usize;
     let (xt, yt) = (nice_ticks(x0, x1, 5), nice_ticks(y0, y1, 5));
-    let left = plot_left(points);
+    let left = left_of_y_ticks(&yt);
     let panel_title = if opts.caption.contains("SLICE") {
         "PREDICTED MATERIALS OVER THE GREY BOX, ON THE SLICE"
     } else {
