@@ -139,10 +139,11 @@ pub fn plot_left(points: &[LabelledPoint]) -> usize {
 
 /// [`plot_left`] of a map with the y ticks `ticks`.
 fn left_of_y_ticks(ticks: &[(f64, String)]) -> usize {
+    let name_end = Y_NAME_X as usize + font::text_width("X2", 1);
     ticks
         .iter()
-        .map(|(_, label)| Y_NAME_END + 4 + font::text_width(label, 1) + 7)
-        .fold(40, usize::max)
+        .map(|(_, label)| name_end + 4 + font::text_width(label, 1) + 7)
+        .fold(MARGIN, usize::max)
 }
 
 /// Draws the map: shading by the predictive standard deviation (the square root of `variance`:
@@ -217,7 +218,7 @@ pub fn latent_map(
         });
     }
     let size = opts.size;
-    let margin = 40usize;
+    let margin = MARGIN;
     let (xt, yt) = (nice_ticks(x0, x1, 5), nice_ticks(y0, y1, 5));
     let left = left_of_y_ticks(&yt);
     let panel_title = if opts.caption.contains("SLICE") {
@@ -720,8 +721,10 @@ impl LabelSpot {
 
 /// Column where the y axis name (X2) starts, at the image's left edge.
 const Y_NAME_X: i64 = 2;
-/// The first column right of the y axis name (X2, 11 px wide).
-const Y_NAME_END: usize = Y_NAME_X as usize + 11;
+
+/// The map's margins around the plot (above, right and below it; the left one is at least
+/// as wide), in pixels.
+const MARGIN: usize = 40;
 
 /// Linear RGB of the map's secondary text (the caption and the notes): a dark grey, 89 of 255
 /// in sRGB (0.3, 149 of 255, was hard to read on white).
