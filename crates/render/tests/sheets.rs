@@ -108,10 +108,7 @@ fn path_comparison_and_map_draw() {
     );
     assert!(path_comparison(&path[..2], &path, &t, &opts).is_err());
 
-    let points = vec![
-        ("WHITE".to_string(), [-1.0, 0.0]),
-        ("RED".to_string(), [1.0, 0.5]),
-    ];
+    let points = two_points();
     // The plot's first column, right of the y tick labels.
     let plot_x = render::map::plot_left(&points);
     let var = |p: [f64; 2]| -> render::Result<f64> {
@@ -344,6 +341,11 @@ fn two_points() -> Vec<(String, [f64; 2])> {
     ]
 }
 
+/// The first column of [`two_point_map`]'s thumbnail panel: 40 px right of its 64 px plot.
+fn two_point_panel_x() -> usize {
+    render::map::plot_left(&two_points()) + 64 + 40
+}
+
 /// The thumbnails are the materials at the centres of a g x g grid of cells over the points'
 /// box ([-1, 1] x [0, 0.5] here), the top row at the largest X2: with materials redder with
 /// X2, the top row's spheres are the redder.
@@ -363,7 +365,7 @@ fn thumbnails_show_the_cell_centres_of_the_grey_box() {
         asked,
         [[-0.5, 0.125], [-0.5, 0.375], [0.5, 0.125], [0.5, 0.375]]
     );
-    let panel_x = render::map::plot_left(&points) + 64 + 40;
+    let panel_x = two_point_panel_x();
     let redness = |j: usize| {
         let p = map.get(panel_x + ts / 2, 40 + j * ts + ts / 2);
         p[0] / p[1]
@@ -423,8 +425,7 @@ fn the_thumbnails_box_is_outlined_whole_and_only_with_thumbnails() {
 fn thumbnails_are_framed_above_the_far_limit_only() {
     let (g, ts) = (2usize, 16usize);
     let map = |limit: f64| two_point_map(g, ts, Some(limit));
-    // The panel starts 40 px right of the 64 px plot.
-    let panel_x = render::map::plot_left(&two_points()) + 64 + 40;
+    let panel_x = two_point_panel_x();
     let framed = |m: &render::Image| {
         (0..g * g)
             .filter(|k| {
@@ -695,7 +696,7 @@ fn narrow_thumbnails_keep_their_coordinate_labels_apart() {
     let (g, ts) = (8usize, 8usize);
     let (map, points) = (two_point_map(g, ts, None), two_points());
     keep(&map, "narrow-thumbnails.png");
-    let panel_x = render::map::plot_left(&points) + 64 + 40;
+    let panel_x = two_point_panel_x();
     let widest = widest_column_label(&points, g);
     assert!(widest > 3 * ts, "{widest}");
     let runs = ink_runs(&map, panel_x - 18..map.width, 31..38);
