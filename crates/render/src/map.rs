@@ -1241,6 +1241,11 @@ mod tests {
         assert_eq!(big.get(46 + 159, y), [1.0; 3]);
     }
 
+    /// The map's shading of a standard deviation `t` of the largest: white to deep blue.
+    fn shade(t: f64) -> [f64; 3] {
+        [1.0 - 0.95 * t, 1.0 - 0.85 * t, 1.0 - 0.45 * t]
+    }
+
     /// Asserts that `img` has a colour bar at `[zero_x, bar_x, len, y]`: "0" at (zero_x, y), a
     /// ramp of `len` px from (bar_x, y), 8 px high, from shade(0) to shade(1) with white around
     /// it, and the label `top` 10 px after it.
@@ -1252,8 +1257,7 @@ mod tests {
         for v in y..y + 8 {
             assert_eq!((at(bar_x - 1, v), at(bar_x + len, v)), (white, white));
             for i in 0..len {
-                let t = i as f64 / (len - 1) as f64;
-                let want = [1.0 - 0.95 * t, 1.0 - 0.85 * t, 1.0 - 0.45 * t];
+                let want = shade(i as f64 / (len - 1) as f64);
                 assert_eq!(at(bar_x + i, v), want, "ramp pixel {i}, row {v}");
             }
         }
@@ -1308,8 +1312,8 @@ mod tests {
             (47 + size + 40, 40 + size + 40 + 32)
         );
         let (black, white) = ([0.0; 3], [1.0; 3]);
-        // shade(1): the constant variance is the largest.
-        let base = [1.0 - 0.95, 1.0 - 0.85, 1.0 - 0.45];
+        // The constant variance is the largest.
+        let base = shade(1.0);
         let grid = base.map(|c| c * (1.0 - 0.12));
         let at = |x: i64, y: i64| img.get(x as usize, y as usize);
         for k in 0..size as i64 + 2 {
@@ -1690,7 +1694,7 @@ mod tests {
                     y1 - (py as f64 + 0.5) / size as f64 * (y1 - y0),
                 ];
                 let t = (variance(p) / vmax).sqrt();
-                let want = [1.0 - 0.95 * t, 1.0 - 0.85 * t, 1.0 - 0.45 * t];
+                let want = shade(t);
                 let got = img.get(left + px, top + py);
                 assert!(
                     (0..3).all(|c| (got[c] - want[c]).abs() < 1e-12),
