@@ -1395,7 +1395,10 @@ mod tests {
         let err = rgl_fields(&Rgb(f64::NAN), &options)
             .unwrap_err()
             .to_string();
-        assert!(err.contains("rgb test") && err.contains("NaN"), "{err}");
+        assert!(
+            err.contains("rgb test") && err.contains("NaN") && err.contains(": 1 of 3 "),
+            "{err}"
+        );
         for bad in [
             RglWriteOptions {
                 resolution: 1,
@@ -1435,5 +1438,257 @@ mod tests {
             let err = rgl_fields(&Rgb(0.1), &bad).unwrap_err().to_string();
             assert!(err.contains(says), "{err}");
         }
+    }
+
+    /// The size checks: a tolerance must be above 0, and the warp tables may hold up to 2^28
+    /// values (incident elevations x warp side^2), not one more.
+    #[test]
+    fn check_refuses_a_zero_tolerance_and_warps_over_2_pow_28_values() {
+        let err = RglWriteOptions {
+            tolerance: Some(0.0),
+            ..RglWriteOptions::default()
+        }
+        .check()
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("tolerance 0 must be finite and > 0"), "{err}");
+        let sized = |theta_samples| RglWriteOptions {
+            theta_samples,
+            warp_resolution: 1024,
+            tolerance: None,
+            ..RglWriteOptions::default()
+        };
+        sized(256).check().unwrap();
+        let err = sized(257).check().unwrap_err().to_string();
+        assert!(
+            err.contains("tables of 257 x 1024 x 1024 values are too large"),
+            "{err}"
+        );
+    }
+
+    /// Luminance weights: Rec. 709 for RGB; equal over the visible channels (380-780 nm) and
+    /// 0 elsewhere; equal over all channels when none is visible.
+    #[test]
+    fn luminance_weights_share_the_visible_channels() {
+        assert_eq!(
+            luminance_weights(&Channels::Rgb),
+            vec![0.2126, 0.7152, 0.0722]
+        );
+        let spectral = |w: &[f64]| luminance_weights(&Channels::spectral(w.to_vec()).unwrap());
+        assert_eq!(
+            spectral(&[360.0, 380.0, 550.0, 780.0, 900.0]),
+            vec![0.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0, 0.0]
+        );
+        assert_eq!(spectral(&[850.0, 900.0]), vec![0.5, 0.5]);
+    }
+
+    /// The format's coordinate maps and the reflection about a half vector, for directions
+    /// off the plane of incidence (the writer's `wi` always lies in it).
+    #[test]
+    fn coordinates_and_reflection() {
+        for u in [0.0, 0.1, 0.5, 0.77, 1.0] {
+            assert!((theta2u(u2theta(u)) - u).abs() < 1e-15, "{u}");
+            assert!((phi2u(u2phi(u)) - u).abs() < 1e-15, "{u}");
+        }
+        let unit = |v: [f64; 3]| {
+            let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            v.map(|x| x / n)
+        };
+        let wi = unit([0.3, -0.4, 0.8]);
+        let m = unit([0.1, 0.2, 0.9]);
+        let (d, wo) = reflect(wi, m);
+        let want = wi[0] * m[0] + wi[1] * m[1] + wi[2] * m[2];
+        assert!((d - want).abs() < 1e-15, "{d} {want}");
+        let norm = (wo[0] * wo[0] + wo[1] * wo[1] + wo[2] * wo[2]).sqrt();
+        assert!((norm - 1.0).abs() < 1e-14, "{wo:?}");
+        for k in 0..3 {
+            // wi + wo is along m, with length 2 (wi . m).
+            assert!((wi[k] + wo[k] - 2.0 * want * m[k]).abs() < 1e-15, "{k}");
+        }
+    }
+
+    /// The check's pairs: [`CHECK_PAIRS`] unit directions, `wo` above 0.01, and every fourth
+    /// `wo` within 0.05 (in the plane) of the mirror direction of its `wi`.
+    #[test]
+    fn check_pairs_are_unit_directions_with_every_fourth_near_the_mirror() {
+        let pairs = check_pairs();
+        assert_eq!(pairs.len(), CHECK_PAIRS);
+        let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        let mut spread = [0.0f64; 2];
+        for (k, (wi, wo)) in pairs.iter().enumerate() {
+            assert!(
+                (norm(*wi) - 1.0).abs() < 1e-12 && wi[2] >= 0.01,
+                "{k}: {wi:?}"
+            );
+            assert!(
+                (norm(*wo) - 1.0).abs() < 1e-12 && wo[2] > 0.01,
+                "{k}: {wo:?}"
+            );
+            let mirror = [-wi[0], -wi[1], wi[2]];
+            let off = norm([wo[0] - mirror[0], wo[1] - mirror[1], wo[2] - mirror[2]]);
+            if k % 4 == 3 {
+                assert!(off < 0.05 + 1e-9, "{k}: {off}");
+            }
+            spread[usize::from(k % 4 == 3)] = spread[usize::from(k % 4 == 3)].max(off);
+        }
+        // The other pairs are spread over the hemisphere.
+        assert!(spread[0] > 1.5, "{spread:?}");
+    }
+
+    /// A grid source: each cell's values a function of its index, interpolated with the grid's
+    /// stencil (as stored and predicted materials are); counts its evaluations.
+    struct Cells {
+        grid: crate::grid::AngularGrid,
+        evals: std::sync::atomic::AtomicUsize,
+        cell_evals: Vec<std::sync::atomic::AtomicUsize>,
+        failing: Option<usize>,
+    }
+
+    impl Cells {
+        fn new(failing: Option<usize>) -> Self {
+            let grid = crate::grid::AngularGrid::new(4, 4, 8).unwrap();
+            Self {
+                grid,
+                evals: 0.into(),
+                cell_evals: (0..grid.len()).map(|_| 0.into()).collect(),
+                failing,
+            }
+        }
+
+        fn value(a: usize, channel: usize) -> f64 {
+            0.1 + 0.05 * ((7 * a + 3 * channel) % 11) as f64
+        }
+    }
+
+    impl BrdfSource for Cells {
+        fn channels(&self) -> Channels {
+            Channels::Rgb
+        }
+        fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+            use std::sync::atomic::Ordering::Relaxed;
+            self.evals.fetch_add(1, Relaxed);
+            out.fill(0.0);
+            if let Some(hd) = crate::grid::HalfDiff::from_dirs(wi, wo)
+                && wi[2] > 0.0
+                && wo[2] > 0.0
+            {
+                for (a, w) in self.grid.interpolation_stencil(&hd) {
+                    if w != 0.0 {
+                        (0..3).for_each(|c| out[c] += w * Self::value(a, c));
+                    }
+                }
+            }
+            Ok(())
+        }
+        fn grid(&self) -> Option<crate::grid::AngularGrid> {
+            Some(self.grid)
+        }
+        fn eval_cell(&self, a: usize, out: &mut [f64]) -> Result<()> {
+            self.cell_evals[a].fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            if self.failing == Some(a) {
+                return Err(Error::InvalidArgument {
+                    reason: "no values here".into(),
+                });
+            }
+            (0..3).for_each(|c| out[c] = Self::value(a, c));
+            Ok(())
+        }
+    }
+
+    /// The cached cells of a grid source evaluate as the source does, to the bit (the same
+    /// sums in the same order), zero at or below the horizon, each cell once; a cell that
+    /// cannot be evaluated is an error naming it.
+    #[test]
+    fn cached_cells_evaluate_as_their_source_each_cell_once() {
+        use std::sync::atomic::Ordering::Relaxed;
+        let source = Cells::new(None);
+        let cached = CachedCells::new(&source, source.grid);
+        let mut state = 7u64;
+        let (mut got, mut want) = ([0.0; 3], [0.0; 3]);
+        let mut pairs: Vec<(Vec3, Vec3)> = (0..2000)
+            .map(|_| (random_dir(&mut state), random_dir(&mut state)))
+            .collect();
+        let grazing = [1.0, 0.0, 0.0];
+        pairs.extend([
+            (grazing, [0.0, 0.0, 1.0]),
+            ([0.0, 0.0, 1.0], grazing),
+            ([0.3, 0.0, -0.5], [0.0, 0.2, 1.0]),
+            ([0.0, 0.2, 1.0], [0.3, 0.0, -0.5]),
+        ]);
+        for (wi, wo) in &pairs {
+            cached.eval(*wi, *wo, &mut got).unwrap();
+            source.eval(*wi, *wo, &mut want).unwrap();
+            assert_eq!(got, want, "{wi:?} {wo:?}");
+            if wi[2] <= 0.0 || wo[2] <= 0.0 {
+                assert_eq!(got, [0.0; 3]);
+            } else {
+                assert!(got.iter().all(|&v| v > 0.09), "{got:?}");
+            }
+        }
+        let counts: Vec<usize> = source.cell_evals.iter().map(|c| c.load(Relaxed)).collect();
+        assert!(counts.iter().all(|&c| c <= 1), "{counts:?}");
+        assert!(
+            counts.iter().sum::<usize>() > source.grid.len() / 2,
+            "{counts:?}"
+        );
+
+        let (wi, wo) = pairs[0];
+        let hd = crate::grid::HalfDiff::from_dirs(wi, wo).unwrap();
+        let (a, _) = source
+            .grid
+            .interpolation_stencil(&hd)
+            .into_iter()
+            .find(|&(_, w)| w != 0.0)
+            .unwrap();
+        let failing = Cells::new(Some(a));
+        let err = CachedCells::new(&failing, failing.grid)
+            .eval(wi, wo, &mut got)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains(&format!("cell {a} of the source: ")) && err.contains("no values here"),
+            "{err}"
+        );
+    }
+
+    /// A grid source is written from its cells (never through its own `eval`), each cell
+    /// evaluated once, into the same file as the same source seen as a plain one.
+    #[test]
+    fn grid_sources_are_written_from_their_cells() {
+        use std::sync::atomic::Ordering::Relaxed;
+        struct Plain<'a>(&'a Cells);
+        impl BrdfSource for Plain<'_> {
+            fn channels(&self) -> Channels {
+                self.0.channels()
+            }
+            fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+                self.0.eval(wi, wo, out)
+            }
+        }
+        let options = RglWriteOptions {
+            theta_samples: 4,
+            resolution: 8,
+            warp_resolution: 16,
+            tolerance: None,
+            mirror_share: Some(0.0),
+            lobe_warp: Some(0.0),
+            description: "cells".into(),
+            ..RglWriteOptions::default()
+        };
+        let source = Cells::new(None);
+        let (fields, summary) = rgl_fields(&source, &options).unwrap();
+        assert_eq!(source.evals.load(Relaxed), 0);
+        let counts: Vec<usize> = source.cell_evals.iter().map(|c| c.load(Relaxed)).collect();
+        assert!(counts.iter().all(|&c| c <= 1), "{counts:?}");
+        assert!(
+            counts.iter().sum::<usize>() > source.grid.len() / 2,
+            "{counts:?}"
+        );
+        let other = Cells::new(None);
+        let (plain_fields, plain_summary) = rgl_fields(&Plain(&other), &options).unwrap();
+        assert!(other.evals.load(Relaxed) > CHECK_PAIRS);
+        assert!(fields == plain_fields, "the files differ");
+        assert_eq!(summary, plain_summary);
+        assert_eq!(summary.values, 4 * 8 * 8 * 3, "{summary:?}");
     }
 }
