@@ -1691,4 +1691,132 @@ mod tests {
         assert_eq!(summary, plain_summary);
         assert_eq!(summary.values, 4 * 8 * 8 * 3, "{summary:?}");
     }
+
+    /// Refinement walks the doublings as its docs say: from the file as given, each step
+    /// builds the candidates that fit the maxima (twice the incident elevations; twice the
+    /// tables' side, with warps of at least 8 times the old side, up to [`MAX_WARP`]; both,
+    /// when both fit), keeps the one with the smallest check, and takes it only if that cuts
+    /// the check to [`REFINE_GAIN`] of the current one or less. Replayed here from files
+    /// written at fixed sizes, for three sources and maxima whose walks take each kind of
+    /// step and end both ways (a doubling that gains too little; no doubling left).
+    #[test]
+    fn refinement_takes_the_best_doubling_while_it_gains_a_quarter() {
+        let mut ends = Vec::new();
+        for (alpha, max_theta, max_res) in [(0.5, 32, 32), (0.3, 12, 24), (0.03, 12, 24)] {
+            let source = Analytic::new(alpha);
+            let base = RglWriteOptions {
+                theta_samples: 3,
+                resolution: 4,
+                warp_resolution: 16,
+                max_theta_samples: max_theta,
+                max_resolution: max_res,
+                mirror_share: Some(0.0),
+                lobe_warp: Some(0.0),
+                tolerance: None,
+                ..RglWriteOptions::default()
+            };
+            let fixed = |(theta_samples, resolution, warp_resolution)| {
+                let options = RglWriteOptions {
+                    theta_samples,
+                    resolution,
+                    warp_resolution,
+                    ..base.clone()
+                };
+                written(&source, &options).1
+            };
+            let mut size = (3, 4, 16);
+            let mut best = fixed(size);
+            let mut steps = Vec::new();
+            loop {
+                let (t, r, w) = size;
+                let wider = w.max(8 * r).min(MAX_WARP);
+                let mut candidates = Vec::new();
+                if 2 * t <= max_theta {
+                    candidates.push((2 * t, r, w));
+                }
+                if 2 * r <= max_res {
+                    candidates.push((t, 2 * r, wider));
+                }
+                if candidates.len() == 2 {
+                    candidates.push((2 * t, 2 * r, wider));
+                }
+                let Some((next, summary)) = candidates
+                    .into_iter()
+                    .map(|c| (c, fixed(c)))
+                    .min_by(|a, b| a.1.check().total_cmp(&b.1.check()))
+                else {
+                    ends.push("no candidate");
+                    break;
+                };
+                if summary.check() > REFINE_GAIN * best.check() {
+                    ends.push("gain too small");
+                    break;
+                }
+                steps.push(next);
+                (size, best) = (next, summary);
+            }
+            let (_, refined) = written(
+                &source,
+                &RglWriteOptions {
+                    tolerance: Some(1e-9),
+                    ..base.clone()
+                },
+            );
+            let got = (
+                refined.theta_samples,
+                refined.resolution,
+                refined.warp_resolution,
+            );
+            assert_eq!(got, size, "alpha {alpha}: steps {steps:?}, {ends:?}");
+            assert_eq!(refined.check(), best.check(), "alpha {alpha}");
+            eprintln!("alpha {alpha}: {steps:?}");
+            assert!(!steps.is_empty(), "alpha {alpha}");
+        }
+        assert_eq!(ends, ["gain too small", "gain too small", "no candidate"]);
+    }
+
+    /// The warp's share of the source's own lobe: the writer tries the plain warp and
+    /// [`WARP_LOBE_SHARE`] of the lobe and keeps the file that checks better: the lobe for a
+    /// broad retro-reflective lobe (far from the mirror direction the VNDF samples), the plain
+    /// warp for a GGX lobe.
+    #[test]
+    fn the_lobe_warp_is_chosen_when_it_checks_better() {
+        struct Retro;
+        impl BrdfSource for Retro {
+            fn channels(&self) -> Channels {
+                Channels::Rgb
+            }
+            fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+                out.fill(0.0);
+                if wi[2] > 0.0 && wo[2] > 0.0 {
+                    let c = wi[0] * wo[0] + wi[1] * wo[1] + wi[2] * wo[2];
+                    out.fill(0.1 / PI + 5.0 * (-(1.0 - c) / 0.3).exp());
+                }
+                Ok(())
+            }
+        }
+        let ggx = Analytic::new(0.2);
+        for (source, lobe_is_better) in [(&Retro as &dyn BrdfSource, true), (&ggx, false)] {
+            let at = |lobe_warp: Option<f64>| {
+                let options = RglWriteOptions {
+                    theta_samples: 8,
+                    resolution: 8,
+                    mirror_share: Some(0.0),
+                    lobe_warp,
+                    tolerance: None,
+                    ..RglWriteOptions::default()
+                };
+                written(source, &options).1
+            };
+            let (plain, lobe, chosen) = (at(Some(0.0)), at(Some(WARP_LOBE_SHARE)), at(None));
+            assert_eq!(
+                lobe.check() < plain.check(),
+                lobe_is_better,
+                "{plain:?} {lobe:?}"
+            );
+            let better = if lobe_is_better { &lobe } else { &plain };
+            assert_eq!(chosen.lobe_warp, better.lobe_warp);
+            assert_eq!(chosen.check(), better.check());
+        }
+    }
 }
