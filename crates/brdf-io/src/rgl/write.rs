@@ -1507,14 +1507,19 @@ mod tests {
         }
     }
 
-    /// The check's pairs: [`CHECK_PAIRS`] unit directions, `wo` above 0.01, and every fourth
-    /// `wo` within 0.05 (in the plane) of the mirror direction of its `wi`.
+    /// The check's pairs: [`CHECK_PAIRS`] unit directions, `wo` above 0.01; every fourth `wo`
+    /// is the mirror direction of its `wi` moved by up to 0.05 (before normalising) in any
+    /// direction, the others and every `wi` are spread over the hemisphere: every azimuth
+    /// quadrant, elevations from near the horizon to near the normal.
     #[test]
     fn check_pairs_are_unit_directions_with_every_fourth_near_the_mirror() {
         let pairs = check_pairs();
         assert_eq!(pairs.len(), CHECK_PAIRS);
         let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        let mut spread = [0.0f64; 2];
+        let quadrant = |x: f64, y: f64| usize::from(x < 0.0) + 2 * usize::from(y < 0.0);
+        // Per kind (wi; wo; the near-mirror offset): pairs per quadrant; lowest, highest z.
+        let mut quadrants = [[0usize; 4]; 3];
+        let mut z = [(1.0f64, 0.0f64); 2];
         for (k, (wi, wo)) in pairs.iter().enumerate() {
             assert!(
                 (norm(*wi) - 1.0).abs() < 1e-12 && wi[2] >= 0.01,
@@ -1524,15 +1529,27 @@ mod tests {
                 (norm(*wo) - 1.0).abs() < 1e-12 && wo[2] > 0.01,
                 "{k}: {wo:?}"
             );
-            let mirror = [-wi[0], -wi[1], wi[2]];
-            let off = norm([wo[0] - mirror[0], wo[1] - mirror[1], wo[2] - mirror[2]]);
+            quadrants[0][quadrant(wi[0], wi[1])] += 1;
+            z[0] = (z[0].0.min(wi[2]), z[0].1.max(wi[2]));
             if k % 4 == 3 {
-                assert!(off < 0.05 + 1e-9, "{k}: {off}");
+                // wo = v / |v| with v = (-wi_x + d cos phi, -wi_y + d sin phi, wi_z): the
+                // offset (d cos phi, d sin phi) is wi_z (wo_xy / wo_z + wi_xy / wi_z).
+                let off = [0, 1].map(|c| wi[2] * (wo[c] / wo[2] + wi[c] / wi[2]));
+                let d = off[0].hypot(off[1]);
+                assert!(d <= 0.05 + 1e-9, "{k}: offset {d}");
+                quadrants[2][quadrant(off[0], off[1])] += 1;
+            } else {
+                quadrants[1][quadrant(wo[0], wo[1])] += 1;
+                z[1] = (z[1].0.min(wo[2]), z[1].1.max(wo[2]));
             }
-            spread[usize::from(k % 4 == 3)] = spread[usize::from(k % 4 == 3)].max(off);
         }
-        // The other pairs are spread over the hemisphere.
-        assert!(spread[0] > 1.5, "{spread:?}");
+        for (kind, counts) in quadrants.iter().enumerate() {
+            let total: usize = counts.iter().sum();
+            assert!(counts.iter().all(|&c| 5 * c > total), "{kind}: {counts:?}");
+        }
+        for (lowest, highest) in z {
+            assert!(lowest < 0.05 && highest > 0.999, "{z:?}");
+        }
     }
 
     /// A grid source: each cell's values a function of its index, interpolated with the grid's
