@@ -1105,6 +1105,11 @@ mod tests {
         (RglBsdf::from_tensor_file(&tf).unwrap(), summary)
     }
 
+    /// The Euclidean length of `v`.
+    fn norm(v: Vec3) -> f64 {
+        (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+    }
+
     /// A seeded direction above the horizon, cosine-distributed.
     fn random_dir(state: &mut u64) -> Vec3 {
         let mut next = || {
@@ -1490,17 +1495,13 @@ mod tests {
             assert!((theta2u(u2theta(u)) - u).abs() < 1e-15, "{u}");
             assert!((phi2u(u2phi(u)) - u).abs() < 1e-15, "{u}");
         }
-        let unit = |v: [f64; 3]| {
-            let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            v.map(|x| x / n)
-        };
+        let unit = |v: Vec3| v.map(|x| x / norm(v));
         let wi = unit([0.3, -0.4, 0.8]);
         let m = unit([0.1, 0.2, 0.9]);
         let (d, wo) = reflect(wi, m);
         let want = wi[0] * m[0] + wi[1] * m[1] + wi[2] * m[2];
         assert!((d - want).abs() < 1e-15, "{d} {want}");
-        let norm = (wo[0] * wo[0] + wo[1] * wo[1] + wo[2] * wo[2]).sqrt();
-        assert!((norm - 1.0).abs() < 1e-14, "{wo:?}");
+        assert!((norm(wo) - 1.0).abs() < 1e-14, "{wo:?}");
         for k in 0..3 {
             // wi + wo is along m, with length 2 (wi . m).
             assert!((wi[k] + wo[k] - 2.0 * want * m[k]).abs() < 1e-15, "{k}");
@@ -1515,7 +1516,6 @@ mod tests {
     fn check_pairs_are_unit_directions_with_every_fourth_near_the_mirror() {
         let pairs = check_pairs();
         assert_eq!(pairs.len(), CHECK_PAIRS);
-        let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
         let quadrant = |x: f64, y: f64| usize::from(x < 0.0) + 2 * usize::from(y < 0.0);
         // Per kind (wi; wo; the near-mirror offset): pairs per quadrant; lowest, highest z.
         let mut quadrants = [[0usize; 4]; 3];
@@ -1575,6 +1575,16 @@ mod tests {
         fn value(a: usize, channel: usize) -> f64 {
             0.1 + 0.05 * ((7 * a + 3 * channel) % 11) as f64
         }
+
+        /// No cell was evaluated twice, and more than half of them once.
+        fn assert_most_cells_evaluated_once(&self) {
+            let counts: Vec<usize> = (self.cell_evals.iter())
+                .map(|c| c.load(std::sync::atomic::Ordering::Relaxed))
+                .collect();
+            assert!(counts.iter().all(|&c| c <= 1), "{counts:?}");
+            let evaluated = counts.iter().sum::<usize>();
+            assert!(evaluated > self.grid.len() / 2, "{counts:?}");
+        }
     }
 
     impl BrdfSource for Cells {
@@ -1617,7 +1627,6 @@ mod tests {
     /// cannot be evaluated is an error naming it.
     #[test]
     fn cached_cells_evaluate_as_their_source_each_cell_once() {
-        use std::sync::atomic::Ordering::Relaxed;
         let source = Cells::new(None);
         let cached = CachedCells::new(&source, source.grid);
         let mut state = 7u64;
@@ -1642,12 +1651,7 @@ mod tests {
                 assert!(got.iter().all(|&v| v > 0.09), "{got:?}");
             }
         }
-        let counts: Vec<usize> = source.cell_evals.iter().map(|c| c.load(Relaxed)).collect();
-        assert!(counts.iter().all(|&c| c <= 1), "{counts:?}");
-        assert!(
-            counts.iter().sum::<usize>() > source.grid.len() / 2,
-            "{counts:?}"
-        );
+        source.assert_most_cells_evaluated_once();
 
         let (wi, wo) = pairs[0];
         let hd = crate::grid::HalfDiff::from_dirs(wi, wo).unwrap();
@@ -1695,12 +1699,7 @@ mod tests {
         let source = Cells::new(None);
         let (fields, summary) = rgl_fields(&source, &options).unwrap();
         assert_eq!(source.evals.load(Relaxed), 0);
-        let counts: Vec<usize> = source.cell_evals.iter().map(|c| c.load(Relaxed)).collect();
-        assert!(counts.iter().all(|&c| c <= 1), "{counts:?}");
-        assert!(
-            counts.iter().sum::<usize>() > source.grid.len() / 2,
-            "{counts:?}"
-        );
+        source.assert_most_cells_evaluated_once();
         let other = Cells::new(None);
         let (plain_fields, plain_summary) = rgl_fields(&Plain(&other), &options).unwrap();
         assert!(other.evals.load(Relaxed) > CHECK_PAIRS);
