@@ -1835,4 +1835,69 @@ mod tests {
             assert_eq!(chosen.check(), better.check());
         }
     }
+
+    /// The file's NDF: the estimate from the source's retro-reflection scaled to its share
+    /// (1 - `broad_share`) by the trapezoid rule in u over the table's nodes (2 pi int D cos
+    /// sin dtheta, as the writer integrates), plus the uniform 1/pi; only the uniform NDF when
+    /// nothing is reflected back (no estimate); only the uniform NDF with `broad_share` 1,
+    /// whatever the mirror share.
+    #[test]
+    fn the_ndf_is_the_normalised_estimate_and_the_uniform_share() {
+        /// Reflects nothing back towards the incident direction.
+        struct Forward;
+        impl BrdfSource for Forward {
+            fn channels(&self) -> Channels {
+                Channels::Rgb
+            }
+            fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+                // |wi - wo|^2: 0 exactly at wo = wi.
+                let apart = (0..3).map(|k| (wi[k] - wo[k]).powi(2)).sum::<f64>();
+                let up = wi[2] > 0.0 && wo[2] > 0.0;
+                out.fill(if up { 0.1 * apart } else { 0.0 });
+                Ok(())
+            }
+        }
+        let ndf = |source: &dyn BrdfSource, mirror_share: f64, broad_share: f64| {
+            let options = RglWriteOptions {
+                theta_samples: 4,
+                resolution: 8,
+                warp_resolution: 32,
+                tolerance: None,
+                mirror_share: Some(mirror_share),
+                lobe_warp: Some(0.0),
+                broad_share,
+                ..RglWriteOptions::default()
+            };
+            let (fields, _) = rgl_fields(source, &options).unwrap();
+            let field = fields.iter().find(|f| f.name() == "ndf").unwrap();
+            let d = field.to_f64(Path::new("ndf")).unwrap();
+            let nw = d.len() / 2;
+            assert_eq!(d[..nw], d[nw..]);
+            d[..nw].to_vec()
+        };
+        let trapezoid = |d: &[f64]| {
+            let nw = d.len();
+            let g = |k: usize| {
+                let u = k as f64 / (nw - 1) as f64;
+                let t = u2theta(u);
+                d[k] * t.cos() * t.sin() * PI * u
+            };
+            2.0 * PI / (nw - 1) as f64 * (0..nw - 1).map(|k| 0.5 * (g(k) + g(k + 1))).sum::<f64>()
+        };
+        let d = ndf(&Analytic::new(0.2), 0.0, BROAD_SHARE);
+        let estimate: Vec<f64> = d.iter().map(|v| v - BROAD_SHARE / PI).collect();
+        // It peaks at the normal (the GGX lobe seen back along wi = wo).
+        assert!(estimate[0] > 2.0 * estimate[16], "{d:?}");
+        let share = trapezoid(&estimate);
+        assert!((share - (1.0 - BROAD_SHARE)).abs() < 1e-6, "{share}");
+        let uniform = f64::from((1.0 / PI) as f32);
+        for (source, mirror, broad) in [
+            (&Forward as &dyn BrdfSource, 0.0, BROAD_SHARE),
+            (&Forward, MIRROR_SHARE, BROAD_SHARE),
+            (&Analytic::new(0.2), MIRROR_SHARE, 1.0),
+        ] {
+            let d = ndf(source, mirror, broad);
+            assert!(d.iter().all(|&v| v == uniform), "{mirror} {broad}: {d:?}");
+        }
+    }
 }
