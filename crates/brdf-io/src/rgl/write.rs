@@ -1900,4 +1900,35 @@ mod tests {
             assert!(d.iter().all(|&v| v == uniform), "{mirror} {broad}: {d:?}");
         }
     }
+
+    /// The file's sigma is the projected area of its NDF, int D(m) max(0, wi . m) dm: for the
+    /// uniform NDF 1/pi (`broad_share` 1) (1 + cos theta_i) / 2; for any NDF 1 at normal
+    /// incidence (the NDF's normalisation).
+    #[test]
+    fn sigma_is_the_projected_area_of_the_ndf() {
+        let field = |broad_share: f64, name: &str| {
+            let options = RglWriteOptions {
+                theta_samples: 4,
+                resolution: 8,
+                warp_resolution: 32,
+                tolerance: None,
+                mirror_share: Some(0.0),
+                lobe_warp: Some(0.0),
+                broad_share,
+                ..RglWriteOptions::default()
+            };
+            let (fields, _) = rgl_fields(&Analytic::new(0.2), &options).unwrap();
+            let field = fields.iter().find(|f| f.name() == name).unwrap();
+            field.to_f64(Path::new(name)).unwrap()
+        };
+        let sigma = field(1.0, "sigma");
+        let nw = sigma.len() / 2;
+        for (k, s) in sigma[..nw].iter().enumerate() {
+            let theta = u2theta(k as f64 / (nw - 1) as f64);
+            let want = (1.0 + theta.cos()) / 2.0;
+            assert!((s - want).abs() < 1e-4, "{k}: {s} against {want}");
+        }
+        let sigma = field(BROAD_SHARE, "sigma");
+        assert!((sigma[0] - 1.0).abs() < 1e-3, "{}", sigma[0]);
+    }
 }
