@@ -1931,4 +1931,72 @@ mod tests {
         let sigma = field(BROAD_SHARE, "sigma");
         assert!((sigma[0] - 1.0).abs() < 1e-3, "{}", sigma[0]);
     }
+
+    /// The warp's lobe: with `lobe_warp` 1 each incident elevation's table is the density of
+    /// the source's reflected lobe over the table's (u_theta, u_phi) points, luminance x
+    /// cos theta_o x dwo / du, dwo = 4 (wi . m) dm, dm ~ u sin theta_m du dphi, summing to 1;
+    /// for a black source (no lobe to follow) the plain VNDF, whatever the share.
+    #[test]
+    fn the_warp_follows_the_lobe_and_a_black_source_keeps_the_vndf() {
+        let vndf = |source: &dyn BrdfSource, lobe_warp: f64| {
+            let options = RglWriteOptions {
+                theta_samples: 3,
+                resolution: 8,
+                warp_resolution: 16,
+                tolerance: None,
+                mirror_share: Some(0.0),
+                lobe_warp: Some(lobe_warp),
+                ..RglWriteOptions::default()
+            };
+            let (fields, _) = rgl_fields(source, &options).unwrap();
+            let get = |name: &str| {
+                let field = fields.iter().find(|f| f.name() == name).unwrap();
+                field.to_f64(Path::new(name)).unwrap()
+            };
+            (get("theta_i"), get("vndf"))
+        };
+        let source = Analytic::new(0.2);
+        let (theta_i, table) = vndf(&source, 1.0);
+        let nw = 16;
+        let mut f = [0.0; 4];
+        for (k, &theta) in theta_i.iter().enumerate() {
+            let wi = direction(theta.min(MAX_EVAL_THETA_DEG.to_radians()), 0.0);
+            let mut density = vec![0.0; nw * nw];
+            for row in 0..nw {
+                for col in 0..nw {
+                    let u = col as f64 / (nw - 1) as f64;
+                    let tm = u2theta(u);
+                    let m = direction(tm, u2phi(row as f64 / (nw - 1) as f64));
+                    let (c, wo) = reflect(wi, m);
+                    if c > 0.0 && wo[2] > 0.0 {
+                        source.eval(wi, wo, &mut f).unwrap();
+                        let lum = (f[0] + f[1] + f[2]) / 3.0;
+                        density[row * nw + col] = lum * wo[2] * 4.0 * c * u * tm.sin();
+                    }
+                }
+            }
+            let total: f64 = density.iter().sum();
+            let slice = &table[k * nw * nw..(k + 1) * nw * nw];
+            for (i, (got, d)) in slice.iter().zip(&density).enumerate() {
+                let want = d / total;
+                assert!(
+                    (got - want).abs() <= 1e-6 * want + 1e-12,
+                    "{k} {i}: {got} {want}"
+                );
+            }
+        }
+        struct Black;
+        impl BrdfSource for Black {
+            fn channels(&self) -> Channels {
+                Channels::Rgb
+            }
+            fn eval(&self, _wi: Vec3, _wo: Vec3, out: &mut [f64]) -> Result<()> {
+                out.fill(0.0);
+                Ok(())
+            }
+        }
+        let (_, plain) = vndf(&Black, 0.0);
+        assert!(plain.iter().all(|v| v.is_finite()) && plain.iter().any(|&v| v > 0.0));
+        assert_eq!(vndf(&Black, 0.9).1, plain);
+    }
 }
