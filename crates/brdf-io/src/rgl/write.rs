@@ -1996,7 +1996,50 @@ mod tests {
             }
         }
         let (_, plain) = vndf(&Black, 0.0);
-        assert!(plain.iter().all(|v| v.is_finite()) && plain.iter().any(|&v| v > 0.0));
+        for slice in plain.chunks(nw * nw) {
+            let total: f64 = slice.iter().sum();
+            assert!((total - 1.0).abs() < 1e-5, "{total}");
+            assert!(slice.iter().all(|&v| v >= 0.0), "{slice:?}");
+        }
         assert_eq!(vndf(&Black, 0.9).1, plain);
+    }
+
+    /// The table points counted below the horizon are exactly those left at 0: a source
+    /// positive everywhere above the horizon stores a positive value at every other point.
+    #[test]
+    fn points_below_the_horizon_are_counted_and_left_at_zero() {
+        struct Constant;
+        impl BrdfSource for Constant {
+            fn channels(&self) -> Channels {
+                Channels::Rgb
+            }
+            fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+                out.fill(if wi[2] > 0.0 && wo[2] > 0.0 { 0.3 } else { 0.0 });
+                Ok(())
+            }
+        }
+        let options = RglWriteOptions {
+            theta_samples: 6,
+            resolution: 16,
+            tolerance: None,
+            mirror_share: Some(0.0),
+            lobe_warp: Some(0.0),
+            ..RglWriteOptions::default()
+        };
+        let (fields, summary) = rgl_fields(&Constant, &options).unwrap();
+        let rgb = fields.iter().find(|f| f.name() == "rgb").unwrap();
+        let rgb = rgb.to_f64(Path::new("rgb")).unwrap();
+        let points = 16 * 16;
+        let zero = rgb
+            .chunks(3 * points)
+            .flat_map(|slice| {
+                (0..points).map(move |p| (0..3).all(|c| slice[c * points + p] == 0.0))
+            })
+            .filter(|&z| z)
+            .count();
+        assert!(zero > 0, "{summary:?}");
+        assert_eq!(summary.below_horizon, zero);
+        assert_eq!(summary.values, 6 * points * 3);
+        assert_eq!(summary.negative_clamped, 0);
     }
 }
