@@ -1110,6 +1110,47 @@ mod tests {
         (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
     }
 
+    /// An RGB source with the value `f(wi, wo)` in every channel above the horizon, 0 below.
+    struct Grey<F>(F);
+
+    impl<F: Fn(Vec3, Vec3) -> f64 + Sync> BrdfSource for Grey<F> {
+        fn channels(&self) -> Channels {
+            Channels::Rgb
+        }
+        fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+            out.fill(if wi[2] > 0.0 && wo[2] > 0.0 {
+                (self.0)(wi, wo)
+            } else {
+                0.0
+            });
+            Ok(())
+        }
+    }
+
+    /// Options that write the sizes given as they are (no refinement), with neither the
+    /// mirror lobe nor the source's lobe in the warp.
+    fn fixed_sizes(
+        theta_samples: usize,
+        resolution: usize,
+        warp_resolution: usize,
+    ) -> RglWriteOptions {
+        RglWriteOptions {
+            theta_samples,
+            resolution,
+            warp_resolution,
+            tolerance: None,
+            mirror_share: Some(0.0),
+            lobe_warp: Some(0.0),
+            ..RglWriteOptions::default()
+        }
+    }
+
+    /// The values of the written field `name`.
+    fn values_of(fields: &[Field], name: &str) -> Vec<f64> {
+        let field = fields.iter().find(|f| f.name() == name).unwrap();
+        field.to_f64(Path::new(name)).unwrap()
+    }
+
     /// A seeded direction above the horizon, cosine-distributed.
     fn random_dir(state: &mut u64) -> Vec3 {
         let mut next = || {
@@ -1687,14 +1728,8 @@ mod tests {
             }
         }
         let options = RglWriteOptions {
-            theta_samples: 4,
-            resolution: 8,
-            warp_resolution: 16,
-            tolerance: None,
-            mirror_share: Some(0.0),
-            lobe_warp: Some(0.0),
             description: "cells".into(),
-            ..RglWriteOptions::default()
+            ..fixed_sizes(4, 8, 16)
         };
         let source = Cells::new(None);
         let (fields, summary) = rgl_fields(&source, &options).unwrap();
@@ -1721,24 +1756,16 @@ mod tests {
         for (alpha, max_theta, max_res) in [(0.5, 32, 32), (0.3, 12, 24), (0.03, 12, 24)] {
             let source = Analytic::new(alpha);
             let base = RglWriteOptions {
-                theta_samples: 3,
-                resolution: 4,
-                warp_resolution: 16,
                 max_theta_samples: max_theta,
                 max_resolution: max_res,
-                mirror_share: Some(0.0),
-                lobe_warp: Some(0.0),
-                tolerance: None,
-                ..RglWriteOptions::default()
+                ..fixed_sizes(3, 4, 16)
             };
             let fixed = |(theta_samples, resolution, warp_resolution)| {
-                let options = RglWriteOptions {
-                    theta_samples,
-                    resolution,
-                    warp_resolution,
-                    ..base.clone()
-                };
-                written(&source, &options).1
+                written(
+                    &source,
+                    &fixed_sizes(theta_samples, resolution, warp_resolution),
+                )
+                .1
             };
             let mut size = (3, 4, 16);
             let mut best = fixed(size);
@@ -1797,30 +1824,16 @@ mod tests {
     /// warp for a GGX lobe.
     #[test]
     fn the_lobe_warp_is_chosen_when_it_checks_better() {
-        struct Retro;
-        impl BrdfSource for Retro {
-            fn channels(&self) -> Channels {
-                Channels::Rgb
-            }
-            fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
-                out.fill(0.0);
-                if wi[2] > 0.0 && wo[2] > 0.0 {
-                    let c = wi[0] * wo[0] + wi[1] * wo[1] + wi[2] * wo[2];
-                    out.fill(0.1 / PI + 5.0 * (-(1.0 - c) / 0.3).exp());
-                }
-                Ok(())
-            }
-        }
+        let retro = Grey(|wi: Vec3, wo: Vec3| {
+            let c = wi[0] * wo[0] + wi[1] * wo[1] + wi[2] * wo[2];
+            0.1 / PI + 5.0 * (-(1.0 - c) / 0.3).exp()
+        });
         let ggx = Analytic::new(0.2);
-        for (source, lobe_is_better) in [(&Retro as &dyn BrdfSource, true), (&ggx, false)] {
+        for (source, lobe_is_better) in [(&retro as &dyn BrdfSource, true), (&ggx, false)] {
             let at = |lobe_warp: Option<f64>| {
                 let options = RglWriteOptions {
-                    theta_samples: 8,
-                    resolution: 8,
-                    mirror_share: Some(0.0),
                     lobe_warp,
-                    tolerance: None,
-                    ..RglWriteOptions::default()
+                    ..fixed_sizes(8, 8, 128)
                 };
                 written(source, &options).1
             };
@@ -1843,34 +1856,18 @@ mod tests {
     /// whatever the mirror share.
     #[test]
     fn the_ndf_is_the_normalised_estimate_and_the_uniform_share() {
-        /// Reflects nothing back towards the incident direction.
-        struct Forward;
-        impl BrdfSource for Forward {
-            fn channels(&self) -> Channels {
-                Channels::Rgb
-            }
-            fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
-                // |wi - wo|^2: 0 exactly at wo = wi.
-                let apart = (0..3).map(|k| (wi[k] - wo[k]).powi(2)).sum::<f64>();
-                let up = wi[2] > 0.0 && wo[2] > 0.0;
-                out.fill(if up { 0.1 * apart } else { 0.0 });
-                Ok(())
-            }
-        }
+        // Reflects nothing back towards the incident direction: |wi - wo|^2 is 0 exactly at
+        // wo = wi.
+        let forward =
+            Grey(|wi: Vec3, wo: Vec3| 0.1 * (0..3).map(|k| (wi[k] - wo[k]).powi(2)).sum::<f64>());
         let ndf = |source: &dyn BrdfSource, mirror_share: f64, broad_share: f64| {
             let options = RglWriteOptions {
-                theta_samples: 4,
-                resolution: 8,
-                warp_resolution: 32,
-                tolerance: None,
                 mirror_share: Some(mirror_share),
-                lobe_warp: Some(0.0),
                 broad_share,
-                ..RglWriteOptions::default()
+                ..fixed_sizes(4, 8, 32)
             };
             let (fields, _) = rgl_fields(source, &options).unwrap();
-            let field = fields.iter().find(|f| f.name() == "ndf").unwrap();
-            let d = field.to_f64(Path::new("ndf")).unwrap();
+            let d = values_of(&fields, "ndf");
             let nw = d.len() / 2;
             assert_eq!(d[..nw], d[nw..]);
             d[..nw].to_vec()
@@ -1892,8 +1889,8 @@ mod tests {
         assert!((share - (1.0 - BROAD_SHARE)).abs() < 1e-6, "{share}");
         let uniform = f64::from((1.0 / PI) as f32);
         for (source, mirror, broad) in [
-            (&Forward as &dyn BrdfSource, 0.0, BROAD_SHARE),
-            (&Forward, MIRROR_SHARE, BROAD_SHARE),
+            (&forward as &dyn BrdfSource, 0.0, BROAD_SHARE),
+            (&forward, MIRROR_SHARE, BROAD_SHARE),
             (&Analytic::new(0.2), MIRROR_SHARE, 1.0),
         ] {
             let d = ndf(source, mirror, broad);
@@ -1908,18 +1905,11 @@ mod tests {
     fn sigma_is_the_projected_area_of_the_ndf() {
         let field = |broad_share: f64, name: &str| {
             let options = RglWriteOptions {
-                theta_samples: 4,
-                resolution: 8,
-                warp_resolution: 32,
-                tolerance: None,
-                mirror_share: Some(0.0),
-                lobe_warp: Some(0.0),
                 broad_share,
-                ..RglWriteOptions::default()
+                ..fixed_sizes(4, 8, 32)
             };
             let (fields, _) = rgl_fields(&Analytic::new(0.2), &options).unwrap();
-            let field = fields.iter().find(|f| f.name() == name).unwrap();
-            field.to_f64(Path::new(name)).unwrap()
+            values_of(&fields, name)
         };
         let sigma = field(1.0, "sigma");
         let nw = sigma.len() / 2;
@@ -1940,20 +1930,11 @@ mod tests {
     fn the_warp_follows_the_lobe_and_a_black_source_keeps_the_vndf() {
         let vndf = |source: &dyn BrdfSource, lobe_warp: f64| {
             let options = RglWriteOptions {
-                theta_samples: 3,
-                resolution: 8,
-                warp_resolution: 16,
-                tolerance: None,
-                mirror_share: Some(0.0),
                 lobe_warp: Some(lobe_warp),
-                ..RglWriteOptions::default()
+                ..fixed_sizes(3, 8, 16)
             };
             let (fields, _) = rgl_fields(source, &options).unwrap();
-            let get = |name: &str| {
-                let field = fields.iter().find(|f| f.name() == name).unwrap();
-                field.to_f64(Path::new(name)).unwrap()
-            };
-            (get("theta_i"), get("vndf"))
+            (values_of(&fields, "theta_i"), values_of(&fields, "vndf"))
         };
         let source = Analytic::new(0.2);
         let (theta_i, table) = vndf(&source, 1.0);
@@ -1985,50 +1966,23 @@ mod tests {
                 );
             }
         }
-        struct Black;
-        impl BrdfSource for Black {
-            fn channels(&self) -> Channels {
-                Channels::Rgb
-            }
-            fn eval(&self, _wi: Vec3, _wo: Vec3, out: &mut [f64]) -> Result<()> {
-                out.fill(0.0);
-                Ok(())
-            }
-        }
-        let (_, plain) = vndf(&Black, 0.0);
+        let black = Grey(|_: Vec3, _: Vec3| 0.0);
+        let (_, plain) = vndf(&black, 0.0);
         for slice in plain.chunks(nw * nw) {
             let total: f64 = slice.iter().sum();
             assert!((total - 1.0).abs() < 1e-5, "{total}");
             assert!(slice.iter().all(|&v| v >= 0.0), "{slice:?}");
         }
-        assert_eq!(vndf(&Black, 0.9).1, plain);
+        assert_eq!(vndf(&black, 0.9).1, plain);
     }
 
     /// The table points counted below the horizon are exactly those left at 0: a source
     /// positive everywhere above the horizon stores a positive value at every other point.
     #[test]
     fn points_below_the_horizon_are_counted_and_left_at_zero() {
-        struct Constant;
-        impl BrdfSource for Constant {
-            fn channels(&self) -> Channels {
-                Channels::Rgb
-            }
-            fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
-                out.fill(if wi[2] > 0.0 && wo[2] > 0.0 { 0.3 } else { 0.0 });
-                Ok(())
-            }
-        }
-        let options = RglWriteOptions {
-            theta_samples: 6,
-            resolution: 16,
-            tolerance: None,
-            mirror_share: Some(0.0),
-            lobe_warp: Some(0.0),
-            ..RglWriteOptions::default()
-        };
-        let (fields, summary) = rgl_fields(&Constant, &options).unwrap();
-        let rgb = fields.iter().find(|f| f.name() == "rgb").unwrap();
-        let rgb = rgb.to_f64(Path::new("rgb")).unwrap();
+        let options = fixed_sizes(6, 16, 128);
+        let (fields, summary) = rgl_fields(&Grey(|_: Vec3, _: Vec3| 0.3), &options).unwrap();
+        let rgb = values_of(&fields, "rgb");
         let points = 16 * 16;
         let zero = rgb
             .chunks(3 * points)
