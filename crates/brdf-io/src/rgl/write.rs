@@ -1996,4 +1996,65 @@ mod tests {
         assert_eq!(summary.values, 6 * points * 3);
         assert_eq!(summary.negative_clamped, 0);
     }
+
+    /// The luminance table is the wanted sampling density (the reflected luminance) over the
+    /// warp's density, floored at [`LUMINANCE_FLOOR`] of its mean. Where the two are
+    /// proportional it is one constant, with the floor where the lobe is 0 (below the horizon,
+    /// at theta_m = 0): for a source of constant luminance x cos theta_o under the uniform NDF,
+    /// and for any source when the warp is all lobe.
+    #[test]
+    fn the_luminance_table_is_the_wanted_density_over_the_warps() {
+        let flat = Grey(|_: Vec3, wo: Vec3| 0.3 / wo[2]);
+        let glossy = Analytic::new(0.2);
+        let cases = [
+            (&flat as &dyn BrdfSource, 1.0, 0.0),
+            (&glossy, BROAD_SHARE, 1.0),
+        ];
+        for (source, broad_share, lobe_warp) in cases {
+            let options = RglWriteOptions {
+                broad_share,
+                lobe_warp: Some(lobe_warp),
+                ..fixed_sizes(3, 8, 32)
+            };
+            let (fields, _) = rgl_fields(source, &options).unwrap();
+            let luminance = values_of(&fields, "luminance");
+            let mut floored = 0;
+            for slice in luminance.chunks(64) {
+                let top = slice.iter().copied().fold(0.0, f64::max);
+                let at_top = slice
+                    .iter()
+                    .filter(|&&l| (l - top).abs() <= 1e-6 * top)
+                    .count();
+                let floor = LUMINANCE_FLOOR * top * at_top as f64 / 64.0;
+                assert!(at_top >= 8, "{lobe_warp}: {slice:?}");
+                for &l in slice {
+                    let off = (l - top).abs().min((l - floor).abs());
+                    assert!(
+                        off <= 1e-6 * l,
+                        "{lobe_warp}: {l} is neither {top} nor {floor}"
+                    );
+                }
+                floored += 64 - at_top;
+            }
+            assert!(floored > 0, "{lobe_warp}");
+        }
+    }
+
+    /// A source whose values leave f32's range once scaled into the tables is refused, naming
+    /// it, rather than written with infinities.
+    #[test]
+    fn values_beyond_f32_are_refused() {
+        let options = RglWriteOptions {
+            description: "huge".into(),
+            ..fixed_sizes(3, 8, 32)
+        };
+        let err = rgl_fields(&Grey(|_: Vec3, _: Vec3| 1e300), &options)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with("invalid argument: huge: ")
+                && err.contains("table values exceed the f32 range of an RGL file"),
+            "{err}"
+        );
+    }
 }
