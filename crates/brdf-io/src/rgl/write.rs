@@ -1995,6 +1995,9 @@ mod tests {
         assert_eq!(summary.below_horizon, zero);
         assert_eq!(summary.values, 6 * points * 3);
         assert_eq!(summary.negative_clamped, 0);
+        // Zeros are not negative.
+        let (_, black) = rgl_fields(&Grey(|_: Vec3, _: Vec3| 0.0), &options).unwrap();
+        assert_eq!(black.negative_clamped, 0);
     }
 
     /// The luminance table is the wanted sampling density (the reflected luminance) over the
