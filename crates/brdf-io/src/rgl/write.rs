@@ -1996,8 +1996,10 @@ mod tests {
         assert_eq!(summary.values, 6 * points * 3);
         assert_eq!(summary.negative_clamped, 0);
         // Zeros are not negative.
-        let (_, black) = rgl_fields(&Grey(|_: Vec3, _: Vec3| 0.0), &options).unwrap();
+        let (fields, black) = rgl_fields(&Grey(|_: Vec3, _: Vec3| 0.0), &options).unwrap();
         assert_eq!(black.negative_clamped, 0);
+        // Nothing to sample by: a uniform luminance table.
+        assert!(values_of(&fields, "luminance").iter().all(|&l| l == 1.0));
     }
 
     /// The luminance table is the wanted sampling density (the reflected luminance) over the
@@ -2051,13 +2053,26 @@ mod tests {
             description: "huge".into(),
             ..fixed_sizes(3, 8, 32)
         };
-        let err = rgl_fields(&Grey(|_: Vec3, _: Vec3| 1e300), &options)
-            .unwrap_err()
-            .to_string();
-        assert!(
-            err.starts_with("invalid argument: huge: ")
-                && err.contains("table values exceed the f32 range of an RGL file"),
-            "{err}"
-        );
+        // Huge everywhere, or only in a channel that the luminance table does not weigh.
+        struct Invisible;
+        impl BrdfSource for Invisible {
+            fn channels(&self) -> Channels {
+                Channels::spectral(vec![550.0, 900.0]).unwrap()
+            }
+            fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+                let up = wi[2] > 0.0 && wo[2] > 0.0;
+                out.copy_from_slice(&if up { [0.3, 1e300] } else { [0.0; 2] });
+                Ok(())
+            }
+        }
+        let huge = Grey(|_: Vec3, _: Vec3| 1e300);
+        for source in [&huge as &dyn BrdfSource, &Invisible] {
+            let err = rgl_fields(source, &options).unwrap_err().to_string();
+            assert!(
+                err.starts_with("invalid argument: huge: ")
+                    && err.contains("table values exceed the f32 range of an RGL file"),
+                "{err}"
+            );
+        }
     }
 }
