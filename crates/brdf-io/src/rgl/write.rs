@@ -1145,6 +1145,11 @@ mod tests {
         }
     }
 
+    /// Node `k` of `n` of a table's axis in the format's coordinates, 0 to 1.
+    fn node(k: usize, n: usize) -> f64 {
+        k as f64 / (n - 1) as f64
+    }
+
     /// The values of the written field `name`.
     fn values_of(fields: &[Field], name: &str) -> Vec<f64> {
         let field = fields.iter().find(|f| f.name() == name).unwrap();
@@ -1875,7 +1880,7 @@ mod tests {
         let trapezoid = |d: &[f64]| {
             let nw = d.len();
             let g = |k: usize| {
-                let u = k as f64 / (nw - 1) as f64;
+                let u = node(k, nw);
                 let t = u2theta(u);
                 d[k] * t.cos() * t.sin() * PI * u
             };
@@ -1914,7 +1919,7 @@ mod tests {
         let sigma = field(1.0, "sigma");
         let nw = sigma.len() / 2;
         for (k, s) in sigma[..nw].iter().enumerate() {
-            let theta = u2theta(k as f64 / (nw - 1) as f64);
+            let theta = u2theta(node(k, nw));
             let want = (1.0 + theta.cos()) / 2.0;
             assert!((s - want).abs() < 1e-4, "{k}: {s} against {want}");
         }
@@ -1945,9 +1950,9 @@ mod tests {
             let mut density = vec![0.0; nw * nw];
             for row in 0..nw {
                 for col in 0..nw {
-                    let u = col as f64 / (nw - 1) as f64;
+                    let u = node(col, nw);
                     let tm = u2theta(u);
-                    let m = direction(tm, u2phi(row as f64 / (nw - 1) as f64));
+                    let m = direction(tm, u2phi(node(row, nw)));
                     let (c, wo) = reflect(wi, m);
                     if c > 0.0 && wo[2] > 0.0 {
                         source.eval(wi, wo, &mut f).unwrap();
@@ -2023,14 +2028,15 @@ mod tests {
             };
             let (fields, _) = rgl_fields(source, &options).unwrap();
             let luminance = values_of(&fields, "luminance");
+            let points = 8 * 8;
             let mut floored = 0;
-            for slice in luminance.chunks(64) {
+            for slice in luminance.chunks(points) {
                 let top = slice.iter().copied().fold(0.0, f64::max);
                 let at_top = slice
                     .iter()
                     .filter(|&&l| (l - top).abs() <= 1e-6 * top)
                     .count();
-                let floor = LUMINANCE_FLOOR * top * at_top as f64 / 64.0;
+                let floor = LUMINANCE_FLOOR * top * at_top as f64 / points as f64;
                 assert!(at_top >= 8, "{lobe_warp}: {slice:?}");
                 for &l in slice {
                     let off = (l - top).abs().min((l - floor).abs());
@@ -2039,7 +2045,7 @@ mod tests {
                         "{lobe_warp}: {l} is neither {top} nor {floor}"
                     );
                 }
-                floored += 64 - at_top;
+                floored += points - at_top;
             }
             assert!(floored > 0, "{lobe_warp}");
         }
