@@ -1280,28 +1280,58 @@ mod tests {
     }
 
     /// The albedo check measures relative albedo errors: a file against itself scaled by 1.1
-    /// is 1/11 off at every elevation, against itself 0.
+    /// is 1/11 off at every elevation, against itself 0. Where the source's albedo is below a
+    /// thousandth of its largest (here 0, black at normal incidence), the error is relative
+    /// to that thousandth.
     #[test]
     fn the_albedo_check_measures_relative_albedo_errors() {
-        struct Scaled<'a>(&'a RglBsdf, f64);
+        /// The file scaled by a factor that depends on the incident direction.
+        struct Scaled<'a>(&'a RglBsdf, fn(Vec3) -> f64);
         impl BrdfSource for Scaled<'_> {
             fn channels(&self) -> Channels {
                 self.0.channels()
             }
             fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
                 self.0.eval(wi, wo, out)?;
-                out.iter_mut().for_each(|v| *v *= self.1);
+                out.iter_mut().for_each(|v| *v *= (self.1)(wi));
                 Ok(())
             }
         }
         let (bsdf, summary) = written(&Analytic::new(0.2), &RglWriteOptions::default());
         assert!(summary.albedo_error < 0.02, "{summary:?}");
-        assert_eq!(
-            albedo_error(&bsdf, &SourceReference::new(&Scaled(&bsdf, 1.0)).unwrap()).unwrap(),
-            0.0
-        );
-        let e = albedo_error(&bsdf, &SourceReference::new(&Scaled(&bsdf, 1.1)).unwrap()).unwrap();
+        let itself = SourceReference::new(&Scaled(&bsdf, |_| 1.0)).unwrap();
+        assert_eq!(albedo_error(&bsdf, &itself).unwrap(), 0.0);
+        let e = albedo_error(
+            &bsdf,
+            &SourceReference::new(&Scaled(&bsdf, |_| 1.1)).unwrap(),
+        )
+        .unwrap();
         assert!((e - 0.1 / 1.1).abs() < 1e-12, "{e}");
+
+        assert_eq!(ALBEDO_THETAS_DEG[0], 0.0);
+        let albedos: Vec<f64> = itself.albedo.iter().map(|a| a.source).collect();
+        let largest = albedos[1..].iter().copied().fold(0.0, f64::max);
+        // Away from 1, so that a thousandth of it differs from a thousandth over it.
+        assert!(largest > 0.0 && (largest - 1.0).abs() > 0.05, "{albedos:?}");
+        let black_at_normal = |wi: Vec3| if wi[2] == 1.0 { 0.0 } else { 1.0 };
+        let reference = SourceReference::new(&Scaled(&bsdf, black_at_normal)).unwrap();
+        assert_eq!(reference.albedo[0].source, 0.0);
+        let e = albedo_error(&bsdf, &reference).unwrap();
+        let expected = albedos[0] / (1e-3 * largest);
+        assert!((e - expected).abs() <= 1e-9 * expected, "{e} vs {expected}");
+    }
+
+    /// The check's relative error has no scale for a black source: 0 when the file is black
+    /// too, infinite when it is not.
+    #[test]
+    fn the_check_error_of_a_black_source() {
+        let black = Grey(|_: Vec3, _: Vec3| 0.0);
+        let reference = SourceReference::new(&black).unwrap();
+        let options = fixed_sizes(4, 8, 8);
+        let (black_file, _) = written(&black, &options);
+        assert_eq!(check_error(&black_file, &reference).unwrap(), 0.0);
+        let (grey_file, _) = written(&Grey(|_: Vec3, _: Vec3| 0.1), &options);
+        assert_eq!(check_error(&grey_file, &reference).unwrap(), f64::INFINITY);
     }
 
     /// A broad material's file ripples around the mirror direction unless the NDF holds the
@@ -2080,5 +2110,30 @@ mod tests {
                 "{err}"
             );
         }
+    }
+
+    /// The value tables may hold up to 2^28 values (incident elevations x channels x side^2),
+    /// not one more, and a size whose product overflows is refused as too large. A NaN source
+    /// shows where the size check let a write through: its first evaluation fails.
+    #[test]
+    fn value_tables_over_2_pow_28_values_are_refused() {
+        let mut nan = Analytic::new(0.2);
+        nan.offset = f64::NAN;
+        assert_eq!(nan.channels().len(), 4);
+        let sized = |theta_samples| RglWriteOptions {
+            description: "big".into(),
+            ..fixed_sizes(theta_samples, 1024, 32)
+        };
+        let fits = fixed_fields(&nan, &sized(64)).unwrap_err().to_string();
+        assert!(fits.contains("big") && fits.contains("NaN"), "{fits}");
+        let err = fixed_fields(&nan, &sized(65)).unwrap_err().to_string();
+        assert!(
+            err.contains("big: RGL value tables of 65 x 4 x 1024 x 1024 values are too large"),
+            "{err}"
+        );
+        let err = fixed_fields(&nan, &sized(usize::MAX))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("values are too large"), "{err}");
     }
 }
