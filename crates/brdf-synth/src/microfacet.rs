@@ -95,4 +95,47 @@ mod tests {
             assert!((sum - 1.0).abs() < 1e-3, "r {r}: {sum}");
         }
     }
+
+    /// The sheen terms' values against their formulas: Charlie's `(2 + 1/r) sin^(1/r) / (2 pi)`
+    /// (its normalisation holds for any exponent, so it does not pin 1/r), roughness clamped
+    /// at 1e-3; the visibility `1 / (4 (mu_i + mu_o - mu_i mu_o))`, symmetric.
+    #[test]
+    fn charlie_and_sheen_visibility_values() {
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-14 * b.abs();
+        // cos_h 0.6: sin_h 0.8.
+        for (r, expected) in [
+            (1.0, 3.0 * 0.8),
+            (0.5, 4.0 * 0.8f64.powi(2)),
+            (0.25, 6.0 * 0.8f64.powi(4)),
+        ] {
+            let d = charlie_d(0.6, r);
+            assert!(close(d, expected / (2.0 * PI)), "r {r}: {d}");
+        }
+        assert!(close(charlie_d(0.0, 0.0), 1002.0 / (2.0 * PI)));
+        assert_eq!(charlie_d(1.0, 0.5), 0.0);
+
+        for (mu_i, mu_o, expected) in [
+            (1.0, 1.0, 0.25),
+            (0.5, 0.5, 1.0 / 3.0),
+            (0.2, 0.9, 1.0 / (4.0 * (1.1 - 0.18))),
+        ] {
+            let v = sheen_visibility(mu_i, mu_o);
+            assert!(close(v, expected), "{mu_i} {mu_o}: {v}");
+            assert_eq!(v, sheen_visibility(mu_o, mu_i));
+        }
+        assert_eq!(sheen_visibility(0.0, 0.0), 1e12);
+    }
+
+    /// Each term is 0 for a direction at or below the horizon, not NaN (0 / 0) or negative.
+    #[test]
+    fn lobes_vanish_at_and_below_the_horizon() {
+        for (mu_i, mu_o) in [(0.0, 0.5), (0.5, 0.0), (-0.2, 0.5), (0.5, -0.2), (0.0, 0.0)] {
+            assert_eq!(ggx_lobe(0.9, mu_i, mu_o, 0.3).to_bits(), 0, "{mu_i} {mu_o}");
+            assert_eq!(smith_g2(mu_i, mu_o, 0.3).to_bits(), 0, "{mu_i} {mu_o}");
+        }
+        assert_eq!(ggx_d(0.0, 0.3), 0.0);
+        assert_eq!(ggx_d(-0.5, 0.3), 0.0);
+        assert_eq!(ggx_lambda(0.0, 0.3), f64::INFINITY);
+        assert!(ggx_lobe(0.9, 0.5, 0.5, 0.3) > 0.0);
+    }
 }

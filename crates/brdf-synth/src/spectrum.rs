@@ -305,6 +305,10 @@ mod tests {
         };
         assert!((b.eval(500.0) - 0.6).abs() < 1e-12);
         assert!((b.eval(900.0) - 0.1).abs() < 1e-6);
+        // One width from the centre: 1/e of the way.
+        let one_width = 0.1 + 0.5 / std::f64::consts::E;
+        assert!((b.eval(540.0) - one_width).abs() < 1e-12);
+        assert!((b.eval(460.0) - one_width).abs() < 1e-12);
         let e = Spectrum::Edge {
             edge_nm: 600.0,
             width_nm: 15.0,
@@ -313,8 +317,19 @@ mod tests {
         };
         assert!((e.eval(600.0) - 0.425).abs() < 1e-12);
         assert!(e.eval(400.0) < 0.06 && e.eval(800.0) > 0.79);
+        // One width above the mid-point: the logistic 1 / (1 + 1/e).
+        let above = 0.05 + 0.75 / (1.0 + (-1.0f64).exp());
+        assert!((e.eval(615.0) - above).abs() < 1e-12);
         assert!((b.clone().shifted(50.0).eval(550.0) - 0.6).abs() < 1e-12);
-        assert!((b.scaled(0.5).eval(500.0) - 0.3).abs() < 1e-12);
+        assert!((b.clone().scaled(0.5).eval(500.0) - 0.3).abs() < 1e-12);
+        // Mixes and products, value by value.
+        let mix = b.clone().mix(0.25, e.clone());
+        let product = b.clone().times(e.clone());
+        for l in [450.0, 540.0, 615.0, 700.0] {
+            let (vb, ve) = (b.eval(l), e.eval(l));
+            assert!((mix.eval(l) - (0.75 * vb + 0.25 * ve)).abs() < 1e-15, "{l}");
+            assert_eq!(product.eval(l), vb * ve, "{l}");
+        }
     }
 
     #[test]
