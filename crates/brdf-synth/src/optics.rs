@@ -518,6 +518,13 @@ mod tests {
         let s = z.sqrt();
         let back = s * s;
         assert!((back.re + 3.0).abs() < 1e-12 && (back.im - 4.0).abs() < 1e-12);
+        // The principal root below the real axis too: (1 - 2i)^2 = -3 - 4i.
+        let s = Complex::new(-3.0, -4.0).sqrt();
+        assert!(
+            (s.re - 1.0).abs() < 1e-12 && (s.im + 2.0).abs() < 1e-12,
+            "{s:?}"
+        );
+        assert_eq!(Complex::new(4.0, 0.0).sqrt(), Complex::new(2.0, 0.0));
         let e = Complex::new(0.0, std::f64::consts::PI).exp();
         assert!((e.re + 1.0).abs() < 1e-12 && e.im.abs() < 1e-12);
     }
