@@ -102,12 +102,18 @@ fn optimisers_improve_on_pca_and_lbfgs_beats_hooke_jeeves_per_evaluation() {
 /// Fits that learn the hyperparameters on a one-dimensional latent space used to stop after a
 /// step that barely changed the value (or a failed line search) with a gradient of ~0.5 per
 /// data value, reported as converged (an audit reached 1.4e5 more log-likelihood from there
-/// with scipy). L-BFGS now drops its Hessian model at such a stall and goes on.
+/// with scipy). L-BFGS now drops its Hessian model at such a stall and goes on (unit tests in
+/// `optim.rs`). This test held the log-likelihoods those stalled runs stopped at (-4.486554e5
+/// log, 1.040703e6 raw), which belong to the presets of that time: session 40's sheen fix
+/// changed the felt and satin presets, and on these presets neither fit meets a stall (the same
+/// results with the stall handling switched off, as on the presets before the fix). What it
+/// checks is the outcome on any data: a converged fit, with a gradient far below the stalled
+/// runs' per value, well above its start.
 #[test]
 fn learnt_hyperparameter_fits_do_not_stop_at_a_stall() {
     let dir = tempfile::tempdir().unwrap();
     let data = synth_store(dir.path(), "all.sbrdf", &all_materials());
-    for (transform, stalled_at) in [("log", -4.486554e5f64), ("raw", 1.040703e6)] {
+    for transform in ["log", "raw"] {
         let p = FitParams {
             latent_dim: 1,
             learn_hyperparameters: true,
@@ -122,10 +128,10 @@ fn learnt_hyperparameter_fits_do_not_stop_at_a_stall() {
             m.fit.gradient_norm,
             m.fit.stop_reason
         );
-        // Well above where the stalled runs stopped.
+        let start = m.fit.initial_log_likelihood;
         assert!(
-            m.fit.log_likelihood > stalled_at + 1e-3 * stalled_at.abs(),
-            "{transform}: {}",
+            m.fit.log_likelihood > start + 0.1 * start.abs(),
+            "{transform}: {} from {start}",
             m.fit.log_likelihood
         );
     }
