@@ -512,6 +512,49 @@ mod tests {
         assert!((r - expect).abs() < 1e-12, "{r} vs {expect}");
     }
 
+    /// The Airy sum agrees with the characteristic-matrix method (Macleod, Thin-Film Optical
+    /// Filters, ch. 2, with its n - i k convention conjugated) for a film on a metal, whose complex amplitudes make the
+    /// phase's sign matter (on real amplitudes, a film's phase and its conjugate give the same
+    /// reflectance), at several incidences and thicknesses, both polarisations.
+    #[test]
+    fn thin_film_matches_the_characteristic_matrix() {
+        let matrix = |cos1: f64, lambda: f64, nf: f64, d: f64, ns: Complex| {
+            let sin1 = (1.0 - cos1 * cos1).sqrt();
+            let cos_f = (1.0 - (sin1 / nf).powi(2)).sqrt();
+            let s = Complex::real(sin1) / ns;
+            let cos_s = (Complex::real(1.0) - s * s).sqrt();
+            let delta = 2.0 * std::f64::consts::PI * nf * d * cos_f / lambda;
+            // With indices n + i k (this module's sign) the matrix carries -i sin(delta).
+            let (sd, cd) = ((-delta).sin(), delta.cos());
+            // Tilted admittances: n cos (s) and n / cos (p).
+            let mut r = 0.0;
+            for (eta0, etaf, etas) in [
+                (Complex::real(cos1), nf * cos_f, ns * cos_s),
+                (Complex::real(1.0 / cos1), nf / cos_f, ns / cos_s),
+            ] {
+                let b = Complex::real(cd) + Complex::new(0.0, sd / etaf) * etas;
+                let c = Complex::new(0.0, etaf * sd) + Complex::real(cd) * etas;
+                r += 0.5 * ((eta0 * b - c) / (eta0 * b + c)).norm_sqr();
+            }
+            r
+        };
+        for metal in [Metal::Gold, Metal::Aluminium] {
+            for lambda in [450.0, 550.0, 700.0] {
+                let ns = metal.nk(lambda);
+                for d in [40.0, 130.0, 310.0] {
+                    for cos1 in [1.0, 0.7, 0.3] {
+                        let airy = thin_film(cos1, lambda, 1.0, 1.38, d, ns);
+                        let tmm = matrix(cos1, lambda, 1.38, d, ns);
+                        assert!(
+                            (airy - tmm).abs() < 1e-12,
+                            "{metal:?} {lambda} nm, {d} nm, cos {cos1}: {airy} vs {tmm}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
     #[test]
     fn complex_sqrt_and_exp() {
         let z = Complex::new(-3.0, 4.0);
