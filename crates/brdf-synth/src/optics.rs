@@ -513,9 +513,10 @@ mod tests {
     }
 
     /// The Airy sum agrees with the characteristic-matrix method (Macleod, Thin-Film Optical
-    /// Filters, ch. 2, with its n - i k convention conjugated) for a film on a metal, whose complex amplitudes make the
-    /// phase's sign matter (on real amplitudes, a film's phase and its conjugate give the same
-    /// reflectance), at several incidences and thicknesses, both polarisations.
+    /// Filters, ch. 2, with its n - i k convention conjugated) for a film on a metal, whose
+    /// complex amplitudes make the phase's sign matter (on real amplitudes, a film's phase and
+    /// its conjugate give the same reflectance), at several incidences and thicknesses, both
+    /// polarisations.
     #[test]
     fn thin_film_matches_the_characteristic_matrix() {
         let matrix = |cos1: f64, lambda: f64, nf: f64, d: f64, ns: Complex| {
