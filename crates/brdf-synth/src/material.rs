@@ -912,6 +912,56 @@ mod tests {
         }
     }
 
+    /// A Fresnel cache returns what its lobe computes, keeps every cosine it is asked for until
+    /// it holds exactly [`FresnelCache::MAX_VALUES`] values, and only then starts again empty:
+    /// a known cosine never clears it, a new one beyond the bound always does, over all slots.
+    #[test]
+    fn the_fresnel_cache_keeps_what_fits_and_never_more() {
+        let w: Vec<f64> = (0..8).map(|l| 400.0 + 40.0 * l as f64).collect();
+        let lobe = |slot| {
+            let s = Specular {
+                alpha: 0.1,
+                fresnel: Fresnel::Conductor(Metal::Gold),
+            };
+            PSpec::new(&s, 1.0, 1.0, &w, slot)
+        };
+        let (a, b) = (lobe(0), lobe(1));
+        let capacity = FresnelCache::MAX_VALUES / w.len();
+        assert_eq!(capacity * w.len(), FresnelCache::MAX_VALUES);
+        let cosine = |k: usize| (k + 1) as f64 / (capacity + 2) as f64;
+        let held = |c: &FresnelCache| c.slots.iter().map(|s| s.len()).sum::<usize>();
+        let direct = |lobe: &PSpec, cos_d| -> Vec<f64> {
+            (0..w.len()).map(|l| lobe.kind.eval(l, cos_d)).collect()
+        };
+        let mut cache = FresnelCache::new();
+        for k in 0..capacity {
+            let lobe = if k % 2 == 0 { &a } else { &b };
+            assert_eq!(
+                cache.get(lobe, cosine(k)),
+                direct(lobe, cosine(k)),
+                "cosine {k}"
+            );
+            assert_eq!(
+                held(&cache),
+                k + 1,
+                "cosine {k}: nothing dropped before the bound"
+            );
+        }
+        assert_eq!(cache.values, FresnelCache::MAX_VALUES);
+        // Full: known cosines are read back without clearing anything.
+        for k in [0, 1, capacity - 1] {
+            let lobe = if k % 2 == 0 { &a } else { &b };
+            assert_eq!(cache.get(lobe, cosine(k)), direct(lobe, cosine(k)));
+        }
+        assert_eq!(held(&cache), capacity);
+        // A new cosine clears both slots and is then the only one held.
+        let fresh = 0.999_999;
+        assert_eq!(cache.get(&a, fresh), direct(&a, fresh));
+        assert_eq!(held(&cache), 1);
+        assert_eq!(cache.values, w.len());
+        assert!(cache.slots[1].is_empty());
+    }
+
     #[test]
     fn ggx_albedo_of_white_smooth_lobe_is_near_one() {
         // F = 1, near-normal incidence on a smooth surface: almost all energy is reflected.
