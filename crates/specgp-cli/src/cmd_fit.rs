@@ -47,7 +47,7 @@ pub struct FitArgs {
     #[arg(long)]
     seed: Option<u64>,
     /// Cap on L-BFGS iterations (`max_iterations`; a fit that reaches it is not converged and
-    /// says so) [default: 2000].
+    /// says so) [default: 5000].
     #[arg(long)]
     max_iterations: Option<u64>,
     /// Cap on Hooke-Jeeves objective evaluations (`max_evaluations`) [default: 200000].
