@@ -962,6 +962,106 @@ mod tests {
         assert!(cache.slots[1].is_empty());
     }
 
+    /// A metal's lobe weights are clamped at 0 and, where they sum above 1, scaled to sum 1;
+    /// below 1 they are kept: f is that mix of the lobes prepared alone at weight 1.
+    #[test]
+    fn metal_lobe_weights_are_scaled_to_sum_at_most_one() {
+        let a = Specular {
+            alpha: 0.1,
+            fresnel: Fresnel::Conductor(Metal::Gold),
+        };
+        let b = Specular {
+            alpha: 0.4,
+            fresnel: Fresnel::Conductor(Metal::Aluminium),
+        };
+        let f = |lobes: Vec<(f64, Specular)>| {
+            let m = Material {
+                name: "metal".into(),
+                family: Family::Metal,
+                body: Body::Metal { lobes },
+                coat: None,
+            };
+            let (t_i, t_o) = (0.5f64, 0.65f64);
+            let mut out = [0.0; 2];
+            m.prepare(&[450.0, 650.0]).eval(
+                [t_i.sin(), 0.0, t_i.cos()],
+                [-t_o.sin(), 0.0, t_o.cos()],
+                &mut out,
+            );
+            out
+        };
+        let (fa, fb) = (f(vec![(1.0, a.clone())]), f(vec![(1.0, b.clone())]));
+        assert!(fa.iter().chain(&fb).all(|v| *v > 0.1), "{fa:?} {fb:?}");
+        for (wa, wb, want_a, want_b) in [
+            (0.3, 0.2, 0.3, 0.2),
+            (0.8, 0.6, 0.8 / 1.4, 0.6 / 1.4),
+            (1.5, -0.5, 1.0, 0.0),
+            (-1.0, 0.5, 0.0, 0.5),
+        ] {
+            let got = f(vec![(wa, a.clone()), (wb, b.clone())]);
+            for l in 0..2 {
+                let want = want_a * fa[l] + want_b * fb[l];
+                assert!(
+                    (got[l] - want).abs() <= 1e-12 * want,
+                    "weights {wa}, {wb}: {} against {want}",
+                    got[l]
+                );
+            }
+        }
+    }
+
+    /// An interface and a coat over it keep their own Fresnel reflectances in a cache (their own
+    /// slots): a layered body under a coat of another index gives the same bits with a cache as
+    /// without. No preset has both, so `fresnel_caches_give_the_same_bits` cannot tell.
+    #[test]
+    fn an_interface_and_a_coat_remember_their_own_fresnel() {
+        let mut m = lambert(0.5);
+        if let Body::Layered { interface, .. } = &mut m.body {
+            *interface = Some(Interface {
+                alpha: 0.2,
+                ior: Ior::constant(1.3),
+            });
+        }
+        m.coat = Some(Interface {
+            alpha: 0.05,
+            ior: Ior::constant(1.7),
+        });
+        let wl = [400.0, 550.0, 700.0];
+        let p = m.prepare(&wl);
+        let mut cache = FresnelCache::new();
+        for k in 0..40 {
+            let t = 1.4 * k as f64 / 40.0;
+            let (wi, wo) = ([t.sin(), 0.0, t.cos()], [-t.sin(), 0.0, t.cos()]);
+            let (mut plain, mut cached) = ([0.0; 3], [0.0; 3]);
+            p.eval(wi, wo, &mut plain);
+            for _ in 0..2 {
+                p.eval_cached(wi, wo, &mut cached, &mut cache);
+                assert_eq!(plain, cached, "theta {t}");
+            }
+        }
+    }
+
+    /// As a [`brdf_io::BrdfSource`], a prepared material is spectral at its wavelengths, writes
+    /// what its own `eval` writes, and refuses an output of the wrong length.
+    #[test]
+    fn a_prepared_material_is_a_brdf_source() {
+        use brdf_io::BrdfSource;
+        let p = crate::preset::preset_material("metal_gold", 0)
+            .unwrap()
+            .prepare(&[450.0, 650.0]);
+        assert_eq!(
+            BrdfSource::channels(&p),
+            brdf_io::Channels::Spectral(vec![450.0, 650.0])
+        );
+        let (wi, wo) = ([0.3, 0.0, 0.954], [-0.3, 0.0, 0.954]);
+        let (mut own, mut source) = ([0.0; 2], [-1.0; 2]);
+        p.eval(wi, wo, &mut own);
+        BrdfSource::eval(&p, wi, wo, &mut source).unwrap();
+        assert!(own[0] > 0.1 && own[1] > own[0], "gold: {own:?}");
+        assert_eq!(own, source);
+        assert!(BrdfSource::eval(&p, wi, wo, &mut [0.0; 3]).is_err());
+    }
+
     #[test]
     fn ggx_albedo_of_white_smooth_lobe_is_near_one() {
         // F = 1, near-normal incidence on a smooth surface: almost all energy is reflected.
