@@ -1039,6 +1039,15 @@ mod tests {
                 assert_eq!(plain, cached, "theta {t}");
             }
         }
+        // The same through Rusinkiewicz angles.
+        let grid = brdf_io::AngularGrid::new(4, 4, 8).unwrap();
+        for cell in 0..grid.len() {
+            let hd = grid.bin_centre_flat(cell);
+            let (mut plain, mut cached) = ([0.0; 3], [-1.0; 3]);
+            p.eval_half_diff(&hd, &mut plain);
+            p.eval_half_diff_cached(&hd, &mut cached, &mut cache);
+            assert_eq!(plain, cached, "cell {cell}");
+        }
     }
 
     /// As a [`brdf_io::BrdfSource`], a prepared material is spectral at its wavelengths, writes
@@ -1060,6 +1069,84 @@ mod tests {
         assert!(own[0] > 0.1 && own[1] > own[0], "gold: {own:?}");
         assert_eq!(own, source);
         assert!(BrdfSource::eval(&p, wi, wo, &mut [0.0; 3]).is_err());
+    }
+
+    /// An interface replaces the value below by its reflection plus what it transmits,
+    /// s F + t below, and by t below alone where its lobe vanishes (a direction so grazing that
+    /// G2 underflows to 0; a rough interface still transmits there).
+    #[test]
+    fn an_interface_adds_its_reflection_to_what_it_transmits() {
+        let ior = 1.5;
+        let i = PInterface::new(
+            &Interface {
+                alpha: 1.0,
+                ior: Ior::constant(ior),
+            },
+            &[500.0, 600.0],
+            0,
+        );
+        let wo = [-0.3f64.sin(), 0.0, 0.3f64.cos()];
+        for (wi, vanishes) in [([0.6, 0.0, 0.8], false), ([1.0, 0.0, 1e-200], true)] {
+            let h = unit([wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]]).unwrap();
+            let g = Geom {
+                wi,
+                wo,
+                mu_i: wi[2],
+                mu_o: wo[2],
+                cos_h: h[2],
+                cos_d: dot(wi, h),
+            };
+            let s = i.spec.shape(&g);
+            let t = i.transmittance(g.mu_i) * i.transmittance(g.mu_o);
+            assert_eq!(s == 0.0, vanishes, "{wi:?}: s = {s}");
+            assert!(t > 0.1 && t < 1.0, "{wi:?}: t = {t}");
+            let below = [0.2, 0.3];
+            let mut out = below;
+            i.apply(&g, &mut out, None);
+            let f = fresnel(g.cos_d, 1.0, Complex::real(ior));
+            for l in 0..2 {
+                let want = s * f + t * below[l];
+                assert!((out[l] - want).abs() <= 1e-15 * want, "{wi:?}: {out:?}");
+            }
+        }
+    }
+
+    /// The directional albedo of a bare metal lobe (quadrature over theta_h and phi_h) agrees
+    /// with `ggx_albedo`'s (half vectors stratified as D cos_h), an independent quadrature of
+    /// the same integral: to 2e-4 up to 40 degrees (9.6e-5 measured; `directional_albedo` at 96
+    /// nodes is within 1.1e-5 of itself at 400), to 1 % at 70 degrees, where `ggx_albedo`'s
+    /// 64 x 64 nodes are 0.65 % high (450 nm: 0.364354 at 96 nodes, 0.364364 at 1000).
+    #[test]
+    fn directional_albedo_of_a_metal_lobe_matches_ggx_albedo() {
+        let alpha = 0.3;
+        let m = Material {
+            name: "gold".into(),
+            family: Family::Metal,
+            body: Body::Metal {
+                lobes: vec![(
+                    1.0,
+                    Specular {
+                        alpha,
+                        fresnel: Fresnel::Conductor(Metal::Gold),
+                    },
+                )],
+            },
+            coat: None,
+        };
+        let wl = [450.0, 650.0];
+        let p = m.prepare(&wl);
+        for (deg, tolerance) in [(0.0f64, 2e-4), (40.0, 2e-4), (70.0, 1e-2)] {
+            let got = directional_albedo(&p, deg.to_radians(), 96);
+            for (l, &lambda) in wl.iter().enumerate() {
+                let nk = Metal::Gold.nk(lambda);
+                let want = ggx_albedo(deg.to_radians().cos(), alpha, |c| fresnel(c, 1.0, nk));
+                assert!(
+                    (got[l] - want).abs() < tolerance * want,
+                    "{deg} deg, {lambda} nm: {} against {want}",
+                    got[l]
+                );
+            }
+        }
     }
 
     #[test]

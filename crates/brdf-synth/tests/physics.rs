@@ -124,6 +124,37 @@ fn reciprocity_and_non_negativity() {
     }
 }
 
+/// Every preset is isotropic: turning both directions about the normal by any angle leaves f
+/// as it was (reciprocity alone cannot tell a half vector built from wi - wo across the plane
+/// of incidence from wi + wo).
+#[test]
+fn presets_are_isotropic() {
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let cases: Vec<(f64, f64, f64, f64, f64)> = (0..100)
+        .map(|_| {
+            let mut r = |hi: f64| rng.random::<f64>() * hi;
+            (r(1.5), r(1.5), r(2.0 * PI), r(2.0 * PI), r(2.0 * PI))
+        })
+        .collect();
+    for m in preset(0) {
+        let p = m.prepare(&LAMBDAS);
+        let (mut f, mut g) = ([0.0; 5], [0.0; 5]);
+        for &(ti, to, pi, po, turn) in &cases {
+            p.eval(dir(ti, pi), dir(to, po), &mut f);
+            p.eval(dir(ti, pi + turn), dir(to, po + turn), &mut g);
+            for l in 0..5 {
+                assert!(
+                    (f[l] - g[l]).abs() <= 1e-12 + 1e-9 * f[l],
+                    "{}: {} turned by {turn}: {}",
+                    m.name,
+                    f[l],
+                    g[l]
+                );
+            }
+        }
+    }
+}
+
 /// At normal incidence and view (theta_h = theta_d = 0) a bare metal's value is
 /// sum_k w_k D_k(0) G2_k(1, 1) / 4 * F(1), and F(1) must be the reflectance of the metal's
 /// (n, k), ((n-1)^2 + k^2) / ((n+1)^2 + k^2), computed here from the source table (shared data).
