@@ -184,4 +184,20 @@ mod tests {
         eval_on_grid(&prepared, &grid, &mut out);
         assert!(out.is_empty());
     }
+
+    /// A grid without cells (the struct can be built without `AngularGrid::new`'s checks)
+    /// gives rows of no values, not a panic (chunks of 0 values).
+    #[test]
+    fn a_grid_without_cells_gives_empty_rows() {
+        let grid = AngularGrid {
+            n_theta_h: 0,
+            n_theta_d: 4,
+            n_phi_d: 4,
+        };
+        let channels = Channels::parse_wavelengths("500,600").unwrap();
+        let mats = crate::preset::preset(0);
+        let set = generate(&mats[..3], grid, &channels).unwrap();
+        assert_eq!((set.n(), set.d()), (3, 0));
+        assert!(set.values.is_empty() && set.row(2).is_empty());
+    }
 }

@@ -505,6 +505,124 @@ mod tests {
         }
     }
 
+    /// Relative deviations `v / bound` of one perturbed parameter over many materials and seeds:
+    /// all within [-1, 1], and both halves reached beyond 1/2 (a uniform draw in [-1, 1) per
+    /// value, so hundreds of values miss that only with negligible probability).
+    fn assert_spread(what: &str, deviations: &[f64]) {
+        assert!(
+            deviations.len() >= 40,
+            "{what}: {} values",
+            deviations.len()
+        );
+        for v in deviations {
+            assert!(v.abs() <= 1.0 + 1e-12, "{what}: {v} of its bound");
+        }
+        let lo = deviations.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = deviations.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        assert!(
+            lo < -0.5 && hi > 0.5,
+            "{what}: from {lo} to {hi} of its bound"
+        );
+    }
+
+    fn log_ratio(a: f64, b: f64) -> f64 {
+        (b / a).ln()
+    }
+
+    /// Deviations of a perturbed GGX lobe: roughness and film thickness.
+    fn specular_deviations(a: &Specular, b: &Specular, push: &mut impl FnMut(&'static str, f64)) {
+        // Clamped to [0.005, 1]: skip values the clamp cut.
+        if b.alpha > 0.005 && b.alpha < 1.0 {
+            push("alpha", log_ratio(a.alpha, b.alpha) / 0.15);
+        }
+        if let (
+            Fresnel::ThinFilm {
+                thickness_nm: t0, ..
+            },
+            Fresnel::ThinFilm {
+                thickness_nm: t1, ..
+            },
+        ) = (&a.fresnel, &b.fresnel)
+        {
+            push("thickness", (t1 / t0 - 1.0) / 0.05);
+        }
+    }
+
+    /// Every seed but 0 perturbs each material within the documented bounds, both ways: the
+    /// albedo scaled by 1 +- 8 % and shifted by +- 8 nm (wrapping the canonical spectrum), GGX
+    /// roughness (lobes, flakes, interfaces, coats) by a factor exp(+-0.15), Oren-Nayar sigma
+    /// by +- 0.1, sheen weight and flake coverage by +- 0.05, sheen roughness by exp(+-0.1),
+    /// film thickness by 1 +- 5 %, each value clamped to its range.
+    #[test]
+    fn perturbations_stay_within_their_bounds_both_ways() {
+        let canonical = preset(0);
+        let mut d: std::collections::BTreeMap<&str, Vec<f64>> = Default::default();
+        let mut push = |what, v: f64| d.entry(what).or_default().push(v);
+        for seed in 1..=12 {
+            for (c, m) in canonical.iter().zip(preset(seed)) {
+                match (&c.body, &m.body) {
+                    (Body::Metal { lobes: a }, Body::Metal { lobes: b }) => {
+                        for ((wa, sa), (wb, sb)) in a.iter().zip(b) {
+                            assert_eq!(wa, wb, "{}: lobe weights are not perturbed", m.name);
+                            specular_deviations(sa, sb, &mut push);
+                        }
+                    }
+                    (
+                        Body::Layered {
+                            base: a,
+                            interface: ia,
+                        },
+                        Body::Layered {
+                            base: b,
+                            interface: ib,
+                        },
+                    ) => {
+                        let Spectrum::Scaled(scale, inner) = &b.albedo else {
+                            panic!("{}: albedo {:?}", m.name, b.albedo);
+                        };
+                        let Spectrum::Shifted(shift, original) = inner.as_ref() else {
+                            panic!("{}: albedo {:?}", m.name, b.albedo);
+                        };
+                        assert_eq!(**original, a.albedo, "{}", m.name);
+                        push("albedo scale", (scale - 1.0) / 0.08);
+                        push("albedo shift", shift / 8.0);
+                        if let (
+                            Diffuse::OrenNayar { sigma: s0 },
+                            Diffuse::OrenNayar { sigma: s1 },
+                        ) = (&a.diffuse, &b.diffuse)
+                        {
+                            if *s1 > 0.0 && *s1 < 1.0 {
+                                push("sigma", (s1 - s0) / 0.1);
+                            }
+                        }
+                        if let (Some(s0), Some(s1)) = (&a.sheen, &b.sheen) {
+                            push("sheen weight", (s1.weight - s0.weight) / 0.05);
+                            push(
+                                "sheen roughness",
+                                log_ratio(s0.roughness, s1.roughness) / 0.1,
+                            );
+                        }
+                        if let (Some(f0), Some(f1)) = (&a.flakes, &b.flakes) {
+                            push("flake coverage", (f1.coverage - f0.coverage) / 0.05);
+                            specular_deviations(&f0.lobe, &f1.lobe, &mut push);
+                        }
+                        if let (Some(i0), Some(i1)) = (ia, ib) {
+                            push("interface alpha", log_ratio(i0.alpha, i1.alpha) / 0.15);
+                        }
+                    }
+                    _ => panic!("{}: the body changed kind", m.name),
+                }
+                if let (Some(c0), Some(c1)) = (&c.coat, &m.coat) {
+                    push("coat alpha", log_ratio(c0.alpha, c1.alpha) / 0.15);
+                }
+            }
+        }
+        assert_eq!(d.len(), 10, "{:?}", d.keys().collect::<Vec<_>>());
+        for (what, deviations) in &d {
+            assert_spread(what, deviations);
+        }
+    }
+
     #[test]
     fn seeds_are_deterministic_and_distinct() {
         assert_eq!(preset(0), preset(0));
