@@ -26,6 +26,25 @@ pub fn write_store(
     channels: &Channels,
     options: StoreOptions,
     seed: u64,
+    progress: impl FnMut(usize),
+) -> Result<StoreHeader> {
+    let blocks = BLOCK_VALUES;
+    write_store_in_blocks(
+        path, materials, grid, channels, options, seed, blocks, progress,
+    )
+}
+
+/// [`write_store`] holding about `block_values` values in memory per block (tests use small
+/// blocks to cover several).
+#[allow(clippy::too_many_arguments)]
+fn write_store_in_blocks(
+    path: &Path,
+    materials: &[Material],
+    grid: AngularGrid,
+    channels: &Channels,
+    options: StoreOptions,
+    seed: u64,
+    block_values: usize,
     mut progress: impl FnMut(usize),
 ) -> Result<StoreHeader> {
     let store_err = |source| Error::Store {
@@ -55,7 +74,7 @@ pub fn write_store(
         })
         .collect();
     writer.declare_materials(&sources).map_err(store_err)?;
-    let cells_per_block = (BLOCK_VALUES / (n * nc)).max(1);
+    let cells_per_block = (block_values / (n * nc)).max(1);
     // Each block is cut into one part per thread; part p of every block remembers its
     // materials' Fresnel reflectances in caches[p] (the grid's few distinct cos(theta_d)).
     let parts = rayon::current_num_threads().max(1);
@@ -130,7 +149,8 @@ mod tests {
         )
         .unwrap();
         assert_eq!(header.n_materials(), 7);
-        assert_eq!(calls.last(), Some(&grid.len()));
+        // 7 x 4 x 240 values: one block of about 4 Mi values.
+        assert_eq!(calls, [grid.len()]);
         let expect = generate(&mats[..7], grid, &channels).unwrap();
         let store = Store::open(&path).unwrap();
         assert_eq!(store.n_materials(), 7);
@@ -148,6 +168,38 @@ mod tests {
         }
         // Nothing but the store is left in the directory.
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+
+        // Blocks of 17 cells (7 materials x 4 wavelengths x 17), the last one partial: the
+        // same values, reported block by block.
+        let small = dir.path().join("blocks.sbrdf");
+        let mut calls = Vec::new();
+        let options = StoreOptions {
+            chunk_len: Some(50),
+            ..StoreOptions::default()
+        };
+        let block_values = 7 * 4 * 17 + 5;
+        write_store_in_blocks(
+            &small,
+            &mats[..7],
+            grid,
+            &channels,
+            options,
+            2,
+            block_values,
+            |done| calls.push(done),
+        )
+        .unwrap();
+        let want: Vec<usize> = (1..=14).map(|b| 17 * b).chain([240]).collect();
+        assert_eq!(calls, want);
+        let blocks = Store::open(&small).unwrap();
+        let mut block_row = vec![0.0f32; store.d()];
+        for m in 0..7 {
+            store.material_row(m, 0..store.d(), &mut row).unwrap();
+            blocks
+                .material_row(m, 0..store.d(), &mut block_row)
+                .unwrap();
+            assert!(row == block_row, "material {m}");
+        }
     }
 
     #[test]
