@@ -685,6 +685,26 @@ struct Geom {
     cos_d: f64,
 }
 
+impl Geom {
+    /// The geometry of directions `wi`, `wo` of any length; `None` where f is 0: a zero or
+    /// non-finite vector, a direction at or below the horizon, or no half vector.
+    fn of(wi: Vec3, wo: Vec3) -> Option<Self> {
+        let (wi, wo) = (unit(wi)?, unit(wo)?);
+        if wi[2] <= 0.0 || wo[2] <= 0.0 {
+            return None;
+        }
+        let h = unit([wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]])?;
+        Some(Self {
+            wi,
+            wo,
+            mu_i: wi[2],
+            mu_o: wo[2],
+            cos_h: h[2],
+            cos_d: dot(wi, h).clamp(0.0, 1.0),
+        })
+    }
+}
+
 impl PSpec {
     /// D G2 / (4 mu_i mu_o) times the lobe weight (Fresnel excluded).
     #[inline]
@@ -730,22 +750,8 @@ impl PreparedMaterial {
     fn eval_impl(&self, wi: Vec3, wo: Vec3, out: &mut [f64], mut cache: Option<&mut FresnelCache>) {
         debug_assert_eq!(out.len(), self.wavelengths.len());
         out.fill(0.0);
-        let (Some(wi), Some(wo)) = (unit(wi), unit(wo)) else {
+        let Some(g) = Geom::of(wi, wo) else {
             return;
-        };
-        if wi[2] <= 0.0 || wo[2] <= 0.0 {
-            return;
-        }
-        let Some(h) = unit([wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]]) else {
-            return;
-        };
-        let g = Geom {
-            wi,
-            wo,
-            mu_i: wi[2],
-            mu_o: wo[2],
-            cos_h: h[2],
-            cos_d: dot(wi, h).clamp(0.0, 1.0),
         };
         match &self.body {
             PBody::Metal { lobes } => {
@@ -1087,15 +1093,7 @@ mod tests {
         );
         let wo = [-0.3f64.sin(), 0.0, 0.3f64.cos()];
         for (wi, vanishes) in [([0.6, 0.0, 0.8], false), ([1.0, 0.0, 1e-200], true)] {
-            let h = unit([wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]]).unwrap();
-            let g = Geom {
-                wi,
-                wo,
-                mu_i: wi[2],
-                mu_o: wo[2],
-                cos_h: h[2],
-                cos_d: dot(wi, h),
-            };
+            let g = Geom::of(wi, wo).unwrap();
             let s = i.spec.shape(&g);
             let t = i.transmittance(g.mu_i) * i.transmittance(g.mu_o);
             assert_eq!(s == 0.0, vanishes, "{wi:?}: s = {s}");
