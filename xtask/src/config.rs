@@ -140,7 +140,7 @@ pub struct LocateParams {
     /// RGL `.bsdf` or MERL `.binary` files (relative to the project root).
     #[serde(default)]
     pub files: Vec<PathBuf>,
-    /// Starting points of the latent search per file (1..=1000).
+    /// Starting points of the latent search per file (1..=1000; default 3).
     #[serde(default = "default_starts")]
     pub starts: usize,
 }
@@ -165,10 +165,10 @@ pub struct RenderParams {
     /// Render figures at all.
     #[serde(default = "yes")]
     pub enabled: bool,
-    /// Sphere size in pixels.
+    /// Sphere size in pixels (16..=2048; default 128).
     #[serde(default = "default_size")]
     pub size: u32,
-    /// At most this many training materials in the comparison sheet (1..=64).
+    /// At most this many training materials in the comparison sheet (1..=64; default 8).
     #[serde(default = "default_sheet")]
     pub sheet_materials: usize,
     /// The spheres' environment, as `specgp render --env`: `table` (the default), `fast`,

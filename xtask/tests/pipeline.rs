@@ -224,6 +224,48 @@ fn configs_in_the_repository_all_validate() {
     assert!(seen >= 2, "found {seen} configs");
 }
 
+/// Keys left out of a table take the documented defaults (`[render]` size 128, 8 sheet
+/// materials, the `table` environment; `[locate]` 3 starts), and an absent table the same.
+#[test]
+fn left_out_keys_take_their_defaults() {
+    let root = project_root();
+    let dir = tempfile::tempdir().unwrap();
+    let base = std::fs::read_to_string(root.join("configs/quick.toml")).unwrap();
+    let path = dir.path().join("defaults.toml");
+    let present = base.replace("size = 32\nsheet_materials = 2", "enabled = true")
+        + "\n[locate]\nfiles = [\"a.bsdf\"]\n";
+    let absent = base.replace("[render]\nsize = 32\nsheet_materials = 2", "");
+    for text in [present, absent] {
+        std::fs::write(&path, &text).unwrap();
+        let c = PipelineConfig::load(&path, &root).unwrap();
+        let (r, l) = (&c.params.render, &c.params.locate);
+        assert_eq!((r.enabled, r.size, r.sheet_materials), (true, 128, 8));
+        assert_eq!((r.env.as_str(), l.starts), ("table", 3));
+    }
+}
+
+/// Midpoints checked against a store's names once they are known (data kinds whose names are
+/// read with the data): an error naming the config and the material.
+#[test]
+fn midpoints_are_checked_against_the_data_names() {
+    let root = project_root();
+    let c = load(&root, "configs/quick.toml");
+    let names: Vec<String> = ["metal_gold", "metal_copper", "paper_white"]
+        .map(String::from)
+        .to_vec();
+    c.check_midpoints(&names).unwrap();
+    let err = c.check_midpoints(&names[..1]).unwrap_err().to_string();
+    assert!(
+        err.contains("quick.toml") && err.contains("no material named \"metal_copper\""),
+        "{err}"
+    );
+}
+
+/// `points = [...]` with `n` latent points.
+fn points(n: usize) -> String {
+    format!("points = [{}]", vec!["[0.0, 0.0]"; n].join(", "))
+}
+
 #[test]
 fn unknown_keys_and_bad_values_are_named() {
     let root = project_root();
@@ -321,6 +363,24 @@ fn unknown_keys_and_bad_values_are_named() {
             base.replace("points = [[0.0, 0.0]]", "points = [[0.0, 0.0], [0.0, -1e100]]"),
             "predict.points[1] has the coordinate -1e100, beyond +-2.5e99",
         ),
+        // One sphere per point and midpoint, in cells of 1024 pixels: 64 points and the
+        // midpoint are one cell more than 2^26 pixels; 63 and the midpoint, exactly 2^26, are
+        // accepted below.
+        (
+            base.replace("size = 32", "size = 984")
+                .replace("points = [[0.0, 0.0]]", &points(64)),
+            "ask for a predictions.png of about 66560 x 1024 pixels",
+        ),
+        (base.replace("size = 32", "size = 2049"), "render.size must be in 16..=2048, got 2049"),
+        (base.replace("size = 32", "size = 15"), "render.size must be in 16..=2048, got 15"),
+        (
+            base.replace("name = \"quick\"", "name = \"quick run\""),
+            "name must be non-empty ASCII letters, digits, '-' or '_', got \"quick run\"",
+        ),
+        (
+            base.replace("seed = 0", "seed = 0\nonly = [\"metal_gold\", \"metal_copper\"]"),
+            "data.only needs at least 3 materials",
+        ),
     ];
     for (i, (text, needle)) in cases.iter().enumerate() {
         let path = dir.path().join(format!("bad{i}.toml"));
@@ -336,6 +396,15 @@ fn unknown_keys_and_bad_values_are_named() {
             "size = 1024\nsheet_materials = 8",
         ),
         base.replace("points = [[0.0, 0.0]]", "points = [[2.5e99, -2.5e99]]"),
+        base.replace("size = 32", "size = 984")
+            .replace("points = [[0.0, 0.0]]", &points(63)),
+        base.replace("size = 32", "size = 2048\nenabled = false"),
+        base.replace("size = 32", "size = 16"),
+        base.replace("name = \"quick\"", "name = \"Quick-run_2\""),
+        base.replace(
+            "seed = 0",
+            "seed = 0\nonly = [\"metal_gold\", \"metal_copper\", \"paper_white\", \"spectralon\"]",
+        ),
     ] {
         let path = dir.path().join("good.toml");
         std::fs::write(&path, text).unwrap();
