@@ -909,6 +909,16 @@ mod tests {
         }
     }
 
+    /// A bare metal of `lobes` (weight, lobe).
+    fn metal(lobes: Vec<(f64, Specular)>) -> Material {
+        Material {
+            name: "metal".into(),
+            family: Family::Metal,
+            body: Body::Metal { lobes },
+            coat: None,
+        }
+    }
+
     #[test]
     fn albedo_quadrature_is_accurate_for_lambert() {
         let m = lambert(0.9).prepare(&[550.0]);
@@ -981,15 +991,9 @@ mod tests {
             fresnel: Fresnel::Conductor(Metal::Aluminium),
         };
         let f = |lobes: Vec<(f64, Specular)>| {
-            let m = Material {
-                name: "metal".into(),
-                family: Family::Metal,
-                body: Body::Metal { lobes },
-                coat: None,
-            };
             let (t_i, t_o) = (0.5f64, 0.65f64);
             let mut out = [0.0; 2];
-            m.prepare(&[450.0, 650.0]).eval(
+            metal(lobes).prepare(&[450.0, 650.0]).eval(
                 [t_i.sin(), 0.0, t_i.cos()],
                 [-t_o.sin(), 0.0, t_o.cos()],
                 &mut out,
@@ -1117,22 +1121,12 @@ mod tests {
     #[test]
     fn directional_albedo_of_a_metal_lobe_matches_ggx_albedo() {
         let alpha = 0.3;
-        let m = Material {
-            name: "gold".into(),
-            family: Family::Metal,
-            body: Body::Metal {
-                lobes: vec![(
-                    1.0,
-                    Specular {
-                        alpha,
-                        fresnel: Fresnel::Conductor(Metal::Gold),
-                    },
-                )],
-            },
-            coat: None,
+        let gold = Specular {
+            alpha,
+            fresnel: Fresnel::Conductor(Metal::Gold),
         };
         let wl = [450.0, 650.0];
-        let p = m.prepare(&wl);
+        let p = metal(vec![(1.0, gold)]).prepare(&wl);
         for (deg, tolerance) in [(0.0f64, 2e-4), (40.0, 2e-4), (70.0, 1e-2)] {
             let got = directional_albedo(&p, deg.to_radians(), 96);
             for (l, &lambda) in wl.iter().enumerate() {
