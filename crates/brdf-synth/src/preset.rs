@@ -548,7 +548,7 @@ mod tests {
         }
     }
 
-    /// Every seed but 0 perturbs each material within the documented bounds, both ways: the
+    /// Every seed but 0 perturbs each material within these bounds, both ways: the
     /// albedo scaled by 1 +- 8 % and shifted by +- 8 nm (wrapping the canonical spectrum), GGX
     /// roughness (lobes, flakes, interfaces, coats) by a factor exp(+-0.15), Oren-Nayar sigma
     /// by +- 0.1, sheen weight and flake coverage by +- 0.05, sheen roughness by exp(+-0.1),
