@@ -478,7 +478,46 @@ fn paper_table(s: &mut String, r: &Results) {
 
 #[cfg(test)]
 mod tests {
-    use super::shell_word;
+    use super::{bytes, num, shell_word};
+
+    /// Fixed notation with 4 decimals from 1e-3 up to (not including) 1e5, scientific with 3
+    /// outside, plain 0 and non-finite values as Rust writes them.
+    #[test]
+    fn numbers_switch_notation_at_1e_3_and_1e5() {
+        for (v, want) in [
+            (0.0, "0"),
+            (-0.0, "0"),
+            (1.5, "1.5000"),
+            (-2.25, "-2.2500"),
+            (1e-3, "0.0010"),
+            (9.99e-4, "9.990e-4"),
+            (99_999.5, "99999.5000"),
+            (1e5, "1.000e5"),
+            (-3.925557e6, "-3.926e6"),
+            (f64::NAN, "NaN"),
+            (f64::INFINITY, "inf"),
+            (f64::NEG_INFINITY, "-inf"),
+        ] {
+            assert_eq!(num(v), want, "{v}");
+        }
+    }
+
+    /// KiB below 1 MiB, MiB below 1 GiB, GiB from there.
+    #[test]
+    fn byte_counts_in_binary_units() {
+        for (b, want) in [
+            (0, "0.0 KiB"),
+            (1536, "1.5 KiB"),
+            ((1 << 20) - 1, "1024.0 KiB"),
+            (1 << 20, "1.0 MiB"),
+            (55_174_064, "52.6 MiB"),
+            ((1 << 30) - 1, "1024.0 MiB"),
+            (1 << 30, "1.00 GiB"),
+            (1_230_000_000, "1.15 GiB"),
+        ] {
+            assert_eq!(bytes(b), want, "{b}");
+        }
+    }
 
     #[test]
     fn shell_words_quote_what_the_shell_would_split_or_expand() {
