@@ -206,6 +206,22 @@ fn quick_pipeline_report_matches_the_model_and_data() {
     let report = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
     assert!(report.contains(&format!("| materials N | {n} |")));
     assert!(report.contains(&xtask::report::num(ll)));
+    // Its sections: the config's description, the channel range (more than 4 channels), no
+    // import row for synthetic data, the errors and the figures' Delta E table, and no stage
+    // left out.
+    assert!(report.contains("\n\nCI-sized run: 51 synthetic spectral materials"));
+    assert!(
+        report.contains("| channels | 7 (400 .. 700 nm) |"),
+        "{report}"
+    );
+    assert!(!report.contains("import: outliers"));
+    assert!(report.contains("\n## Errors\n") && report.contains("Streaming pass"));
+    assert!(
+        report.contains(
+            "| material | Delta E 2000 (smooth reconstruction) | Delta E 2000 (held out) |"
+        )
+    );
+    assert!(!report.contains("Not available in this build"));
 }
 
 #[test]
