@@ -527,13 +527,13 @@ fn located_files_are_reported() {
             "paper_white",
             "vch_golden_yellow"
         ]),
-        list(&["satin_rosaline", "colodur_napoli_4f"])
+        list(&["satin_rosaline", "colodur_napoli_4f", "paper_white"])
     );
     std::fs::write(&config, text).unwrap();
     let config = PipelineConfig::load(&config, &root).unwrap();
     let out = dir.path().join("out");
     let results = xtask::run(&config, &out).unwrap();
-    assert_eq!(results.located.len(), 2);
+    assert_eq!(results.located.len(), 3);
     for (l, stem) in results
         .located
         .iter()
@@ -548,6 +548,14 @@ fn located_files_are_reported() {
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(report.contains("## Located materials"), "{report}");
     assert!(report.contains("| satin_rosaline_rgb |"), "{report}");
+    // A training material's own file, located, is closest to that material.
+    assert_eq!(results.located[2].nearest, "paper_white_rgb");
+    assert!(
+        report.contains(
+            "1 of the 1 files named like a training material have that material as the closest"
+        ),
+        "{report}"
+    );
     let stage = results.stages.iter().find(|s| s.name == "locate").unwrap();
     assert_eq!(stage.status, "done");
 }
