@@ -28,9 +28,15 @@ pub fn write_store(
     seed: u64,
     progress: impl FnMut(usize),
 ) -> Result<StoreHeader> {
-    let blocks = BLOCK_VALUES;
     write_store_in_blocks(
-        path, materials, grid, channels, options, seed, blocks, progress,
+        path,
+        materials,
+        grid,
+        channels,
+        options,
+        seed,
+        BLOCK_VALUES,
+        progress,
     )
 }
 
@@ -133,17 +139,18 @@ mod tests {
         let grid = AngularGrid::new(6, 5, 8).unwrap();
         let channels = Channels::parse_wavelengths("400:700:100").unwrap();
         let mats = preset(2);
+        // Small chunks so several chunks are exercised (blocks: below).
+        let options = StoreOptions {
+            chunk_len: Some(50),
+            ..StoreOptions::default()
+        };
         let mut calls = Vec::new();
         let header = write_store(
             &path,
             &mats[..7],
             grid,
             &channels,
-            StoreOptions {
-                // Small chunks so several blocks and chunks are exercised.
-                chunk_len: Some(50),
-                ..StoreOptions::default()
-            },
+            options.clone(),
             2,
             |done| calls.push(done),
         )
@@ -173,10 +180,6 @@ mod tests {
         // same values, reported block by block.
         let small = dir.path().join("blocks.sbrdf");
         let mut calls = Vec::new();
-        let options = StoreOptions {
-            chunk_len: Some(50),
-            ..StoreOptions::default()
-        };
         let block_values = 7 * 4 * 17 + 5;
         write_store_in_blocks(
             &small,
