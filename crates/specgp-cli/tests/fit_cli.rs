@@ -1077,6 +1077,94 @@ fn unwritable_standard_streams_neither_panic_nor_lose_outputs() {
     }
 }
 
+/// `specgp grid` describes a grid: its cells, those above the horizon (the mask every store
+/// uses), channels, D = cells x channels and the f32 bytes of one material; RGB without
+/// `--wavelengths`.
+#[test]
+fn grid_describes_cells_channels_and_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let grid: AngularGrid = "8,8,16".parse().unwrap();
+    let valid = grid.validity_mask().iter().filter(|v| **v).count();
+    assert!(valid > 0 && valid < 1024, "{valid}");
+    let percent = format!("{:.1}", 100.0 * valid as f64 / 1024.0);
+    for (wavelengths, channels) in [(Some("400:700:100"), 4), (None, 3)] {
+        let mut args = vec!["grid", "--grid", "8,8,16"];
+        args.extend(wavelengths.iter().flat_map(|w| ["--wavelengths", *w]));
+        let text = specgp(&args, d);
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(
+            lines,
+            [
+                "grid           8,8,16".to_string(),
+                "angular cells  1024".to_string(),
+                format!("above horizon  {valid} ({percent} %)"),
+                format!("channels       {channels}"),
+                format!("D              {}", 1024 * channels),
+                format!("bytes (f32)    {}", 4096 * channels),
+            ],
+            "{text}"
+        );
+    }
+}
+
+/// `-v` logs each command's start and end (info), `-vv` its arguments too (debug); without
+/// either only warnings show.
+#[test]
+fn verbosity_flags_choose_the_log_level() {
+    let dir = tempfile::tempdir().unwrap();
+    let stderr = |flags: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_specgp"))
+            .args(["grid", "--grid", "8,8,16"])
+            .args(flags)
+            .env_remove("SPECGP_LOG")
+            .current_dir(dir.path())
+            .output()
+            .expect("run specgp");
+        assert!(out.status.success());
+        String::from_utf8(out.stderr).unwrap()
+    };
+    assert_eq!(stderr(&[]), "");
+    let info = stderr(&["-v"]);
+    assert!(
+        info.contains("grid: start") && info.contains("grid: done") && !info.contains("arguments"),
+        "{info}"
+    );
+    let debug = stderr(&["-vv"]);
+    assert!(
+        debug.contains("grid: start") && debug.contains("arguments"),
+        "{debug}"
+    );
+}
+
+/// `--help` and `--version` exit 0, also into a pipe closed by its reader; into a full disk
+/// they fail (exit 1, saying so); a usage error exits 1.
+#[cfg(unix)]
+#[test]
+fn help_into_unwritable_standard_output() {
+    use Sink::{Captured, Closed, Full};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for flag in ["--help", "--version"] {
+        let ok = run_into(&[flag], d, Captured, Captured);
+        assert_eq!(ok.status.code(), Some(0), "{flag}");
+        assert!(!ok.stdout.is_empty() && ok.stderr.is_empty(), "{flag}");
+        let closed = run_into(&[flag], d, Closed, Captured);
+        assert_eq!(closed.status.code(), Some(0), "{flag}");
+        assert!(closed.stderr.is_empty(), "{flag}");
+        let full = run_into(&[flag], d, Full, Captured);
+        let err = String::from_utf8_lossy(&full.stderr);
+        assert_eq!(full.status.code(), Some(1), "{flag}: {err}");
+        assert!(
+            err.contains("error: writing to standard output: No space left on device"),
+            "{flag}: {err}"
+        );
+    }
+    let usage = run_into(&["grid", "--nope"], d, Captured, Captured);
+    assert_eq!(usage.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&usage.stderr).contains("--nope"));
+}
+
 /// `import nbrdf` and `import rgl` on the real shared data; a network whose outputs overflow
 /// (weights scaled by 1e30) is an error naming it, and no store is written.
 #[test]
