@@ -478,11 +478,38 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
         &["fit", "data.sbrdf", "--out", "data.sbrdf"][..],
         &["export", "data.sbrdf", "--out", "./data.sbrdf"],
         &["render", "data.sbrdf:paper_white", "--out", "data.sbrdf"],
+        &["convert", "data.sbrdf:paper_white", "--out", "data.sbrdf"],
+        &[
+            "sample",
+            "data.sbrdf:paper_white",
+            "--dirs",
+            "dirs.csv",
+            "--out",
+            "data.sbrdf",
+        ],
     ] {
         let err = specgp_fails(args, d);
         assert!(err.contains("replace the input"), "{args:?}: {err}");
     }
     assert_eq!(std::fs::read(d.join("data.sbrdf")).unwrap(), before);
+    // `sample`'s directions are an input too.
+    std::fs::write(d.join("dirs.csv"), "0,0,1,0,0,1\n").unwrap();
+    let err = specgp_fails(
+        &[
+            "sample",
+            "data.sbrdf:paper_white",
+            "--dirs",
+            "dirs.csv",
+            "--out",
+            "dirs.csv",
+        ],
+        d,
+    );
+    assert!(err.contains("the output is the input dirs.csv"), "{err}");
+    assert_eq!(
+        std::fs::read_to_string(d.join("dirs.csv")).unwrap(),
+        "0,0,1,0,0,1\n"
+    );
     // A model brings its dataset (and the dataset's sidecar) along: no output may replace
     // them, nor the model itself (`evaluate --json`).
     specgp(&["fit", "data.sbrdf", "--out", "m.toml"], d);
