@@ -25,7 +25,7 @@ use crate::evaluate::{
     best_latent_point, column_runs, damaged_value, forward_columns, rmse_pass, sq_error_external,
     valid_columns,
 };
-use crate::predictor::{Predictor, PredictorKind};
+use crate::predictor::{PointSupport, Predictor, PredictorKind};
 
 /// A material to locate: a name and its D values on the model's grid and channels, in dataset
 /// order (`angular_index * channels + channel`, as a store holds them; 0 below the horizon).
@@ -181,6 +181,15 @@ pub struct Location {
     /// serialised).
     #[serde(skip)]
     pub coefficients: Vec<f64>,
+}
+
+impl Location {
+    /// Whether the point found is far from every training material
+    /// ([`PointSupport::is_far_fraction`]): no prediction in the space resembles the target
+    /// more than the data mean does, and its location says little.
+    pub fn is_far(&self) -> bool {
+        PointSupport::is_far_fraction(self.variance_fraction)
+    }
 }
 
 /// Locates every target in the latent space of `pred`'s model: one pass over the training

@@ -51,7 +51,13 @@ impl PointSupport {
 
     /// Whether the point is far from every material ([`PointSupport::FAR`]).
     pub fn is_far(&self) -> bool {
-        self.variance_fraction > Self::FAR
+        Self::is_far_fraction(self.variance_fraction)
+    }
+
+    /// Whether a point with this variance fraction is far from every material: strictly above
+    /// [`PointSupport::FAR`].
+    pub fn is_far_fraction(variance_fraction: f64) -> bool {
+        variance_fraction > Self::FAR
     }
 }
 

@@ -2286,6 +2286,8 @@ fn far_points_have_a_variance_fraction_strictly_above_the_threshold() {
     assert!(!at(PointSupport::FAR).is_far());
     assert!(at(PointSupport::FAR.next_up()).is_far());
     assert!(!at(0.5).is_far() && at(1.0).is_far());
+    assert!(!PointSupport::is_far_fraction(PointSupport::FAR));
+    assert!(PointSupport::is_far_fraction(PointSupport::FAR.next_up()));
 }
 
 /// Lookups by direction pair (`eval_dirs`, the `BrdfSource::eval` of a prediction): above the

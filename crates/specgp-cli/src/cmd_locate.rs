@@ -257,10 +257,7 @@ pub fn locate_command(args: &LocateArgs) -> anyhow::Result<()> {
     }
     table.flush()?;
     drop(table);
-    for l in located
-        .iter()
-        .filter(|l| l.variance_fraction > predict::PointSupport::FAR)
-    {
+    for l in located.iter().filter(|l| l.is_far()) {
         errln!(
             "warning: {} lies far from every training material (the GP explains {:.0} % of the \
              prior variance at its point): its location says little",

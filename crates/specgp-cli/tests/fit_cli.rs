@@ -1192,6 +1192,45 @@ fn help_into_unwritable_standard_output() {
     assert!(String::from_utf8_lossy(&usage.stderr).contains("--nope"));
 }
 
+/// `locate` warns about a target whose point is far from every training material, and only
+/// about it: the data mean (the prediction at a point far away) is reconstructed best far out,
+/// a training material at its own point.
+#[test]
+fn locate_warns_about_targets_placed_far_from_every_material() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    fitted_small(d, "400:700:100");
+    specgp(
+        &["predict", "m.toml", "--at", "50,50", "--out", "far.sbrdf"],
+        d,
+    );
+    let (table, err) = specgp_outputs(
+        &[
+            "locate",
+            "m.toml",
+            "far.sbrdf",
+            "data.sbrdf:metal_gold",
+            "--json",
+            "l.json",
+        ],
+        d,
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("l.json")).unwrap()).unwrap();
+    let (far, gold) = (&json["locations"][0], &json["locations"][1]);
+    assert_eq!(far["name"], "gp-exact@50,50");
+    assert!(far["variance_fraction"].as_f64().unwrap() > 0.99, "{far}");
+    assert_eq!(gold["name"], "metal_gold");
+    assert!(gold["variance_fraction"].as_f64().unwrap() < 0.1, "{gold}");
+    let warnings: Vec<&str> = err.lines().filter(|l| l.contains("warning")).collect();
+    assert_eq!(warnings.len(), 1, "{err}");
+    assert!(
+        warnings[0].starts_with("warning: gp-exact@50,50 lies far from every training material"),
+        "{err}"
+    );
+    assert!(table.contains("metal_gold"), "{table}");
+}
+
 /// `import nbrdf` and `import rgl` on the real shared data; a network whose outputs overflow
 /// (weights scaled by 1e30) is an error naming it, and no store is written.
 #[test]
