@@ -324,8 +324,11 @@ mod tests {
                 "{e}"
             );
         }
-        let e = parse_dirs("x;y\n", p).unwrap_err().to_string();
-        assert!(e.contains("read as a header"), "{e}");
+        let e = parse_dirs("# angles\nx;y\n", p).unwrap_err().to_string();
+        assert!(
+            e.contains("line 2 (\"x;y\")") && e.contains("read as a header"),
+            "{e}"
+        );
         let e = parse_dirs("\n# only a comment\n", p)
             .unwrap_err()
             .to_string();
