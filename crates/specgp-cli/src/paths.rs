@@ -218,6 +218,13 @@ mod tests {
         assert!(ensure_extension(Path::new("-"), "png", "a PNG image").is_ok());
         #[cfg(unix)]
         assert!(ensure_extension(Path::new("/dev/null"), "png", "a PNG image").is_ok());
+        // An existing file or directory is no special file.
+        let dir = tempfile::tempdir().unwrap();
+        let jpg = dir.path().join("x.jpg");
+        std::fs::write(&jpg, b"x").unwrap();
+        for existing in [&jpg, &dir.path().to_path_buf()] {
+            assert!(ensure_extension(existing, "png", "a PNG image").is_err());
+        }
         for bad in ["x.jpg", "x", "png"] {
             let e = ensure_extension(Path::new(bad), "png", "a PNG image")
                 .unwrap_err()
@@ -237,6 +244,19 @@ mod tests {
         );
         assert!(refuse_binary_if_terminal(Path::new("-"), "a PNG image", false).is_ok());
         assert!(refuse_binary_if_terminal(Path::new("x.png"), "a PNG image", true).is_ok());
+    }
+
+    /// A path that does not exist yet resolves to its resolved directory joined with its name;
+    /// a bare name to the current directory's.
+    #[test]
+    fn new_paths_resolve_through_their_directory() {
+        let dir = tempfile::tempdir().unwrap();
+        let real = std::fs::canonicalize(dir.path()).unwrap();
+        let new = dir.path().join(".").join("new.png");
+        assert_eq!(resolved(&new), Some(real.join("new.png")));
+        let cwd = std::fs::canonicalize(".").unwrap();
+        assert_eq!(resolved(Path::new("new.png")), Some(cwd.join("new.png")));
+        assert_eq!(resolved(&dir.path().join("no/new.png")), None);
     }
 
     #[test]
