@@ -1231,6 +1231,52 @@ fn locate_warns_about_targets_placed_far_from_every_material() {
     assert!(table.contains("metal_gold"), "{table}");
 }
 
+/// Binary outputs (`--out -`) are refused when standard output is a terminal (run under
+/// `script`, which gives the command a pseudo-terminal), before any work; CSV text is written.
+#[cfg(target_os = "linux")]
+#[test]
+fn binary_outputs_are_refused_on_a_terminal() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // `script -qec CMD /dev/null` runs CMD on a new pseudo-terminal, its exit status its own.
+    let on_terminal = |command: &str| {
+        let out = Command::new("script")
+            .args(["-qec", command, "/dev/null"])
+            .env("SPECGP", env!("CARGO_BIN_EXE_specgp"))
+            .current_dir(d)
+            .output()
+            .expect("run script (util-linux)");
+        let text = String::from_utf8_lossy(&out.stdout).into_owned();
+        (out.status.code(), text)
+    };
+    if on_terminal("true").0 != Some(0) {
+        eprintln!("skipped: no pseudo-terminal for `script` here");
+        return;
+    }
+    fitted_small(d, "400:700:100");
+    for (args, what) in [
+        ("convert data.sbrdf:paper_white", "an RGL tensor file"),
+        ("export data.sbrdf", "an .npy array"),
+        ("predict m.toml --at 0,0", "a predicted material"),
+        ("render data.sbrdf:paper_white", "a PNG image"),
+        ("map m.toml", "a PNG image"),
+    ] {
+        let (code, text) = on_terminal(&format!(r#""$SPECGP" {args} --out -"#));
+        assert_eq!(code, Some(1), "{args}: {text}");
+        assert!(
+            text.contains(&format!(
+                "refusing to write {what} (binary data) to the terminal"
+            )),
+            "{args}: {text}"
+        );
+    }
+    std::fs::write(d.join("dirs.csv"), "0,0,1,0,0,1\n").unwrap();
+    let (code, text) =
+        on_terminal(r#""$SPECGP" sample data.sbrdf:paper_white --dirs dirs.csv --out -"#);
+    assert_eq!(code, Some(0), "{text}");
+    assert!(text.starts_with("400,500,600,700"), "{text}");
+}
+
 /// `import nbrdf` and `import rgl` on the real shared data; a network whose outputs overflow
 /// (weights scaled by 1e30) is an error naming it, and no store is written.
 #[test]
