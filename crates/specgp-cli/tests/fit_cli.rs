@@ -1277,6 +1277,50 @@ fn binary_outputs_are_refused_on_a_terminal() {
     assert!(text.starts_with("400,500,600,700"), "{text}");
 }
 
+/// `convert` writes the sizes it is given (no refinement when either is given, with a warning
+/// when the check fails) and says how many negative source values it clamped: a raw-value
+/// model's prediction has some, a stored material none.
+#[test]
+fn convert_keeps_given_sizes_and_reports_clamped_negatives() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    synth_small(d, "400:700:100");
+    let sized = |source: &str, out: &str| {
+        let args = ["convert", source, "--theta-samples", "8", "--out", out];
+        specgp_outputs(&args, d).1
+    };
+    let gold = sized("data.sbrdf:metal_gold", "gold.bsdf");
+    assert!(
+        gold.contains("(8 incident elevations, 32 x 32 values each")
+            && gold.contains(
+                "warning: the check error is above --tolerance 0.05 with the sizes given"
+            )
+            && !gold.contains("negative"),
+        "{gold}"
+    );
+    specgp(
+        &[
+            "fit",
+            "data.sbrdf",
+            "--out",
+            "raw.toml",
+            "--latent-dim",
+            "2",
+            "--transform",
+            "raw",
+        ],
+        d,
+    );
+    let raw = sized("raw.toml@0.5,0.5", "raw.bsdf");
+    let negative = raw
+        .lines()
+        .filter_map(|l| l.strip_prefix("warning: "))
+        .find(|l| l.contains("source values are negative (stored as 0"))
+        .and_then(|l| l.split(' ').next())
+        .and_then(|n| n.parse::<u64>().ok());
+    assert!(negative.is_some_and(|n| n > 0), "{raw}");
+}
+
 /// `import nbrdf` and `import rgl` on the real shared data; a network whose outputs overflow
 /// (weights scaled by 1e30) is an error naming it, and no store is written.
 #[test]
