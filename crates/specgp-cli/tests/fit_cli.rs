@@ -1436,6 +1436,57 @@ fn imports_of_real_data_and_a_broken_network() {
         err.contains("wrote rgl.sbrdf: 1 material, grid 8,8,16, 3 channels, D = "),
         "{err}"
     );
+    // The store options of every import format: value type, compression, chunk length; the
+    // values read back as the default store's to f16 precision.
+    use brdf_io::store::{Compression, Dtype};
+    for (options, dtype, compression, chunk_len) in [
+        (&[][..], Dtype::F32, Compression::None, 3072),
+        (
+            &[
+                "--dtype",
+                "f16",
+                "--zstd",
+                "3",
+                "--shuffle",
+                "--chunk-len",
+                "100",
+            ][..],
+            Dtype::F16,
+            Compression::ZstdShuffle { level: 3 },
+            100,
+        ),
+        (
+            &["--zstd", "5"][..],
+            Dtype::F32,
+            Compression::Zstd { level: 5 },
+            3072,
+        ),
+    ] {
+        let mut args = vec![
+            "import", "rgl", bsdf, "--grid", "8,8,16", "--out", "o.sbrdf",
+        ];
+        args.extend(options);
+        specgp(&args, d);
+        let other = brdf_io::store::Store::open(d.join("o.sbrdf")).unwrap();
+        let layout = &other.header().layout;
+        assert_eq!(
+            (layout.dtype, layout.compression, layout.chunk_len),
+            (dtype, compression, chunk_len),
+            "{options:?}"
+        );
+        let row = |s: &brdf_io::store::Store| {
+            let mut v = vec![0f32; s.d()];
+            s.material_row(0, 0..s.d(), &mut v).unwrap();
+            v
+        };
+        let (a, b) = (row(&store), row(&other));
+        assert!(
+            a.iter()
+                .zip(&b)
+                .all(|(x, y)| (x - y).abs() <= 1e-3 * x.abs() + 1e-7),
+            "{options:?}"
+        );
+    }
 }
 
 /// A run ended by SIGTERM or SIGINT removes its temporary output and exits with 128 + the
