@@ -29,7 +29,8 @@ pub struct StoreOut {
     /// With `--zstd`: byte-shuffle each chunk first (smaller files for float data).
     #[arg(long, requires = "zstd")]
     pub shuffle: bool,
-    /// Grid indices per chunk (default: about 1 MiB per chunk, 256 KiB with zstd).
+    /// Indices d (angular cell x channel, in `info`'s order) per chunk; a chunk holds their
+    /// values for every material (default: about 1 MiB per chunk, 256 KiB with zstd).
     #[arg(long)]
     pub chunk_len: Option<usize>,
 }
