@@ -1436,6 +1436,21 @@ fn imports_of_real_data_and_a_broken_network() {
         err.contains("wrote rgl.sbrdf: 1 material, grid 8,8,16, 3 channels, D = "),
         "{err}"
     );
+    // Both file formats store the reciprocal mean of each bin by default, and report the
+    // non-reciprocal part it removes; not with --no-reciprocal.
+    let rgl = [
+        "import", "rgl", bsdf, "--grid", "8,8,16", "--out", "nr.sbrdf",
+    ];
+    let nbrdf = import("good.npy", "nr.sbrdf");
+    for command in [&rgl[..], &nbrdf] {
+        let reports = |extra: &[&str]| {
+            let args: Vec<&str> = command.iter().chain(extra).copied().collect();
+            specgp_outputs(&args, d).1
+        };
+        let (with, without) = (reports(&[]), reports(&["--no-reciprocal"]));
+        assert!(with.contains("non-reciprocal part: median"), "{with}");
+        assert!(!without.contains("non-reciprocal"), "{without}");
+    }
     // The store options of every import format: value type, compression, chunk length; the
     // values read back as the default store's to f16 precision.
     use brdf_io::store::{Compression, Dtype};
@@ -1595,6 +1610,36 @@ fn merl_output_of_a_coarse_model_is_on_merls_grid() {
         d,
     );
     assert!(!said.contains("warning"), "{said}");
+    // Bin averages by default, the nearest MERL cell with `--resampling nearest`: the
+    // library's resampling of the file either way.
+    specgp(
+        &[
+            "import",
+            "merl",
+            "x.binary",
+            "--grid",
+            "8,8,16",
+            "--resampling",
+            "nearest",
+            "--out",
+            "xn.sbrdf",
+        ],
+        d,
+    );
+    use brdf_io::merl::Resampling;
+    for (store, method) in [
+        ("x.sbrdf", Resampling::Average),
+        ("xn.sbrdf", Resampling::Nearest),
+    ] {
+        let store = brdf_io::store::Store::open(d.join(store)).unwrap();
+        let mut values = vec![0f32; store.d()];
+        store.material_row(0, 0..store.d(), &mut values).unwrap();
+        assert!(values == merl.resample(&coarse, method).0, "{method:?}");
+    }
+    assert_ne!(
+        merl.resample(&coarse, Resampling::Average).0,
+        merl.resample(&coarse, Resampling::Nearest).0
+    );
     let mut bytes = std::fs::read(d.join("x.binary")).unwrap();
     for v in bytes[12..].chunks_exact_mut(8) {
         v.copy_from_slice(&(-1.0f64).to_le_bytes());
