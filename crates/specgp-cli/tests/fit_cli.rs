@@ -1489,12 +1489,7 @@ fn imports_of_real_data_and_a_broken_network() {
             (dtype, compression, chunk_len),
             "{options:?}"
         );
-        let row = |s: &brdf_io::store::Store| {
-            let mut v = vec![0f32; s.d()];
-            s.material_row(0, 0..s.d(), &mut v).unwrap();
-            v
-        };
-        let (a, b) = (row(&store), row(&other));
+        let (a, b) = (first_material(&store), first_material(&other));
         assert!(
             a.iter()
                 .zip(&b)
@@ -1632,8 +1627,7 @@ fn merl_output_of_a_coarse_model_is_on_merls_grid() {
         ("xn.sbrdf", Resampling::Nearest),
     ] {
         let store = brdf_io::store::Store::open(d.join(store)).unwrap();
-        let mut values = vec![0f32; store.d()];
-        store.material_row(0, 0..store.d(), &mut values).unwrap();
+        let values = first_material(&store);
         assert!(values == merl.resample(&coarse, method).0, "{method:?}");
     }
     assert_ne!(
@@ -2496,6 +2490,13 @@ fn lerp_reads_names_with_commas() {
         3,
         "data, model, l.npy"
     );
+}
+
+/// The D values of a store's first material.
+fn first_material(store: &brdf_io::store::Store) -> Vec<f32> {
+    let mut values = vec![0f32; store.d()];
+    store.material_row(0, 0..store.d(), &mut values).unwrap();
+    values
 }
 
 /// A store with RGB materials `names` on a 3 x 3 x 4 grid in `path` (values positive above
