@@ -810,8 +810,18 @@ fn select_materials(store: &Store, list: &str) -> anyhow::Result<Vec<usize>> {
     }
 }
 
+/// Bytes of the rows [`export`] gathers before writing them out (the window of indices d is
+/// this over the selected rows' bytes per index, at least 1).
+const EXPORT_WINDOW_BYTES: usize = 256 << 20;
+
 /// Runs `specgp export`: streams the chosen rows out chunk by chunk (bounded memory).
 pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
+    export_in_windows(args, EXPORT_WINDOW_BYTES)
+}
+
+/// [`export`] gathering about `window_bytes` of the rows at a time (a parameter for tests:
+/// exports of test-sized stores fit in one window of the default).
+fn export_in_windows(args: &ExportArgs, window_bytes: usize) -> anyhow::Result<()> {
     crate::paths::ensure_output_is_not_an_input(&args.out, &[&args.path])?;
     crate::paths::ensure_extension(&args.out, "npy", "an .npy array")?;
     crate::paths::refuse_binary_on_terminal(&args.out, "an .npy array")?;
@@ -836,7 +846,7 @@ pub fn export(args: &ExportArgs) -> anyhow::Result<()> {
     file.write_all(&header).map_err(io)?;
     out.set_len((header.len() + rows.len() * d * size) as u64)?;
     // Gather a window of indices for every selected row, then write each row's segment.
-    let window = ((256usize << 20) / (rows.len() * size)).max(1);
+    let window = (window_bytes / (rows.len() * size)).max(1);
     let mut bufs: Vec<Vec<u8>> = vec![Vec::with_capacity(window * size); rows.len()];
     let mut win_start = 0usize;
     let pb = bar(store.n_chunks() as u64, "export");
@@ -1037,15 +1047,21 @@ mod tests {
             w.add_material(&format!("m{m}"), "test", &row(m)).unwrap();
         }
         w.finish().unwrap();
-        for dtype in ["f32", "f64"] {
-            let out = dir.path().join(format!("y_{dtype}.npy"));
-            export(&ExportArgs {
+        // One window, or rows gathered for 10 indices in f64 and 20 in f32 (written every
+        // second or third chunk of 7, the last window partial) or for 1 (every chunk).
+        let windows = [EXPORT_WINDOW_BYTES, 2 * 8 * 10, 1];
+        for (dtype, window) in ["f32", "f64"]
+            .into_iter()
+            .flat_map(|t| windows.map(|w| (t, w)))
+        {
+            let out = dir.path().join(format!("y_{dtype}_{window}.npy"));
+            let args = ExportArgs {
                 path: path.clone(),
                 out: out.clone(),
                 materials: Some("m2,m0".into()),
                 dtype: dtype.into(),
-            })
-            .unwrap();
+            };
+            export_in_windows(&args, window).unwrap();
             let (shape, vals) = read_npy_f64(&out);
             assert_eq!(shape, [2, info.d()]);
             let want: Vec<f64> = [row(2), row(0)]
