@@ -764,6 +764,11 @@ mod tests {
             read("metal, c,0.5").unwrap_err().to_string(),
             "unknown \"metal\""
         );
+        // Also when the material follows the second comma: all before it is the unknown half.
+        assert_eq!(
+            read("x,y,c,0.5").unwrap_err().to_string(),
+            "unknown \"x,y\""
+        );
         // Syntax: A last, a number; two names before it.
         for (bad, want) in [
             ("a,c", "A = \"c\" is not a number"),

@@ -1192,14 +1192,75 @@ fn help_into_unwritable_standard_output() {
     assert!(String::from_utf8_lossy(&usage.stderr).contains("--nope"));
 }
 
-/// `locate` warns about a target whose point is far from every training material, and only
-/// about it: the data mean (the prediction at a point far away) is reconstructed best far out,
-/// a training material at its own point.
+/// `predict` warns about a point far from every material, giving the distance to the nearest
+/// (exponent notation from 1e6 length-scales on), and `--variance` gives the share of the prior
+/// variance to three digits; `locate` warns about a target whose point is far from every
+/// training material, and only about it: the data mean (the prediction at a point far away)
+/// is reconstructed best far out, a training material at its own point.
 #[test]
-fn locate_warns_about_targets_placed_far_from_every_material() {
+fn far_points_and_variances_are_reported() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     fitted_small(d, "400:700:100");
+    let distance = |at: &str| {
+        let (_, err) = specgp_outputs(&["predict", "m.toml", "--at", at, "--out", "p.npy"], d);
+        let head = err
+            .split(" length-scales away")
+            .next()
+            .filter(|h| h.contains(&format!("latent point {at} is far from every material")))
+            .unwrap_or_else(|| panic!("{err}"));
+        head.rsplit(' ').next().unwrap().to_owned()
+    };
+    let near = distance("50,50");
+    assert!(
+        !near.contains('e')
+            && near.split('.').nth(1).is_some_and(|f| f.len() == 1)
+            && near.parse::<f64>().is_ok_and(|v| v > 10.0),
+        "{near}"
+    );
+    let typo = distance("1e100,0");
+    assert!(
+        typo.contains('e') && typo.parse::<f64>().is_ok_and(|v| v > 1e90),
+        "{typo}"
+    );
+    let (variance, _) = specgp_outputs(
+        &[
+            "predict",
+            "m.toml",
+            "--at",
+            "0.1,0.1",
+            "--variance",
+            "--out",
+            "p.npy",
+        ],
+        d,
+    );
+    let share = variance
+        .split(" % of the prior variance")
+        .next()
+        .and_then(|h| h.rsplit(' ').next())
+        .unwrap_or_else(|| panic!("{variance}"));
+    let digits = share.trim_start_matches(['0', '.']).replace('.', "");
+    assert!(
+        share.parse::<f64>().is_ok() && digits.len() == 3,
+        "{variance}"
+    );
+    // The library's numbers: per transformed value (data units) and as a share.
+    let pred = predict::Predictor::open(&d.join("m.toml")).unwrap();
+    let v = pred
+        .variance_of(&[0.1, 0.1], predict::PredictorKind::Exact)
+        .unwrap();
+    let per_value = v * pred.model().data_scale;
+    assert!(
+        variance.starts_with(&format!("variance {per_value:e} per transformed value")),
+        "{variance}"
+    );
+    let want = 100.0 * v / pred.prior_variance();
+    let shown: f64 = share.parse().unwrap();
+    assert!((shown - want).abs() <= 5e-3 * want, "{variance}: {want}");
+    // A log model without a sidecar reads its dataset store, without a word.
+    let (_, err) = specgp_outputs(&["render", "m.toml@0.5,0.5", "--out", "r.png"], d);
+    assert_eq!(err, "");
     specgp(
         &["predict", "m.toml", "--at", "50,50", "--out", "far.sbrdf"],
         d,
