@@ -1223,41 +1223,45 @@ fn far_points_and_variances_are_reported() {
         typo.contains('e') && typo.parse::<f64>().is_ok_and(|v| v > 1e90),
         "{typo}"
     );
-    let (variance, _) = specgp_outputs(
-        &[
+    // The library's numbers: per transformed value (data units) and as a share, to three
+    // digits, between materials (~1 %) and next to one (below 0.1 %).
+    let pred = predict::Predictor::open(&d.join("m.toml")).unwrap();
+    let next_to = pred.model().materials[0]
+        .coords
+        .iter()
+        .map(|c| c + 1e-3)
+        .collect();
+    for x in [vec![0.1, 0.1], next_to] {
+        let at = x.iter().map(f64::to_string).collect::<Vec<_>>().join(",");
+        let args = [
             "predict",
             "m.toml",
             "--at",
-            "0.1,0.1",
+            &at,
             "--variance",
             "--out",
             "p.npy",
-        ],
-        d,
-    );
-    let share = variance
-        .split(" % of the prior variance")
-        .next()
-        .and_then(|h| h.rsplit(' ').next())
-        .unwrap_or_else(|| panic!("{variance}"));
-    let digits = share.trim_start_matches(['0', '.']).replace('.', "");
-    assert!(
-        share.parse::<f64>().is_ok() && digits.len() == 3,
-        "{variance}"
-    );
-    // The library's numbers: per transformed value (data units) and as a share.
-    let pred = predict::Predictor::open(&d.join("m.toml")).unwrap();
-    let v = pred
-        .variance_of(&[0.1, 0.1], predict::PredictorKind::Exact)
-        .unwrap();
-    let per_value = v * pred.model().data_scale;
-    assert!(
-        variance.starts_with(&format!("variance {per_value:e} per transformed value")),
-        "{variance}"
-    );
-    let want = 100.0 * v / pred.prior_variance();
-    let shown: f64 = share.parse().unwrap();
-    assert!((shown - want).abs() <= 5e-3 * want, "{variance}: {want}");
+        ];
+        let (variance, _) = specgp_outputs(&args, d);
+        let v = pred.variance_of(&x, predict::PredictorKind::Exact).unwrap();
+        let per_value = v * pred.model().data_scale;
+        assert!(
+            variance.starts_with(&format!("variance {per_value:e} per transformed value")),
+            "{variance}"
+        );
+        let share = variance
+            .split(" % of the prior variance")
+            .next()
+            .and_then(|h| h.rsplit(' ').next())
+            .unwrap_or_else(|| panic!("{variance}"));
+        let digits = share.trim_start_matches(['0', '.']).replace('.', "");
+        let want = 100.0 * v / pred.prior_variance();
+        let shown: f64 = share.parse().unwrap();
+        assert!(
+            digits.len() == 3 && (shown - want).abs() <= 5e-3 * want,
+            "{variance}: {want}"
+        );
+    }
     // A log model without a sidecar reads its dataset store, without a word.
     let (_, err) = specgp_outputs(&["render", "m.toml@0.5,0.5", "--out", "r.png"], d);
     assert_eq!(err, "");
