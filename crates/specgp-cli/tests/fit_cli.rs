@@ -1242,7 +1242,8 @@ fn far_points_and_variances_are_reported() {
             "--out",
             "p.npy",
         ];
-        let (variance, _) = specgp_outputs(&args, d);
+        let (variance, err) = specgp_outputs(&args, d);
+        assert!(!err.contains("negative"), "{err}");
         let v = pred.variance_of(&x, predict::PredictorKind::Exact).unwrap();
         let per_value = v * pred.model().data_scale;
         assert!(
@@ -1375,6 +1376,24 @@ fn convert_keeps_given_sizes_and_reports_clamped_negatives() {
             "raw",
         ],
         d,
+    );
+    // `predict` counts them too.
+    let (_, err) = specgp_outputs(
+        &["predict", "raw.toml", "--at", "0.5,0.5", "--out", "raw.npy"],
+        d,
+    );
+    let count = err.lines().find_map(|l| {
+        let warning = l.strip_prefix("warning: ")?;
+        warning
+            .split(" predicted values are negative")
+            .next()?
+            .parse::<u64>()
+            .ok()
+    });
+    assert!(
+        count.is_some_and(|n| n > 0)
+            && err.contains("the GP mean is not constrained to be non-negative"),
+        "{err}"
     );
     let raw = sized("raw.toml@0.5,0.5", "raw.bsdf");
     let negative = raw
