@@ -1947,7 +1947,7 @@ fn fits_stopped_at_their_cap_are_reported() {
     let stop = Model::load(&d.join("f.toml")).unwrap().fit.stop_reason;
     assert!(!stop.starts_with("reached"), "{stop}");
     // Leave-one-out refits at their cap say whose refit it was.
-    let (_, said) = specgp_outputs(
+    let (table, said) = specgp_outputs(
         &[
             "evaluate",
             "f.toml",
@@ -1955,6 +1955,8 @@ fn fits_stopped_at_their_cap_are_reported() {
             "--cold",
             "--refit-iterations",
             "2",
+            "--json",
+            "loo.json",
         ],
         d,
     );
@@ -1962,6 +1964,29 @@ fn fits_stopped_at_their_cap_are_reported() {
         said.contains("leave-one-out{held_out=paper_white}: the optimiser stopped at its cap"),
         "{said}"
     );
+    // Each material's row of the table shows its own leave-one-out errors.
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("loo.json")).unwrap()).unwrap();
+    let rows = json["loo"].as_array().unwrap();
+    assert_eq!(rows.len(), 51);
+    for row in rows {
+        let name = row["name"].as_str().unwrap();
+        let line = table
+            .lines()
+            .find(|l| l.split_whitespace().next() == Some(name))
+            .unwrap_or_else(|| panic!("{name}: {table}"));
+        let shown: Vec<f64> = line
+            .split_whitespace()
+            .skip(3)
+            .map(|v| v.parse().unwrap())
+            .collect();
+        let methods = row["methods"].as_array().unwrap();
+        assert_eq!(shown.len(), methods.len(), "{line}");
+        for (v, m) in shown.iter().zip(methods) {
+            let want = m["brdf_rmse"].as_f64().unwrap();
+            assert!((v - want).abs() <= 1e-5 * want, "{name}: {line} vs {m}");
+        }
+    }
 }
 
 /// Fits that cannot make a latent space say why: a noise at least the signal variance (it
