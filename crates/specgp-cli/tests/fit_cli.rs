@@ -1405,6 +1405,55 @@ fn convert_keeps_given_sizes_and_reports_clamped_negatives() {
     assert!(negative.is_some_and(|n| n > 0), "{raw}");
 }
 
+/// `render`'s --exposure (stops) and --env reach the renderer, and `map` draws the space of a
+/// one-dimensional model, thumbnails too.
+#[test]
+fn render_options_and_one_dimensional_maps() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    synth_small(d, "400:700:100");
+    let sphere = |out: &str, extra: &[&str]| {
+        let mut args = vec!["render", "data.sbrdf:acrylic_felt_green", "--size", "32"];
+        args.extend(extra);
+        args.extend(["--out", out]);
+        specgp(&args, d);
+        let (w, h, rgba) = png_rgba(&d.join(out));
+        assert_eq!((w, h), (32, 32));
+        rgba
+    };
+    // The mean 8-bit level of the sphere's opaque pixels.
+    let mean = |rgba: &[u8]| {
+        let inside: Vec<&[u8]> = rgba.chunks(4).filter(|p| p[3] == 255).collect();
+        let sum: u64 = inside
+            .iter()
+            .flat_map(|p| &p[..3])
+            .map(|&v| u64::from(v))
+            .sum();
+        sum as f64 / (3 * inside.len()) as f64
+    };
+    let plain = sphere("e0.png", &[]);
+    let brighter = sphere("e1.png", &["--exposure", "1"]);
+    // One stop doubles linear values: 1.37x in sRGB codes where nothing clips.
+    let ratio = mean(&brighter) / mean(&plain);
+    assert!(ratio > 1.25 && ratio < 1.5, "{ratio}");
+    let studio = sphere("s.png", &["--env", "studio"]);
+    assert_ne!(studio, plain);
+    specgp(
+        &[
+            "fit",
+            "data.sbrdf",
+            "--latent-dim",
+            "1",
+            "--out",
+            "one.toml",
+        ],
+        d,
+    );
+    specgp(&["map", "one.toml", "--thumbnails", "--out", "one.png"], d);
+    let (w, h, _) = png_rgba(&d.join("one.png"));
+    assert!(w > 640 && h > 640, "{w} x {h}");
+}
+
 /// `import nbrdf` and `import rgl` on the real shared data; a network whose outputs overflow
 /// (weights scaled by 1e30) is an error naming it, and no store is written.
 #[test]
