@@ -1449,9 +1449,20 @@ fn render_options_and_one_dimensional_maps() {
         ],
         d,
     );
-    specgp(&["map", "one.toml", "--thumbnails", "--out", "one.png"], d);
-    let (w, h, _) = png_rgba(&d.join("one.png"));
+    let map = |extra: &[&str]| {
+        let mut args = vec!["map", "one.toml", "--out", "one.png"];
+        args.extend(extra);
+        specgp(&args, d);
+        let (w, h, _) = png_rgba(&d.join("one.png"));
+        (w, h)
+    };
+    let (w, h) = map(&["--thumbnails"]);
     assert!(w > 640 && h > 640, "{w} x {h}");
+    // --size sets the plot's side (the margins stay), --thumbnail-size the thumbnails'.
+    let (w0, h0) = map(&[]);
+    assert_eq!(map(&["--size", "400"]), (w0 - 240, h0 - 240));
+    let (small, _) = map(&["--thumbnails", "--thumbnail-size", "16"]);
+    assert!(small < w, "{small} vs {w}");
 }
 
 /// `import nbrdf` and `import rgl` on the real shared data; a network whose outputs overflow
