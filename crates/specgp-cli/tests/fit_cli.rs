@@ -1465,6 +1465,47 @@ fn render_options_and_one_dimensional_maps() {
     assert!(small < w, "{small} vs {w}");
 }
 
+/// `synth --dtype --zstd` write the store as asked, with the default store's values to f16
+/// precision.
+#[test]
+fn synth_store_options_reach_the_store() {
+    use brdf_io::store::{Compression, Dtype, Store};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    synth_small(d, "400:700:100");
+    let args = [
+        "synth",
+        "--out",
+        "h.sbrdf",
+        "--grid",
+        "8,8,16",
+        "--wavelengths",
+        "400:700:100",
+        "--dtype",
+        "f16",
+        "--zstd",
+        "3",
+    ];
+    specgp(&args, d);
+    let (plain, half) = (
+        Store::open(d.join("data.sbrdf")).unwrap(),
+        Store::open(d.join("h.sbrdf")).unwrap(),
+    );
+    let layout = &half.header().layout;
+    assert_eq!(
+        (layout.dtype, layout.compression),
+        (Dtype::F16, Compression::Zstd { level: 3 })
+    );
+    assert_eq!(plain.header().layout.dtype, Dtype::F32);
+    let (a, b) = (first_material(&plain), first_material(&half));
+    assert!(
+        a.iter()
+            .zip(&b)
+            .all(|(x, y)| (x - y).abs() <= 1e-3 * x.abs()),
+        "{a:?} {b:?}"
+    );
+}
+
 /// `import nbrdf` and `import rgl` on the real shared data; a network whose outputs overflow
 /// (weights scaled by 1e30) is an error naming it, and no store is written.
 #[test]
