@@ -637,6 +637,30 @@ fn run_in(config: &PipelineConfig, out: &Path, published: &Path) -> Result<Resul
 mod tests {
     use super::*;
 
+    /// Outputs are the run's fixed files and `prediction-K.EXT` for a number K and the four
+    /// formats: other files in the output directory are the user's.
+    #[test]
+    fn pipeline_outputs_are_recognised_by_name() {
+        for name in [
+            "report.md",
+            "data.sbrdf",
+            "prediction-1.npy",
+            "prediction-12.bsdf",
+        ] {
+            assert!(is_pipeline_output(name), "{name}");
+        }
+        for name in [
+            "notes.md",
+            "prediction-.npy",
+            "prediction-x.npy",
+            "prediction-1x.sbrdf",
+            "prediction-1.txt",
+            "prediction-1",
+        ] {
+            assert!(!is_pipeline_output(name), "{name}");
+        }
+    }
+
     /// The root comes from the run-time `CARGO_MANIFEST_DIR` (a binary built in another
     /// checkout used the compile-time one), falling back to the compile-time one.
     #[test]

@@ -165,6 +165,21 @@ fn quick_pipeline_report_matches_the_model_and_data() {
         (weighted - direct).abs() <= 1e-9 * direct.max(1.0),
         "{weighted} vs {direct}"
     );
+    // The same for the leave-one-out errors of the GP (not of another method).
+    let weighted: f64 = kinds
+        .iter()
+        .map(|k| k["n"].as_f64().unwrap() * finite(&k["loo_gp"]))
+        .sum();
+    let direct: f64 = loo
+        .iter()
+        .flat_map(|r| r["methods"].as_array().unwrap())
+        .filter(|m| m["method"] == "gp")
+        .map(|m| m["brdf_rmse"].as_f64().unwrap())
+        .sum();
+    assert!(
+        (weighted - direct).abs() <= 1e-9 * direct.max(1.0),
+        "{weighted} vs {direct}"
+    );
 
     // Figures exist and the rendered errors are finite and non-negative.
     for f in json["figures"]["files"].as_array().unwrap() {
