@@ -636,6 +636,18 @@ fn inputs_are_checked_before_any_work() {
         e.ends_with(&format!("data.files[2]: {} is not a file", p("y"))),
         "{e}"
     );
+    // A path through a file: neither missing nor a directory entry (ENOTDIR).
+    let e = run_err(&rgl(
+        &[p("x/a.bsdf"), p("c.bsdf"), p("c.bsdf/under.bsdf")],
+        "",
+    ));
+    assert!(
+        e.ends_with(&format!(
+            "data.files[2]: {} cannot be read",
+            p("c.bsdf/under.bsdf")
+        )),
+        "{e}"
+    );
     let e = run_err(&rgl(
         &[p("x/a.bsdf"), p("c.bsdf"), p("y/b.bsdf")],
         &format!("[locate]\nfiles = [{:?}]\n", p("gone.bsdf")),
