@@ -816,6 +816,30 @@ fn by_kind_table_without_leave_one_out_says_it_was_not_run() {
     assert!(json["by_kind"][0]["loo_gp"].is_null());
 }
 
+/// The by-kind table lists only the kinds the data has: two metals and a paper give two rows.
+#[test]
+fn by_kind_table_lists_only_the_kinds_present() {
+    let root = project_root();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("two.toml");
+    std::fs::write(
+        &path,
+        "name = \"two\"\n[data]\nkind = \"synth\"\ngrid = \"4,4,8\"\nwavelengths = \
+         \"400:700:100\"\nonly = [\"metal_gold\", \"metal_silver\", \"paper_white\"]\n\
+         [fit]\nlatent_dim = 2\nmax_iterations = 20\n[evaluate]\nloo = false\n[render]\n\
+         enabled = false\n",
+    )
+    .unwrap();
+    let config = PipelineConfig::load(&path, &root).unwrap();
+    let results = xtask::run(&config, &dir.path().join("out")).unwrap();
+    let kinds: Vec<(&str, usize)> = results
+        .by_kind
+        .iter()
+        .map(|k| (k.kind.as_str(), k.n))
+        .collect();
+    assert_eq!(kinds, [("diffuse", 1), ("metallic", 2)]);
+}
+
 /// `[render] env = "studio"` renders the figures' spheres under the studio sky: another
 /// sheet than the default environment's, and the report says which.
 #[test]
