@@ -511,6 +511,15 @@ fn runs_publish_their_outputs_together() {
         std::fs::read_to_string(&inside).unwrap(),
         std::fs::read_to_string(root.join("configs/quick.toml")).unwrap()
     );
+    // Under another name it is the user's file: the run goes ahead and keeps it.
+    let mine = out.join("mine.toml");
+    std::fs::rename(&inside, &mine).unwrap();
+    let config = PipelineConfig::load(&mine, &root).unwrap();
+    xtask::run(&config, &out).unwrap();
+    assert_eq!(
+        std::fs::read_to_string(&mine).unwrap(),
+        std::fs::read_to_string(root.join("configs/quick.toml")).unwrap()
+    );
 }
 
 /// Real measured RGL files located in the space fitted to others (`[locate]`): each lands where
