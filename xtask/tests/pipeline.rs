@@ -121,6 +121,22 @@ fn quick_pipeline_report_matches_the_model_and_data() {
             .collect();
         let want = pred.variance_transformed(&x, kind).unwrap();
         assert_eq!(p["variance"].as_f64().unwrap(), want, "{p}");
+        // The timed lookups read every cell of this small grid once: their mean value.
+        let m = pred.predict(&x, kind).unwrap();
+        let (cells, nc) = (pred.grid().len(), 7);
+        let mut out = vec![0.0; nc];
+        let mut sum = 0.0;
+        for a in 0..cells {
+            m.eval_cell(a, &mut out).unwrap();
+            sum += out.iter().sum::<f64>();
+        }
+        let mean = sum / (cells * nc) as f64;
+        let shown = finite(&p["lookup_mean"]);
+        assert!(
+            (shown - mean).abs() <= 1e-12 * mean.abs(),
+            "{shown} vs {mean}"
+        );
+        assert!(finite(&p["lookup_us"]) > 0.0, "{p}");
         let file = dir.path().join(p["file"].as_str().unwrap());
         let bytes = std::fs::metadata(&file).unwrap().len();
         assert_eq!(bytes, p["file_bytes"].as_u64().unwrap());
