@@ -527,6 +527,14 @@ fn runs_publish_their_outputs_together() {
         std::fs::read_to_string(&inside).unwrap(),
         std::fs::read_to_string(root.join("configs/quick.toml")).unwrap()
     );
+    // An output path that cannot be looked up (a name over 255 bytes) is an error naming it,
+    // not a directory to create.
+    let long = dir.path().join("n".repeat(300)).join("out");
+    let err = xtask::run(&load(&root, "configs/quick.toml"), &long)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains(&format!("{}: ", long.display())), "{err}");
+    assert!(!err.contains("staging"), "{err}");
     // Under another name it is the user's file: the run goes ahead and keeps it.
     let mine = out.join("mine.toml");
     std::fs::rename(&inside, &mine).unwrap();
