@@ -1281,8 +1281,7 @@ fn far_points_and_variances_are_reported() {
         ],
         d,
     );
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("l.json")).unwrap()).unwrap();
+    let json = json_file(&d.join("l.json"));
     let (far, gold) = (&json["locations"][0], &json["locations"][1]);
     assert_eq!(far["name"], "gp-exact@50,50");
     assert!(far["variance_fraction"].as_f64().unwrap() > 0.99, "{far}");
@@ -2066,8 +2065,7 @@ fn fits_stopped_at_their_cap_are_reported() {
         "{said}"
     );
     // Each material's row of the table shows its own leave-one-out errors.
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("loo.json")).unwrap()).unwrap();
+    let json = json_file(&d.join("loo.json"));
     let rows = json["loo"].as_array().unwrap();
     assert_eq!(rows.len(), 51);
     for row in rows {
@@ -2702,6 +2700,11 @@ fn lerp_reads_names_with_commas() {
     );
 }
 
+/// The JSON document in `path`.
+fn json_file(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
 /// The D values of a store's first material.
 fn first_material(store: &brdf_io::store::Store) -> Vec<f32> {
     let mut values = vec![0f32; store.d()];
@@ -2944,9 +2947,7 @@ fn locate_places_real_files_and_store_materials_and_explains_mismatches() {
         ],
         d,
     );
-    let read = |p: &str| -> serde_json::Value {
-        serde_json::from_str(&std::fs::read_to_string(d.join(p)).unwrap()).unwrap()
-    };
+    let read = |p: &str| json_file(&d.join(p));
     let (a, b) = (read("a.json"), read("b.json"));
     assert_eq!(a["latent_dim"], 2);
     assert_eq!(a["n_angles"], 8 * 8 * 16);
