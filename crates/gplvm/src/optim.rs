@@ -224,7 +224,7 @@ pub fn hooke_jeeves(
     })
 }
 
-use gp_core::fastmath::{dot, norm};
+use gp_core::fastmath::{axpy_then_dot_wide, dot, dot_wide, norm};
 
 /// `y += a x`.
 #[inline(always)]
@@ -239,10 +239,11 @@ type Pairs = std::collections::VecDeque<(Vec<f64>, Vec<f64>, f64)>;
 
 /// The L-BFGS two-loop recursion: `dir = -H grad` with the initial Hessian scaled by s'y / y'y
 /// of the newest pair (1 / |grad| without pairs). Compiled for AVX2 + FMA or AVX-512 when the
-/// CPU has them (selected at run time), its dot products by [`gp_core::fastmath::dot_avx2`]:
-/// with a memory of 100 and N q = 255 it is 100 k multiply-adds per step, and its dot
-/// products' single addition chains (fixed by the bits) made it ~25 % of a default fit's time
-/// in a profile (BENCHMARKS.md "gplvm", session 10).
+/// CPU has them (selected at run time; every build has the same bits). With a memory of 100 and
+/// N q = 255 it is 100 k multiply-adds per step in 200 dot products, each waiting on the one
+/// before; with [`gp_core::fastmath::dot`]'s four addition chains they made it ~25 % of a
+/// default fit's time (BENCHMARKS.md "gplvm", sessions 10 and 43), hence
+/// [`gp_core::fastmath::dot_wide`]'s 32.
 fn two_loop(pairs: &Pairs, grad: &[f64], gnorm: f64, alpha: &mut [f64], dir: &mut [f64]) {
     #[cfg(target_arch = "x86_64")]
     {
@@ -263,8 +264,7 @@ fn two_loop(pairs: &Pairs, grad: &[f64], gnorm: f64, alpha: &mut [f64], dir: &mu
     two_loop_body(pairs, grad, gnorm, alpha, dir);
 }
 
-/// [`two_loop`] compiled for AVX-512: the element-wise updates run 8 lanes wide; the dot
-/// products keep their four partial sums, so the result has the same bits as the AVX2 build.
+/// [`two_loop`] compiled for AVX-512 (8-lane element-wise updates and partial sums).
 ///
 /// # Safety
 /// The CPU must support AVX-512F.
@@ -277,10 +277,7 @@ unsafe fn two_loop_avx512(
     alpha: &mut [f64],
     dir: &mut [f64],
 ) {
-    // SAFETY: AVX-512F implies AVX2 and FMA, `dot_avx2`'s requirement.
-    two_loop_with(pairs, grad, gnorm, alpha, dir, |a, b| unsafe {
-        gp_core::fastmath::dot_avx2(a, b)
-    });
+    two_loop_body(pairs, grad, gnorm, alpha, dir);
 }
 
 /// [`two_loop`] compiled for AVX2 + FMA.
@@ -296,37 +293,34 @@ unsafe fn two_loop_avx2(
     alpha: &mut [f64],
     dir: &mut [f64],
 ) {
-    // SAFETY: AVX2 and FMA are available (this function's contract), `dot_avx2`'s requirement.
-    two_loop_with(pairs, grad, gnorm, alpha, dir, |a, b| unsafe {
-        gp_core::fastmath::dot_avx2(a, b)
-    });
+    two_loop_body(pairs, grad, gnorm, alpha, dir);
 }
 
-/// The portable two-loop recursion.
-fn two_loop_body(pairs: &Pairs, grad: &[f64], gnorm: f64, alpha: &mut [f64], dir: &mut [f64]) {
-    two_loop_with(pairs, grad, gnorm, alpha, dir, dot);
-}
-
-/// The two-loop recursion with a given dot product (every one must have [`dot`]'s bits).
+/// The two-loop recursion, inlined into each build (plain element-wise arithmetic and
+/// [`dot_wide`], so the same bits whatever the compiler vectorises). Each update of `dir` is
+/// fused with the next pair's dot product ([`axpy_then_dot_wide`], the same bits as the two
+/// steps), so `dir` is read and written once per pair.
 #[inline(always)]
-fn two_loop_with(
-    pairs: &Pairs,
-    grad: &[f64],
-    gnorm: f64,
-    alpha: &mut [f64],
-    dir: &mut [f64],
-    dot: impl Fn(&[f64], &[f64]) -> f64,
-) {
+fn two_loop_body(pairs: &Pairs, grad: &[f64], gnorm: f64, alpha: &mut [f64], dir: &mut [f64]) {
     dir.copy_from_slice(grad);
-    for (k, (s, y, rho)) in pairs.iter().enumerate().rev() {
-        alpha[k] = rho * dot(s, dir);
-        axpy(-alpha[k], y, dir);
+    let m = pairs.len();
+    // Newest pair first: alpha_k = rho_k s_k'dir, dir -= alpha_k y_k.
+    if let Some((s, _, _)) = pairs.back() {
+        let mut s_dir = dot_wide(s, dir);
+        for k in (0..m).rev() {
+            let (_, y, rho) = &pairs[k];
+            alpha[k] = rho * s_dir;
+            match k.checked_sub(1) {
+                Some(next) => s_dir = axpy_then_dot_wide(-alpha[k], y, dir, &pairs[next].0),
+                None => axpy(-alpha[k], y, dir),
+            }
+        }
     }
     let gamma = match pairs.back() {
         Some((s, y, _)) => {
             // s'y / y'y; y'y overflows for gradients near 1e154 (and underflows near 1e-154):
             // then (s'y / |y|) / |y| with the safe norm (gamma was 0, the direction degenerate).
-            let (sy, yy) = (dot(s, y), dot(y, y));
+            let (sy, yy) = (dot_wide(s, y), dot_wide(y, y));
             if gp_core::fastmath::is_safe_sum_of_squares(yy) {
                 sy / yy
             } else {
@@ -337,9 +331,17 @@ fn two_loop_with(
         None => 1.0 / gnorm,
     };
     dir.iter_mut().for_each(|d| *d *= gamma);
-    for (k, (s, y, rho)) in pairs.iter().enumerate() {
-        let beta = rho * dot(y, dir);
-        axpy(alpha[k] - beta, s, dir);
+    // Oldest pair first: beta_k = rho_k y_k'dir, dir += (alpha_k - beta_k) s_k.
+    if let Some((_, y, _)) = pairs.front() {
+        let mut y_dir = dot_wide(y, dir);
+        for k in 0..m {
+            let (s, _, rho) = &pairs[k];
+            let step = alpha[k] - rho * y_dir;
+            match pairs.get(k + 1) {
+                Some((_, y_next, _)) => y_dir = axpy_then_dot_wide(step, s, dir, y_next),
+                None => axpy(step, s, dir),
+            }
+        }
     }
     dir.iter_mut().for_each(|d| *d = -*d);
 }
@@ -682,6 +684,74 @@ mod tests {
                 let got = run(&|a, d| unsafe { two_loop_avx2(&pairs, &grad, 2.0, a, d) });
                 assert_eq!(got, want, "AVX2");
             }
+        }
+    }
+
+    /// The fused recursion has the bits of the textbook one (each update, then the next dot
+    /// product), with no pairs, one pair and several, and its direction is `-H grad`: with one
+    /// pair on a two-dimensional problem, the BFGS update of `gamma I` applied to `grad`.
+    #[test]
+    fn fused_two_loop_is_the_textbook_recursion() {
+        fn textbook(pairs: &Pairs, grad: &[f64], gnorm: f64) -> Vec<f64> {
+            let mut dir = grad.to_vec();
+            let mut alpha = vec![0.0; pairs.len()];
+            for (k, (s, y, rho)) in pairs.iter().enumerate().rev() {
+                alpha[k] = rho * dot_wide(s, &dir);
+                axpy(-alpha[k], y, &mut dir);
+            }
+            let gamma = pairs
+                .back()
+                .map_or(1.0 / gnorm, |(s, y, _)| dot_wide(s, y) / dot_wide(y, y));
+            dir.iter_mut().for_each(|d| *d *= gamma);
+            for (k, (s, y, rho)) in pairs.iter().enumerate() {
+                let beta = rho * dot_wide(y, &dir);
+                axpy(alpha[k] - beta, s, &mut dir);
+            }
+            dir.iter().map(|d| -d).collect()
+        }
+        let n = 70;
+        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let grad: Vec<f64> = (0..n).map(|_| next()).collect();
+        let mut pairs = Pairs::new();
+        for m in 0..8 {
+            if m > 0 {
+                let (sv, yv): (Vec<f64>, Vec<f64>) = (0..n).map(|_| (next(), next())).unzip();
+                let rho = 1.0 / dot(&sv, &yv);
+                pairs.push_back((sv, yv, rho));
+            }
+            let (mut alpha, mut dir) = (vec![0.0; pairs.len()], vec![0.0; n]);
+            two_loop(&pairs, &grad, 3.0, &mut alpha, &mut dir);
+            let want = textbook(&pairs, &grad, 3.0);
+            assert_eq!(
+                dir.iter().map(|d| d.to_bits()).collect::<Vec<_>>(),
+                want.iter().map(|d| d.to_bits()).collect::<Vec<_>>(),
+                "{m} pairs"
+            );
+        }
+        // One pair in two dimensions: H = (I - rho s y') gamma (I - rho y s') + rho s s'.
+        let (s, y, g) = ([1.0, 2.0], [3.0, 1.0], [0.5, -1.5]);
+        let rho = 1.0 / (s[0] * y[0] + s[1] * y[1]);
+        let gamma = (s[0] * y[0] + s[1] * y[1]) / (y[0] * y[0] + y[1] * y[1]);
+        let left = [
+            [1.0 - rho * s[0] * y[0], -rho * s[0] * y[1]],
+            [-rho * s[1] * y[0], 1.0 - rho * s[1] * y[1]],
+        ];
+        let h = |i: usize, j: usize| {
+            // (left gamma left')_ij + rho s_i s_j: the right factor is left's transpose.
+            gamma * (left[i][0] * left[j][0] + left[i][1] * left[j][1]) + rho * s[i] * s[j]
+        };
+        let one: Pairs = [(s.to_vec(), y.to_vec(), rho)].into_iter().collect();
+        let (mut alpha, mut dir) = ([0.0], [0.0; 2]);
+        two_loop(&one, &g, 1.0, &mut alpha, &mut dir);
+        for (i, d) in dir.iter().enumerate() {
+            let want = -(h(i, 0) * g[0] + h(i, 1) * g[1]);
+            assert!((d - want).abs() < 1e-14, "{i}: {d} against {want}");
         }
     }
 
