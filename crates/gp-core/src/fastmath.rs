@@ -303,11 +303,18 @@ impl Lanes for f64 {
     }
 }
 
-/// `v = s e^(-v / 2)` in place (RBF values from squared scaled distances), 4 lanes wide with
-/// AVX2 + FMA when the CPU has them (selected at run time), the same arithmetic otherwise.
+/// `v = s e^(-v / 2)` in place (RBF values from squared scaled distances), 8 lanes wide with
+/// AVX-512 or 4 with AVX2 + FMA when the CPU has them (selected at run time), the same
+/// arithmetic, so the same bits, otherwise.
 pub fn rbf_from_sq_dist_in_place(values: &mut [f64], s: f64) {
     #[cfg(target_arch = "x86_64")]
     {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU supports AVX-512F (checked just above; it implies AVX2 and FMA),
+            // the only requirement of a `#[target_feature]` function.
+            unsafe { rbf_avx512(values, s) };
+            return;
+        }
         if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
         {
             // SAFETY: the CPU supports AVX2 and FMA (checked just above), the only requirement
@@ -316,6 +323,20 @@ pub fn rbf_from_sq_dist_in_place(values: &mut [f64], s: f64) {
             return;
         }
     }
+    values
+        .iter_mut()
+        .for_each(|v| *v = s * exp_lanes(-0.5 * *v));
+}
+
+/// [`rbf_from_sq_dist_in_place`] compiled for AVX-512 (8 lanes; element-wise, so the same bits
+/// as every other build: 1275 values in 1.5 us against AVX2's 2.6, BENCHMARKS.md "gp-core",
+/// session 43).
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,fma")]
+unsafe fn rbf_avx512(values: &mut [f64], s: f64) {
     values
         .iter_mut()
         .for_each(|v| *v = s * exp_lanes(-0.5 * *v));
@@ -359,6 +380,34 @@ mod tests {
         for (a, b) in v.iter().zip(&want) {
             assert!((a - b).abs() <= 1e-15 * b.max(f64::MIN_POSITIVE) || *b < 1e-300);
         }
+    }
+
+    /// The RBF values have the same bits in every build (element-wise arithmetic without fused
+    /// multiply-adds, whatever the vector width), over the whole range of `exp_lanes`.
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn rbf_builds_agree_bitwise() {
+        let dist: Vec<f64> = (0..2000).map(|i| f64::from(i) * 0.7391 - 3.0).collect();
+        let portable: Vec<u64> = dist
+            .iter()
+            .map(|d| (1.7 * exp_lanes(-0.5 * d)).to_bits())
+            .collect();
+        let bits = |f: unsafe fn(&mut [f64], f64)| {
+            let mut v = dist.clone();
+            // SAFETY: each caller checks the CPU features of `f` first.
+            unsafe { f(&mut v, 1.7) };
+            v.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
+        };
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            assert_eq!(bits(rbf_avx512), portable, "AVX-512");
+        }
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            assert_eq!(bits(rbf_avx2), portable, "AVX2");
+        }
+        let mut v = dist.clone();
+        rbf_from_sq_dist_in_place(&mut v, 1.7);
+        assert_eq!(v.iter().map(|x| x.to_bits()).collect::<Vec<_>>(), portable);
     }
 
     /// The AVX2 dot product has `dot`'s bits for f64 and f32 values, at every length (all
