@@ -492,12 +492,21 @@ impl KernelParams {
         if dk.nrows() == x.nrows() && dk.ncols() == x.nrows() {
             check_finite(dk, "dF/dK")?;
             check_symmetric(dk, "dF/dK")?;
+            // Symmetric to the bit, as backprop_with_rbf needs: (dk + dk^T) / 2.
+            let n = dk.nrows();
+            let sym = Mat::from_fn(n, n, |i, j| 0.5 * (dk[(i, j)] + dk[(j, i)]));
+            return self.backprop_with_rbf(x, sym.as_ref(), k_rbf.as_ref(), true);
         }
-        self.backprop_with_rbf(x, dk, k_rbf.as_ref())
+        self.backprop_with_rbf(x, dk, k_rbf.as_ref(), true)
     }
 
     /// [`KernelParams::backprop`] given `K_rbf(X)` (from [`KernelParams::rbf_matrix`] or the
     /// off-diagonal of [`KernelParams::kernel_matrix`]), so no kernel value is computed twice.
+    /// `dk` and `k_rbf` must be symmetric to the bit (the objective mirrors its `dF/dK`;
+    /// `backprop` averages the caller's with its transpose): each pair's weight is read from
+    /// whichever triangle is contiguous. Without `length_scale` the length-scale gradient (a
+    /// sum over pairs per axis, ~5 % of an N = 51, q = 5 evaluation) is not computed and
+    /// reported as 0 (for optimisers that keep the length-scale fixed).
     /// Compiled for AVX-512 or AVX2 + FMA when the CPU has them (selected at run time): the
     /// same operations in the same order, so the same bits, 8 or 4 lanes wide instead of the
     /// baseline's 2 (it was a quarter of a default fit's time).
@@ -506,23 +515,24 @@ impl KernelParams {
         x: MatRef<'_, f64>,
         dk: MatRef<'_, f64>,
         k_rbf: MatRef<'_, f64>,
+        length_scale: bool,
     ) -> Result<KernelGradient> {
         #[cfg(target_arch = "x86_64")]
         {
             if std::arch::is_x86_feature_detected!("avx512f") {
                 // SAFETY: the CPU supports AVX-512F (checked just above; it implies AVX2 and
                 // FMA), the only requirement of a `#[target_feature]` function.
-                return unsafe { self.backprop_avx512(x, dk, k_rbf) };
+                return unsafe { self.backprop_avx512(x, dk, k_rbf, length_scale) };
             }
             if std::arch::is_x86_feature_detected!("avx2")
                 && std::arch::is_x86_feature_detected!("fma")
             {
                 // SAFETY: the CPU supports AVX2 and FMA (checked just above), the only
                 // requirement of a `#[target_feature]` function.
-                return unsafe { self.backprop_avx2(x, dk, k_rbf) };
+                return unsafe { self.backprop_avx2(x, dk, k_rbf, length_scale) };
             }
         }
-        self.backprop_body(x, dk, k_rbf)
+        self.backprop_body(x, dk, k_rbf, length_scale)
     }
 
     /// [`KernelParams::backprop_with_rbf`] compiled for AVX-512.
@@ -536,8 +546,9 @@ impl KernelParams {
         x: MatRef<'_, f64>,
         dk: MatRef<'_, f64>,
         k_rbf: MatRef<'_, f64>,
+        length_scale: bool,
     ) -> Result<KernelGradient> {
-        self.backprop_body(x, dk, k_rbf)
+        self.backprop_body(x, dk, k_rbf, length_scale)
     }
 
     /// [`KernelParams::backprop_with_rbf`] compiled for AVX2 + FMA.
@@ -551,8 +562,9 @@ impl KernelParams {
         x: MatRef<'_, f64>,
         dk: MatRef<'_, f64>,
         k_rbf: MatRef<'_, f64>,
+        length_scale: bool,
     ) -> Result<KernelGradient> {
-        self.backprop_body(x, dk, k_rbf)
+        self.backprop_body(x, dk, k_rbf, length_scale)
     }
 
     /// The arithmetic of [`KernelParams::backprop_with_rbf`] (no fused multiply-adds, so every
@@ -563,6 +575,7 @@ impl KernelParams {
         x: MatRef<'_, f64>,
         dk: MatRef<'_, f64>,
         k_rbf: MatRef<'_, f64>,
+        length_scale: bool,
     ) -> Result<KernelGradient> {
         let n = x.nrows();
         let q = x.ncols();
@@ -583,7 +596,8 @@ impl KernelParams {
                 1.0 / (l * l)
             })
             .collect();
-        // W[n][m] = sym(dF/dK)[n][m] K_rbf[n][m] off the diagonal. With row sums r = W 1 and
+        // W[n][m] = dF/dK[n][m] K_rbf[n][m] off the diagonal (dF/dK is symmetric to the bit:
+        // see backprop_with_rbf). With row sums r = W 1 and
         // the points centred (the kernel part is translation-invariant), the sum over pairs of
         // the latent gradient becomes a product with W X:
         //   dF/dx_n       = -2/l^2 (r_n x_n - (W X)_n)
@@ -592,25 +606,36 @@ impl KernelParams {
         // the product form 2/l_j^2 sum_n x_nj (r_n x_nj - (W X)_nj) rounds at eps |W| |x|^2,
         // which swamps it when a (near-)duplicate pair has a huge W (~1/mu^2) and d ~ 0 (a 25 %
         // error at mu = 1e-10, the wrong sign with two such pairs).
-        // W is symmetric and kept column-major in a Vec (plain slices in the hot loops).
+        // W is symmetric and kept column-major in a Vec (plain slices in the hot loops), built
+        // column by column (contiguous products; both triangles, so no strided mirror).
         let mut w = vec![0.0f64; n * n];
+        for (m, w_m) in w.chunks_exact_mut(n.max(1)).enumerate().take(n) {
+            let (dk_m, k_m) = (column(dk, m), column(k_rbf, m));
+            for ((o, a), b) in w_m.iter_mut().zip(dk_m.iter()).zip(k_m.iter()) {
+                *o = a * b;
+            }
+            w_m[m] = 0.0;
+        }
+        // r_n = sum_{m < n} W_nm + sum_{m > n} W_mn, each part summed in order of m (one
+        // chain per row, so the bits do not depend on the vector width): the first part from
+        // column m's lower triangle, the second from its upper one (W_mn = W_nm), every row's
+        // chain advancing with each column.
         let mut r = vec![0.0f64; n];
+        let mut below = vec![0.0f64; n];
+        for (m, w_m) in w.chunks_exact(n.max(1)).enumerate().take(n) {
+            for (ri, v) in r[m + 1..].iter_mut().zip(&w_m[m + 1..]) {
+                *ri += v;
+            }
+            for (bi, v) in below[..m].iter_mut().zip(&w_m[..m]) {
+                *bi += v;
+            }
+        }
+        // Diagonal: K_rbf[n,n] = s^2 contributes only to the amplitude.
         let mut d_log_s2 = 0.0;
         for m in 0..n {
-            let (dk_m, k_m) = (column(dk, m), column(k_rbf, m));
-            // Diagonal: K_rbf[n,n] = s^2 contributes only to the amplitude.
-            d_log_s2 += dk_m[m] * self.signal_variance;
-            // The column's sum in a register (one chain per column, not through memory).
-            let mut col_sum = 0.0;
-            for i in (m + 1)..n {
-                let v = 0.5 * (dk_m[i] + dk[(m, i)]) * k_m[i];
-                w[m * n + i] = v;
-                w[i * n + m] = v;
-                r[i] += v;
-                col_sum += v;
-            }
-            r[m] += col_sum;
-            d_log_s2 += 2.0 * col_sum;
+            r[m] += below[m];
+            d_log_s2 += column(dk, m)[m] * self.signal_variance;
+            d_log_s2 += 2.0 * below[m];
         }
         let mut gx = Mat::<f64>::zeros(n, q);
         let mut d_log_l_axis = vec![0.0f64; q];
@@ -630,6 +655,9 @@ impl KernelParams {
             for i in 0..n {
                 let t = r[i] * xc[i] - wx[i];
                 gx[(i, j)] = -2.0 * inv_l2[j] * t;
+            }
+            if !length_scale {
+                continue;
             }
             // Eight independent partial sums per column (one dependency chain would cost ~4
             // cycles per pair, more than the rest of the gradient).
@@ -805,10 +833,10 @@ mod tests {
         let dispatched = params.rbf_matrix(x.as_ref()).unwrap();
         assert_eq!(bits(dispatched.as_ref()), bits(portable.as_ref()));
         let want = params
-            .backprop_body(x.as_ref(), dk.as_ref(), portable.as_ref())
+            .backprop_body(x.as_ref(), dk.as_ref(), portable.as_ref(), true)
             .unwrap();
         let got = params
-            .backprop_with_rbf(x.as_ref(), dk.as_ref(), portable.as_ref())
+            .backprop_with_rbf(x.as_ref(), dk.as_ref(), portable.as_ref(), true)
             .unwrap();
         assert_eq!(bits(got.x.as_ref()), bits(want.x.as_ref()));
         let hyper = |h: &HyperGradient| {
@@ -908,7 +936,7 @@ mod tests {
         let x = Mat::from_fn(4, 2, |i, j| 0.3 * (i * 2 + j) as f64);
         let k = p.rbf_matrix(x.as_ref()).unwrap();
         let dk = Mat::from_fn(4, 4, |i, j| 1.0 / (1.0 + (i + j) as f64));
-        p.backprop_with_rbf(x.as_ref(), dk.as_ref(), k.as_ref())
+        p.backprop_with_rbf(x.as_ref(), dk.as_ref(), k.as_ref(), true)
             .unwrap();
         for (r, c) in [(4, 5), (5, 4), (4, 3), (3, 4)] {
             let bad = Mat::from_fn(r, c, |i, j| 1.0 / (1.0 + (i + j) as f64));
@@ -922,7 +950,7 @@ mod tests {
             for (dk, k) in [(bad.as_ref(), k.as_ref()), (dk.as_ref(), bad.as_ref())] {
                 assert!(
                     matches!(
-                        p.backprop_with_rbf(x.as_ref(), dk, k),
+                        p.backprop_with_rbf(x.as_ref(), dk, k, true),
                         Err(GpError::DimensionMismatch { .. })
                     ),
                     "{r} x {c}"

@@ -383,15 +383,19 @@ impl GplvmObjective {
         params: &KernelParams,
         par: Par,
     ) -> Result<GplvmEval> {
-        self.evaluate_impl(x, params, par, true)
+        self.evaluate_impl(x, params, par, true, true)
     }
 
+    /// [`evaluate`](Self::evaluate) with or without the condition estimate and the
+    /// length-scale gradient (0 when left out; the optimisers' inner loop needs neither
+    /// unless it learns the length-scale).
     fn evaluate_impl(
         &self,
         x: MatRef<'_, f64>,
         params: &KernelParams,
         par: Par,
         condition: bool,
+        length_scale: bool,
     ) -> Result<GplvmEval> {
         self.check_x(x)?;
         let n = self.n();
@@ -419,7 +423,7 @@ impl GplvmObjective {
             }
             let value = self.assemble(log_det, trace, x)?;
             // K's off-diagonal is K_rbf's (the noise sits on the diagonal only).
-            let g = params.backprop_with_rbf(x, w.dk.as_ref(), w.k.as_ref())?;
+            let g = params.backprop_with_rbf(x, w.dk.as_ref(), w.k.as_ref(), length_scale)?;
             let mut grad_x = g.x;
             if self.prior {
                 for j in 0..x.ncols() {
@@ -726,8 +730,11 @@ impl<'a> FlatGplvm<'a> {
         par: Par,
     ) -> Result<(f64, Vec<f64>)> {
         let (x, params) = self.unpack(theta)?;
-        // No condition estimate in the optimisers' inner loop (FlatGplvm::evaluate has it).
-        let e = self.obj.evaluate_impl(x.as_ref(), &params, par, false)?;
+        // No condition estimate in the optimisers' inner loop (FlatGplvm::evaluate has it),
+        // and the length-scale gradient only when it is learnt.
+        let e = self
+            .obj
+            .evaluate_impl(x.as_ref(), &params, par, false, self.learn.length_scale)?;
         let (n, q) = (self.obj.n(), self.q);
         let mut g = Vec::with_capacity(self.len());
         for i in 0..n {

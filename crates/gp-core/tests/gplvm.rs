@@ -874,6 +874,24 @@ fn partial_learn_masks_pack_and_differentiate() {
             for (i, gi) in g.iter().enumerate() {
                 assert_close(central_diff(&f, &theta, i), *gi, v.abs(), "flat gradient");
             }
+            // The optimisers' path (no condition estimate; the length-scale gradient only
+            // when learnt) has the full evaluation's bits.
+            let full = flat.evaluate(&theta, Par::Seq).unwrap();
+            let mut want: Vec<f64> = (0..n)
+                .flat_map(|i| (0..q).map(move |j| (i, j)))
+                .map(|(i, j)| -full.grad_x[(i, j)])
+                .collect();
+            let h = &full.grad_hyper_log;
+            if learn.signal_variance {
+                want.push(-h.signal_variance);
+            }
+            if learn.length_scale {
+                want.extend(h.length_scale.iter().map(|v| -v));
+            }
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            let learnt = if learn.noise { g.len() - 1 } else { g.len() };
+            assert_eq!(bits(&g[..learnt]), bits(&want), "{learn:?}");
+            assert_eq!(v.to_bits(), (-full.value).to_bits());
             if learn.noise && floor > 0.0 {
                 // The floor holds for any theta; a noise that reached it (as unpacked) packs
                 // and unpacks to itself (a warm start from a fit that ran into the floor: an
