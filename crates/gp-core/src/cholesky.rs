@@ -301,11 +301,7 @@ impl CholeskyFactor {
         let mut mem = MemBuffer::new(llt::inverse::inverse_scratch::<f64>(n, self.par));
         let stack = MemStack::new(&mut mem);
         llt::inverse::inverse(out.as_mut(), self.l.as_ref(), self.par, stack);
-        for j in 0..n {
-            for i in 0..j {
-                out[(i, j)] = out[(j, i)];
-            }
-        }
+        crate::gram::mirror_lower(&mut out);
         out
     }
 }
@@ -376,11 +372,7 @@ impl FactorWork {
         out.resize_with(n, n, |_, _| 0.0);
         let stack = MemStack::new(&mut self.mem);
         llt::inverse::inverse(out.as_mut(), l, par, stack);
-        for j in 0..n {
-            for i in 0..j {
-                out[(i, j)] = out[(j, i)];
-            }
-        }
+        crate::gram::mirror_lower(out);
     }
 }
 

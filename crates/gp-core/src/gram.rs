@@ -77,6 +77,20 @@ pub fn all_but(n: usize, h: usize) -> Vec<usize> {
     (0..n).filter(|&i| i != h).collect()
 }
 
+/// Copies the lower triangle of square `m` into its strict upper triangle (row `j` of the
+/// lower part into column `j` of the upper one).
+pub(crate) fn mirror_lower(m: &mut Mat<f64>) {
+    let n = m.nrows();
+    for j in 1..n {
+        let (left, mut right) = m.as_mut().split_at_col_mut(j);
+        right
+            .as_mut()
+            .col_mut(0)
+            .subrows_mut(0, j)
+            .copy_from(left.as_ref().row(j).transpose());
+    }
+}
+
 /// Copies the lower triangle's average with the upper one into both (exact symmetry).
 pub(crate) fn symmetrise(m: &mut Mat<f64>) {
     let n = m.nrows();
@@ -94,6 +108,22 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+
+    /// The strict upper triangle becomes the lower one's transpose; the lower triangle and the
+    /// diagonal keep their values (every order from empty to a few columns).
+    #[test]
+    fn mirror_lower_copies_the_lower_triangle_up() {
+        for n in 0..6 {
+            let lower = |i: usize, j: usize| (10 * i + j) as f64;
+            let mut m = Mat::from_fn(n, n, |i, j| if i >= j { lower(i, j) } else { -1.0 });
+            mirror_lower(&mut m);
+            for j in 0..n {
+                for i in 0..n {
+                    assert_eq!(m[(i, j)], lower(i.max(j), i.min(j)), "{n}: ({i}, {j})");
+                }
+            }
+        }
+    }
 
     #[test]
     fn centring_matches_centred_data_and_subset() {

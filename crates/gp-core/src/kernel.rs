@@ -426,10 +426,8 @@ impl KernelParams {
         }
         for j in 0..n {
             out[(j, j)] = s2 + diagonal;
-            for i in 0..j {
-                out[(i, j)] = out[(j, i)];
-            }
         }
+        crate::gram::mirror_lower(out);
     }
 
     /// Cross-covariance `K_*[i, m] = k_rbf(x_i, x*_m)`, `N x M`, for training points `X` (`N x q`)

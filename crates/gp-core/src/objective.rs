@@ -414,13 +414,14 @@ impl GplvmObjective {
             );
             let trace: f64 = (0..n).map(|i| w.b[(i, i)]).sum();
             let half_d = 0.5 * self.d as f64;
+            // dL/dK's lower triangle column by column (contiguous), then mirrored row by row.
             for j in 0..n {
-                for i in j..n {
-                    let v = w.dk[(i, j)] - half_d * w.kinv[(i, j)];
-                    w.dk[(i, j)] = v;
-                    w.dk[(j, i)] = v;
+                let kinv_j = &w.kinv.col_as_slice(j)[j..];
+                for (v, k) in w.dk.col_as_slice_mut(j)[j..].iter_mut().zip(kinv_j) {
+                    *v -= half_d * k;
                 }
             }
+            crate::gram::mirror_lower(&mut w.dk);
             let value = self.assemble(log_det, trace, x)?;
             // K's off-diagonal is K_rbf's (the noise sits on the diagonal only).
             let g = params.backprop_with_rbf(x, w.dk.as_ref(), w.k.as_ref(), length_scale)?;
