@@ -410,6 +410,18 @@ mod tests {
         assert_eq!(v.iter().map(|x| x.to_bits()).collect::<Vec<_>>(), portable);
     }
 
+    /// Xorshift values of both signs over twelve decades (where the order of additions shows).
+    fn mixed_values(seed: u64) -> impl FnMut() -> f64 {
+        let mut state = seed;
+        move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            let u = (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+            u * 10f64.powi((state % 13) as i32 - 6)
+        }
+    }
+
     /// The AVX2 dot product has `dot`'s bits for f64 and f32 values, at every length (all
     /// remainders) and with values of mixed signs and magnitudes (where the order of additions
     /// shows).
@@ -421,14 +433,7 @@ mod tests {
         {
             return;
         }
-        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            let u = (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
-            u * 10f64.powi((state % 13) as i32 - 6)
-        };
+        let mut next = mixed_values(0x9e37_79b9_7f4a_7c15);
         for len in 0..70 {
             let a: Vec<f64> = (0..len).map(|_| next()).collect();
             let b: Vec<f64> = (0..len).map(|_| next()).collect();
@@ -481,14 +486,7 @@ mod tests {
     /// `axpy_then_dot_wide` against the update and `dot_wide` in two steps.
     #[test]
     fn wide_dot_sums_in_its_documented_order_on_every_build() {
-        let mut state = 0x2545_f491_4f6c_dd1d_u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            let u = (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
-            u * 10f64.powi((state % 13) as i32 - 6)
-        };
+        let mut next = mixed_values(0x2545_f491_4f6c_dd1d);
         for len in (0..140).chain([255, 256, 257, 1000]) {
             let a: Vec<f64> = (0..len).map(|_| next()).collect();
             let b: Vec<f64> = (0..len).map(|_| next()).collect();

@@ -644,18 +644,23 @@ pub fn lbfgs(
 mod tests {
     use super::*;
 
+    /// Xorshift values uniform in [-0.5, 0.5).
+    fn uniform(seed: u64) -> impl FnMut() -> f64 {
+        let mut state = seed;
+        move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        }
+    }
+
     /// The two-loop recursion has the same bits in every build the CPU has (fits must not
     /// depend on the vector width).
     #[test]
     fn two_loop_builds_agree_bitwise() {
         let n = 255;
-        let mut s = 0x2545_f491_4f6c_dd1d_u64;
-        let mut next = move || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = uniform(0x2545_f491_4f6c_dd1d);
         let mut pairs = Pairs::new();
         for _ in 0..7 {
             let (sv, yv): (Vec<f64>, Vec<f64>) = (0..n).map(|_| (next(), next())).unzip();
@@ -710,13 +715,7 @@ mod tests {
             dir.iter().map(|d| -d).collect()
         }
         let n = 70;
-        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = uniform(0x9e37_79b9_7f4a_7c15);
         let grad: Vec<f64> = (0..n).map(|_| next()).collect();
         let mut pairs = Pairs::new();
         for m in 0..8 {
