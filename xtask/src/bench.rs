@@ -597,6 +597,81 @@ mod tests {
         assert_eq!(front, [true, true, false, true, true, false]);
     }
 
+    /// Every swept value other than the base's is a point that differs from the base in its
+    /// own setting only, set to that value, in the sweeps' order: the repository's sweep has
+    /// 12 points (the base and 11 others).
+    #[test]
+    fn each_sweep_point_changes_only_its_own_setting() {
+        let c = BenchConfig::load(&crate::project_root().join("configs/bench.toml")).unwrap();
+        let pts = c.points();
+        let b = &c.base;
+        let field = |s: &Settings, axis: &str| match axis {
+            "grid" => s.grid.clone(),
+            "wavelengths" => s.wavelengths.clone(),
+            "dtype" => s.dtype.clone(),
+            "latent_dim" => s.latent_dim.to_string(),
+            "transform" => s.transform.clone(),
+            "optimizer" => s.optimizer.clone(),
+            "predictor" => s.predictor.clone(),
+            other => panic!("unknown sweep {other}"),
+        };
+        let axes = [
+            "grid",
+            "wavelengths",
+            "dtype",
+            "latent_dim",
+            "transform",
+            "optimizer",
+            "predictor",
+        ];
+        for (axis, value, s) in &pts[1..] {
+            assert_eq!(&field(s, axis), value, "{axis}");
+            assert_ne!(field(b, axis), *value, "{axis}");
+            for other in axes.iter().filter(|a| *a != axis) {
+                assert_eq!(
+                    field(s, other),
+                    field(b, other),
+                    "{axis} = {value}: {other}"
+                );
+            }
+        }
+        let want: Vec<(&str, &str)> = vec![
+            ("base", "-"),
+            ("grid", "4,4,8"),
+            ("grid", "16,16,32"),
+            ("wavelengths", "400:700:100"),
+            ("wavelengths", "380:780:20"),
+            ("dtype", "f16"),
+            ("latent_dim", "1"),
+            ("latent_dim", "3"),
+            ("latent_dim", "5"),
+            ("transform", "raw"),
+            ("optimizer", "hooke-jeeves"),
+            ("predictor", "smooth"),
+        ];
+        let got: Vec<(&str, &str)> = pts
+            .iter()
+            .map(|(a, v, _)| (a.as_str(), v.as_str()))
+            .collect();
+        assert_eq!(got, want);
+    }
+
+    /// The sphere size is only checked when Delta E spheres are asked for: with
+    /// `delta_e_materials = 0` a size of 0 loads.
+    #[test]
+    fn sphere_size_is_free_without_delta_e_spheres() {
+        let path = crate::project_root().join("configs/bench.toml");
+        let text = std::fs::read_to_string(&path)
+            .unwrap()
+            .replace("delta_e_materials = 3", "delta_e_materials = 0")
+            .replace("sphere_size = 48", "sphere_size = 0");
+        let dir = tempfile::tempdir().unwrap();
+        let off = dir.path().join("bench.toml");
+        std::fs::write(&off, text).unwrap();
+        let c = BenchConfig::load(&off).unwrap();
+        assert_eq!((c.delta_e_materials, c.sphere_size), (0, 0));
+    }
+
     #[test]
     fn bench_config_in_the_repository_validates_and_dedupes_the_base() {
         let path = crate::project_root().join("configs/bench.toml");
