@@ -656,6 +656,25 @@ mod tests {
         assert_eq!(got, want);
     }
 
+    /// A point's fit runs with its own latent dimension, optimiser and transform and the
+    /// bench's caps (every point of the repository's sweep; Hooke-Jeeves and raw values are
+    /// swept, not the base).
+    #[test]
+    fn fit_params_carry_each_points_settings() {
+        let c = BenchConfig::load(&crate::project_root().join("configs/bench.toml")).unwrap();
+        let mut seen = (false, false);
+        for (axis, value, s) in c.points() {
+            let p = s.fit_params(7, 11);
+            assert_eq!(p.latent_dim, s.latent_dim, "{axis} = {value}");
+            assert_eq!(p.optimizer.to_string(), s.optimizer, "{axis} = {value}");
+            assert_eq!(p.transform, s.transform, "{axis} = {value}");
+            assert_eq!((p.max_iterations, p.max_evaluations), (7, 11));
+            seen.0 |= p.optimizer == OptimizerKind::HookeJeeves;
+            seen.1 |= p.transform == "raw";
+        }
+        assert_eq!(seen, (true, true));
+    }
+
     /// The sphere size is only checked when Delta E spheres are asked for: with
     /// `delta_e_materials = 0` a size of 0 loads.
     #[test]
