@@ -910,8 +910,10 @@ fn render_env_studio_lights_the_figures() {
 
 /// `cargo xtask bench` publishes bench.json, bench.md and bench.png together: into a new nested
 /// output directory that appears only when the run succeeds (no scratch or staging directory
-/// left), replacing an earlier run's set; an output path under a file is refused and creates
-/// nothing.
+/// left), replacing an earlier run's set and keeping the user's other files; an output path
+/// under a file is refused and creates nothing. Its rows measure what their settings say: the
+/// exact predictor reconstructs the training materials (to the log transform's round trip),
+/// the smooth one does not, and no Delta E without spheres.
 #[test]
 fn bench_outputs_are_published_as_a_set() {
     let dir = tempfile::tempdir().unwrap();
@@ -921,22 +923,39 @@ fn bench_outputs_are_published_as_a_set() {
         "max_iterations = 30\nmax_evaluations = 300\ndelta_e_materials = 0\nsphere_size = 16\n\
          [base]\ngrid = \"4,4,8\"\nwavelengths = \"400:700:100\"\ndtype = \"f32\"\n\
          latent_dim = 2\ntransform = \"log\"\noptimizer = \"lbfgs\"\npredictor = \"exact\"\n\
-         [sweep]\nlatent_dim = [1]\n",
+         [sweep]\nlatent_dim = [1]\npredictor = [\"smooth\"]\n",
     )
     .unwrap();
     let config = xtask::bench::BenchConfig::load(&config_path).unwrap();
     let out = dir.path().join("new").join("bench");
     let rows = xtask::bench::run(&config, &config_path, &out).unwrap();
-    assert_eq!(rows.len(), 2);
+    assert_eq!(rows.len(), 3);
     assert_eq!(entries(dir.path()), ["new", "tiny.toml"]);
     assert_eq!(entries(&out), ["bench.json", "bench.md", "bench.png"]);
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("bench.json")).unwrap()).unwrap();
-    assert_eq!(json.as_array().unwrap().len(), 2);
-    // Again into the existing directory, over an earlier set: replaced, nothing added.
+    assert_eq!(json.as_array().unwrap().len(), 3);
+    for row in &rows {
+        let exact = row.settings.predictor == "exact";
+        assert!(
+            (row.reconstruction_rmse < 1e-9) == exact && row.reconstruction_rmse >= 0.0,
+            "{} = {}: reconstruction {}",
+            row.sweep,
+            row.value,
+            row.reconstruction_rmse
+        );
+        assert!(row.loo_rmse > row.reconstruction_rmse, "{}", row.loo_rmse);
+        assert!(row.delta_e.is_nan(), "{}", row.delta_e);
+    }
+    // Again into the existing directory, over an earlier set: replaced, nothing added, the
+    // user's own file kept.
     std::fs::write(out.join("bench.md"), "an earlier run").unwrap();
+    std::fs::write(out.join("notes.txt"), "mine").unwrap();
     xtask::bench::run(&config, &config_path, &out).unwrap();
-    assert_eq!(entries(&out), ["bench.json", "bench.md", "bench.png"]);
+    assert_eq!(
+        entries(&out),
+        ["bench.json", "bench.md", "bench.png", "notes.txt"]
+    );
     assert_ne!(
         std::fs::read_to_string(out.join("bench.md")).unwrap(),
         "an earlier run"
