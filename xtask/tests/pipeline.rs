@@ -945,6 +945,8 @@ fn bench_outputs_are_published_as_a_set() {
             row.reconstruction_rmse
         );
         assert!(row.loo_rmse > row.reconstruction_rmse, "{}", row.loo_rmse);
+        let per_channel = row.loo_rmse / (row.n_channels as f64).sqrt();
+        assert_eq!(row.loo_rmse_per_channel, per_channel);
         assert!(row.delta_e.is_nan(), "{}", row.delta_e);
     }
     // Again into the existing directory, over an earlier set: replaced, nothing added, the
