@@ -675,6 +675,67 @@ mod tests {
         assert_eq!(seen, (true, true));
     }
 
+    /// `delta_e_of` averages, over `k` materials spread through the set (`j N / k`), the Delta
+    /// E between each stored sphere and its smooth reconstruction at the requested size
+    /// (checked against the spheres rendered here), and clamps `k` to 1..=N.
+    #[test]
+    fn delta_e_averages_the_chosen_materials_spheres() {
+        let dir = tempfile::tempdir().unwrap();
+        let store_path = dir.path().join("data.sbrdf");
+        let dc = DataConfig {
+            source: DataSource::Synth {
+                channels: Channels::parse_wavelengths("400:700:100").unwrap(),
+                seed: 0,
+                only: None,
+            },
+            grid: "4,4,8".parse().unwrap(),
+            dtype: Dtype::F32,
+        };
+        crate::data::build_store(&dc, &store_path).unwrap();
+        let fit = FitParams {
+            latent_dim: 2,
+            max_iterations: 30,
+            ..FitParams::default()
+        }
+        .check()
+        .unwrap();
+        let model_path = dir.path().join("model.toml");
+        gplvm::fit_store(&store_path, &fit)
+            .unwrap()
+            .save(&model_path)
+            .unwrap();
+        let pred = Predictor::open(&model_path).unwrap();
+        let n = pred.model().materials.len();
+        let opts = render::SphereOptions {
+            size: 20,
+            ..render::SphereOptions::default()
+        };
+        let sphere_delta_e = |i: usize| {
+            let stored = brdf_io::store::StoreMaterial::by_index(pred.store().clone(), i).unwrap();
+            let rec = pred
+                .predict(&pred.model().materials[i].coords, PredictorKind::Smooth)
+                .unwrap();
+            crate::figures::mean_delta_e(
+                &render::render_sphere(&stored, &opts).unwrap(),
+                &render::render_sphere(&rec, &opts).unwrap(),
+            )
+        };
+        let want3 = (sphere_delta_e(0) + sphere_delta_e(n / 3) + sphere_delta_e(2 * n / 3)) / 3.0;
+        let got3 = delta_e_of(&pred, 3, 20).unwrap();
+        assert!(
+            (got3 - want3).abs() <= 1e-12 * want3,
+            "{got3} against {want3}"
+        );
+        assert!(got3 > 0.0);
+        assert_eq!(delta_e_of(&pred, 0, 20).unwrap(), sphere_delta_e(0));
+        let all: f64 = (0..n).map(sphere_delta_e).sum::<f64>() / n as f64;
+        let got_all = delta_e_of(&pred, n + 5, 20).unwrap();
+        assert!(
+            (got_all - all).abs() <= 1e-12 * all,
+            "{got_all} against {all}"
+        );
+    }
+
     /// The sphere size is only checked when Delta E spheres are asked for: with
     /// `delta_e_materials = 0` a size of 0 loads.
     #[test]
