@@ -591,10 +591,12 @@ mod tests {
             row(4.0, 1.0),      // front: most accurate
             row(4.0, 1.0),      // a tie is not dominated
             row(5.0, f64::NAN), // no error: never on the front
+            row(1.0, 6.0),      // as fast as (1, 5), worse: dominated
+            row(2.5, 3.0),      // as accurate as (2, 3), slower: dominated
         ];
         mark_pareto(&mut rows);
         let front: Vec<bool> = rows.iter().map(|r| r.pareto).collect();
-        assert_eq!(front, [true, true, false, true, true, false]);
+        assert_eq!(front, [true, true, false, true, true, false, false, false]);
     }
 
     /// Every swept value other than the base's is a point that differs from the base in its

@@ -935,6 +935,14 @@ fn bench_outputs_are_published_as_a_set() {
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("bench.json")).unwrap()).unwrap();
     assert_eq!(json.as_array().unwrap().len(), 3);
+    let md = std::fs::read_to_string(out.join("bench.md")).unwrap();
+    for point in [
+        "| base | - |",
+        "| latent_dim | 1 |",
+        "| predictor | smooth |",
+    ] {
+        assert!(md.contains(point), "{point} in {md}");
+    }
     for row in &rows {
         let exact = row.settings.predictor == "exact";
         assert!(
