@@ -106,6 +106,7 @@ fn quick_pipeline_report_matches_the_model_and_data() {
     let preds = json["predictions"].as_array().unwrap();
     assert_eq!(preds.len(), 2);
     let pred = predict::Predictor::open(&dir.path().join("model.toml")).unwrap();
+    let mut midpoints_checked = 0;
     for p in preds {
         assert!(finite(&p["variance"]) > 0.0 || p["label"] != "point 1");
         // The variance is that of the predictor the row used, per transformed value.
@@ -151,6 +152,19 @@ fn quick_pipeline_report_matches_the_model_and_data() {
         let check = finite(&b["check_rms"]);
         assert!(check > 0.0 && check < 0.05, "{b}");
         let file = brdf_io::rgl::RglBsdf::open(&path).unwrap();
+        let label = p["label"].as_str().unwrap();
+        assert_eq!(file.description(), format!("specgp prediction: {label}"));
+        if label == "mid(metal_gold, metal_copper)" {
+            // The midpoint is halfway between the two named materials' latent points.
+            let at = |name: &str| {
+                let m = pred.model().materials.iter().find(|m| m.name == name);
+                m.unwrap().coords.clone()
+            };
+            let (a, b) = (at("metal_gold"), at("metal_copper"));
+            let mid: Vec<f64> = a.iter().zip(&b).map(|(p, q)| 0.5 * (p + q)).collect();
+            assert_eq!(x, mid);
+            midpoints_checked += 1;
+        }
         let lazy = pred.predict(&x, kind).unwrap();
         let (wi, wo) = ([0.3, 0.1, 0.949], [-0.5, 0.2, 0.843]);
         let (mut f, mut g) = (vec![0.0; 7], vec![0.0; 7]);
@@ -160,6 +174,7 @@ fn quick_pipeline_report_matches_the_model_and_data() {
             assert!((a - b).abs() <= 0.1 * b.abs() + 1e-9, "{f:?} {g:?}");
         }
     }
+    assert_eq!(midpoints_checked, 1);
     assert!(
         report.contains("The predictions as RGL `.bsdf` files"),
         "{report}"
