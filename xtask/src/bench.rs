@@ -547,10 +547,11 @@ fn markdown(rows: &[BenchRow], config_path: &Path) -> String {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn row(t: f64, e: f64) -> BenchRow {
+    /// A row of fit time `t` and leave-one-out error `e` (per channel too), off the front.
+    pub(crate) fn row(t: f64, e: f64) -> BenchRow {
         BenchRow {
             sweep: "s".into(),
             value: "v".into(),

@@ -19,6 +19,8 @@ const BOTTOM: f64 = 60.0;
 const BG: [f64; 3] = [1.0, 1.0, 1.0];
 const INK: [f64; 3] = [0.05, 0.05, 0.05];
 const GRID: [f64; 3] = [0.85, 0.85, 0.85];
+/// The Pareto front's line and rings.
+const FRONT: [f64; 3] = [0.9, 0.3, 0.3];
 
 const PALETTE: [[f64; 3]; 8] = [
     [0.0, 0.0, 0.0],
@@ -69,9 +71,26 @@ fn decades(v: impl Iterator<Item = f64>) -> (f64, f64) {
 
 /// Draws `rows` into the PNG `path`.
 pub fn pareto_plot(rows: &[BenchRow], path: &Path) -> Result<()> {
+    draw(rows)
+        .save_png(path)
+        .map_err(|e| Error::stage("bench", path, e))
+}
+
+/// Whether `row` has a point in the plot: a finite, positive fit time and per-channel
+/// leave-one-out error (a failed evaluation's NaN has none).
+fn is_plotted(row: &BenchRow) -> bool {
+    let usable = |v: f64| v.is_finite() && v > 0.0;
+    usable(row.fit_seconds) && usable(row.loo_rmse_per_channel)
+}
+
+/// The plot of `rows`: log-log axes over the decades the plotted rows' fit times and
+/// per-channel leave-one-out errors span, a disc per plotted row in its sweep's colour, labelled
+/// with its value, the Pareto front joined and ringed, and a legend of every sweep.
+fn draw(rows: &[BenchRow]) -> Image {
     let mut img = Image::new(W, H, BG);
-    let (x0, x1) = decades(rows.iter().map(|r| r.fit_seconds));
-    let (y0, y1) = decades(rows.iter().map(|r| r.loo_rmse_per_channel));
+    let plotted = || rows.iter().filter(|r| is_plotted(r));
+    let (x0, x1) = decades(plotted().map(|r| r.fit_seconds));
+    let (y0, y1) = decades(plotted().map(|r| r.loo_rmse_per_channel));
     let pw = W as f64 - LEFT - RIGHT;
     let ph = H as f64 - TOP - BOTTOM;
     let px = |v: f64| LEFT + (v.log10() - x0) / (x1 - x0) * pw;
@@ -122,7 +141,7 @@ pub fn pareto_plot(rows: &[BenchRow], path: &Path) -> Result<()> {
         |s: &str| PALETTE[sweeps.iter().position(|x| *x == s).unwrap_or(0) % PALETTE.len()];
 
     // Pareto front, by fit time.
-    let mut front: Vec<&BenchRow> = rows.iter().filter(|r| r.pareto).collect();
+    let mut front: Vec<&BenchRow> = plotted().filter(|r| r.pareto).collect();
     front.sort_by(|a, b| a.fit_seconds.total_cmp(&b.fit_seconds));
     for w in front.windows(2) {
         line(
@@ -130,17 +149,14 @@ pub fn pareto_plot(rows: &[BenchRow], path: &Path) -> Result<()> {
             (px(w[0].fit_seconds), py(w[0].loo_rmse_per_channel)),
             (px(w[1].fit_seconds), py(w[1].loo_rmse_per_channel)),
             1.5,
-            [0.9, 0.3, 0.3],
+            FRONT,
         );
     }
-    for r in rows {
-        if !(r.fit_seconds > 0.0 && r.loo_rmse_per_channel > 0.0) {
-            continue;
-        }
+    for r in plotted() {
         let c = (px(r.fit_seconds), py(r.loo_rmse_per_channel));
         img.disc(c.0, c.1, 4.0, colour(&r.sweep));
         if r.pareto {
-            ring(&mut img, c, 8.0, [0.9, 0.3, 0.3]);
+            ring(&mut img, c, 8.0, FRONT);
         }
         let label = if r.sweep == "base" {
             "base".to_string()
@@ -158,14 +174,136 @@ pub fn pareto_plot(rows: &[BenchRow], path: &Path) -> Result<()> {
         img.text(lx + 14, y, s, 1, INK);
     }
     let y = TOP as i64 + 10 + 18 * sweeps.len() as i64 + 8;
-    ring(
-        &mut img,
-        (lx as f64 + 4.0, y as f64 + 3.0),
-        7.0,
-        [0.9, 0.3, 0.3],
-    );
+    ring(&mut img, (lx as f64 + 4.0, y as f64 + 3.0), 7.0, FRONT);
     img.text(lx + 14, y, "Pareto front", 1, INK);
+    img
+}
 
-    img.save_png(path)
-        .map_err(|e| Error::stage("bench", path, e))
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bench::tests::row;
+
+    /// A plotted row of sweep `sweep` at fit time `t` and per-channel error `e`.
+    fn point(sweep: &str, value: &str, t: f64, e: f64, pareto: bool) -> BenchRow {
+        BenchRow {
+            sweep: sweep.into(),
+            value: value.into(),
+            pareto,
+            ..row(t, e)
+        }
+    }
+
+    /// The pixel holding image position (x, y).
+    fn at(img: &Image, (x, y): (f64, f64)) -> [f64; 3] {
+        img.get(x.floor() as usize, y.floor() as usize)
+    }
+
+    fn near(a: [f64; 3], b: [f64; 3], tol: f64) -> bool {
+        a.iter().zip(&b).all(|(u, v)| (u - v).abs() <= tol)
+    }
+
+    #[test]
+    fn decades_cover_the_positive_finite_values_with_whole_powers_of_ten() {
+        assert_eq!(decades([0.03, 20.0].into_iter()), (-2.0, 2.0));
+        assert_eq!(decades([0.2, 5.0].into_iter()), (-1.0, 1.0));
+        // One value, or an exact power of ten, still spans one decade.
+        assert_eq!(decades([5.0].into_iter()), (0.0, 1.0));
+        assert_eq!(decades([10.0, 10.0].into_iter()), (1.0, 2.0));
+        assert_eq!(decades([0.01].into_iter()), (-2.0, -1.0));
+        // Zero, negative and non-finite values are ignored; none at all gives [1, 10].
+        assert_eq!(
+            decades([0.0, -3.0, f64::NAN, f64::INFINITY, 0.5].into_iter()),
+            (-1.0, 0.0)
+        );
+        assert_eq!(decades([0.0, f64::NAN].into_iter()), (0.0, 1.0));
+        assert_eq!(decades(std::iter::empty()), (0.0, 1.0));
+    }
+
+    /// Points sit where their values say on log-log axes (here x over 0.1-10 s, y over
+    /// 1e-3-1e-1), in their sweep's colour; the front is ringed and joined, other points not.
+    #[test]
+    fn points_front_axes_and_legend_are_where_the_values_put_them() {
+        let rows = [
+            point("base", "b", 0.2, 0.02, true),
+            point("grid", "8,8,16", 2.0, 0.005, true),
+            point("grid", "4,4,8", 5.0, 0.05, false),
+            // Not plotted (no fit time; a NaN error): listed in the legend, and neither moves
+            // the axes (0.0005 would widen y to 1e-4).
+            point("dtype", "f16", 0.0, 0.0005, true),
+            point("optimizer", "hj", 0.5, f64::NAN, false),
+        ];
+        let img = draw(&rows);
+        assert_eq!((img.width, img.height), (W, H));
+        let (pw, ph) = (W as f64 - LEFT - RIGHT, H as f64 - TOP - BOTTOM);
+        // x: decades -1..1; y: decades -3..-1.
+        let pos = |t: f64, e: f64| {
+            (
+                LEFT + (t.log10() + 1.0) / 2.0 * pw,
+                TOP + ph - (e.log10() + 3.0) / 2.0 * ph,
+            )
+        };
+        let (a, b, c) = (pos(0.2, 0.02), pos(2.0, 0.005), pos(5.0, 0.05));
+        // Discs in the colour of their sweep, in order of first appearance.
+        assert_eq!(at(&img, a), PALETTE[0]);
+        assert_eq!(at(&img, b), PALETTE[1]);
+        assert_eq!(at(&img, c), PALETTE[1]);
+        // Front points are ringed (radius 8), the other is not.
+        for p in [a, b] {
+            assert!(near(at(&img, (p.0 + 8.0, p.1)), FRONT, 0.1), "{p:?}");
+            assert!(near(at(&img, (p.0, p.1 - 8.0)), FRONT, 0.1), "{p:?}");
+        }
+        assert_eq!(at(&img, (c.0 + 8.0, c.1)), BG);
+        assert_eq!(at(&img, (c.0, c.1 - 8.0)), BG);
+        // The front is joined from a to b; nothing joins a to c.
+        let mid = |p: (f64, f64), q: (f64, f64)| ((p.0 + q.0) / 2.0, (p.1 + q.1) / 2.0);
+        assert!(near(at(&img, mid(a, b)), FRONT, 0.02));
+        let ac = at(&img, mid(a, c));
+        assert!(!near(ac, FRONT, 0.3), "{ac:?}");
+        // Labels: the swept value right of and below the point, in the sweep's colour ("base"
+        // for the base point, whose value is not shown).
+        let label_has = |p: (f64, f64), chars: usize, rgb: [f64; 3]| {
+            let (x0, y0) = (p.0 as usize + 7, p.1 as usize + 4);
+            (y0..y0 + 7).any(|y| (x0..x0 + 6 * chars).any(|x| img.get(x, y) == rgb))
+        };
+        assert!(label_has(b, 6, PALETTE[1]));
+        assert!(label_has(a, 4, PALETTE[0]));
+        // Decade grid lines at x = 1 s and y = 1e-2, the axes along the left and bottom;
+        // plain background between them.
+        let grid_x = LEFT + pw / 2.0;
+        let grid_y = TOP + ph / 2.0;
+        for p in [(grid_x, TOP + ph * 0.8), (LEFT + pw * 0.8, grid_y)] {
+            let v = at(&img, p);
+            assert!(v[0] < 0.95 && v[0] > 0.5, "grid line at {p:?}: {v:?}");
+        }
+        assert_eq!(at(&img, (grid_x + pw / 8.0, TOP + ph * 0.8)), BG);
+        for p in [(LEFT, TOP + ph * 0.3), (LEFT + pw * 0.3, TOP + ph)] {
+            let v = at(&img, p);
+            assert!(v[0] < 0.3, "axis at {p:?}: {v:?}");
+        }
+        // Legend right of the plot: one disc per sweep (the unplotted ones too), then the
+        // front's ring.
+        let lx = LEFT + pw + 20.0 + 4.0;
+        for (i, rgb) in PALETTE[..4].iter().enumerate() {
+            let y = TOP + 10.0 + 18.0 * i as f64 + 3.0;
+            assert_eq!(at(&img, (lx, y)), *rgb, "legend entry {i}");
+        }
+        let ring_y = TOP + 10.0 + 18.0 * 4.0 + 8.0 + 3.0;
+        assert!(near(at(&img, (lx + 7.0, ring_y)), FRONT, 0.1));
+        assert_eq!(at(&img, (lx, TOP + 10.0 + 18.0 * 6.0 + 3.0)), BG);
+    }
+
+    #[test]
+    fn the_plot_is_written_as_png_and_a_bad_path_is_an_error_naming_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let rows = [point("base", "b", 0.2, 0.02, true)];
+        let path = dir.path().join("bench.png");
+        pareto_plot(&rows, &path).unwrap();
+        let (w, h, bytes) = render::image::read_png_rgba8(&path).unwrap();
+        assert_eq!((w, h), (W, H));
+        assert_eq!(bytes, draw(&rows).to_rgba8());
+        let bad = dir.path().join("missing").join("bench.png");
+        let e = pareto_plot(&rows, &bad).unwrap_err().to_string();
+        assert!(e.contains("missing/bench.png"), "{e}");
+    }
 }
