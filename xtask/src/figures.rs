@@ -461,3 +461,41 @@ pub fn render_figures(
         seconds_per_sphere: start.elapsed().as_secs_f64() / spheres.max(1) as f64,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Delta E averages over the pixels both images cover fully (alpha >= 0.99), pixel by
+    /// pixel; nothing in common is NaN, not 0.
+    #[test]
+    fn mean_delta_e_averages_over_the_pixels_both_cover() {
+        let (grey, red, blue) = ([0.2, 0.2, 0.2], [0.5, 0.1, 0.1], [0.1, 0.1, 0.6]);
+        let mut a = Image::new(4, 1, grey);
+        let mut b = Image::new(4, 1, grey);
+        a.rgb[1] = red;
+        b.rgb[1] = blue;
+        a.rgb[2] = blue;
+        b.rgb[2] = grey;
+        // Pixel 3 differs but is not covered by b (an edge pixel of a sphere).
+        a.rgb[3] = red;
+        b.alpha[3] = 0.5;
+        let want = (delta_e_2000_rgb(red, blue) + delta_e_2000_rgb(blue, grey)) / 3.0;
+        assert!(want > 10.0);
+        assert!((mean_delta_e(&a, &b) - want).abs() < 1e-12 * want);
+        // Symmetric in the coverage test: uncovered in a only also leaves the pixel out.
+        let (mut a2, mut b2) = (a.clone(), b.clone());
+        a2.alpha[3] = 0.5;
+        b2.alpha[3] = 1.0;
+        assert!((mean_delta_e(&a2, &b2) - want).abs() < 1e-12 * want);
+        assert_eq!(mean_delta_e(&a, &a), 0.0);
+        // Nothing covered by both.
+        let mut none = Image::new(4, 1, grey);
+        none.alpha.iter_mut().for_each(|v| *v = 0.98);
+        assert!(mean_delta_e(&a, &none).is_nan());
+        // Images of different sizes compare over the shorter pixel list.
+        let short = Image::new(2, 1, grey);
+        let want = delta_e_2000_rgb(red, grey) / 2.0;
+        assert!((mean_delta_e(&a, &short) - want).abs() < 1e-12 * want);
+    }
+}
