@@ -247,6 +247,7 @@ fn quick_pipeline_report_matches_the_model_and_data() {
     for d in de {
         finite(&d["mean_delta_e"]);
     }
+    check_sheet(dir.path(), &pred, &results, de);
 
     // The markdown report quotes the numbers.
     let report = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
@@ -268,6 +269,69 @@ fn quick_pipeline_report_matches_the_model_and_data() {
         )
     );
     assert!(!report.contains("Not available in this build"));
+}
+
+/// The quick pipeline's `sheet.png` (32-pixel spheres, 2 materials, leave-one-out run) shows
+/// what its Delta E values measure: for the materials picked evenly through the dataset (0 and
+/// N / 2), the stored material's sphere on top, the smooth reconstruction at its latent point
+/// in the middle and the held-out prediction at the bottom, each in its cell; and each value
+/// is the mean Delta E between the stored sphere and the one below it.
+fn check_sheet(
+    out: &Path,
+    pred: &predict::Predictor,
+    results: &xtask::Results,
+    delta_e: &[serde_json::Value],
+) {
+    use render::{Image, SphereOptions, render_sphere};
+    // The sheet's background, cell and label sizes (figures.rs).
+    const BG: [f64; 3] = [0.18, 0.18, 0.18];
+    let (size, picked) = (32, delta_e.len());
+    let (cell, label_h) = (size + 8, 3 * 9 + 3);
+    let (w, h, png) = render::image::read_png_rgba8(&out.join("sheet.png")).unwrap();
+    assert_eq!((w, h), (picked * cell + 4, 3 * (cell + label_h) + 4));
+    let opts = SphereOptions {
+        size,
+        ..SphereOptions::default()
+    };
+    let loo = results.evaluation.as_ref().unwrap().loo.as_ref().unwrap();
+    let n = pred.n_materials();
+    for (col, d) in delta_e.iter().enumerate() {
+        let name = d["name"].as_str().unwrap();
+        let i = pred.material_index(name).unwrap();
+        assert_eq!(i, col * n / picked, "{name}");
+        let stored = brdf_io::store::StoreMaterial::by_index(pred.store().clone(), i).unwrap();
+        let coords = &pred.model().materials[i].coords;
+        let smooth = pred
+            .predict(coords, predict::PredictorKind::Smooth)
+            .unwrap();
+        let row = loo.iter().find(|r| r.name == name).unwrap();
+        let held = pred
+            .from_coefficients(row.gp_coefficients.clone(), name.into())
+            .unwrap();
+        let spheres = [
+            render_sphere(&stored, &opts).unwrap(),
+            render_sphere(&smooth, &opts).unwrap(),
+            render_sphere(&held, &opts).unwrap(),
+        ];
+        let de = |k: usize| xtask::figures::mean_delta_e(&spheres[0], &spheres[k]);
+        assert_eq!(d["mean_delta_e"].as_f64().unwrap(), de(1), "{name}");
+        assert_eq!(d["held_out_delta_e"].as_f64().unwrap(), de(2), "{name}");
+        assert!(de(1) < de(2), "{name}: {} {}", de(1), de(2));
+        // Each sphere over the background at its cell, pixel for pixel (8-bit sRGB).
+        for (r, sphere) in spheres.iter().enumerate() {
+            let (x0, y0) = (4 + col * cell, 4 + r * (cell + label_h));
+            let mut want = Image::new(w, h, BG);
+            want.blit(sphere, x0 as i64, y0 as i64);
+            let want = want.to_rgba8();
+            for y in y0..y0 + size {
+                let at = (y * w + x0) * 4..(y * w + x0 + size) * 4;
+                assert!(
+                    png[at.clone()] == want[at],
+                    "{name}, row {r}, pixel row {y}"
+                );
+            }
+        }
+    }
 }
 
 #[test]
