@@ -4,11 +4,11 @@
 //! through the render crate.
 
 use std::path::Path;
-use std::sync::Arc;
 use std::time::Instant;
 
 use brdf_io::BrdfSource;
 use brdf_io::store::StoreMaterial;
+use predict::evaluate::LooRow;
 use predict::{Predictor, PredictorKind};
 use render::{Image, SphereOptions, delta_e_2000_rgb, render_sphere};
 use serde::Serialize;
@@ -69,6 +69,8 @@ pub fn mean_delta_e(a: &Image, b: &Image) -> f64 {
 
 /// Height of one label line (7-pixel glyphs plus spacing).
 const LINE_H: usize = 9;
+/// Height of a sphere's label: names of up to three lines (long ones wrap at '_').
+const LABEL_H: usize = 3 * LINE_H + 3;
 
 /// Draws `text` wrapped into at most `lines` lines of `width` pixels at (x, y).
 fn label(img: &mut Image, x: usize, y: usize, width: usize, text: &str, lines: usize) {
@@ -86,6 +88,21 @@ fn as_sources<T: BrdfSource>(v: &[T]) -> Vec<&dyn BrdfSource> {
     v.iter().map(|m| m as &dyn BrdfSource).collect()
 }
 
+/// The sphere options, output directory and leave-one-out results every figure of a run
+/// shares; its predictor caches each cell's forward-transformed values for all of them.
+struct Scene<'a> {
+    pred: &'a Predictor,
+    opts: SphereOptions,
+    out: &'a Path,
+    loo: Option<&'a [LooRow]>,
+}
+
+/// A figure file (relative to the output directory) and its caption.
+type Caption = (String, String);
+
+/// A mean Delta E per column of the comparison sheet, by column name.
+type ColumnDeltaE = Vec<(String, f64)>;
+
 /// Renders the figures of a pipeline run into `out`.
 pub fn render_figures(
     pred: &Predictor,
@@ -96,30 +113,68 @@ pub fn render_figures(
     located: &[predict::locate::Location],
     out: &Path,
 ) -> Result<Figures> {
-    let (size, sheet_materials) = (render.size as usize, render.sheet_materials);
-    let opts = SphereOptions {
-        size,
-        env_mode: render.env_mode().map_err(|reason| err(out, reason))?,
-        ..SphereOptions::default()
-    };
+    let start = Instant::now();
     // Every figure renders predictions of this one model: each cell's logarithms once.
     let pred = &pred.with_forward_cache();
-    let model = pred.model();
-    let n = model.materials.len();
-    let store: Arc<brdf_io::Store> = pred.store().clone();
-    let mut files = Vec::new();
-    let mut spheres = 0usize;
-    let start = Instant::now();
-
-    // Sheet: the stored material (top) against the smooth GP reconstruction (middle) and,
-    // with leave-one-out results, the GP's prediction of it from the other materials (bottom:
-    // a reconstruction at a material's own point is nearly guaranteed, a held-out one is not).
-    let k = sheet_materials.min(n).max(1);
+    let scene = Scene {
+        pred,
+        opts: SphereOptions {
+            size: render.size as usize,
+            env_mode: render.env_mode().map_err(|reason| err(out, reason))?,
+            ..SphereOptions::default()
+        },
+        out,
+        loo: evaluation.and_then(|e| e.loo.as_deref()),
+    };
+    // The sheets' materials, evenly through the dataset.
+    let n = pred.model().materials.len();
+    let k = render.sheet_materials.min(n).max(1);
     let picks: Vec<usize> = (0..k).map(|j| j * n / k).collect();
-    let cell = size + 8;
-    // Names of up to three lines (long ones wrap at '_').
-    let label_h = 3 * LINE_H + 3;
-    let loo = evaluation.and_then(|e| e.loo.as_ref());
+    let (sheet, mut spheres, delta_e) = sheet_figure(&scene, &picks, &render.env)?;
+    let (comparison, s, comparison_delta_e) = comparison_figure(&scene, &picks)?;
+    spheres += s;
+    let mut files = vec![sheet, comparison];
+    if !pairs.is_empty() {
+        let (paths, s) = paths_figure(&scene, pairs)?;
+        files.push(paths);
+        spheres += s;
+    }
+    if !predictions.is_empty() {
+        let (file, s) = predictions_figure(&scene, predictions)?;
+        files.push(file);
+        spheres += s;
+    }
+    if pred.model().latent_dim >= 2 {
+        files.push(latent_figure(&scene, predictions, located)?);
+    }
+    let finite: Vec<f64> = delta_e
+        .iter()
+        .map(|d| d.mean_delta_e)
+        .filter(|v| v.is_finite())
+        .collect();
+    Ok(Figures {
+        files,
+        mean_delta_e: finite.iter().sum::<f64>() / finite.len().max(1) as f64,
+        delta_e,
+        comparison_delta_e,
+        seconds_per_sphere: start.elapsed().as_secs_f64() / spheres.max(1) as f64,
+    })
+}
+
+/// `sheet.png`: the stored material (top) against the smooth GP reconstruction (middle) and,
+/// with leave-one-out results, the GP's prediction of it from the other materials (bottom: a
+/// reconstruction at a material's own point is nearly guaranteed, a held-out one is not), for
+/// each material of `picks`; with the number of spheres rendered and each material's Delta E.
+/// `env` is the config's environment (named in the caption unless it is the default).
+fn sheet_figure(
+    scene: &Scene<'_>,
+    picks: &[usize],
+    env: &str,
+) -> Result<(Caption, usize, Vec<SphereDeltaE>)> {
+    let (pred, opts, out, loo) = (scene.pred, &scene.opts, scene.out, scene.loo);
+    let (model, store, size) = (pred.model(), pred.store().clone(), opts.size);
+    let mut spheres = 0;
+    let (cell, label_h, k) = (size + 8, LABEL_H, picks.len());
     let rows = if loo.is_some() { 3 } else { 2 };
     let mut sheet = Image::new(k * cell + 4, rows * (cell + label_h) + 4, BG);
     let mut held_out_delta_e = Vec::new();
@@ -129,11 +184,11 @@ pub fn render_figures(
         let name = &model.materials[i].name;
         let measured =
             StoreMaterial::by_index(store.clone(), i).map_err(|e| err(&sheet_path, e))?;
-        let a = render_sphere(&measured, &opts).map_err(|e| err(&sheet_path, e))?;
+        let a = render_sphere(&measured, opts).map_err(|e| err(&sheet_path, e))?;
         let rec = pred
             .predict(&model.materials[i].coords, PredictorKind::Smooth)
             .map_err(|e| err(&sheet_path, e))?;
-        let b = render_sphere(&rec, &opts).map_err(|e| err(&sheet_path, e))?;
+        let b = render_sphere(&rec, opts).map_err(|e| err(&sheet_path, e))?;
         spheres += 2;
         let de = mean_delta_e(&a, &b);
         let x = 4 + col * cell;
@@ -158,7 +213,7 @@ pub fn render_figures(
             let held = pred
                 .from_coefficients(row.gp_coefficients.clone(), format!("loo-{name}"))
                 .map_err(|e| err(&sheet_path, e))?;
-            let c = render_sphere(&held, &opts).map_err(|e| err(&sheet_path, e))?;
+            let c = render_sphere(&held, opts).map_err(|e| err(&sheet_path, e))?;
             spheres += 1;
             let de = mean_delta_e(&a, &c);
             let y3 = 4 + 2 * (cell + label_h);
@@ -182,7 +237,7 @@ pub fn render_figures(
         .map_err(|e| err(&sheet_path, e))?;
     // Every sphere's lighting, when it is not the default directional light plus uniform
     // environment (the Delta E values depend on it).
-    let env_note = match render.env.as_str() {
+    let env_note = match env {
         "table" => String::new(),
         env => format!(" Spheres rendered with `render.env = \"{env}\"`."),
     };
@@ -195,7 +250,7 @@ pub fn render_figures(
             held_out_delta_e.iter().sum::<f64>() / held_out_delta_e.len() as f64
         )
     };
-    files.push((
+    let caption = (
         "sheet.png".to_string(),
         format!(
             "Top: the dataset's materials as stored (measured, synthetic or network-approximated, \
@@ -208,15 +263,21 @@ pub fn render_figures(
                 "middle"
             }
         ),
-    ));
+    );
+    Ok((caption, spheres, delta_e))
+}
 
-    // Comparison sheet (render crate): per material, the stored sphere, the exact and smooth
-    // reconstructions at its latent point (and the held-out prediction), each with a CIEDE2000
-    // heat map against the stored one.
+/// `comparison.png` (render crate): per material of `picks`, the stored sphere, the exact and
+/// smooth reconstructions at its latent point (and the held-out prediction), each with a
+/// CIEDE2000 heat map against the stored one; with the number of spheres rendered and the
+/// mean Delta E per column.
+fn comparison_figure(scene: &Scene<'_>, picks: &[usize]) -> Result<(Caption, usize, ColumnDeltaE)> {
+    let (pred, opts, out, loo) = (scene.pred, &scene.opts, scene.out, scene.loo);
+    let (model, store) = (pred.model(), pred.store().clone());
     let comparison_path = out.join("comparison.png");
     let e = |e: predict::Error| err(&comparison_path, e);
     let mut kept: Vec<Vec<Box<dyn BrdfSource>>> = Vec::new();
-    for &i in &picks {
+    for &i in picks {
         let x = &model.materials[i].coords;
         let mut row: Vec<Box<dyn BrdfSource>> = vec![
             Box::new(
@@ -244,14 +305,14 @@ pub fn render_figures(
             (name, row.iter().map(|b| b.as_ref()).collect())
         })
         .collect();
-    let comparison = render::comparison_sheet(&columns, &rows, &opts, COMPARISON_DE_MAX)
+    let comparison = render::comparison_sheet(&columns, &rows, opts, COMPARISON_DE_MAX)
         .map_err(|e| err(&comparison_path, e))?;
-    spheres += rows.iter().map(|(_, r)| r.len()).sum::<usize>();
+    let spheres = rows.iter().map(|(_, r)| r.len()).sum::<usize>();
     comparison
         .image
         .save_png(&comparison_path)
         .map_err(|e| err(&comparison_path, e))?;
-    let comparison_delta_e: Vec<(String, f64)> = (1..columns.len())
+    let comparison_delta_e: ColumnDeltaE = (1..columns.len())
         .map(|c| {
             let v: Vec<f64> = comparison.mean_delta_e.iter().map(|r| r[c - 1]).collect();
             (
@@ -264,7 +325,7 @@ pub fn render_figures(
         .iter()
         .map(|(c, v)| format!("{c} {v:.2}"))
         .collect();
-    files.push((
+    let caption = (
         "comparison.png".to_string(),
         format!(
             "The same materials as stored, reconstructed by the exact predictor (which returns a \
@@ -278,188 +339,196 @@ pub fn render_figures(
             },
             column_means.join(", ")
         ),
-    ));
+    );
+    Ok((caption, spheres, comparison_delta_e))
+}
 
-    // Paths (the paper's Fig. 4.4): along the straight latent line between two materials
-    // (exact predictor: the materials themselves at the ends) against linear interpolation of
-    // their values, in the model's transformed space (`predict --lerp`) and, for a log model,
-    // in BRDF values (the paper's blend of raw data).
-    if !pairs.is_empty() {
-        let path = out.join("paths.png");
-        let e = |e: predict::Error| err(&path, e);
-        let t: Vec<f64> = (0..PATH_STEPS)
-            .map(|k| k as f64 / (PATH_STEPS - 1) as f64)
-            .collect();
-        let captions: Vec<String> = t.iter().map(|v| format!("{v:.2}")).collect();
-        let mut blocks = Vec::new();
-        for [a, b] in pairs.iter().take(MAX_PATHS) {
-            let (ia, ib) = (
-                pred.material_index(a).map_err(e)?,
-                pred.material_index(b).map_err(e)?,
-            );
-            let (xa, xb) = (&model.materials[ia].coords, &model.materials[ib].coords);
-            let gp = t
-                .iter()
-                .map(|&s| {
-                    let x: Vec<f64> = xa.iter().zip(xb).map(|(p, q)| p + s * (q - p)).collect();
-                    pred.predict(&x, PredictorKind::Exact)
-                })
-                .collect::<predict::Result<Vec<_>>>()
-                .map_err(e)?;
-            let lerp = t
-                .iter()
-                .map(|&s| pred.lerp(a, b, 1.0 - s))
-                .collect::<predict::Result<Vec<_>>>()
-                .map_err(e)?;
-            let stored_a = StoreMaterial::by_index(store.clone(), ia).map_err(|e| err(&path, e))?;
-            let stored_b = StoreMaterial::by_index(store.clone(), ib).map_err(|e| err(&path, e))?;
-            let blends = t
-                .iter()
-                .map(|&s| brdf_io::Blend::new(&stored_a, &stored_b, 1.0 - s))
-                .collect::<brdf_io::Result<Vec<_>>>()
-                .map_err(|e| err(&path, e))?;
-            let mut rows = vec![("GP PATH".to_string(), as_sources(&gp))];
-            let raw = model.transform == gplvm::Transform::Raw;
-            rows.push((
-                if raw { "LINEAR" } else { "LINEAR, MODEL SPACE" }.to_string(),
-                as_sources(&lerp),
-            ));
-            if !raw {
-                rows.push(("LINEAR, BRDF VALUES".to_string(), as_sources(&blends)));
-            }
-            spheres += rows.iter().map(|(_, r)| r.len()).sum::<usize>();
-            let img = render::sphere_rows(&rows, &captions, &opts).map_err(|e| err(&path, e))?;
-            blocks.push((format!("{} TO {}", a.to_uppercase(), b.to_uppercase()), img));
-        }
-        let width = blocks.iter().map(|(_, i)| i.width).max().unwrap_or(0) + 8;
-        let height: usize = blocks
-            .iter()
-            .map(|(_, i)| i.height + LINE_H + 6)
-            .sum::<usize>()
-            + 4;
-        let mut img = Image::new(width, height, BG);
-        let mut y = 4usize;
-        for (title, block) in &blocks {
-            img.text(4, y as i64, title, 1, INK);
-            y += LINE_H + 2;
-            img.blit(block, 4, y as i64);
-            y += block.height + 4;
-        }
-        img.save_png(&path).map_err(|e| err(&path, e))?;
-        files.push((
-            "paths.png".to_string(),
-            format!(
-                "The paper's Fig. 4.4: from one material (t = 0) to another (t = 1) along the \
-                 straight line between their latent points (GP path, exact predictor){}; the \
-                 first {} pair(s) of the configured midpoints.",
-                if model.transform == gplvm::Transform::Raw {
-                    ", against the linear interpolation of their values (t y2 + (1 - t) y1)"
-                        .to_string()
-                } else {
-                    format!(
-                        ", against linear interpolation of their values in the model's transformed \
-                         space ({}, as `specgp predict --lerp`) and of their BRDF values (the \
-                         paper's blend)",
-                        model.transform
-                    )
-                },
-                blocks.len()
-            ),
-        ));
-    }
-
-    // Predictions.
-    if !predictions.is_empty() {
-        let path = out.join("predictions.png");
-        let mut img = Image::new(predictions.len() * cell + 4, cell + 2 * label_h + 4, BG);
-        for (col, p) in predictions.iter().enumerate() {
-            let kind = if p.predictor == "smooth" {
-                PredictorKind::Smooth
-            } else {
-                PredictorKind::Exact
-            };
-            let m = pred.predict(&p.point, kind).map_err(|e| err(&path, e))?;
-            let s = render_sphere(&m, &opts).map_err(|e| err(&path, e))?;
-            spheres += 1;
-            let x = 4 + col * cell;
-            img.blit(&s, x as i64, 4);
-            label(&mut img, x, 4 + size + 2, size, &p.label, 3);
-            let coords: Vec<String> = p.point.iter().map(|v| format!("{v:.2}")).collect();
-            label(
-                &mut img,
-                x,
-                4 + size + 2 + label_h,
-                size,
-                &coords.join(", "),
-                3,
-            );
-        }
-        img.save_png(&path).map_err(|e| err(&path, e))?;
-        files.push((
-            "predictions.png".to_string(),
-            "Spheres of the predicted materials at the configured latent points.".to_string(),
-        ));
-    }
-
-    // Latent map (render crate): materials and predictions over the predictive std, in the
-    // first two latent axes (other coordinates 0, the prior mean).
-    if model.latent_dim >= 2 {
-        let path = out.join("latent.png");
-        let q = model.latent_dim;
-        let points: Vec<render::map::LabelledPoint> = model
-            .materials
-            .iter()
-            .map(|m| (m.name.clone(), [m.coords[0], m.coords[1]]))
-            .chain(
-                predictions
-                    .iter()
-                    .map(|p| (p.label.clone(), [p.point[0], p.point[1]])),
-            )
-            .chain(
-                located
-                    .iter()
-                    .map(|l| (format!("{} (located)", l.name), [l.point[0], l.point[1]])),
-            )
-            .collect();
-        let variance = |p: [f64; 2]| -> render::Result<f64> {
-            let mut x = vec![0.0; q];
-            x[0] = p[0];
-            x[1] = p[1];
-            pred.variance_transformed(&x, PredictorKind::Smooth)
-                .map_err(|e| render::Error::InvalidArgument {
-                    reason: e.to_string(),
-                })
-        };
-        let opts = render::MapOptions {
-            caption: render::map::variance_caption(&model.transform.to_string(), q),
-            predicted_points: predictions.len() + located.len(),
-            ..render::MapOptions::default()
-        };
-        let img = render::latent_map(&points, &variance, None, &opts).map_err(|e| err(&path, e))?;
-        img.save_png(&path).map_err(|e| err(&path, e))?;
-        files.push((
-            "latent.png".to_string(),
-            "The training materials (red dots) and the predicted points and located materials \
-             (blue rings) in the first two latent coordinates (equal scales), shaded by the GP's predictive standard \
-             deviation per transformed value (the square root of the predictions table's \
-             variance; for q > 2, on the slice through 0 of the other coordinates, so points off \
-             that slice can sit in a lighter or darker area than their own variance says)."
-                .to_string(),
-        ));
-    }
-
-    let finite: Vec<f64> = delta_e
-        .iter()
-        .map(|d| d.mean_delta_e)
-        .filter(|v| v.is_finite())
+/// `paths.png` (the paper's Fig. 4.4), for the first [`MAX_PATHS`] of `pairs`: along the
+/// straight latent line between two materials (exact predictor: the materials themselves at the
+/// ends) against linear interpolation of their values, in the model's transformed space
+/// (`predict --lerp`) and, for a log model, in BRDF values (the paper's blend of raw data);
+/// with the number of spheres rendered.
+fn paths_figure(scene: &Scene<'_>, pairs: &[[String; 2]]) -> Result<(Caption, usize)> {
+    let (pred, opts, out) = (scene.pred, &scene.opts, scene.out);
+    let (model, store) = (pred.model(), pred.store().clone());
+    let mut spheres = 0;
+    let path = out.join("paths.png");
+    let e = |e: predict::Error| err(&path, e);
+    let t: Vec<f64> = (0..PATH_STEPS)
+        .map(|k| k as f64 / (PATH_STEPS - 1) as f64)
         .collect();
-    Ok(Figures {
-        files,
-        mean_delta_e: finite.iter().sum::<f64>() / finite.len().max(1) as f64,
-        delta_e,
-        comparison_delta_e,
-        seconds_per_sphere: start.elapsed().as_secs_f64() / spheres.max(1) as f64,
-    })
+    let captions: Vec<String> = t.iter().map(|v| format!("{v:.2}")).collect();
+    let mut blocks = Vec::new();
+    for [a, b] in pairs.iter().take(MAX_PATHS) {
+        let (ia, ib) = (
+            pred.material_index(a).map_err(e)?,
+            pred.material_index(b).map_err(e)?,
+        );
+        let (xa, xb) = (&model.materials[ia].coords, &model.materials[ib].coords);
+        let gp = t
+            .iter()
+            .map(|&s| {
+                let x: Vec<f64> = xa.iter().zip(xb).map(|(p, q)| p + s * (q - p)).collect();
+                pred.predict(&x, PredictorKind::Exact)
+            })
+            .collect::<predict::Result<Vec<_>>>()
+            .map_err(e)?;
+        let lerp = t
+            .iter()
+            .map(|&s| pred.lerp(a, b, 1.0 - s))
+            .collect::<predict::Result<Vec<_>>>()
+            .map_err(e)?;
+        let stored_a = StoreMaterial::by_index(store.clone(), ia).map_err(|e| err(&path, e))?;
+        let stored_b = StoreMaterial::by_index(store.clone(), ib).map_err(|e| err(&path, e))?;
+        let blends = t
+            .iter()
+            .map(|&s| brdf_io::Blend::new(&stored_a, &stored_b, 1.0 - s))
+            .collect::<brdf_io::Result<Vec<_>>>()
+            .map_err(|e| err(&path, e))?;
+        let mut rows = vec![("GP PATH".to_string(), as_sources(&gp))];
+        let raw = model.transform == gplvm::Transform::Raw;
+        rows.push((
+            if raw { "LINEAR" } else { "LINEAR, MODEL SPACE" }.to_string(),
+            as_sources(&lerp),
+        ));
+        if !raw {
+            rows.push(("LINEAR, BRDF VALUES".to_string(), as_sources(&blends)));
+        }
+        spheres += rows.iter().map(|(_, r)| r.len()).sum::<usize>();
+        let img = render::sphere_rows(&rows, &captions, opts).map_err(|e| err(&path, e))?;
+        blocks.push((format!("{} TO {}", a.to_uppercase(), b.to_uppercase()), img));
+    }
+    let width = blocks.iter().map(|(_, i)| i.width).max().unwrap_or(0) + 8;
+    let height: usize = blocks
+        .iter()
+        .map(|(_, i)| i.height + LINE_H + 6)
+        .sum::<usize>()
+        + 4;
+    let mut img = Image::new(width, height, BG);
+    let mut y = 4usize;
+    for (title, block) in &blocks {
+        img.text(4, y as i64, title, 1, INK);
+        y += LINE_H + 2;
+        img.blit(block, 4, y as i64);
+        y += block.height + 4;
+    }
+    img.save_png(&path).map_err(|e| err(&path, e))?;
+    let caption = (
+        "paths.png".to_string(),
+        format!(
+            "The paper's Fig. 4.4: from one material (t = 0) to another (t = 1) along the \
+             straight line between their latent points (GP path, exact predictor){}; the \
+             first {} pair(s) of the configured midpoints.",
+            if model.transform == gplvm::Transform::Raw {
+                ", against the linear interpolation of their values (t y2 + (1 - t) y1)".to_string()
+            } else {
+                format!(
+                    ", against linear interpolation of their values in the model's transformed \
+                     space ({}, as `specgp predict --lerp`) and of their BRDF values (the \
+                     paper's blend)",
+                    model.transform
+                )
+            },
+            blocks.len()
+        ),
+    );
+    Ok((caption, spheres))
+}
+
+/// `predictions.png`: spheres of the predicted materials at the configured latent points,
+/// labelled with their names and coordinates; with the number of spheres rendered.
+fn predictions_figure(
+    scene: &Scene<'_>,
+    predictions: &[PredictionRow],
+) -> Result<(Caption, usize)> {
+    let (pred, opts, out) = (scene.pred, &scene.opts, scene.out);
+    let size = opts.size;
+    let mut spheres = 0;
+    let path = out.join("predictions.png");
+    let (cell, label_h) = (size + 8, LABEL_H);
+    let mut img = Image::new(predictions.len() * cell + 4, cell + 2 * label_h + 4, BG);
+    for (col, p) in predictions.iter().enumerate() {
+        let kind = if p.predictor == "smooth" {
+            PredictorKind::Smooth
+        } else {
+            PredictorKind::Exact
+        };
+        let m = pred.predict(&p.point, kind).map_err(|e| err(&path, e))?;
+        let s = render_sphere(&m, opts).map_err(|e| err(&path, e))?;
+        spheres += 1;
+        let x = 4 + col * cell;
+        img.blit(&s, x as i64, 4);
+        label(&mut img, x, 4 + size + 2, size, &p.label, 3);
+        let coords: Vec<String> = p.point.iter().map(|v| format!("{v:.2}")).collect();
+        label(
+            &mut img,
+            x,
+            4 + size + 2 + label_h,
+            size,
+            &coords.join(", "),
+            3,
+        );
+    }
+    img.save_png(&path).map_err(|e| err(&path, e))?;
+    let caption = (
+        "predictions.png".to_string(),
+        "Spheres of the predicted materials at the configured latent points.".to_string(),
+    );
+    Ok((caption, spheres))
+}
+
+/// `latent.png` (render crate): the training materials, `predictions` and `located`
+/// materials over the predictive standard deviation, in the first two latent axes (other
+/// coordinates 0, the prior mean).
+fn latent_figure(
+    scene: &Scene<'_>,
+    predictions: &[PredictionRow],
+    located: &[predict::locate::Location],
+) -> Result<Caption> {
+    let (pred, out) = (scene.pred, scene.out);
+    let model = pred.model();
+    let path = out.join("latent.png");
+    let q = model.latent_dim;
+    let points: Vec<render::map::LabelledPoint> = model
+        .materials
+        .iter()
+        .map(|m| (m.name.clone(), [m.coords[0], m.coords[1]]))
+        .chain(
+            predictions
+                .iter()
+                .map(|p| (p.label.clone(), [p.point[0], p.point[1]])),
+        )
+        .chain(
+            located
+                .iter()
+                .map(|l| (format!("{} (located)", l.name), [l.point[0], l.point[1]])),
+        )
+        .collect();
+    let variance = |p: [f64; 2]| -> render::Result<f64> {
+        let mut x = vec![0.0; q];
+        x[0] = p[0];
+        x[1] = p[1];
+        pred.variance_transformed(&x, PredictorKind::Smooth)
+            .map_err(|e| render::Error::InvalidArgument {
+                reason: e.to_string(),
+            })
+    };
+    let opts = render::MapOptions {
+        caption: render::map::variance_caption(&model.transform.to_string(), q),
+        predicted_points: predictions.len() + located.len(),
+        ..render::MapOptions::default()
+    };
+    let img = render::latent_map(&points, &variance, None, &opts).map_err(|e| err(&path, e))?;
+    img.save_png(&path).map_err(|e| err(&path, e))?;
+    Ok((
+        "latent.png".to_string(),
+        "The training materials (red dots) and the predicted points and located materials \
+         (blue rings) in the first two latent coordinates (equal scales), shaded by the GP's predictive standard \
+         deviation per transformed value (the square root of the predictions table's \
+         variance; for q > 2, on the slice through 0 of the other coordinates, so points off \
+         that slice can sit in a lighter or darker area than their own variance says)."
+            .to_string(),
+    ))
 }
 
 #[cfg(test)]
