@@ -97,6 +97,13 @@ struct Scene<'a> {
     loo: Option<&'a [LooRow]>,
 }
 
+impl Scene<'_> {
+    /// The width of a sphere's cell in a sheet: the sphere and 8 pixels between neighbours.
+    fn cell(&self) -> usize {
+        self.opts.size + 8
+    }
+}
+
 /// A figure file (relative to the output directory) and its caption.
 type Caption = (String, String);
 
@@ -174,7 +181,7 @@ fn sheet_figure(
     let (pred, opts, out, loo) = (scene.pred, &scene.opts, scene.out, scene.loo);
     let (model, store, size) = (pred.model(), pred.store().clone(), opts.size);
     let mut spheres = 0;
-    let (cell, label_h, k) = (size + 8, LABEL_H, picks.len());
+    let (cell, label_h, k) = (scene.cell(), LABEL_H, picks.len());
     let rows = if loo.is_some() { 3 } else { 2 };
     let mut sheet = Image::new(k * cell + 4, rows * (cell + label_h) + 4, BG);
     let mut held_out_delta_e = Vec::new();
@@ -445,7 +452,7 @@ fn predictions_figure(
     let size = opts.size;
     let mut spheres = 0;
     let path = out.join("predictions.png");
-    let (cell, label_h) = (size + 8, LABEL_H);
+    let (cell, label_h) = (scene.cell(), LABEL_H);
     let mut img = Image::new(predictions.len() * cell + 4, cell + 2 * label_h + 4, BG);
     for (col, p) in predictions.iter().enumerate() {
         let kind = if p.predictor == "smooth" {
