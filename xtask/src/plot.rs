@@ -260,6 +260,26 @@ mod tests {
         assert!(near(at(&img, mid(a, b)), FRONT, 0.02));
         let ac = at(&img, mid(a, c));
         assert!(!near(ac, FRONT, 0.3), "{ac:?}");
+        // The front's line is 1.5 pixels wide: across it, a quarter of the way from a to b
+        // (away from the grid lines), pixels centred 1.3 or more from its axis are background.
+        let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+        let (nx, ny) = (-dy / dx.hypot(dy), dx / dx.hypot(dy));
+        let q = (a.0 + 0.25 * dx, a.1 + 0.25 * dy);
+        let mut beside = Vec::new();
+        for py in q.1 as usize - 4..=q.1 as usize + 4 {
+            for px in q.0 as usize - 4..=q.0 as usize + 4 {
+                let (cx, cy) = (px as f64 + 0.5 - a.0, py as f64 + 0.5 - a.1);
+                let d = (cx * nx + cy * ny).abs();
+                if d >= 1.3 {
+                    assert_eq!(img.get(px, py), BG, "({px}, {py}), {d} from the line");
+                    beside.push(d);
+                }
+            }
+        }
+        assert!(
+            beside.iter().filter(|d| **d < 1.9).count() >= 2,
+            "{beside:?}"
+        );
         // Labels: the swept value right of and below the point, in the sweep's colour ("base"
         // for the base point, whose value is not shown).
         let label_has = |p: (f64, f64), chars: usize, rgb: [f64; 3]| {
