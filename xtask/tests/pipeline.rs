@@ -232,6 +232,7 @@ fn quick_pipeline_report_matches_the_model_and_data() {
         "comparison.png",
         "paths.png",
         "predictions.png",
+        "latent.png",
     ] {
         assert!(names.contains(&want), "{want} not in {names:?}");
     }
@@ -244,9 +245,9 @@ fn quick_pipeline_report_matches_the_model_and_data() {
     assert!(column("smooth") < column("held out"), "{comparison:?}");
     let de = json["figures"]["delta_e"].as_array().unwrap();
     assert_eq!(de.len(), 2);
-    for d in de {
-        finite(&d["mean_delta_e"]);
-    }
+    let mean: f64 = de.iter().map(|d| finite(&d["mean_delta_e"])).sum::<f64>() / 2.0;
+    let shown = json["figures"]["mean_delta_e"].as_f64().unwrap();
+    assert!((shown - mean).abs() <= 1e-12 * mean, "{shown} vs {mean}");
     check_sheet(dir.path(), &pred, &results, de);
 
     // The markdown report quotes the numbers.
@@ -271,11 +272,12 @@ fn quick_pipeline_report_matches_the_model_and_data() {
     assert!(!report.contains("Not available in this build"));
 }
 
-/// The quick pipeline's `sheet.png` (32-pixel spheres, 2 materials, leave-one-out run) shows
-/// what its Delta E values measure: for the materials picked evenly through the dataset (0 and
-/// N / 2), the stored material's sphere on top, the smooth reconstruction at its latent point
-/// in the middle and the held-out prediction at the bottom, each in its cell; and each value
-/// is the mean Delta E between the stored sphere and the one below it.
+/// The quick pipeline's `sheet.png` (32-pixel spheres, 2 materials, leave-one-out run) is
+/// exactly what its Delta E values measure: for the materials picked evenly through the dataset
+/// (0 and N / 2), the stored material's sphere on top, labelled with its name, the smooth
+/// reconstruction at its latent point in the middle and the held-out prediction at the bottom,
+/// each labelled with its mean Delta E against the stored sphere; and the report's values are
+/// those means.
 fn check_sheet(
     out: &Path,
     pred: &predict::Predictor,
@@ -283,10 +285,13 @@ fn check_sheet(
     delta_e: &[serde_json::Value],
 ) {
     use render::{Image, SphereOptions, render_sphere};
-    // The sheet's background, cell and label sizes (figures.rs).
+    // The sheet's colours, cell and label sizes (figures.rs): names wrap into up to three
+    // lines of 9 pixels, the Delta E values are cut to one line of the sphere's width, 2
+    // pixels under the sphere, in light grey on dark grey.
     const BG: [f64; 3] = [0.18, 0.18, 0.18];
-    let (size, picked) = (32, delta_e.len());
-    let (cell, label_h) = (size + 8, 3 * 9 + 3);
+    const INK: [f64; 3] = [0.9, 0.9, 0.9];
+    let (size, picked, line_h) = (32, delta_e.len(), 9);
+    let (cell, label_h) = (size + 8, 3 * line_h + 3);
     let (w, h, png) = render::image::read_png_rgba8(&out.join("sheet.png")).unwrap();
     assert_eq!((w, h), (picked * cell + 4, 3 * (cell + label_h) + 4));
     let opts = SphereOptions {
@@ -295,6 +300,7 @@ fn check_sheet(
     };
     let loo = results.evaluation.as_ref().unwrap().loo.as_ref().unwrap();
     let n = pred.n_materials();
+    let mut want = Image::new(w, h, BG);
     for (col, d) in delta_e.iter().enumerate() {
         let name = d["name"].as_str().unwrap();
         let i = pred.material_index(name).unwrap();
@@ -317,20 +323,25 @@ fn check_sheet(
         assert_eq!(d["mean_delta_e"].as_f64().unwrap(), de(1), "{name}");
         assert_eq!(d["held_out_delta_e"].as_f64().unwrap(), de(2), "{name}");
         assert!(de(1) < de(2), "{name}: {} {}", de(1), de(2));
-        // Each sphere over the background at its cell, pixel for pixel (8-bit sRGB).
-        for (r, sphere) in spheres.iter().enumerate() {
+        let labels = [
+            render::font::wrap(name, size, 1, 3),
+            render::font::wrap(&format!("rec dE {:.2}", de(1)), size, 1, 1),
+            render::font::wrap(&format!("loo dE {:.2}", de(2)), size, 1, 1),
+        ];
+        assert!(labels[0].len() > 1, "{:?}", labels[0]);
+        for (r, (sphere, lines)) in spheres.iter().zip(&labels).enumerate() {
             let (x0, y0) = (4 + col * cell, 4 + r * (cell + label_h));
-            let mut want = Image::new(w, h, BG);
             want.blit(sphere, x0 as i64, y0 as i64);
-            let want = want.to_rgba8();
-            for y in y0..y0 + size {
-                let at = (y * w + x0) * 4..(y * w + x0 + size) * 4;
-                assert!(
-                    png[at.clone()] == want[at],
-                    "{name}, row {r}, pixel row {y}"
-                );
+            for (k, text) in lines.iter().enumerate() {
+                let y = y0 + size + 2 + k * line_h;
+                want.text(x0 as i64, y as i64, text, 1, INK);
             }
         }
+    }
+    // Pixel for pixel (8-bit sRGB).
+    let want = want.to_rgba8();
+    if let Some(k) = (0..w * h).find(|k| png[4 * k..4 * k + 4] != want[4 * k..4 * k + 4]) {
+        panic!("sheet.png differs first at pixel ({}, {})", k % w, k / w);
     }
 }
 
