@@ -477,7 +477,8 @@ fn delta_e_of(pred: &Predictor, k: usize, size: usize) -> Result<f64> {
             .predict(&model.materials[i].coords, PredictorKind::Smooth)
             .map_err(|e| Error::stage("render", &path, e))?;
         let b = render::render_sphere(&rec, &opts).map_err(|e| Error::stage("render", &path, e))?;
-        sum += crate::figures::mean_delta_e(&a, &b);
+        sum +=
+            crate::figures::mean_delta_e(&a, &b).map_err(|e| Error::stage("render", &path, e))?;
     }
     Ok(sum / k as f64)
 }
@@ -722,6 +723,7 @@ pub(crate) mod tests {
                 &render::render_sphere(&stored, &opts).unwrap(),
                 &render::render_sphere(&rec, &opts).unwrap(),
             )
+            .unwrap()
         };
         let want3 = (sphere_delta_e(0) + sphere_delta_e(n / 3) + sphere_delta_e(2 * n / 3)) / 3.0;
         let got3 = delta_e_of(&pred, 3, 20).unwrap();

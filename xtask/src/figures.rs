@@ -10,7 +10,7 @@ use brdf_io::BrdfSource;
 use brdf_io::store::StoreMaterial;
 use predict::evaluate::LooRow;
 use predict::{Predictor, PredictorKind};
-use render::{Image, SphereOptions, delta_e_2000_rgb, render_sphere};
+use render::{Image, SphereOptions, render_sphere};
 use serde::Serialize;
 
 use crate::error::{Error, Result};
@@ -54,17 +54,14 @@ const PATH_STEPS: usize = 7;
 /// At most this many pairs in the paths figure.
 const MAX_PATHS: usize = 3;
 
-/// Mean Delta E 2000 between two renders over the pixels fully covered in both.
-pub fn mean_delta_e(a: &Image, b: &Image) -> f64 {
-    let mut sum = 0.0;
-    let mut k = 0usize;
-    for i in 0..a.rgb.len().min(b.rgb.len()) {
-        if a.alpha[i] >= 0.99 && b.alpha[i] >= 0.99 {
-            sum += delta_e_2000_rgb(a.rgb[i], b.rgb[i]);
-            k += 1;
-        }
-    }
-    if k == 0 { f64::NAN } else { sum / k as f64 }
+/// Mean Delta E 2000 between two renders of the same size over the pixels fully covered in
+/// both, their colours clamped at 0 (as shown), NaN when they share none: the comparison
+/// sheet's measure ([`render::sheet::delta_e_map`], [`render::sheet::mean_delta_e`]), so the
+/// sheet and the comparison sheet agree on the same pair of spheres.
+pub fn mean_delta_e(a: &Image, b: &Image) -> render::Result<f64> {
+    Ok(render::sheet::mean_delta_e(&render::sheet::delta_e_map(
+        a, b,
+    )?))
 }
 
 /// Height of one label line (7-pixel glyphs plus spacing).
@@ -197,7 +194,7 @@ fn sheet_figure(
             .map_err(|e| err(&sheet_path, e))?;
         let b = render_sphere(&rec, opts).map_err(|e| err(&sheet_path, e))?;
         spheres += 2;
-        let de = mean_delta_e(&a, &b);
+        let de = mean_delta_e(&a, &b).map_err(|e| err(&sheet_path, e))?;
         let x = 4 + col * cell;
         sheet.blit(&a, x as i64, 4);
         label(&mut sheet, x, 4 + size + 2, size, name, 3);
@@ -222,7 +219,7 @@ fn sheet_figure(
                 .map_err(|e| err(&sheet_path, e))?;
             let c = render_sphere(&held, opts).map_err(|e| err(&sheet_path, e))?;
             spheres += 1;
-            let de = mean_delta_e(&a, &c);
+            let de = mean_delta_e(&a, &c).map_err(|e| err(&sheet_path, e))?;
             let y3 = 4 + 2 * (cell + label_h);
             sheet.blit(&c, x as i64, y3 as i64);
             label(
@@ -542,36 +539,41 @@ fn latent_figure(
 mod tests {
     use super::*;
 
-    /// Delta E averages over the pixels both images cover fully (alpha >= 0.99), pixel by
-    /// pixel; nothing in common is NaN, not 0.
+    /// Delta E averages over the pixels both images cover fully (alpha >= 0.999), pixel by
+    /// pixel, colours clamped at 0; nothing in common is NaN, not 0; sizes must agree.
     #[test]
     fn mean_delta_e_averages_over_the_pixels_both_cover() {
+        use render::delta_e_2000_rgb;
         let (grey, red, blue) = ([0.2, 0.2, 0.2], [0.5, 0.1, 0.1], [0.1, 0.1, 0.6]);
-        let mut a = Image::new(4, 1, grey);
-        let mut b = Image::new(4, 1, grey);
+        let mut a = Image::new(5, 1, grey);
+        let mut b = Image::new(5, 1, grey);
         a.rgb[1] = red;
         b.rgb[1] = blue;
         a.rgb[2] = blue;
         b.rgb[2] = grey;
         // Pixel 3 differs but is not covered by b (an edge pixel of a sphere).
         a.rgb[3] = red;
-        b.alpha[3] = 0.5;
-        let want = (delta_e_2000_rgb(red, blue) + delta_e_2000_rgb(blue, grey)) / 3.0;
+        b.alpha[3] = 0.99;
+        // Pixel 4 differs only below 0, which is shown as 0.
+        a.rgb[4] = [-0.3, 0.0, 0.2];
+        b.rgb[4] = [0.0, 0.0, 0.2];
+        let want = (delta_e_2000_rgb(red, blue) + delta_e_2000_rgb(blue, grey)) / 4.0;
         assert!(want > 10.0);
-        assert!((mean_delta_e(&a, &b) - want).abs() < 1e-12 * want);
+        let got = mean_delta_e(&a, &b).unwrap();
+        assert!((got - want).abs() < 1e-12 * want, "{got} vs {want}");
         // Symmetric in the coverage test: uncovered in a only also leaves the pixel out.
         let (mut a2, mut b2) = (a.clone(), b.clone());
-        a2.alpha[3] = 0.5;
+        a2.alpha[3] = 0.99;
         b2.alpha[3] = 1.0;
-        assert!((mean_delta_e(&a2, &b2) - want).abs() < 1e-12 * want);
-        assert_eq!(mean_delta_e(&a, &a), 0.0);
+        let got = mean_delta_e(&a2, &b2).unwrap();
+        assert!((got - want).abs() < 1e-12 * want, "{got} vs {want}");
+        assert_eq!(mean_delta_e(&a, &a).unwrap(), 0.0);
         // Nothing covered by both.
-        let mut none = Image::new(4, 1, grey);
-        none.alpha.iter_mut().for_each(|v| *v = 0.98);
-        assert!(mean_delta_e(&a, &none).is_nan());
-        // Images of different sizes compare over the shorter pixel list.
-        let short = Image::new(2, 1, grey);
-        let want = delta_e_2000_rgb(red, grey) / 2.0;
-        assert!((mean_delta_e(&a, &short) - want).abs() < 1e-12 * want);
+        let mut none = Image::new(5, 1, grey);
+        none.alpha.iter_mut().for_each(|v| *v = 0.99);
+        assert!(mean_delta_e(&a, &none).unwrap().is_nan());
+        // Images of different sizes are not compared.
+        let e = mean_delta_e(&a, &Image::new(4, 1, grey)).unwrap_err();
+        assert!(e.to_string().contains("5x1 vs 4x1"), "{e}");
     }
 }

@@ -248,6 +248,16 @@ fn quick_pipeline_report_matches_the_model_and_data() {
     let mean: f64 = de.iter().map(|d| finite(&d["mean_delta_e"])).sum::<f64>() / 2.0;
     let shown = json["figures"]["mean_delta_e"].as_f64().unwrap();
     assert!((shown - mean).abs() <= 1e-12 * mean, "{shown} vs {mean}");
+    // The comparison sheet shows the same materials and measures them the same way.
+    let held: f64 = de
+        .iter()
+        .map(|d| finite(&d["held_out_delta_e"]))
+        .sum::<f64>()
+        / 2.0;
+    for (c, want) in [("smooth", mean), ("held out", held)] {
+        let got = column(c);
+        assert!((got - want).abs() <= 1e-12 * want, "{c}: {got} vs {want}");
+    }
     check_sheet(dir.path(), &pred, &results, de);
 
     // The markdown report quotes the numbers.
@@ -319,7 +329,7 @@ fn check_sheet(
             render_sphere(&smooth, &opts).unwrap(),
             render_sphere(&held, &opts).unwrap(),
         ];
-        let de = |k: usize| xtask::figures::mean_delta_e(&spheres[0], &spheres[k]);
+        let de = |k: usize| xtask::figures::mean_delta_e(&spheres[0], &spheres[k]).unwrap();
         assert_eq!(d["mean_delta_e"].as_f64().unwrap(), de(1), "{name}");
         assert_eq!(d["held_out_delta_e"].as_f64().unwrap(), de(2), "{name}");
         assert!(de(1) < de(2), "{name}: {} {}", de(1), de(2));
