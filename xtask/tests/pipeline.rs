@@ -259,6 +259,7 @@ fn quick_pipeline_report_matches_the_model_and_data() {
         assert!((got - want).abs() <= 1e-12 * want, "{c}: {got} vs {want}");
     }
     check_sheet(dir.path(), &pred, &results, de);
+    check_paths(dir.path(), &pred);
 
     // The markdown report quotes the numbers.
     let report = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
@@ -352,6 +353,71 @@ fn check_sheet(
     let want = want.to_rgba8();
     if let Some(k) = (0..w * h).find(|k| png[4 * k..4 * k + 4] != want[4 * k..4 * k + 4]) {
         panic!("sheet.png differs first at pixel ({}, {})", k % w, k / w);
+    }
+}
+
+/// The quick pipeline's `paths.png` (its one midpoint pair, log model) is exactly the paper's
+/// Fig. 4.4 for gold to copper: under the title, three rows of 7 spheres at t = 0, 1/6, ...,
+/// 1: the exact GP prediction along the straight latent line from gold to copper, the linear
+/// blend in the model's (log) space, and the linear blend of the BRDF values.
+fn check_paths(out: &Path, pred: &predict::Predictor) {
+    use brdf_io::store::StoreMaterial;
+    use render::{Image, SphereOptions};
+    // The figure's colours and title line (figures.rs).
+    const BG: [f64; 3] = [0.18, 0.18, 0.18];
+    const INK: [f64; 3] = [0.9, 0.9, 0.9];
+    let (a, b) = ("metal_gold", "metal_copper");
+    let (ia, ib) = (
+        pred.material_index(a).unwrap(),
+        pred.material_index(b).unwrap(),
+    );
+    let (xa, xb) = (
+        &pred.model().materials[ia].coords,
+        &pred.model().materials[ib].coords,
+    );
+    let t: Vec<f64> = (0..7).map(|k| f64::from(k) / 6.0).collect();
+    let gp: Vec<_> = t
+        .iter()
+        .map(|&s| {
+            let x: Vec<f64> = xa.iter().zip(xb).map(|(p, q)| p + s * (q - p)).collect();
+            pred.predict(&x, predict::PredictorKind::Exact).unwrap()
+        })
+        .collect();
+    let lerp: Vec<_> = t
+        .iter()
+        .map(|&s| pred.lerp(a, b, 1.0 - s).unwrap())
+        .collect();
+    let stored_a = StoreMaterial::by_index(pred.store().clone(), ia).unwrap();
+    let stored_b = StoreMaterial::by_index(pred.store().clone(), ib).unwrap();
+    let blends: Vec<_> = t
+        .iter()
+        .map(|&s| brdf_io::Blend::new(&stored_a, &stored_b, 1.0 - s).unwrap())
+        .collect();
+    let rows: Vec<render::sheet::SheetRow<'_>> = vec![
+        ("GP PATH".into(), gp.iter().map(|m| m as _).collect()),
+        (
+            "LINEAR, MODEL SPACE".into(),
+            lerp.iter().map(|m| m as _).collect(),
+        ),
+        (
+            "LINEAR, BRDF VALUES".into(),
+            blends.iter().map(|m| m as _).collect(),
+        ),
+    ];
+    let captions: Vec<String> = t.iter().map(|v| format!("{v:.2}")).collect();
+    let opts = SphereOptions {
+        size: 32,
+        ..SphereOptions::default()
+    };
+    let block = render::sphere_rows(&rows, &captions, &opts).unwrap();
+    let mut want = Image::new(block.width + 8, block.height + 9 + 6 + 4, BG);
+    want.text(4, 4, "METAL_GOLD TO METAL_COPPER", 1, INK);
+    want.blit(&block, 4, 4 + 9 + 2);
+    let (w, h, png) = render::image::read_png_rgba8(&out.join("paths.png")).unwrap();
+    assert_eq!((w, h), (want.width, want.height));
+    let want = want.to_rgba8();
+    if let Some(k) = (0..w * h).find(|k| png[4 * k..4 * k + 4] != want[4 * k..4 * k + 4]) {
+        panic!("paths.png differs first at pixel ({}, {})", k % w, k / w);
     }
 }
 
