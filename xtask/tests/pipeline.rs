@@ -260,6 +260,7 @@ fn quick_pipeline_report_matches_the_model_and_data() {
     }
     check_sheet(dir.path(), &pred, &results, de);
     check_paths(dir.path(), &pred);
+    check_predictions(dir.path(), &pred, &results.predictions);
 
     // The markdown report quotes the numbers.
     let report = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
@@ -283,6 +284,25 @@ fn quick_pipeline_report_matches_the_model_and_data() {
     assert!(!report.contains("Not available in this build"));
 }
 
+/// The figures' background and text colours (figures.rs): light grey on dark grey.
+const FIGURE_BG: [f64; 3] = [0.18, 0.18, 0.18];
+const FIGURE_INK: [f64; 3] = [0.9, 0.9, 0.9];
+
+/// The PNG at `path` is `want` pixel for pixel (8-bit sRGB with alpha).
+fn assert_png_is(path: &Path, want: &render::Image) {
+    let (w, h, png) = render::image::read_png_rgba8(path).unwrap();
+    assert_eq!((w, h), (want.width, want.height), "{}", path.display());
+    let want = want.to_rgba8();
+    if let Some(k) = (0..w * h).find(|k| png[4 * k..4 * k + 4] != want[4 * k..4 * k + 4]) {
+        panic!(
+            "{} differs first at pixel ({}, {})",
+            path.display(),
+            k % w,
+            k / w
+        );
+    }
+}
+
 /// The quick pipeline's `sheet.png` (32-pixel spheres, 2 materials, leave-one-out run) is
 /// exactly what its Delta E values measure: for the materials picked evenly through the dataset
 /// (0 and N / 2), the stored material's sphere on top, labelled with its name, the smooth
@@ -296,22 +316,19 @@ fn check_sheet(
     delta_e: &[serde_json::Value],
 ) {
     use render::{Image, SphereOptions, render_sphere};
-    // The sheet's colours, cell and label sizes (figures.rs): names wrap into up to three
-    // lines of 9 pixels, the Delta E values are cut to one line of the sphere's width, 2
-    // pixels under the sphere, in light grey on dark grey.
-    const BG: [f64; 3] = [0.18, 0.18, 0.18];
-    const INK: [f64; 3] = [0.9, 0.9, 0.9];
+    // The sheet's cell and label sizes (figures.rs): names wrap into up to three lines of 9
+    // pixels, the Delta E values are cut to one line of the sphere's width, 2 pixels under
+    // the sphere.
     let (size, picked, line_h) = (32, delta_e.len(), 9);
     let (cell, label_h) = (size + 8, 3 * line_h + 3);
-    let (w, h, png) = render::image::read_png_rgba8(&out.join("sheet.png")).unwrap();
-    assert_eq!((w, h), (picked * cell + 4, 3 * (cell + label_h) + 4));
     let opts = SphereOptions {
         size,
         ..SphereOptions::default()
     };
     let loo = results.evaluation.as_ref().unwrap().loo.as_ref().unwrap();
     let n = pred.n_materials();
-    let mut want = Image::new(w, h, BG);
+    let (w, h) = (picked * cell + 4, 3 * (cell + label_h) + 4);
+    let mut want = Image::new(w, h, FIGURE_BG);
     for (col, d) in delta_e.iter().enumerate() {
         let name = d["name"].as_str().unwrap();
         let i = pred.material_index(name).unwrap();
@@ -345,15 +362,11 @@ fn check_sheet(
             want.blit(sphere, x0 as i64, y0 as i64);
             for (k, text) in lines.iter().enumerate() {
                 let y = y0 + size + 2 + k * line_h;
-                want.text(x0 as i64, y as i64, text, 1, INK);
+                want.text(x0 as i64, y as i64, text, 1, FIGURE_INK);
             }
         }
     }
-    // Pixel for pixel (8-bit sRGB).
-    let want = want.to_rgba8();
-    if let Some(k) = (0..w * h).find(|k| png[4 * k..4 * k + 4] != want[4 * k..4 * k + 4]) {
-        panic!("sheet.png differs first at pixel ({}, {})", k % w, k / w);
-    }
+    assert_png_is(&out.join("sheet.png"), &want);
 }
 
 /// The quick pipeline's `paths.png` (its one midpoint pair, log model) is exactly the paper's
@@ -363,9 +376,6 @@ fn check_sheet(
 fn check_paths(out: &Path, pred: &predict::Predictor) {
     use brdf_io::store::StoreMaterial;
     use render::{Image, SphereOptions};
-    // The figure's colours and title line (figures.rs).
-    const BG: [f64; 3] = [0.18, 0.18, 0.18];
-    const INK: [f64; 3] = [0.9, 0.9, 0.9];
     let (a, b) = ("metal_gold", "metal_copper");
     let (ia, ib) = (
         pred.material_index(a).unwrap(),
@@ -410,15 +420,43 @@ fn check_paths(out: &Path, pred: &predict::Predictor) {
         ..SphereOptions::default()
     };
     let block = render::sphere_rows(&rows, &captions, &opts).unwrap();
-    let mut want = Image::new(block.width + 8, block.height + 9 + 6 + 4, BG);
-    want.text(4, 4, "METAL_GOLD TO METAL_COPPER", 1, INK);
+    let mut want = Image::new(block.width + 8, block.height + 9 + 6 + 4, FIGURE_BG);
+    want.text(4, 4, "METAL_GOLD TO METAL_COPPER", 1, FIGURE_INK);
     want.blit(&block, 4, 4 + 9 + 2);
-    let (w, h, png) = render::image::read_png_rgba8(&out.join("paths.png")).unwrap();
-    assert_eq!((w, h), (want.width, want.height));
-    let want = want.to_rgba8();
-    if let Some(k) = (0..w * h).find(|k| png[4 * k..4 * k + 4] != want[4 * k..4 * k + 4]) {
-        panic!("paths.png differs first at pixel ({}, {})", k % w, k / w);
+    assert_png_is(&out.join("paths.png"), &want);
+}
+
+/// The quick pipeline's `predictions.png` is exactly its predictions rendered in a row: each
+/// sphere (by the row's own predictor) labelled with the prediction's name and its latent
+/// coordinates to two decimals, each wrapped into up to three lines of the sphere's width.
+fn check_predictions(out: &Path, pred: &predict::Predictor, rows: &[xtask::stages::PredictionRow]) {
+    use render::{Image, SphereOptions, render_sphere};
+    // The figure's cell and label sizes (figures.rs).
+    let (size, line_h) = (32, 9);
+    let (cell, label_h) = (size + 8, 3 * line_h + 3);
+    let opts = SphereOptions {
+        size,
+        ..SphereOptions::default()
+    };
+    assert_eq!(rows.len(), 2);
+    let mut want = Image::new(rows.len() * cell + 4, cell + 2 * label_h + 4, FIGURE_BG);
+    for (col, row) in rows.iter().enumerate() {
+        let kind = match row.predictor.as_str() {
+            "exact" => predict::PredictorKind::Exact,
+            other => panic!("the quick config predicts with `exact`, not {other}"),
+        };
+        let sphere = render_sphere(&pred.predict(&row.point, kind).unwrap(), &opts).unwrap();
+        let x = 4 + col * cell;
+        want.blit(&sphere, x as i64, 4);
+        let coords: Vec<String> = row.point.iter().map(|v| format!("{v:.2}")).collect();
+        for (j, text) in [row.label.clone(), coords.join(", ")].iter().enumerate() {
+            for (k, line) in render::font::wrap(text, size, 1, 3).iter().enumerate() {
+                let y = 4 + size + 2 + j * label_h + k * line_h;
+                want.text(x as i64, y as i64, line, 1, FIGURE_INK);
+            }
+        }
     }
+    assert_png_is(&out.join("predictions.png"), &want);
 }
 
 #[test]
