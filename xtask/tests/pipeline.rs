@@ -261,6 +261,7 @@ fn quick_pipeline_report_matches_the_model_and_data() {
     check_sheet(dir.path(), &pred, &results, de);
     check_paths(dir.path(), &pred);
     check_predictions(dir.path(), &pred, &results.predictions);
+    check_comparison_and_latent(dir.path(), &pred, &results);
 
     // The markdown report quotes the numbers.
     let report = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
@@ -457,6 +458,66 @@ fn check_predictions(out: &Path, pred: &predict::Predictor, rows: &[xtask::stage
         }
     }
     assert_png_is(&out.join("predictions.png"), &want);
+}
+
+/// The quick pipeline's `comparison.png` and `latent.png` are the render crate's figures of
+/// what the run holds: the comparison sheet of the two picked materials (stored, exact,
+/// smooth, held out; Delta E scale 0-10), and the latent map of the 51 materials and the two
+/// predictions over the predictive standard deviation, with its caption.
+fn check_comparison_and_latent(out: &Path, pred: &predict::Predictor, results: &xtask::Results) {
+    use predict::PredictorKind::{Exact, Smooth};
+    let opts = render::SphereOptions {
+        size: 32,
+        ..render::SphereOptions::default()
+    };
+    let loo = results.evaluation.as_ref().unwrap().loo.as_ref().unwrap();
+    let model = pred.model();
+    let n = model.materials.len();
+    let kept: Vec<(String, Vec<Box<dyn brdf_io::BrdfSource>>)> = [0, n / 2]
+        .iter()
+        .map(|&i| {
+            let m = &model.materials[i];
+            let row = loo.iter().find(|r| r.name == m.name).unwrap();
+            let sources: Vec<Box<dyn brdf_io::BrdfSource>> = vec![
+                Box::new(brdf_io::store::StoreMaterial::by_index(pred.store().clone(), i).unwrap()),
+                Box::new(pred.predict(&m.coords, Exact).unwrap()),
+                Box::new(pred.predict(&m.coords, Smooth).unwrap()),
+                Box::new(
+                    pred.from_coefficients(row.gp_coefficients.clone(), m.name.clone())
+                        .unwrap(),
+                ),
+            ];
+            (m.name.to_uppercase(), sources)
+        })
+        .collect();
+    let rows: Vec<render::sheet::SheetRow<'_>> = kept
+        .iter()
+        .map(|(name, v)| (name.clone(), v.iter().map(|b| b.as_ref()).collect()))
+        .collect();
+    let columns = ["STORED", "EXACT", "SMOOTH", "HELD OUT"];
+    let sheet = render::comparison_sheet(&columns, &rows, &opts, 10.0).unwrap();
+    assert_png_is(&out.join("comparison.png"), &sheet.image);
+
+    let points: Vec<render::map::LabelledPoint> = model
+        .materials
+        .iter()
+        .map(|m| (m.name.clone(), [m.coords[0], m.coords[1]]))
+        .chain(
+            results
+                .predictions
+                .iter()
+                .map(|p| (p.label.clone(), [p.point[0], p.point[1]])),
+        )
+        .collect();
+    assert_eq!((points.len(), model.latent_dim), (n + 2, 2));
+    let variance = |p: [f64; 2]| Ok(pred.variance_transformed(&p, Smooth).unwrap());
+    let map_opts = render::MapOptions {
+        caption: render::map::variance_caption("log(offset=0.01)", 2),
+        predicted_points: 2,
+        ..render::MapOptions::default()
+    };
+    let map = render::latent_map(&points, &variance, None, &map_opts).unwrap();
+    assert_png_is(&out.join("latent.png"), &map);
 }
 
 #[test]
