@@ -220,14 +220,14 @@ mod tests {
         assert_eq!(decades(std::iter::empty()), (0.0, 1.0));
     }
 
-    /// Points sit where their values say on log-log axes (here x over 0.1-10 s, y over
+    /// Points sit where their values say on log-log axes (here x over 0.1-100 s, y over
     /// 1e-3-1e-1), in their sweep's colour; the front is ringed and joined, other points not.
     #[test]
     fn points_front_axes_and_legend_are_where_the_values_put_them() {
         let rows = [
             point("base", "b", 0.2, 0.02, true),
             point("grid", "8,8,16", 2.0, 0.005, true),
-            point("grid", "4,4,8", 5.0, 0.05, false),
+            point("grid", "4,4,8", 50.0, 0.05, false),
             // Not plotted (no fit time; a NaN error): listed in the legend, and neither moves
             // the axes (0.0005 would widen y to 1e-4).
             point("dtype", "f16", 0.0, 0.0005, true),
@@ -236,14 +236,14 @@ mod tests {
         let img = draw(&rows);
         assert_eq!((img.width, img.height), (W, H));
         let (pw, ph) = (W as f64 - LEFT - RIGHT, H as f64 - TOP - BOTTOM);
-        // x: decades -1..1; y: decades -3..-1.
+        // x: decades -1..2; y: decades -3..-1.
         let pos = |t: f64, e: f64| {
             (
-                LEFT + (t.log10() + 1.0) / 2.0 * pw,
+                LEFT + (t.log10() + 1.0) / 3.0 * pw,
                 TOP + ph - (e.log10() + 3.0) / 2.0 * ph,
             )
         };
-        let (a, b, c) = (pos(0.2, 0.02), pos(2.0, 0.005), pos(5.0, 0.05));
+        let (a, b, c) = (pos(0.2, 0.02), pos(2.0, 0.005), pos(50.0, 0.05));
         // Discs in the colour of their sweep, in order of first appearance.
         assert_eq!(at(&img, a), PALETTE[0]);
         assert_eq!(at(&img, b), PALETTE[1]);
@@ -290,13 +290,40 @@ mod tests {
         assert!(label_has(a, 4, PALETTE[0]));
         // Decade grid lines at x = 1 s and y = 1e-2, the axes along the left and bottom;
         // plain background between them.
-        let grid_x = LEFT + pw / 2.0;
+        let grid_x = LEFT + pw / 3.0;
         let grid_y = TOP + ph / 2.0;
         for p in [(grid_x, TOP + ph * 0.8), (LEFT + pw * 0.8, grid_y)] {
             let v = at(&img, p);
             assert!(v[0] < 0.95 && v[0] > 0.5, "grid line at {p:?}: {v:?}");
         }
         assert_eq!(at(&img, (grid_x + pw / 8.0, TOP + ph * 0.8)), BG);
+        // Grid lines stop at the axes.
+        assert_eq!(at(&img, (grid_x, TOP + ph + 25.0)), BG);
+        assert_eq!(at(&img, (LEFT - 40.0, grid_y)), BG);
+        // Tick labels: each decade under its grid line and left of it, glyph for glyph.
+        let mut ticks = Image::new(W, H, BG);
+        for d in -1..=2 {
+            let x = LEFT + f64::from(d + 1) / 3.0 * pw;
+            ticks.text(
+                x as i64 - 8,
+                (TOP + ph + 8.0) as i64,
+                &format!("1e{d}"),
+                1,
+                INK,
+            );
+        }
+        for d in -3..=-1 {
+            let y = TOP + ph - f64::from(d + 3) / 2.0 * ph;
+            ticks.text(LEFT as i64 - 34, y as i64 - 3, &format!("1e{d}"), 1, INK);
+        }
+        let glyphs: Vec<(usize, usize)> = (0..H)
+            .flat_map(|y| (0..W).map(move |x| (x, y)))
+            .filter(|&(x, y)| ticks.get(x, y) == INK)
+            .collect();
+        assert!(glyphs.len() > 100);
+        for (x, y) in glyphs {
+            assert_eq!(img.get(x, y), INK, "tick label pixel ({x}, {y})");
+        }
         for p in [(LEFT, TOP + ph * 0.3), (LEFT + pw * 0.3, TOP + ph)] {
             let v = at(&img, p);
             assert!(v[0] < 0.3, "axis at {p:?}: {v:?}");
