@@ -280,14 +280,6 @@ mod tests {
             beside.iter().filter(|d| **d < 1.9).count() >= 2,
             "{beside:?}"
         );
-        // Labels: the swept value right of and below the point, in the sweep's colour ("base"
-        // for the base point, whose value is not shown).
-        let label_has = |p: (f64, f64), chars: usize, rgb: [f64; 3]| {
-            let (x0, y0) = (p.0 as usize + 7, p.1 as usize + 4);
-            (y0..y0 + 7).any(|y| (x0..x0 + 6 * chars).any(|x| img.get(x, y) == rgb))
-        };
-        assert!(label_has(b, 6, PALETTE[1]));
-        assert!(label_has(a, 4, PALETTE[0]));
         // Decade grid lines at x = 1 s and y = 1e-2, the axes along the left and bottom;
         // plain background between them.
         let grid_x = LEFT + pw / 3.0;
@@ -297,33 +289,59 @@ mod tests {
             assert!(v[0] < 0.95 && v[0] > 0.5, "grid line at {p:?}: {v:?}");
         }
         assert_eq!(at(&img, (grid_x + pw / 8.0, TOP + ph * 0.8)), BG);
-        // Grid lines stop at the axes.
+        // Grid lines stop at the axes, and the axes at the plot's corners.
+        assert_eq!(at(&img, (LEFT + pw + 10.0, TOP + ph)), BG);
+        assert_eq!(at(&img, (LEFT, H as f64 - 5.0)), BG);
         assert_eq!(at(&img, (grid_x, TOP + ph + 25.0)), BG);
         assert_eq!(at(&img, (LEFT - 40.0, grid_y)), BG);
-        // Tick labels: each decade under its grid line and left of it, glyph for glyph.
-        let mut ticks = Image::new(W, H, BG);
+        // Every text glyph for glyph: the title, the axis names, the tick labels under and left
+        // of their grid lines, each point's label right of and below it in its sweep's colour
+        // (the swept value; "base" for the base point), the legend's names.
+        let mut texts = Image::new(W, H, BG);
+        let mut text = |x: f64, y: f64, t: &str, scale: usize, rgb: [f64; 3]| {
+            texts.text(x as i64, y as i64, t, scale, rgb);
+        };
+        let title = "specgp bench: fit time against leave-one-out error (log-log)";
+        text(LEFT, 4.0, title, 2, INK);
+        text(
+            LEFT + pw / 2.0 - 60.0,
+            H as f64 - 24.0,
+            "fit time (s)",
+            2,
+            INK,
+        );
+        text(4.0, TOP - 14.0, "LOO RMSE / sqrt(channels) (1/sr)", 1, INK);
         for d in -1..=2 {
             let x = LEFT + f64::from(d + 1) / 3.0 * pw;
-            ticks.text(
-                x as i64 - 8,
-                (TOP + ph + 8.0) as i64,
-                &format!("1e{d}"),
-                1,
-                INK,
-            );
+            text(x - 8.0, TOP + ph + 8.0, &format!("1e{d}"), 1, INK);
         }
         for d in -3..=-1 {
             let y = TOP + ph - f64::from(d + 3) / 2.0 * ph;
-            ticks.text(LEFT as i64 - 34, y as i64 - 3, &format!("1e{d}"), 1, INK);
+            text(LEFT - 34.0, y.trunc() - 3.0, &format!("1e{d}"), 1, INK);
         }
-        let glyphs: Vec<(usize, usize)> = (0..H)
-            .flat_map(|y| (0..W).map(move |x| (x, y)))
-            .filter(|&(x, y)| ticks.get(x, y) == INK)
-            .collect();
-        assert!(glyphs.len() > 100);
-        for (x, y) in glyphs {
-            assert_eq!(img.get(x, y), INK, "tick label pixel ({x}, {y})");
+        for (p, label, rgb) in [(a, "base", PALETTE[0]), (b, "8,8,16", PALETTE[1])] {
+            text(p.0.trunc() + 7.0, p.1.trunc() + 4.0, label, 1, rgb);
         }
+        text(c.0.trunc() + 7.0, c.1.trunc() + 4.0, "4,4,8", 1, PALETTE[1]);
+        let lx = LEFT + pw + 20.0;
+        for (i, name) in ["base", "grid", "dtype", "optimizer", "Pareto front"]
+            .iter()
+            .enumerate()
+        {
+            let y = TOP + 10.0 + 18.0 * i as f64 + if i == 4 { 8.0 } else { 0.0 };
+            text(lx + 14.0, y, name, 1, INK);
+        }
+        let mut glyphs = 0;
+        for y in 0..H {
+            for x in 0..W {
+                let want = texts.get(x, y);
+                if want != BG {
+                    assert_eq!(img.get(x, y), want, "text pixel ({x}, {y})");
+                    glyphs += 1;
+                }
+            }
+        }
+        assert!(glyphs > 1000, "{glyphs}");
         for p in [(LEFT, TOP + ph * 0.3), (LEFT + pw * 0.3, TOP + ph)] {
             let v = at(&img, p);
             assert!(v[0] < 0.3, "axis at {p:?}: {v:?}");
