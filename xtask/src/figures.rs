@@ -59,9 +59,8 @@ const MAX_PATHS: usize = 3;
 /// sheet's measure ([`render::sheet::delta_e_map`], [`render::sheet::mean_delta_e`]), so the
 /// sheet and the comparison sheet agree on the same pair of spheres.
 pub fn mean_delta_e(a: &Image, b: &Image) -> render::Result<f64> {
-    Ok(render::sheet::mean_delta_e(&render::sheet::delta_e_map(
-        a, b,
-    )?))
+    let map = render::sheet::delta_e_map(a, b)?;
+    Ok(render::sheet::mean_delta_e(&map))
 }
 
 /// Height of one label line (7-pixel glyphs plus spacing).
