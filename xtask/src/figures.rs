@@ -98,6 +98,21 @@ impl Scene<'_> {
     fn cell(&self) -> usize {
         self.opts.size + 8
     }
+
+    /// The GP's prediction of material `name` held out (leave-one-out), labelled `loo-NAME`;
+    /// `None` without leave-one-out results or without a row for it.
+    fn held_out(&self, name: &str) -> predict::Result<Option<predict::PredictedMaterial>> {
+        let Some(row) = self
+            .loo
+            .and_then(|rows| rows.iter().find(|r| r.name == name))
+        else {
+            return Ok(None);
+        };
+        let label = format!("loo-{name}");
+        self.pred
+            .from_coefficients(row.gp_coefficients.clone(), label)
+            .map(Some)
+    }
 }
 
 /// A figure file (relative to the output directory) and its caption.
@@ -212,10 +227,7 @@ fn sheet_figure(
             mean_delta_e: de,
             held_out_delta_e: None,
         });
-        if let Some(row) = loo.and_then(|rows| rows.iter().find(|r| &r.name == name)) {
-            let held = pred
-                .from_coefficients(row.gp_coefficients.clone(), format!("loo-{name}"))
-                .map_err(|e| err(&sheet_path, e))?;
+        if let Some(held) = scene.held_out(name).map_err(|e| err(&sheet_path, e))? {
             let c = render_sphere(&held, opts).map_err(|e| err(&sheet_path, e))?;
             spheres += 1;
             let de = mean_delta_e(&a, &c).map_err(|e| err(&sheet_path, e))?;
@@ -290,9 +302,8 @@ fn comparison_figure(scene: &Scene<'_>, picks: &[usize]) -> Result<(Caption, usi
             Box::new(pred.predict(x, PredictorKind::Smooth).map_err(e)?),
         ];
         let name = &model.materials[i].name;
-        if let Some(r) = loo.and_then(|rows| rows.iter().find(|r| &r.name == name)) {
-            let held = pred.from_coefficients(r.gp_coefficients.clone(), format!("loo-{name}"));
-            row.push(Box::new(held.map_err(e)?));
+        if let Some(held) = scene.held_out(name).map_err(e)? {
+            row.push(Box::new(held));
         }
         kept.push(row);
     }
