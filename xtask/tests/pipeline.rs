@@ -304,6 +304,18 @@ fn assert_png_is(path: &Path, want: &render::Image) {
     }
 }
 
+/// The quick pipeline's leave-one-out prediction of material `name`.
+fn held_out(
+    pred: &predict::Predictor,
+    results: &xtask::Results,
+    name: &str,
+) -> predict::PredictedMaterial {
+    let loo = results.evaluation.as_ref().unwrap().loo.as_ref().unwrap();
+    let row = loo.iter().find(|r| r.name == name).unwrap();
+    pred.from_coefficients(row.gp_coefficients.clone(), name.into())
+        .unwrap()
+}
+
 /// The quick pipeline's `sheet.png` (32-pixel spheres, 2 materials, leave-one-out run) is
 /// exactly what its Delta E values measure: for the materials picked evenly through the dataset
 /// (0 and N / 2), the stored material's sphere on top, labelled with its name, the smooth
@@ -326,7 +338,6 @@ fn check_sheet(
         size,
         ..SphereOptions::default()
     };
-    let loo = results.evaluation.as_ref().unwrap().loo.as_ref().unwrap();
     let n = pred.n_materials();
     let (w, h) = (picked * cell + 4, 3 * (cell + label_h) + 4);
     let mut want = Image::new(w, h, FIGURE_BG);
@@ -339,10 +350,7 @@ fn check_sheet(
         let smooth = pred
             .predict(coords, predict::PredictorKind::Smooth)
             .unwrap();
-        let row = loo.iter().find(|r| r.name == name).unwrap();
-        let held = pred
-            .from_coefficients(row.gp_coefficients.clone(), name.into())
-            .unwrap();
+        let held = held_out(pred, results, name);
         let spheres = [
             render_sphere(&stored, &opts).unwrap(),
             render_sphere(&smooth, &opts).unwrap(),
@@ -470,22 +478,17 @@ fn check_comparison_and_latent(out: &Path, pred: &predict::Predictor, results: &
         size: 32,
         ..render::SphereOptions::default()
     };
-    let loo = results.evaluation.as_ref().unwrap().loo.as_ref().unwrap();
     let model = pred.model();
     let n = model.materials.len();
     let kept: Vec<(String, Vec<Box<dyn brdf_io::BrdfSource>>)> = [0, n / 2]
         .iter()
         .map(|&i| {
             let m = &model.materials[i];
-            let row = loo.iter().find(|r| r.name == m.name).unwrap();
             let sources: Vec<Box<dyn brdf_io::BrdfSource>> = vec![
                 Box::new(brdf_io::store::StoreMaterial::by_index(pred.store().clone(), i).unwrap()),
                 Box::new(pred.predict(&m.coords, Exact).unwrap()),
                 Box::new(pred.predict(&m.coords, Smooth).unwrap()),
-                Box::new(
-                    pred.from_coefficients(row.gp_coefficients.clone(), m.name.clone())
-                        .unwrap(),
-                ),
+                Box::new(held_out(pred, results, &m.name)),
             ];
             (m.name.to_uppercase(), sources)
         })
