@@ -143,6 +143,130 @@ mod tests {
     use crate::cholesky::CholeskyFactor;
     use faer::{Mat, Par};
 
+    /// ARD length-scales `l` times `c`, with the given signal variance and noise.
+    fn ard(s2: f64, l: &[f64], c: f64, mu: f64) -> KernelParams {
+        let l = l.iter().map(|v| v * c).collect();
+        KernelParams::new(s2, crate::kernel::LengthScale::Ard(l), mu).unwrap()
+    }
+
+    /// Every field against its formula (module docs) at a signal variance and noise away from
+    /// 1 and 0, with ARD distances; the reported multipliers put the closest pair's condition
+    /// exactly at `kappa_max` and the most isolated point's correlation exactly at `rho_min`.
+    #[test]
+    fn fields_follow_their_formulas_and_bounds_are_exact() {
+        // Three points; with l = (2, 0.5) the scaled distances are 0-1: 1.5 (dx 3), 0-2: 1.0
+        // (dy 0.5) and 1-2: sqrt(2.25 + 1) = sqrt(3.25).
+        let x = Mat::from_fn(3, 2, |i, j| [[0.0, 0.0], [3.0, 0.0], [0.0, 0.5]][i][j]);
+        let (s2, mu, l) = (2.0, 0.1, [2.0, 0.5]);
+        let th = LengthScaleThresholds {
+            kappa_max: 10.0,
+            rho_min: 0.4,
+        };
+        let d = length_scale_condition(x.as_ref(), &ard(s2, &l, 1.0, mu), th).unwrap();
+        let tol = 1e-14;
+        assert!((d.r_min - 1.0).abs() < tol, "{d:?}");
+        assert!((d.r_nn_max - 1.5).abs() < tol, "{d:?}");
+        let rho_pair = (-0.5f64).exp();
+        let c2 = (s2 * (1.0 + rho_pair) + mu) / (s2 * (1.0 - rho_pair) + mu);
+        assert!((d.pair_condition - c2).abs() < tol * c2, "{d:?}");
+        assert!(
+            (d.isolated_correlation - (-1.125f64).exp()).abs() < tol,
+            "{d:?}"
+        );
+        // c2 = 3.27 <= 10; rho(1.5) = 0.325 < 0.4.
+        assert!(
+            d.well_conditioned && !d.non_degenerate && !d.satisfied(),
+            "{d:?}"
+        );
+        // rho_max = 9 * 2.1 / (11 * 2): l may grow by 1 / sqrt(-2 ln rho_max).
+        let rho_max = 9.0 * 2.1 / 22.0;
+        assert!((d.scale_max - 1.0 / (-2.0 * f64::ln(rho_max)).sqrt()).abs() < tol);
+        assert!((d.scale_min - 1.5 / (-2.0 * f64::ln(0.4)).sqrt()).abs() < tol);
+        let at_max = length_scale_condition(x.as_ref(), &ard(s2, &l, d.scale_max, mu), th).unwrap();
+        assert!((at_max.pair_condition - 10.0).abs() < 1e-12, "{at_max:?}");
+        let at_min = length_scale_condition(x.as_ref(), &ard(s2, &l, d.scale_min, mu), th).unwrap();
+        assert!(
+            (at_min.isolated_correlation - 0.4).abs() < 1e-14,
+            "{at_min:?}"
+        );
+        // Between the two, both conditions hold.
+        let mid = 0.5 * (d.scale_min + d.scale_max);
+        let both = length_scale_condition(x.as_ref(), &ard(s2, &l, mid, mu), th).unwrap();
+        assert!(both.well_conditioned && both.non_degenerate && both.satisfied());
+        // Two points: both bounds are finite (the closest pair is the only pair).
+        let two = length_scale_condition(x.subrows(0, 2), &ard(s2, &l, 1.0, mu), th).unwrap();
+        assert!((two.r_min - 1.5).abs() < tol && (two.r_nn_max - 1.5).abs() < tol);
+        assert!(two.scale_max.is_finite() && two.scale_min > 0.0, "{two:?}");
+    }
+
+    /// One point has no pair: no distance, nothing to condition, no bound.
+    #[test]
+    fn a_single_point_has_no_bounds() {
+        let x = Mat::from_fn(1, 2, |_, j| j as f64);
+        let th = LengthScaleThresholds::default();
+        let d = length_scale_condition(x.as_ref(), &ard(2.0, &[1.0, 3.0], 1.0, 0.1), th).unwrap();
+        assert_eq!(d.r_min, f64::INFINITY);
+        assert_eq!(d.r_nn_max, f64::INFINITY);
+        assert_eq!(d.pair_condition, 1.0);
+        assert_eq!(d.isolated_correlation, 1.0);
+        assert_eq!((d.scale_min, d.scale_max), (0.0, f64::INFINITY));
+        assert!(d.well_conditioned && d.non_degenerate && d.satisfied());
+    }
+
+    /// `satisfied` needs both conditions.
+    #[test]
+    fn satisfied_needs_both_conditions() {
+        let d = LengthScaleDiagnostic {
+            r_min: 1.0,
+            r_nn_max: 1.0,
+            pair_condition: 2.0,
+            isolated_correlation: 0.5,
+            well_conditioned: true,
+            non_degenerate: true,
+            scale_min: 0.5,
+            scale_max: 2.0,
+        };
+        assert!(d.satisfied());
+        for (well_conditioned, non_degenerate) in [(true, false), (false, true), (false, false)] {
+            let d = LengthScaleDiagnostic {
+                well_conditioned,
+                non_degenerate,
+                ..d
+            };
+            assert!(!d.satisfied(), "{d:?}");
+        }
+    }
+
+    /// Thresholds outside `kappa_max > 1` and `0 < rho_min < 1` (or not finite) are errors
+    /// naming the threshold; the nearest valid values are accepted.
+    #[test]
+    fn thresholds_outside_their_ranges_are_errors() {
+        let x = Mat::from_fn(3, 1, |i, _| i as f64);
+        let p = KernelParams::isotropic(1.0, 1.0, 0.1).unwrap();
+        let check = |kappa_max: f64, rho_min: f64| {
+            length_scale_condition(x.as_ref(), &p, LengthScaleThresholds { kappa_max, rho_min })
+        };
+        for kappa_max in [1.0, 0.5, -2.0, f64::INFINITY, f64::NAN] {
+            match check(kappa_max, 1e-3) {
+                Err(GpError::InvalidHyperparameter { name, .. }) => {
+                    assert!(name.starts_with("kappa_max"), "{name}")
+                }
+                other => panic!("kappa_max {kappa_max}: {other:?}"),
+            }
+        }
+        for rho_min in [0.0, -0.5, 1.0, 2.0, f64::INFINITY, f64::NAN] {
+            match check(1e8, rho_min) {
+                Err(GpError::InvalidHyperparameter { name, .. }) => {
+                    assert!(name.starts_with("rho_min"), "{name}")
+                }
+                other => panic!("rho_min {rho_min}: {other:?}"),
+            }
+        }
+        let above_one = 1.0 + f64::EPSILON;
+        assert!(check(above_one, f64::MIN_POSITIVE).is_ok());
+        assert!(check(above_one, 1.0 - f64::EPSILON / 2.0).is_ok());
+    }
+
     #[test]
     fn bounds_are_consistent_with_conditions() {
         // Points on a line with spacing 0.5; isolated point at distance 4 from the rest.
