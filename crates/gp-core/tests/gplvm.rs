@@ -1131,6 +1131,86 @@ fn point_moves_decline_near_duplicates_and_refuse_bad_points() {
     assert_eq!(v, flat.neg_log_likelihood(&theta, Par::Seq).unwrap());
 }
 
+/// The reference's condition limit is on the 1-norm condition number `|K|_1 |K^-1|_1`, which
+/// for two points does not depend on the signal variance: with `s^2 = 100` a reference at
+/// 5e6 takes moves and one at 2e7 does not (while `|K|_1 + |K^-1|_1` stays below 1e6 in
+/// both). For two points `cond_1 = (1 + m + rho) / (1 + m - rho)`, `m = mu / s^2`.
+#[test]
+fn point_moves_need_a_reference_condition_of_at_most_1e7() {
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let y = rand_mat(&mut rng, 2, 4, -1.0, 1.0);
+    let obj = objective_from_data(y.as_ref());
+    let (s2, mu) = (100.0, 1e-7);
+    let p = KernelParams::isotropic(s2, 1.0, mu).unwrap();
+    for (condition, takes_moves) in [(5e6, true), (2e7, false)] {
+        let m1 = 1.0 + mu / s2;
+        let rho: f64 = m1 * (condition - 1.0) / (condition + 1.0);
+        let r = (-2.0 * rho.ln()).sqrt();
+        let x = Mat::from_fn(2, 1, |i, _| i as f64 * r);
+        let k = p.kernel_matrix(x.as_ref()).unwrap();
+        let kinv = k.as_ref().llt(faer::Side::Lower).unwrap().inverse();
+        let norm1 = |a: MatRef<'_, f64>| {
+            (0..2)
+                .map(|j| a[(0, j)].abs() + a[(1, j)].abs())
+                .fold(0.0, f64::max)
+        };
+        let (nk, ni) = (norm1(k.as_ref()), norm1(kinv.as_ref()));
+        assert!(((nk * ni) / condition - 1.0).abs() < 1e-3, "{}", nk * ni);
+        assert!(nk + ni < 1e6, "{nk} + {ni}");
+        let moves = gp_core::PointMoves::new(&obj, x.as_ref(), &p, Par::Seq).unwrap();
+        assert_eq!(moves.is_some(), takes_moves, "condition {condition:e}");
+    }
+}
+
+/// A reference move of exactly `MAX_UPDATE_MOVE` length-scales along an axis (ARD: each
+/// axis its own) is made by an update; a longer one is refused and leaves the reference as
+/// it was. The debug form names the sizes and the value.
+#[test]
+fn reference_moves_up_to_the_longest_update_along_each_axis() {
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let y = rand_mat(&mut rng, 4, 6, -1.0, 1.0);
+    let obj = objective_from_data(y.as_ref());
+    let x = Mat::from_fn(4, 2, |i, j| {
+        [[0.0, 0.0], [1.0, 0.5], [-1.0, 0.8], [0.5, -1.0]][i][j]
+    });
+    let p = KernelParams::new(1.5, LengthScale::Ard(vec![2.0, 0.5]), 1e-3).unwrap();
+    let longest = [
+        gp_core::MAX_UPDATE_MOVE * 2.0,
+        gp_core::MAX_UPDATE_MOVE * 0.5,
+    ];
+    for axis in 0..2 {
+        let mut moves = gp_core::PointMoves::new(&obj, x.as_ref(), &p, Par::Seq)
+            .unwrap()
+            .unwrap();
+        let before = moves.value();
+        let mut point = [0.0, 0.0];
+        point[axis] = longest[axis] * (1.0 + 4.0 * f64::EPSILON);
+        assert!(!moves.move_reference(0, &point).unwrap(), "axis {axis}");
+        assert_eq!((moves.value(), moves.x()), (before, x.as_ref()));
+        point[axis] = longest[axis];
+        assert!(moves.move_reference(0, &point).unwrap(), "axis {axis}");
+        let moved = with_point(x.as_ref(), 0, &point);
+        assert_eq!(moves.x(), moved.as_ref());
+        let (full, _) = obj.log_likelihood(moved.as_ref(), &p, Par::Seq).unwrap();
+        assert!(
+            (moves.value() - full).abs() <= 1e-12 * full.abs(),
+            "axis {axis}"
+        );
+    }
+    let moves = gp_core::PointMoves::new(&obj, x.as_ref(), &p, Par::Seq)
+        .unwrap()
+        .unwrap();
+    let text = format!("{moves:?}");
+    assert!(
+        text.starts_with("PointMoves { n: 4, q: 2, value: ") && text.ends_with(", .. }"),
+        "{text}"
+    );
+    assert!(
+        text.contains(&format!("value: {:?}", moves.value())),
+        "{text}"
+    );
+}
+
 /// The evaluator along the trial sequence a direct search makes (one coordinate at a time,
 /// accepted moves, pattern moves, changed hyperparameters, the same point again) gives the
 /// full evaluation's value to rounding, and evaluates most trials without a factorisation.
@@ -1178,6 +1258,17 @@ fn move_evaluator_follows_full_evaluations_along_a_search() {
             check(&mut evaluator, &pattern);
             check(&mut evaluator, &base);
         }
+        // The current point once more: the reference's own value (the same bits as a full
+        // evaluation), without a factorisation.
+        let before = evaluator.counts();
+        let again = check(&mut evaluator, &base);
+        assert_eq!(again, flat.neg_log_likelihood(&base, Par::Seq).unwrap());
+        let after = evaluator.counts();
+        assert_eq!(
+            (after.cheap, after.references),
+            (before.cheap + 1, before.references),
+            "seed {seed}"
+        );
         let c = evaluator.counts();
         assert_eq!(c.evaluations, trials);
         let share = c.cheap as f64 / c.evaluations as f64;
@@ -1211,8 +1302,13 @@ fn reference_updates_stay_close_to_full_evaluations() {
         let mut moves = gp_core::PointMoves::new(&obj, x.as_ref(), &p, Par::Seq)
             .unwrap()
             .expect("these K factor without jitter, with cond(K) <= 1e7");
+        // About 7 moves in 10 are updates (32 took at most 61 here); the bound keeps a broken
+        // update (one that declines every later move) from looping for ever.
         let mut done = 0;
-        while done < gp_core::MAX_UPDATES {
+        for _ in 0..100 * gp_core::MAX_UPDATES {
+            if done == gp_core::MAX_UPDATES {
+                break;
+            }
             let m = rng.random_range(0..n);
             let size = 10f64.powf(-rng.random_range(0.0..6.0));
             let point: Vec<f64> = (0..q)
@@ -1231,6 +1327,7 @@ fn reference_updates_stay_close_to_full_evaluations() {
                 done += 1;
             }
         }
+        assert_eq!(done, gp_core::MAX_UPDATES, "seed {seed}: updates made");
         let (full, _) = obj.log_likelihood(x.as_ref(), &p, Par::Seq).unwrap();
         let rel = |v: f64, full: f64| (v - full).abs() / full.abs().max(1.0);
         worst = worst.max(rel(moves.value(), full));
