@@ -577,16 +577,17 @@ impl KernelParams {
     ) -> Result<KernelGradient> {
         let n = x.nrows();
         let q = x.ncols();
-        if dk.nrows() != n || dk.ncols() != n || k_rbf.nrows() != n || k_rbf.ncols() != n {
-            return Err(GpError::DimensionMismatch {
-                what: "dF/dK and K_rbf vs number of latent points",
-                expected: n,
-                got: if dk.nrows() != n {
-                    dk.nrows()
-                } else {
-                    dk.ncols()
-                },
-            });
+        for (what, m) in [
+            ("dF/dK vs number of latent points", dk),
+            ("K_rbf vs number of latent points", k_rbf),
+        ] {
+            if let Some(got) = [m.nrows(), m.ncols()].into_iter().find(|&d| d != n) {
+                return Err(GpError::DimensionMismatch {
+                    what,
+                    expected: n,
+                    got,
+                });
+            }
         }
         let inv_l2: Vec<f64> = (0..q)
             .map(|j| {
@@ -891,6 +892,22 @@ mod tests {
         );
     }
 
+    /// The length-scale's accessors: counts, emptiness, values, axes and kind.
+    #[test]
+    fn length_scale_accessors() {
+        let iso = LengthScale::Isotropic(2.0);
+        let ard = LengthScale::Ard(vec![0.5, 3.0]);
+        let no_axis = LengthScale::Ard(Vec::new());
+        assert_eq!((iso.len(), iso.is_empty(), iso.is_ard()), (1, false, false));
+        assert_eq!((ard.len(), ard.is_empty(), ard.is_ard()), (2, false, true));
+        assert_eq!(
+            (no_axis.len(), no_axis.is_empty(), no_axis.is_ard()),
+            (0, true, true)
+        );
+        assert_eq!((iso.values(), ard.values()), (&[2.0][..], &[0.5, 3.0][..]));
+        assert_eq!((iso.axis(0), iso.axis(7), ard.axis(1)), (2.0, 2.0, 3.0));
+    }
+
     #[test]
     fn log_roundtrip_and_validation() {
         let p = KernelParams::new(0.25, LengthScale::Ard(vec![0.5, 2.0]), 1e-4).unwrap();
@@ -938,23 +955,82 @@ mod tests {
             .unwrap();
         for (r, c) in [(4, 5), (5, 4), (4, 3), (3, 4)] {
             let bad = Mat::from_fn(r, c, |i, j| 1.0 / (1.0 + (i + j) as f64));
-            assert!(
-                matches!(
-                    p.backprop(x.as_ref(), bad.as_ref()),
-                    Err(GpError::DimensionMismatch { .. })
-                ),
+            // The error names the wrong matrix and its wrong dimension.
+            let wrong = if r != 4 { r } else { c };
+            assert_eq!(
+                p.backprop(x.as_ref(), bad.as_ref()).unwrap_err(),
+                GpError::DimensionMismatch {
+                    what: "dF/dK vs number of latent points",
+                    expected: 4,
+                    got: wrong
+                },
                 "dF/dK {r} x {c}"
             );
-            for (dk, k) in [(bad.as_ref(), k.as_ref()), (dk.as_ref(), bad.as_ref())] {
-                assert!(
-                    matches!(
-                        p.backprop_with_rbf(x.as_ref(), dk, k, true),
-                        Err(GpError::DimensionMismatch { .. })
-                    ),
+            for (dk, k, what) in [
+                (bad.as_ref(), k.as_ref(), "dF/dK vs number of latent points"),
+                (
+                    dk.as_ref(),
+                    bad.as_ref(),
+                    "K_rbf vs number of latent points",
+                ),
+            ] {
+                assert_eq!(
+                    p.backprop_with_rbf(x.as_ref(), dk, k, true).unwrap_err(),
+                    GpError::DimensionMismatch {
+                        what,
+                        expected: 4,
+                        got: wrong
+                    },
                     "{r} x {c}"
                 );
             }
         }
+    }
+
+    /// `backprop` takes a caller's `dF/dK` only finite and symmetric to `sqrt(eps)` of its
+    /// largest entry, and uses its symmetric part `(dF/dK + dF/dK^T) / 2`: a slightly
+    /// asymmetric one gives the bits of its symmetric part, not of either triangle.
+    #[test]
+    fn backprop_checks_and_symmetrises_df_dk() {
+        let p = KernelParams::new(1.3, LengthScale::Ard(vec![0.8, 1.7]), 1e-3).unwrap();
+        let x = Mat::from_fn(5, 2, |i, j| 0.4 * i as f64 - 0.3 * (j * i % 3) as f64);
+        let sym = Mat::from_fn(5, 5, |i, j| 1.0 / (1.0 + (i + j) as f64));
+        let skew = |scale: f64| {
+            Mat::from_fn(5, 5, |i, j| {
+                sym[(i, j)] + scale * (i as f64 - j as f64) * (1.0 + (i * j) as f64)
+            })
+        };
+        let asym = skew(1e-10);
+        let half = Mat::from_fn(5, 5, |i, j| 0.5 * (asym[(i, j)] + asym[(j, i)]));
+        let bits = |g: &KernelGradient| {
+            let (n, q) = (g.x.nrows(), g.x.ncols());
+            let mut v: Vec<u64> = (0..n * q).map(|k| g.x[(k % n, k / n)].to_bits()).collect();
+            v.extend(g.hyper.to_vec().iter().map(|v| v.to_bits()));
+            v
+        };
+        let of_half = bits(&p.backprop(x.as_ref(), half.as_ref()).unwrap());
+        let of_asym = bits(&p.backprop(x.as_ref(), asym.as_ref()).unwrap());
+        assert_eq!(of_asym, of_half);
+        let k = p.rbf_matrix(x.as_ref()).unwrap();
+        let raw = p
+            .backprop_with_rbf(x.as_ref(), asym.as_ref(), k.as_ref(), true)
+            .unwrap();
+        assert_ne!(bits(&raw), of_half, "the triangles differ");
+        assert!(matches!(
+            p.backprop(x.as_ref(), skew(1e-6).as_ref()),
+            Err(GpError::NotSymmetric { what: "dF/dK", .. })
+        ));
+        let mut nan = sym.clone();
+        nan[(3, 1)] = f64::NAN;
+        assert!(matches!(
+            p.backprop(x.as_ref(), nan.as_ref()),
+            Err(GpError::NonFinite {
+                what: "dF/dK",
+                row: 3,
+                col: 1,
+                ..
+            })
+        ));
     }
 
     /// The latent gradient is translation-invariant, and computed so: at points shifted by
