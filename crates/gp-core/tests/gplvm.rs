@@ -454,6 +454,37 @@ fn bad_inputs_are_clear_errors() {
     theta[last] = -1e6;
     assert!(flat.neg_log_likelihood(&theta, Par::Seq).is_err());
     assert!(flat.unpack(&theta[..3]).is_err());
+    // Its size: 4 points x 2 axes, then log s^2, log l, log mu; never empty.
+    assert_eq!(
+        (flat.len(), flat.n_hyper(), flat.is_empty()),
+        (11, 3, false)
+    );
+    // Latent points of the wrong shape, either way, are refused with both sizes.
+    for (rows, cols) in [(4, 3), (5, 2), (4, 1)] {
+        let wrong = Mat::<f64>::zeros(rows, cols);
+        assert_eq!(
+            flat.pack(wrong.as_ref(), &p),
+            Err(GpError::DimensionMismatch {
+                what: "latent points X shape (rows * q) vs flat layout",
+                expected: 8,
+                got: rows * cols
+            }),
+            "{rows} x {cols}"
+        );
+    }
+    // The objective's sizes and prior as built.
+    assert_eq!((obj.n(), obj.d(), obj.has_prior()), (4, 10, false));
+    let with_prior = GplvmObjective::new(s.clone(), 7).unwrap().with_prior(true);
+    assert_eq!((with_prior.d(), with_prior.has_prior()), (7, true));
+    // Data without rows or without columns.
+    for (rows, cols) in [(0, 3), (3, 0)] {
+        let empty = Mat::<f64>::zeros(rows, cols);
+        assert_eq!(
+            log_likelihood_from_data(empty.as_ref(), x_ok.as_ref(), &p, false, Par::Seq),
+            Err(GpError::Empty { what: "data Y" }),
+            "{rows} x {cols}"
+        );
+    }
     let gp = GpRegression::new(x_ok.as_ref(), p, Par::Seq).unwrap();
     assert!(gp.weights(&[0.0, f64::NAN], Predictor::Exact).is_err());
     assert!(gp.weights(&[0.0], Predictor::Exact).is_err());
@@ -903,6 +934,9 @@ fn partial_learn_masks_pack_and_differentiate() {
                 assert_eq!(at_floor.noise(), floor);
                 let repacked = flat.pack(x.as_ref(), &at_floor).unwrap();
                 assert_eq!(flat.unpack(&repacked).unwrap().1.noise(), floor);
+                // ... through a finite theta (ln of the floor's eps / 8, not ln 0), from which
+                // an optimiser can move.
+                assert_eq!(*repacked.last().unwrap(), (floor * f64::EPSILON / 8.0).ln());
                 let low = KernelParams::new(
                     other.signal_variance(),
                     other.length_scale().clone(),
