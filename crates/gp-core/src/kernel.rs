@@ -458,16 +458,15 @@ impl KernelParams {
             self.fill_sq_dist(&z, &xs, col);
             crate::fastmath::rbf_from_sq_dist_in_place(col, s2);
         };
-        if n > 0 && m > 0 {
-            let run = |(c, col): (usize, faer::ColMut<'_, f64>)| {
-                if let Some(col) = col.try_as_col_major_mut() {
-                    fill(c, col.as_slice_mut());
-                }
-            };
-            match par {
-                Par::Seq => out.as_mut().col_iter_mut().enumerate().for_each(run),
-                _ => out.as_mut().par_col_iter_mut().enumerate().for_each(run),
+        // (`X` has rows: `scaled_axes` refuses an empty one. No test point: no column.)
+        let run = |(c, col): (usize, faer::ColMut<'_, f64>)| {
+            if let Some(col) = col.try_as_col_major_mut() {
+                fill(c, col.as_slice_mut());
             }
+        };
+        match par {
+            Par::Seq => out.as_mut().col_iter_mut().enumerate().for_each(run),
+            _ => out.as_mut().par_col_iter_mut().enumerate().for_each(run),
         }
         Ok(out)
     }
@@ -862,6 +861,13 @@ mod tests {
             for par in [Par::Seq, Par::rayon(2)] {
                 let c = p.cross_matrix(x.as_ref(), x.as_ref(), par).unwrap();
                 assert_eq!(c, k);
+                // No test point: no column; no training point: an error.
+                let none = p.cross_matrix(x.as_ref(), x.subrows(0, 0), par).unwrap();
+                assert_eq!((none.nrows(), none.ncols()), (37, 0));
+                assert!(matches!(
+                    p.cross_matrix(x.subrows(0, 0), x.as_ref(), par),
+                    Err(GpError::Empty { .. })
+                ));
             }
             // kernel_matrix_into: the same matrix, also into a reused buffer of another size.
             let mut buf = Mat::from_fn(40, 40, |i, j| (i + j) as f64);
