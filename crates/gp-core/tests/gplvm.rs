@@ -1003,6 +1003,51 @@ fn gram_check_rejects_non_psd_matrices_at_every_magnitude() {
     }
 }
 
+/// The Gram-matrix check's tolerance, `tol = sqrt(eps) max|S|`: rounding-level negatives of a
+/// centred Gram matrix pass. A diagonal entry down to `-tol` itself is accepted and one below
+/// it refused (naming it); an off-diagonal entry may exceed the diagonal's geometric mean by
+/// what `tol` on the diagonal allows; a zero matrix (identical materials) is a Gram matrix.
+#[test]
+fn gram_check_tolerates_rounding_level_negatives() {
+    let tol = f64::EPSILON.sqrt();
+    let diagonal = |d: f64| Mat::from_fn(2, 2, |i, j| [[1.0, 0.0], [0.0, d]][i][j]);
+    for d in [-tol, -0.9 * tol, 0.0] {
+        GplvmObjective::new(diagonal(d), 3).unwrap();
+    }
+    let below = -tol * (1.0 + f64::EPSILON);
+    assert_eq!(
+        GplvmObjective::new(diagonal(below), 3).unwrap_err(),
+        GpError::NotPositiveSemidefinite {
+            what: "Gram matrix S",
+            row: 1,
+            col: 1,
+            value: below
+        }
+    );
+    // With the diagonal raised by tol an off-diagonal entry may reach 1 + tol: 1 + tol / 2
+    // passes, 1 + 2 tol does not.
+    let pair = |a: f64| Mat::from_fn(2, 2, |i, j| if i == j { 1.0 } else { a });
+    GplvmObjective::new(pair(1.0 + 0.5 * tol), 3).unwrap();
+    assert!(matches!(
+        GplvmObjective::new(pair(1.0 + 2.0 * tol), 3),
+        Err(GpError::NotPositiveSemidefinite { row: 1, col: 0, .. })
+    ));
+    GplvmObjective::new(Mat::<f64>::zeros(3, 3), 3).unwrap();
+    // The refused minor is reported: 1 * 1 - 2^2.
+    match GplvmObjective::new(pair(2.0), 3) {
+        Err(GpError::NotPositiveSemidefinite { value, .. }) => assert_eq!(value, -3.0),
+        other => panic!("{other:?}"),
+    }
+    // Symmetry to the same relative tolerance: at max|S| = 100, a difference of 1e-6 (below
+    // 100 sqrt(eps) = 1.5e-6) passes and 2e-6 does not.
+    let skewed = |e: f64| Mat::from_fn(2, 2, |i, j| [[100.0, 50.0], [50.0 + e, 100.0]][i][j]);
+    GplvmObjective::new(skewed(1e-6), 3).unwrap();
+    assert!(matches!(
+        GplvmObjective::new(skewed(2e-6), 3),
+        Err(GpError::NotSymmetric { row: 1, col: 0, .. })
+    ));
+}
+
 /// Gram quantities computed from finite inputs that overflow are errors naming them, not
 /// infinities or NaN inside an `Ok`: `Y Y^T` of data near 1e200, the centring of entries near
 /// `f64::MAX` (row sums overflow), and the likelihood of data whose squares overflow.
