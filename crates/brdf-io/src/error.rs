@@ -320,6 +320,11 @@ mod tests {
         assert_eq!(readable_bytes(598_000), "598 kB");
         assert_eq!(readable_bytes(1_226_941_477), "1.2 GB");
         assert_eq!(readable_bytes(23_000_000_000), "23 GB");
+        // A leading digit and a decimal below 10 units, whole units from 10 on.
+        assert_eq!(readable_bytes(9_900_000_000), "9.9 GB");
+        assert_eq!(readable_bytes(10_000_000_000), "10 GB");
+        assert_eq!(readable_bytes(1_000), "1.0 kB");
+        assert_eq!(readable_bytes(999), "999 B");
         let e = Error::NoSpace {
             path: "a.sbrdf".into(),
             what: "the store".into(),
