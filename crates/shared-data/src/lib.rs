@@ -69,6 +69,10 @@ mod tests {
         // SOURCES.md describes the folder; it is the one file every copy has.
         let t = read_to_string("SOURCES.md").unwrap();
         assert!(!t.is_empty());
+        assert_eq!(
+            t,
+            std::fs::read_to_string(root().join("SOURCES.md")).unwrap()
+        );
         assert!(path("rgl-rgb").unwrap().is_dir());
     }
 
