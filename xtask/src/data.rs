@@ -164,3 +164,34 @@ pub fn stem(path: &Path) -> String {
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| path.display().to_string())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use brdf_io::store::{Dtype, Store};
+
+    /// The data stage writes its store in the configured value type, uncompressed, with every
+    /// material of the synthetic subset it names (in the preset's order).
+    #[test]
+    fn the_store_takes_the_configured_dtype() {
+        let dir = tempfile::tempdir().unwrap();
+        for dtype in [Dtype::F16, Dtype::F32] {
+            let out = dir.path().join(format!("{dtype:?}.sbrdf"));
+            let config = DataConfig {
+                source: DataSource::Synth {
+                    channels: Channels::parse_wavelengths("400:700:150").unwrap(),
+                    seed: 0,
+                    only: Some(vec!["metal_gold".into(), "paper_white".into()]),
+                },
+                grid: "4,4,8".parse().unwrap(),
+                dtype,
+            };
+            build_store(&config, &out).unwrap();
+            let header = Store::open(&out).unwrap().header().clone();
+            assert_eq!(header.layout.dtype, dtype);
+            assert_eq!(header.layout.compression, Compression::None);
+            let names: Vec<&str> = header.materials.iter().map(|m| m.name.as_str()).collect();
+            assert_eq!(names, ["paper_white", "metal_gold"]);
+        }
+    }
+}

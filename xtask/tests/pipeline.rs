@@ -1284,6 +1284,20 @@ fn the_binary_takes_the_project_root_of_its_environment() {
         "{err}"
     );
     assert!(!root.join("out").exists());
+    // A config that exists where the command runs is read from there, not looked up in the
+    // root: the same data error.
+    std::fs::copy(
+        root.join("configs/elsewhere.toml"),
+        dir.path().join("here.toml"),
+    )
+    .unwrap();
+    let out = pipeline("here.toml");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("data.files[0]: ") && !err.contains("no such file"),
+        "{err}"
+    );
     // A config in neither place: the error names both (it named the root's only).
     let out = pipeline("configs/nowhere.toml");
     let err = String::from_utf8_lossy(&out.stderr);
