@@ -50,6 +50,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+pub mod albedo;
 pub mod error;
 pub mod grid;
 pub mod merl;

@@ -50,6 +50,7 @@ use std::path::Path;
 use rayon::prelude::*;
 
 use super::{Corners, RglBsdf, Table2D, Warp, phi2u, theta2u};
+use crate::albedo::{AlbedoNodes, direction};
 use crate::error::{Error, Result};
 use crate::grid::Channels;
 use crate::source::BrdfSource;
@@ -292,12 +293,6 @@ fn luminance_weights(channels: &Channels) -> Vec<f64> {
                 .collect()
         }
     }
-}
-
-/// The unit direction of elevation `theta` and azimuth `phi`.
-fn direction(theta: f64, phi: f64) -> [f64; 3] {
-    let (s, c) = theta.sin_cos();
-    [s * phi.cos(), s * phi.sin(), c]
 }
 
 /// `u`'s elevation: the inverse of [`theta2u`].
@@ -570,56 +565,37 @@ struct SourceReference {
     pair_values: Vec<f64>,
     /// Per elevation of [`ALBEDO_THETAS_DEG`]: the incident direction, the quadrature's
     /// outgoing directions with their weights, and the source's albedo.
-    albedo: Vec<AlbedoNodes>,
+    albedo: Vec<AlbedoReference>,
 }
 
 /// One elevation of [`SourceReference::albedo`].
-struct AlbedoNodes {
-    wi: [f64; 3],
-    /// (wo, weight): weight = cos theta_o x 4 (wi . m) dm.
-    nodes: Vec<([f64; 3], f64)>,
+struct AlbedoReference {
+    /// The quadrature ([`crate::albedo::AlbedoNodes`] at 96 x 96).
+    nodes: AlbedoNodes,
     /// The source's luminance-weighted albedo over `nodes`.
     source: f64,
 }
 
 impl SourceReference {
-    /// The quadrature nodes: for each elevation, m on a midpoint grid in the format's
-    /// coordinates (u = sqrt(2 theta_m / pi), phi_m), kept where wo = the reflection of wi about
-    /// m lies above the horizon.
+    /// The source at the check pairs and its albedo at each elevation over
+    /// [`AlbedoNodes`] (half vectors on a midpoint grid in the format's coordinates).
     fn new(source: &dyn BrdfSource) -> Result<Self> {
-        const N_U: usize = 96;
-        const N_PHI: usize = 96;
         let channels = source.channels();
         let nc = channels.len();
         let lum_w = luminance_weights(&channels);
         let albedo = ALBEDO_THETAS_DEG
             .par_iter()
             .map(|deg| {
-                let wi = direction(deg.to_radians(), 0.0);
+                let nodes = AlbedoNodes::new(deg.to_radians(), crate::albedo::DEFAULT_RESOLUTION);
                 let mut g = vec![0.0; nc];
-                let (mut nodes, mut a_source) = (Vec::new(), 0.0);
-                let (du, dphi) = (1.0 / N_U as f64, 2.0 * PI / N_PHI as f64);
-                for i in 0..N_U {
-                    let u = (i as f64 + 0.5) * du;
-                    let tm = u2theta(u);
-                    // dm = sin(theta_m) dtheta_m dphi, dtheta_m = pi u du.
-                    let dm = tm.sin() * PI * u * du * dphi;
-                    for j in 0..N_PHI {
-                        let m = direction(tm, (j as f64 + 0.5) * dphi);
-                        let (dot, wo) = reflect(wi, m);
-                        if !(dot > 0.0 && wo[2] > 0.0) {
-                            continue;
-                        }
-                        source.eval(wi, wo, &mut g)?;
-                        let w = wo[2] * 4.0 * dot * dm;
-                        for (b, l) in g.iter().zip(&lum_w) {
-                            a_source += w * l * b.max(0.0);
-                        }
-                        nodes.push((wo, w));
+                let mut a_source = 0.0;
+                for &(wo, w) in nodes.nodes() {
+                    source.eval(nodes.wi(), wo, &mut g)?;
+                    for (b, l) in g.iter().zip(&lum_w) {
+                        a_source += w * l * b.max(0.0);
                     }
                 }
-                Ok(AlbedoNodes {
-                    wi,
+                Ok(AlbedoReference {
                     nodes,
                     source: a_source,
                 })
@@ -664,8 +640,8 @@ fn albedo_error(file: &RglBsdf, reference: &SourceReference) -> Result<f64> {
         .map(|e| {
             let mut f = vec![0.0; reference.nc];
             let mut a_file = 0.0;
-            for &(wo, w) in &e.nodes {
-                file.eval(e.wi, wo, &mut f)?;
+            for &(wo, w) in e.nodes.nodes() {
+                file.eval(e.nodes.wi(), wo, &mut f)?;
                 for (a, l) in f.iter().zip(&reference.lum_w) {
                     a_file += w * l * a;
                 }

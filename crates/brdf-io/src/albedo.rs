@@ -1,0 +1,229 @@
+//! Directional albedo of any [`BrdfSource`]: the fraction of the light arriving from one
+//! direction that the surface reflects, per channel,
+//!
+//! rho(wi) = integral over the hemisphere of f(wi, wo) cos theta_o dwo.
+//!
+//! A physically plausible BRDF has rho <= 1 at every incidence; above 1 it creates energy, and a
+//! path tracer's paths gain energy at every bounce (a white furnace test glows). A white
+//! Lambertian (f = 1/pi) has rho = 1. With [`BrdfSource`]'s argument order (`wi` = Mitsuba's
+//! `si.wi`), rho is also the expected weight of a path tracer's BSDF sample, which is what
+//! decides whether a material gains energy in a renderer; for reciprocal data (MERL, stored and
+//! predicted materials) the two directions' roles do not matter.
+//!
+//! The integral runs over the half vector m (wo = wi reflected about m, dwo = 4 (wi . m) dm), on
+//! a midpoint grid in the RGL format's coordinates (u = sqrt(2 theta_m / pi), phi_m) whose nodes
+//! crowd towards the mirror direction, so a sharp specular peak is integrated as well as a
+//! broad lobe ([`AlbedoNodes`]). The RGL writer checks its files with the same nodes.
+
+use rayon::prelude::*;
+
+use crate::error::{Error, Result};
+use crate::grid::{Channels, Vec3};
+use crate::source::BrdfSource;
+
+/// Nodes per axis of the half-vector grid by default ([`AlbedoNodes::new`]): 96 x 96.
+pub const DEFAULT_RESOLUTION: usize = 96;
+
+/// Quadrature nodes of the directional albedo at one incident direction: outgoing directions
+/// `wo` above the horizon with weights `cos theta_o dwo`, so that `sum weight * f(wi, wo)`
+/// estimates rho(wi).
+#[derive(Debug, Clone, PartialEq)]
+pub struct AlbedoNodes {
+    wi: Vec3,
+    nodes: Vec<(Vec3, f64)>,
+}
+
+impl AlbedoNodes {
+    /// The nodes for incidence at elevation `theta_i` (radians, in the plane y = 0): half
+    /// vectors on a `resolution` x `resolution` midpoint grid in (u = sqrt(2 theta_m / pi),
+    /// phi_m), kept where wo, the reflection of wi about m, lies above the horizon. An isotropic
+    /// source needs no other azimuth of wi.
+    pub fn new(theta_i: f64, resolution: usize) -> Self {
+        use std::f64::consts::{FRAC_PI_2, PI};
+        let wi = direction(theta_i, 0.0);
+        let n = resolution.max(1);
+        let (du, dphi) = (1.0 / n as f64, 2.0 * PI / n as f64);
+        let mut nodes = Vec::new();
+        for i in 0..n {
+            let u = (i as f64 + 0.5) * du;
+            let tm = u * u * FRAC_PI_2;
+            // dm = sin(theta_m) dtheta_m dphi, dtheta_m = pi u du.
+            let dm = tm.sin() * PI * u * du * dphi;
+            for j in 0..n {
+                let m = direction(tm, (j as f64 + 0.5) * dphi);
+                let dot = wi[0] * m[0] + wi[1] * m[1] + wi[2] * m[2];
+                let wo = [0, 1, 2].map(|k| 2.0 * dot * m[k] - wi[k]);
+                if !(dot > 0.0 && wo[2] > 0.0) {
+                    continue;
+                }
+                nodes.push((wo, wo[2] * 4.0 * dot * dm));
+            }
+        }
+        Self { wi, nodes }
+    }
+
+    /// The incident direction.
+    pub fn wi(&self) -> Vec3 {
+        self.wi
+    }
+
+    /// The outgoing directions and their weights (cos theta_o dwo), in a fixed order.
+    pub fn nodes(&self) -> &[(Vec3, f64)] {
+        &self.nodes
+    }
+
+    /// rho(wi) of `source` per channel into `out` (length: the source's channels), summed over
+    /// the nodes in order.
+    pub fn integrate(&self, source: &dyn BrdfSource, out: &mut [f64]) -> Result<()> {
+        crate::source::check_output_len(out, source.channels().len())?;
+        let mut f = vec![0.0; out.len()];
+        out.fill(0.0);
+        for &(wo, w) in &self.nodes {
+            source.eval(self.wi, wo, &mut f)?;
+            for (a, v) in out.iter_mut().zip(&f) {
+                *a += w * v;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The unit direction of elevation `theta` and azimuth `phi`.
+pub(crate) fn direction(theta: f64, phi: f64) -> Vec3 {
+    let (s, c) = theta.sin_cos();
+    [s * phi.cos(), s * phi.sin(), c]
+}
+
+/// Directional albedo of a source at several incident elevations ([`directional_albedo`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct AlbedoTable {
+    /// Incident elevations in degrees, as asked.
+    pub angles_deg: Vec<f64>,
+    /// The source's channels.
+    pub channels: Channels,
+    /// rho per elevation (rows) and channel (columns), row-major.
+    pub values: Vec<f64>,
+}
+
+/// The largest albedo of an [`AlbedoTable`] and where it is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AlbedoPeak {
+    /// The albedo.
+    pub value: f64,
+    /// Its elevation in degrees.
+    pub angle_deg: f64,
+    /// Its channel's index.
+    pub channel: usize,
+}
+
+impl AlbedoTable {
+    /// rho at elevation `k` (of [`AlbedoTable::angles_deg`]), one value per channel.
+    pub fn row(&self, k: usize) -> &[f64] {
+        let nc = self.channels.len();
+        &self.values[k * nc..(k + 1) * nc]
+    }
+
+    /// The largest value over every elevation and channel (the first of equal ones); `None`
+    /// for an empty table.
+    pub fn peak(&self) -> Option<AlbedoPeak> {
+        let nc = self.channels.len();
+        let mut best: Option<AlbedoPeak> = None;
+        for (i, &value) in self.values.iter().enumerate() {
+            if best.is_none_or(|b| value > b.value) {
+                best = Some(AlbedoPeak {
+                    value,
+                    angle_deg: self.angles_deg[i / nc],
+                    channel: i % nc,
+                });
+            }
+        }
+        best
+    }
+}
+
+/// rho of `source` at each incident elevation of `angles_deg` (degrees, in [0, 90): at 90
+/// degrees the light grazes the surface and nothing is reflected), with
+/// [`AlbedoNodes::new`]`(theta, resolution)`; the elevations in parallel.
+///
+/// Accuracy of the default resolution (96), measured by the tests: a Lambertian within 1.5e-4
+/// at every elevation up to 89 degrees; every synthetic preset (metals, clear coats, diffusers)
+/// within 0.4 % of a twice finer quadrature at 0-88 degrees (brdf-synth's physics tests).
+pub fn directional_albedo(
+    source: &dyn BrdfSource,
+    angles_deg: &[f64],
+    resolution: usize,
+) -> Result<AlbedoTable> {
+    if let Some(bad) = angles_deg
+        .iter()
+        .find(|a| !(a.is_finite() && (0.0..90.0).contains(*a)))
+    {
+        return Err(Error::InvalidArgument {
+            reason: format!(
+                "directional albedo at an incident elevation of {bad} degrees: elevations must \
+                 lie in [0, 90) degrees"
+            ),
+        });
+    }
+    if resolution == 0 {
+        return Err(Error::InvalidArgument {
+            reason: "directional albedo with a quadrature resolution of 0".into(),
+        });
+    }
+    let channels = source.channels();
+    let nc = channels.len();
+    let mut values = vec![0.0; angles_deg.len() * nc];
+    values
+        .par_chunks_mut(nc.max(1))
+        .zip(angles_deg.par_iter())
+        .try_for_each(|(row, deg)| {
+            AlbedoNodes::new(deg.to_radians(), resolution).integrate(source, row)
+        })?;
+    Ok(AlbedoTable {
+        angles_deg: angles_deg.to_vec(),
+        channels,
+        values,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::PI;
+
+    /// f = albedo / pi in every channel above the horizon.
+    struct Lambert(Vec<f64>);
+
+    impl BrdfSource for Lambert {
+        fn channels(&self) -> Channels {
+            Channels::spectral((0..self.0.len()).map(|k| 400.0 + k as f64).collect()).unwrap()
+        }
+        fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+            let up = wi[2] > 0.0 && wo[2] > 0.0;
+            for (o, a) in out.iter_mut().zip(&self.0) {
+                *o = if up { a / PI } else { 0.0 };
+            }
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_lambertian_reflects_its_albedo() {
+        let src = Lambert(vec![1.0, 0.5, 2.0]);
+        let angles: Vec<f64> = (0..90).map(f64::from).collect();
+        let t = directional_albedo(&src, &angles, DEFAULT_RESOLUTION).unwrap();
+        for (k, a) in angles.iter().enumerate() {
+            let row = t.row(k);
+            // Measured: 1.5e-4 at worst.
+            assert!((row[0] - 1.0).abs() < 2e-4, "{a}: {row:?}");
+            assert!((row[1] - 0.5 * row[0]).abs() < 1e-15, "{a}: {row:?}");
+            assert!((row[2] - 2.0 * row[0]).abs() < 1e-15, "{a}: {row:?}");
+        }
+        let peak = t.peak().unwrap();
+        assert_eq!(peak.channel, 2);
+        assert_eq!(peak.value, t.values.iter().copied().fold(0.0, f64::max));
+        assert_eq!(
+            t.row(angles.iter().position(|a| *a == peak.angle_deg).unwrap())[2],
+            peak.value
+        );
+    }
+}
