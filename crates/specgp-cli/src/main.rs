@@ -9,6 +9,7 @@ use clap::{Parser, Subcommand};
 // First: its printing macros (`outln!`, `errln!`) are used by the modules below.
 #[macro_use]
 mod console;
+mod cmd_albedo;
 mod cmd_convert;
 mod cmd_data;
 mod cmd_fit;
@@ -45,6 +46,9 @@ enum Command {
     Export(cmd_data::ExportArgs),
     /// Evaluate a BRDF source (f in 1/sr) at the direction pairs of a CSV file.
     Sample(cmd_sample::SampleArgs),
+    /// Directional albedo of a BRDF source (the fraction of the light from one direction it
+    /// reflects) at incident elevations: is it energy-conserving?
+    Albedo(cmd_albedo::AlbedoArgs),
     /// Write a BRDF source as an RGL `.bsdf` file (Mitsuba 3 and pbrt-v4 `measured` material).
     Convert(cmd_convert::ConvertArgs),
     /// Write the embedded default dataset: 51 synthetic spectral materials on a grid.
@@ -154,6 +158,7 @@ fn run_command(command: Command) -> anyhow::Result<()> {
         Command::Info(args) => cmd_data::info(&args),
         Command::Export(args) => cmd_data::export(&args),
         Command::Sample(args) => cmd_sample::sample(&args),
+        Command::Albedo(args) => cmd_albedo::albedo(&args),
         Command::Convert(args) => cmd_convert::convert(&args),
         Command::Synth(args) => cmd_synth::synth(&args),
     }

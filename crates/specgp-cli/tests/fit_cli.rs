@@ -3052,3 +3052,135 @@ fn locate_places_real_files_and_store_materials_and_explains_mismatches() {
     assert!(e.contains("m.toml"), "{e}");
     assert!(Model::load(&d.join("m.toml")).is_ok());
 }
+
+/// Parses `specgp albedo --out` CSV text: (angle, channel values) per row.
+fn albedo_rows(csv: &str) -> Vec<(f64, Vec<f64>)> {
+    csv.lines()
+        .skip(1)
+        .map(|l| {
+            let v: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+            (v[0], v[1..].to_vec())
+        })
+        .collect()
+}
+
+/// `specgp albedo`: a stored Lambertian reflects its albedo and conserves energy; one that
+/// reflects 1.5 times what it receives is reported; a model point at a training material's
+/// own latent point (exact predictor, evaluated lazily) has that material's albedo; the CSV
+/// goes to standard output with `--out -`; bad angles and outputs are refused before any work.
+#[test]
+fn albedo_reports_energy_conservation() {
+    use brdf_io::{Channels, StoreInfo, StoreOptions, StoreWriter};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let info = StoreInfo {
+        grid: AngularGrid::new(8, 8, 16).unwrap(),
+        channels: Channels::parse_wavelengths("360:780:60").unwrap(),
+    };
+    let mut writer = StoreWriter::create(
+        d.join("lambert.sbrdf"),
+        info.clone(),
+        StoreOptions::default(),
+    )
+    .unwrap();
+    for (name, rho) in [("grey", 0.5), ("bright", 1.5)] {
+        let f = (rho / std::f64::consts::PI) as f32;
+        writer
+            .add_material(name, "test", &vec![f; info.d()])
+            .unwrap();
+    }
+    writer.finish().unwrap();
+
+    let (out, err) = specgp_outputs(
+        &[
+            "albedo",
+            "lambert.sbrdf:grey",
+            "--angles",
+            "0,45,85",
+            "--out",
+            "grey.csv",
+        ],
+        d,
+    );
+    assert!(err.is_empty(), "{err}");
+    let rows = albedo_rows(&std::fs::read_to_string(d.join("grey.csv")).unwrap());
+    assert_eq!(
+        rows.iter().map(|r| r.0).collect::<Vec<_>>(),
+        [0.0, 45.0, 85.0]
+    );
+    for (angle, values) in &rows {
+        assert_eq!(values.len(), 8);
+        for v in values {
+            assert!((v - 0.5).abs() < 2e-4, "{angle}: {values:?}");
+        }
+    }
+    // The table: Y of a grey reflectance is its albedo; the verdict.
+    let y_at_45: f64 = out
+        .lines()
+        .nth(3)
+        .unwrap()
+        .split_whitespace()
+        .nth(1)
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!((y_at_45 - 0.5).abs() < 2e-4, "{out}");
+    assert!(out.contains("energy-conserving"), "{out}");
+
+    let (csv, err) = specgp_outputs(
+        &[
+            "albedo",
+            "lambert.sbrdf:bright",
+            "--angles",
+            "30",
+            "--out",
+            "-",
+        ],
+        d,
+    );
+    let rows = albedo_rows(&csv);
+    assert_eq!(rows.len(), 1);
+    assert!((rows[0].1[3] - 1.5).abs() < 1e-3, "{csv}");
+    assert!(csv.starts_with("angle_deg,360,420,"), "{csv}");
+    assert!(
+        err.contains("lambert.sbrdf:bright reflects more light than it receives: albedo 1.50")
+            && err.contains("at 30 degrees")
+            && err.contains("directional albedo of"),
+        "{err}"
+    );
+
+    // A training material at its own latent point.
+    fitted_small(d, "400:700:100");
+    let model = Model::load(&d.join("m.toml")).unwrap();
+    let gold = model
+        .materials
+        .iter()
+        .find(|m| m.name == "metal_gold")
+        .unwrap();
+    let point = format!("m.toml@{},{}", gold.coords[0], gold.coords[1]);
+    let stored = specgp(&["albedo", "data.sbrdf:metal_gold", "--out", "-"], d);
+    let predicted = specgp(&["albedo", &point, "--out", "-"], d);
+    let (stored, predicted) = (albedo_rows(&stored), albedo_rows(&predicted));
+    assert_eq!(stored.len(), 12);
+    for (s, p) in stored.iter().zip(&predicted) {
+        for (a, b) in s.1.iter().zip(&p.1) {
+            assert!(
+                (a - b).abs() < 1e-5 * a.abs().max(1e-3),
+                "{}: {a} vs {b}",
+                s.0
+            );
+        }
+    }
+
+    for (args, words) in [
+        (vec!["--angles", "0:90:10"], "90 is outside [0, 90)"),
+        (vec!["--out", "a.png"], "must end in .csv"),
+        (vec!["--resolution", "1"], "--resolution 1"),
+    ] {
+        let mut all = vec!["albedo", "lambert.sbrdf:grey"];
+        all.extend(args);
+        let e = specgp_fails(&all, d);
+        assert!(e.contains(words), "{all:?}: {e}");
+    }
+    assert!(!d.join("a.png").exists());
+}

@@ -1,0 +1,321 @@
+//! `specgp albedo SOURCE [--angles LIST] [--out TABLE.csv]`: the directional albedo of a BRDF
+//! source (the fraction of the light from one direction that it reflects, per channel) at
+//! incident elevations, and whether it conserves energy (albedo <= 1 everywhere).
+//!
+//! A GP prediction is a blend of measured materials (of their logarithms under the `log`
+//! transform), which nothing keeps physically plausible: this is the check before a predicted
+//! material goes into a renderer. The table on standard output gives per elevation the
+//! luminous albedo Y (D65; the sRGB luminance for RGB sources) and the smallest and largest
+//! channel; `--out` writes every channel as CSV.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+use brdf_io::Channels;
+use brdf_io::albedo::{AlbedoTable, DEFAULT_RESOLUTION, directional_albedo};
+
+use crate::cmd_sample::SourceArgs;
+
+/// Incident elevations of the table by default (degrees).
+pub const DEFAULT_ANGLES: &str = "0,10,20,30,40,50,60,70,75,80,85,88";
+
+/// Albedo above 1 by more than this (the quadrature's error on sharp and grazing lobes is
+/// below 0.4 %, brdf_io::albedo) is reported as energy gain.
+pub const ENERGY_TOLERANCE: f64 = 0.005;
+
+/// Arguments of `specgp albedo`.
+#[derive(Debug, clap::Args)]
+pub struct AlbedoArgs {
+    #[command(flatten)]
+    pub from: SourceArgs,
+    /// Incident elevations in degrees, in [0, 90): START:END:STEP or a comma list.
+    #[arg(long, default_value = DEFAULT_ANGLES)]
+    pub angles: String,
+    /// Output CSV (`.csv`) of every channel: a header `angle_deg,<channels>`, one row per
+    /// elevation (`-`: standard output; the table then goes to standard error).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Half vectors per axis of the quadrature (resolution x resolution; 2..=1024).
+    #[arg(long, default_value_t = DEFAULT_RESOLUTION)]
+    pub resolution: usize,
+}
+
+/// Parses `--angles`: START:END:STEP (END included, and on the step) or a comma list, each in
+/// [0, 90) degrees.
+pub fn parse_angles(spec: &str) -> anyhow::Result<Vec<f64>> {
+    let bad = |why: String| {
+        anyhow::anyhow!(
+            "--angles {spec:?}: {why} (expected START:END:STEP or a comma list, in degrees)"
+        )
+    };
+    let num = |t: &str| {
+        t.trim()
+            .parse::<f64>()
+            .map_err(|_| bad(format!("{:?} is not a number", t.trim())))
+    };
+    let angles = if spec.contains(':') {
+        let parts: Vec<&str> = spec.split(':').collect();
+        if parts.len() != 3 {
+            return Err(bad("a range needs exactly three fields".into()));
+        }
+        let (start, end, step) = (num(parts[0])?, num(parts[1])?, num(parts[2])?);
+        if ![start, end, step].iter().all(|v| v.is_finite()) || step <= 0.0 || end < start {
+            return Err(bad("need finite numbers, STEP > 0 and END >= START".into()));
+        }
+        let steps = ((end - start) / step + 1e-9).floor();
+        if steps >= 10_000.0 {
+            return Err(bad("more than 10000 angles".into()));
+        }
+        if (end - start) / step - steps > 1e-6 {
+            return Err(bad(format!(
+                "END {end} is not START plus a whole number of STEPs"
+            )));
+        }
+        (0..=steps as usize)
+            .map(|i| start + i as f64 * step)
+            .collect()
+    } else {
+        spec.split(',')
+            .map(num)
+            .collect::<anyhow::Result<Vec<_>>>()?
+    };
+    if let Some(a) = angles.iter().find(|a| !(0.0..90.0).contains(*a)) {
+        return Err(bad(format!(
+            "{a} is outside [0, 90): at 90 degrees the light grazes the surface"
+        )));
+    }
+    Ok(angles)
+}
+
+/// Luminance weights of `channels` (Y of the CIE 1931 observer under D65, Y = 1 for a perfect
+/// white diffuser; linear sRGB's Y for RGB), or why there are none.
+pub fn luminance_weights(channels: &Channels) -> Result<Vec<f64>, String> {
+    match channels {
+        Channels::Rgb => Ok([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+            .map(|e| render::colour::linear_srgb_to_xyz(e)[1])
+            .to_vec()),
+        Channels::Spectral(w) => {
+            if let Some(why) = render::colour::coverage_warning(w, render::Illuminant::D65) {
+                return Err(why);
+            }
+            render::SpectralWeights::new(w, render::Illuminant::D65)
+                .map(|s| s.y)
+                .map_err(|e| e.to_string())
+        }
+    }
+}
+
+/// What follows a channel's label in prose: " nm" for a wavelength.
+fn label_unit(channels: &Channels) -> &'static str {
+    match channels {
+        Channels::Rgb => "",
+        Channels::Spectral(_) => " nm",
+    }
+}
+
+/// The CSV text of a table: `angle_deg,<channel labels>`, then one row per elevation.
+pub fn albedo_csv(table: &AlbedoTable) -> String {
+    let mut out = format!("angle_deg,{}\n", table.channels.labels().join(","));
+    for (k, a) in table.angles_deg.iter().enumerate() {
+        let row: Vec<String> = table.row(k).iter().map(|v| format!("{v:e}")).collect();
+        out.push_str(&format!("{a},{}\n", row.join(",")));
+    }
+    out
+}
+
+/// The printed table: per elevation Y (when the channels give one), the smallest and the
+/// largest channel with their labels.
+pub fn albedo_report(table: &AlbedoTable, luminance: Option<&[f64]>) -> String {
+    let labels = table.channels.labels();
+    let unit = label_unit(&table.channels);
+    let mut out = String::new();
+    out.push_str(&format!(
+        "{:>9}  {:>8}  {:>21}  {:>21}\n",
+        "angle deg",
+        if luminance.is_some() { "Y" } else { "" },
+        "smallest (channel)",
+        "largest (channel)"
+    ));
+    for (k, a) in table.angles_deg.iter().enumerate() {
+        let row = table.row(k);
+        let y = luminance.map_or_else(String::new, |w| {
+            format!("{:.4}", w.iter().zip(row).map(|(w, v)| w * v).sum::<f64>())
+        });
+        let at = |best: fn(f64, f64) -> bool| {
+            let mut i = 0;
+            for (j, v) in row.iter().enumerate() {
+                if best(*v, row[i]) {
+                    i = j;
+                }
+            }
+            format!("{:.4} ({}{unit})", row[i], labels[i])
+        };
+        out.push_str(&format!(
+            "{a:>9}  {y:>8}  {:>21}  {:>21}\n",
+            at(|v, b| v < b),
+            at(|v, b| v > b)
+        ));
+    }
+    out
+}
+
+/// Runs `specgp albedo`.
+pub fn albedo(args: &AlbedoArgs) -> anyhow::Result<()> {
+    let angles = parse_angles(&args.angles)?;
+    if !(2..=1024).contains(&args.resolution) {
+        bail!("--resolution {}: expected 2..=1024", args.resolution);
+    }
+    if let Some(out) = &args.out {
+        crate::paths::ensure_output_is_not_an_input(out, &[&args.from.file()])?;
+        crate::paths::ensure_extension(out, "csv", "a CSV file")?;
+        crate::paths::ensure_output_directory(out)?;
+    }
+    let source = args.from.open()?;
+    let start = std::time::Instant::now();
+    // A lazily predicted spectral source at 12 elevations takes a few seconds.
+    let spinner = indicatif::ProgressBar::new_spinner();
+    spinner.set_message(format!(
+        "integrating {} at {} elevations",
+        args.from.source,
+        angles.len()
+    ));
+    spinner.enable_steady_tick(std::time::Duration::from_millis(120));
+    let table = directional_albedo(source.as_ref(), &angles, args.resolution);
+    spinner.finish_and_clear();
+    let table = table.with_context(|| format!("directional albedo of {}", args.from.source))?;
+    let seconds = start.elapsed().as_secs_f64();
+    if let Some(out) = &args.out {
+        brdf_io::output::write_file_atomic(out, albedo_csv(&table).as_bytes())?;
+    }
+    let luminance = luminance_weights(&table.channels);
+    let to_stderr = args
+        .out
+        .as_deref()
+        .is_some_and(|p| p == std::path::Path::new(brdf_io::output::STDOUT));
+    let print = |line: &str| {
+        if to_stderr {
+            errln!("{line}");
+        } else {
+            outln!("{line}");
+        }
+    };
+    let channels = match &table.channels {
+        Channels::Rgb => "R, G, B".to_owned(),
+        Channels::Spectral(w) => format!(
+            "{} wavelengths, {}-{} nm",
+            w.len(),
+            w.first().copied().unwrap_or(0.0),
+            w.last().copied().unwrap_or(0.0)
+        ),
+    };
+    print(&format!(
+        "directional albedo of {} ({channels}; {r} x {r} half vectors, {seconds:.2} s)",
+        args.from.source,
+        r = args.resolution
+    ));
+    for line in albedo_report(&table, luminance.as_deref().ok()).lines() {
+        print(line);
+    }
+    if let Err(why) = &luminance {
+        print(&format!("no luminance: {why}"));
+    }
+    if let Some(peak) = table.peak() {
+        let label = &table.channels.labels()[peak.channel];
+        let unit = label_unit(&table.channels);
+        if peak.value > 1.0 + ENERGY_TOLERANCE {
+            tracing::warn!(
+                "{} reflects more light than it receives: albedo {:.4} at {} degrees \
+                 ({label}{unit}); not physically plausible (a path tracer gains energy at each \
+                 bounce)",
+                args.from.source,
+                peak.value,
+                peak.angle_deg
+            );
+        } else {
+            print(&format!(
+                "largest albedo {:.4} at {} degrees ({label}{unit}): energy-conserving at these \
+                 elevations",
+                peak.value, peak.angle_deg
+            ));
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn angles_parse_as_ranges_and_lists_within_the_hemisphere() {
+        assert_eq!(
+            parse_angles("0:80:20").unwrap(),
+            vec![0.0, 20.0, 40.0, 60.0, 80.0]
+        );
+        assert_eq!(parse_angles("5, 89.5").unwrap(), vec![5.0, 89.5]);
+        assert_eq!(parse_angles(DEFAULT_ANGLES).unwrap().len(), 12);
+        for (spec, words) in [
+            ("0:90:10", "90 is outside [0, 90)"),
+            ("-1", "-1 is outside"),
+            ("0:85:10", "not START plus a whole number"),
+            ("0:80", "exactly three fields"),
+            ("10:0:5", "END >= START"),
+            ("0,x", "\"x\" is not a number"),
+        ] {
+            let e = parse_angles(spec).unwrap_err().to_string();
+            assert!(e.contains(words) && e.contains(spec), "{spec}: {e}");
+        }
+    }
+
+    #[test]
+    fn luminance_weights_give_one_for_white() {
+        let rgb = luminance_weights(&Channels::Rgb).unwrap();
+        // The sRGB matrix's Y row, rounded to 7 digits: 0.2126729 + 0.7151522 + 0.072175.
+        assert!((rgb.iter().sum::<f64>() - 1.0).abs() < 1e-6, "{rgb:?}");
+        assert!(rgb[1] > rgb[0] && rgb[0] > rgb[2]);
+        let spectral = Channels::parse_wavelengths("360:780:20").unwrap();
+        let w = luminance_weights(&spectral).unwrap();
+        assert!(
+            (w.iter().sum::<f64>() - 1.0).abs() < 1e-9,
+            "{}",
+            w.iter().sum::<f64>()
+        );
+        let ir = Channels::parse_wavelengths("800:1000:100").unwrap();
+        assert!(luminance_weights(&ir).unwrap_err().contains("800-1000 nm"));
+    }
+
+    #[test]
+    fn report_and_csv_name_the_extreme_channels() {
+        let table = AlbedoTable {
+            angles_deg: vec![0.0, 60.0],
+            channels: Channels::Rgb,
+            values: vec![0.5, 0.25, 0.75, 1.25, 0.125, 0.5],
+        };
+        let csv = albedo_csv(&table);
+        assert_eq!(
+            csv,
+            "angle_deg,R,G,B\n0,5e-1,2.5e-1,7.5e-1\n60,1.25e0,1.25e-1,5e-1\n"
+        );
+        let w = [0.25, 0.5, 0.25];
+        let report = albedo_report(&table, Some(&w));
+        let lines: Vec<&str> = report.lines().collect();
+        assert_eq!(lines.len(), 3);
+        // Y = 0.25 * 0.5 + 0.5 * 0.25 + 0.25 * 0.75 = 0.4375.
+        assert!(
+            lines[1].contains("0.4375") && lines[1].contains("0.2500 (G)"),
+            "{report}"
+        );
+        assert!(lines[1].contains("0.7500 (B)"), "{report}");
+        assert!(
+            lines[2].contains("0.1250 (G)") && lines[2].contains("1.2500 (R)"),
+            "{report}"
+        );
+        assert!(
+            !albedo_report(&table, None)
+                .lines()
+                .nth(1)
+                .unwrap()
+                .contains("0.4375")
+        );
+    }
+}
