@@ -191,6 +191,9 @@ pub struct Results {
     pub latent: Vec<LatentRow>,
     /// Predictions at the configured latent points (predict stage).
     pub predictions: Vec<crate::stages::PredictionRow>,
+    /// The stored materials' largest directional albedo (predict stage, beside the
+    /// predictions' own).
+    pub stored_albedo: Vec<crate::stages::StoredAlbedo>,
     /// Reconstruction and leave-one-out errors (evaluate stage; `None` if not run).
     pub evaluation: Option<predict::evaluate::Evaluation>,
     /// Errors grouped by kind of material (synthetic data only: the preset's families).
@@ -541,7 +544,13 @@ fn run_in(config: &PipelineConfig, out: &Path, published: &Path) -> Result<Resul
     // Predict.
     let t = Instant::now();
     let pred = crate::stages::open(&model_path)?;
-    let predictions = crate::stages::predict_points(&pred, config, out)?;
+    let albedo_weights = crate::stages::grid_albedo(&pred)?;
+    let predictions = crate::stages::predict_points(&pred, config, out, &albedo_weights)?;
+    let stored_albedo = if predictions.is_empty() {
+        Vec::new()
+    } else {
+        crate::stages::stored_albedo(&pred, &albedo_weights)?
+    };
     stages.push(StageStatus {
         name: "predict".into(),
         status: if predictions.is_empty() {
@@ -615,6 +624,7 @@ fn run_in(config: &PipelineConfig, out: &Path, published: &Path) -> Result<Resul
         fit,
         latent,
         predictions,
+        stored_albedo,
         by_kind: evaluation
             .as_ref()
             .map_or_else(Vec::new, |e| by_kind(config, e)),

@@ -312,6 +312,66 @@ fn predictions(s: &mut String, r: &Results) {
             }
         }
     }
+    energy(s, r);
+}
+
+/// The predictions' and the stored materials' largest directional albedo.
+fn energy(s: &mut String, r: &Results) {
+    use crate::stages::{ALBEDO_THETAS_DEG, ENERGY_MARGIN};
+    if r.predictions.is_empty() {
+        return;
+    }
+    let above: Vec<_> = r
+        .stored_albedo
+        .iter()
+        .filter(|m| m.peak.value > 1.0 + ENERGY_MARGIN)
+        .collect();
+    let angles: Vec<String> = ALBEDO_THETAS_DEG.iter().map(|a| a.to_string()).collect();
+    let _ = write!(
+        s,
+        "\nEnergy: each prediction's largest directional albedo (the fraction of the light from \
+         one direction that it reflects; `specgp albedo`) over incidence {} degrees and every \
+         channel. Above 1 a material reflects more light than it receives, which no real one \
+         does and a path tracer turns into energy gained at every bounce. {} of the {} stored \
+         materials exceed 1 + {ENERGY_MARGIN} as the lookups see them",
+        angles.join(", "),
+        above.len(),
+        r.stored_albedo.len()
+    );
+    if above.is_empty() {
+        let _ = writeln!(s, ".\n");
+    } else {
+        let mut sorted = above.clone();
+        sorted.sort_by(|a, b| b.peak.value.total_cmp(&a.peak.value));
+        let list: Vec<String> = sorted
+            .iter()
+            .take(8)
+            .map(|m| {
+                format!(
+                    "{} {:.3} at {} degrees",
+                    m.material, m.peak.value, m.peak.angle_deg
+                )
+            })
+            .collect();
+        let _ = writeln!(
+            s,
+            " ({}{}): glossy materials gain energy near grazing incidence between the grid's bin \
+             centres (BENCHMARKS.md \"albedo\"), and predictions blend them.\n",
+            list.join(", "),
+            if sorted.len() > 8 { ", ..." } else { "" }
+        );
+    }
+    let _ = writeln!(
+        s,
+        "| point | largest albedo | at (degrees) | channel |\n|---|---:|---:|---|"
+    );
+    for p in &r.predictions {
+        let _ = writeln!(
+            s,
+            "| {} | {:.3} | {} | {} |",
+            p.label, p.albedo.value, p.albedo.angle_deg, p.albedo.channel
+        );
+    }
 }
 
 fn evaluation(s: &mut String, r: &Results) {

@@ -36,6 +36,8 @@ pub struct PredictionRow {
     pub materialize_seconds: f64,
     /// The prediction as an RGL `.bsdf` file (relative to the output directory), when asked.
     pub bsdf: Option<BsdfFile>,
+    /// Its largest directional albedo ([`grid_albedo`]).
+    pub albedo: AlbedoPeak,
 }
 
 /// A prediction written as an RGL `.bsdf` file (`[predict] bsdf = true`).
@@ -55,6 +57,84 @@ pub struct BsdfFile {
     pub check_rms: f64,
     /// The writer's check: largest relative error of the directional albedo (0-88 degrees).
     pub albedo_error: f64,
+}
+
+/// The largest directional albedo of a source over [`ALBEDO_THETAS_DEG`] and every channel
+/// (`specgp albedo`): above 1 it reflects more light than it receives.
+#[derive(Debug, Clone, Serialize)]
+pub struct AlbedoPeak {
+    /// The albedo.
+    pub value: f64,
+    /// Its incident elevation in degrees.
+    pub angle_deg: f64,
+    /// Its channel (`550`, `G`).
+    pub channel: String,
+}
+
+/// A stored material's [`AlbedoPeak`].
+#[derive(Debug, Clone, Serialize)]
+pub struct StoredAlbedo {
+    /// The material.
+    pub material: String,
+    /// Its largest directional albedo.
+    pub peak: AlbedoPeak,
+}
+
+/// Incident elevations (degrees) of the energy check: the RGL writer's albedo check's, 0-88.
+pub use brdf_io::rgl::ALBEDO_THETAS_DEG;
+
+/// Albedo above 1 by more than this is reported as energy gain (the quadrature is within
+/// 0.4 %; `specgp albedo` uses the same margin).
+pub const ENERGY_MARGIN: f64 = 0.005;
+
+/// The energy check's quadrature on the predictor's grid ([`ALBEDO_THETAS_DEG`], 96 x 96 half
+/// vectors), built once for the stored materials and the predictions.
+pub fn grid_albedo(pred: &Predictor) -> Result<brdf_io::albedo::GridAlbedo> {
+    brdf_io::albedo::GridAlbedo::new(
+        pred.grid(),
+        &ALBEDO_THETAS_DEG,
+        brdf_io::albedo::DEFAULT_RESOLUTION,
+    )
+    .map_err(|e| Error::stage("predict", pred.model().dataset.path.clone(), e))
+}
+
+/// The largest value of `table` (0 for an empty table).
+fn peak_of(table: &brdf_io::albedo::AlbedoTable) -> AlbedoPeak {
+    let peak = table.peak().unwrap_or(brdf_io::albedo::AlbedoPeak {
+        value: 0.0,
+        angle_deg: 0.0,
+        channel: 0,
+    });
+    AlbedoPeak {
+        value: peak.value,
+        angle_deg: peak.angle_deg,
+        channel: table
+            .channels
+            .labels()
+            .get(peak.channel)
+            .cloned()
+            .unwrap_or_default(),
+    }
+}
+
+/// The largest directional albedo of every material of the predictor's store, in store order,
+/// with `weights` ([`grid_albedo`]).
+pub fn stored_albedo(
+    pred: &Predictor,
+    weights: &brdf_io::albedo::GridAlbedo,
+) -> Result<Vec<StoredAlbedo>> {
+    let path = pred.model().dataset.path.clone();
+    let err = |e: brdf_io::Error| Error::stage("predict", &path, e);
+    let store = pred.store();
+    (0..store.n_materials())
+        .map(|i| {
+            let source = brdf_io::store::StoreMaterial::by_index(store.clone(), i).map_err(err)?;
+            Ok(StoredAlbedo {
+                material: store.names()[i].to_owned(),
+                peak: peak_of(&weights.table(&source).map_err(err)?),
+            })
+        })
+        .collect()
 }
 
 fn kind(choice: PredictorChoice) -> PredictorKind {
@@ -95,6 +175,7 @@ pub fn predict_points(
     pred: &Predictor,
     config: &PipelineConfig,
     out: &Path,
+    weights: &brdf_io::albedo::GridAlbedo,
 ) -> Result<Vec<PredictionRow>> {
     let model = pred.model();
     let mut points: Vec<(String, Vec<f64>)> = config
@@ -136,6 +217,11 @@ pub fn predict_points(
         // The variance of the predictor used (the exact one's is 0 at a training point).
         let variance = pred.variance_transformed(&x, k).map_err(err)?;
         let (lookup_us, lookup_mean) = time_lookups(&m, 4096)?;
+        let albedo = peak_of(
+            &weights
+                .table(&m)
+                .map_err(|e| Error::stage("predict", out.join("model.toml"), e))?,
+        );
         let (file, file_bytes, materialize_seconds) = if config.predict.materialize {
             let name = format!("prediction-{}.npy", i + 1);
             let r = m.materialize(&out.join(&name), |_, _| {}).map_err(err)?;
@@ -182,6 +268,7 @@ pub fn predict_points(
             file_bytes,
             materialize_seconds,
             bsdf,
+            albedo,
         });
     }
     Ok(rows)

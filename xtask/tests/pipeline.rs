@@ -3,6 +3,7 @@
 
 use std::path::Path;
 
+use brdf_io::albedo::directional_albedo;
 use xtask::{PipelineConfig, project_root};
 
 fn load(root: &Path, rel: &str) -> PipelineConfig {
@@ -17,6 +18,18 @@ fn entries(p: &Path) -> Vec<String> {
         .collect();
     v.sort();
     v
+}
+
+/// A source evaluated pair by pair (its grid hidden).
+struct PairByPair<'a>(&'a dyn brdf_io::BrdfSource);
+
+impl brdf_io::BrdfSource for PairByPair<'_> {
+    fn channels(&self) -> brdf_io::Channels {
+        self.0.channels()
+    }
+    fn eval(&self, wi: brdf_io::Vec3, wo: brdf_io::Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
+        self.0.eval(wi, wo, out)
+    }
 }
 
 #[test]
@@ -138,6 +151,25 @@ fn quick_pipeline_report_matches_the_model_and_data() {
             "{shown} vs {mean}"
         );
         assert!(finite(&p["lookup_us"]) > 0.0, "{p}");
+        // The largest directional albedo: the prediction's, evaluated pair by pair here (the
+        // pipeline integrates each touched cell once).
+        let albedo = directional_albedo(
+            &PairByPair(&m),
+            &brdf_io::rgl::ALBEDO_THETAS_DEG,
+            brdf_io::albedo::DEFAULT_RESOLUTION,
+        )
+        .unwrap();
+        let peak = albedo.peak().unwrap();
+        let shown = &p["albedo"];
+        assert!(
+            (finite(&shown["value"]) - peak.value).abs() <= 1e-9 * peak.value,
+            "{shown}"
+        );
+        assert_eq!(shown["angle_deg"].as_f64().unwrap(), peak.angle_deg);
+        assert_eq!(
+            shown["channel"].as_str().unwrap(),
+            albedo.channels.labels()[peak.channel]
+        );
         let file = dir.path().join(p["file"].as_str().unwrap());
         let bytes = std::fs::metadata(&file).unwrap().len();
         assert_eq!(bytes, p["file_bytes"].as_u64().unwrap());
@@ -175,6 +207,30 @@ fn quick_pipeline_report_matches_the_model_and_data() {
         }
     }
     assert_eq!(midpoints_checked, 1);
+    // The stored materials' largest albedo, in store order; the report counts those above 1.
+    let stored = json["stored_albedo"].as_array().unwrap();
+    assert_eq!(stored.len(), n);
+    let weights = brdf_io::albedo::GridAlbedo::new(
+        pred.grid(),
+        &brdf_io::rgl::ALBEDO_THETAS_DEG,
+        brdf_io::albedo::DEFAULT_RESOLUTION,
+    )
+    .unwrap();
+    let mut above = 0;
+    for (row, m) in stored.iter().zip(&model.materials) {
+        assert_eq!(row["material"].as_str().unwrap(), m.name);
+        let source = brdf_io::store::StoreMaterial::open(dir.path().join("data.sbrdf"), &m.name);
+        let want = weights.table(&source.unwrap()).unwrap().peak().unwrap();
+        assert_eq!(row["peak"]["value"].as_f64().unwrap(), want.value, "{row}");
+        above += usize::from(want.value > 1.005);
+    }
+    let report = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
+    assert!(
+        report.contains(&format!(
+            "{above} of the {n} stored materials exceed 1 + 0.005"
+        )),
+        "{report}"
+    );
     assert!(
         report.contains("The predictions as RGL `.bsdf` files"),
         "{report}"
