@@ -331,9 +331,10 @@ fn energy(s: &mut String, r: &Results) {
         s,
         "\nEnergy: each prediction's largest directional albedo (the fraction of the light from \
          one direction that it reflects; `specgp albedo`) over incidence {} degrees and every \
-         channel. Above 1 a material reflects more light than it receives, which no real one \
-         does and a path tracer turns into energy gained at every bounce. {} of the {} stored \
-         materials exceed 1 + {ENERGY_MARGIN} as the lookups see them",
+         channel. Above 1 a material reflects more light than it receives in that channel, \
+         which only a fluorescent one can (shifting light from other wavelengths), and a path \
+         tracer turns into energy gained at every bounce. {} of the {} stored materials exceed \
+         1 + {ENERGY_MARGIN} as the lookups see them",
         angles.join(", "),
         above.len(),
         r.stored_albedo.len()
@@ -355,8 +356,9 @@ fn energy(s: &mut String, r: &Results) {
             .collect();
         let _ = writeln!(
             s,
-            " ({}{}): glossy materials gain energy near grazing incidence between the grid's bin \
-             centres (BENCHMARKS.md \"albedo\"), and predictions blend them.\n",
+            " ({}{}): on a coarse grid glossy materials gain energy near grazing incidence \
+             between the bin centres (BENCHMARKS.md \"albedo\"), fluorescent ones exceed 1 in \
+             their emission band, and predictions blend them.\n",
             list.join(", "),
             if sorted.len() > 8 { ", ..." } else { "" }
         );

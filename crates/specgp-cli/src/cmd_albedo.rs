@@ -2,6 +2,9 @@
 //! source (the fraction of the light from one direction that it reflects, per channel) at
 //! incident elevations, and whether it conserves energy (albedo <= 1 everywhere).
 //!
+//! (A fluorescent material may exceed 1 in a channel, shifting light from other wavelengths;
+//! a BRDF cannot represent that shift, so a renderer still gains energy.)
+//!
 //! A GP prediction is a blend of measured materials (of their logarithms under the `log`
 //! transform), which nothing keeps physically plausible: this is the check before a predicted
 //! material goes into a renderer. The table on standard output gives per elevation the
@@ -225,8 +228,8 @@ pub fn albedo(args: &AlbedoArgs) -> anyhow::Result<()> {
         if peak.value > 1.0 + ENERGY_TOLERANCE {
             tracing::warn!(
                 "{} reflects more light than it receives: albedo {:.4} at {} degrees \
-                 ({label}{unit}); not physically plausible (a path tracer gains energy at each \
-                 bounce)",
+                 ({label}{unit}); not physically plausible unless the material fluoresces (a \
+                 path tracer gains energy at each bounce)",
                 args.from.source,
                 peak.value,
                 peak.angle_deg
