@@ -14,13 +14,18 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
-use brdf_io::Channels;
 use brdf_io::albedo::{AlbedoTable, DEFAULT_RESOLUTION, directional_albedo};
+use brdf_io::{BrdfSource, Channels};
 
 use crate::cmd_sample::SourceArgs;
 
-/// Incident elevations of the table by default (degrees).
+/// Incident elevations of the table by default (degrees), as `--angles` takes them.
 pub const DEFAULT_ANGLES: &str = "0,10,20,30,40,50,60,70,75,80,85,88";
+
+/// [`DEFAULT_ANGLES`] as numbers.
+pub const DEFAULT_ANGLES_DEG: [f64; 12] = [
+    0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 75.0, 80.0, 85.0, 88.0,
+];
 
 /// Albedo above 1 by more than this (the quadrature's error on sharp and grazing lobes is
 /// below 0.4 %, brdf_io::albedo) is reported as energy gain.
@@ -222,27 +227,47 @@ pub fn albedo(args: &AlbedoArgs) -> anyhow::Result<()> {
     if let Err(why) = &luminance {
         print(&format!("no luminance: {why}"));
     }
-    if let Some(peak) = table.peak() {
-        let label = &table.channels.labels()[peak.channel];
-        let unit = label_unit(&table.channels);
-        if peak.value > 1.0 + ENERGY_TOLERANCE {
-            tracing::warn!(
-                "{} reflects more light than it receives: albedo {:.4} at {} degrees \
-                 ({label}{unit}); not physically plausible unless the material fluoresces (a \
-                 path tracer gains energy at each bounce)",
-                args.from.source,
-                peak.value,
-                peak.angle_deg
-            );
-        } else {
-            print(&format!(
-                "largest albedo {:.4} at {} degrees ({label}{unit}): energy-conserving at these \
-                 elevations",
-                peak.value, peak.angle_deg
-            ));
-        }
+    if let Some(warning) = energy_warning(&table, &args.from.source) {
+        tracing::warn!("{warning}");
+    } else if let Some(peak) = table.peak() {
+        print(&format!(
+            "largest albedo {:.4} at {} degrees ({}{}): energy-conserving at these elevations",
+            peak.value,
+            peak.angle_deg,
+            table.channels.labels()[peak.channel],
+            label_unit(&table.channels)
+        ));
     }
     Ok(())
+}
+
+/// The warning for a table whose largest albedo exceeds 1 + [`ENERGY_TOLERANCE`], naming the
+/// source `what`; `None` when it conserves energy.
+pub fn energy_warning(table: &AlbedoTable, what: &str) -> Option<String> {
+    let peak = table.peak().filter(|p| p.value > 1.0 + ENERGY_TOLERANCE)?;
+    Some(format!(
+        "{what} reflects more light than it receives: albedo {:.4} at {} degrees ({}{}); not \
+         physically plausible unless the material fluoresces (a path tracer gains energy at \
+         each bounce; `specgp albedo` tells more)",
+        peak.value,
+        peak.angle_deg,
+        table.channels.labels()[peak.channel],
+        label_unit(&table.channels)
+    ))
+}
+
+/// Logs [`energy_warning`] for `source` (named `what`) at the default elevations, the check
+/// `predict` and `convert` run on what they write. A check that fails is logged at debug
+/// level only: it never stops an output.
+pub fn warn_on_energy_gain(source: &dyn BrdfSource, what: &str) {
+    match directional_albedo(source, &DEFAULT_ANGLES_DEG, DEFAULT_RESOLUTION) {
+        Ok(table) => {
+            if let Some(warning) = energy_warning(&table, what) {
+                tracing::warn!("{warning}");
+            }
+        }
+        Err(e) => tracing::debug!("energy check of {what} skipped: {e}"),
+    }
 }
 
 #[cfg(test)]
@@ -256,7 +281,7 @@ mod tests {
             vec![0.0, 20.0, 40.0, 60.0, 80.0]
         );
         assert_eq!(parse_angles("5, 89.5").unwrap(), vec![5.0, 89.5]);
-        assert_eq!(parse_angles(DEFAULT_ANGLES).unwrap().len(), 12);
+        assert_eq!(parse_angles(DEFAULT_ANGLES).unwrap(), DEFAULT_ANGLES_DEG);
         for (spec, words) in [
             ("0:90:10", "90 is outside [0, 90)"),
             ("-1", "-1 is outside"),

@@ -143,6 +143,7 @@ pub fn write_bsdf(
             summary.values
         );
     }
+    crate::cmd_albedo::warn_on_energy_gain(source, label);
     Ok(())
 }
 

@@ -455,6 +455,7 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
     if bsdf {
         return crate::cmd_convert::write_bsdf(&material, material.label(), &args.out, &args.rgl);
     }
+    crate::cmd_albedo::warn_on_energy_gain(&material, material.label());
     let pb = bar(pred.store().n_chunks() as u64, "predict");
     let spectral_merl =
         brdf_io::has_extension(&args.out, "binary") && material.channels() != &Channels::Rgb;

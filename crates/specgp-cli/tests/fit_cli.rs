@@ -3149,6 +3149,34 @@ fn albedo_reports_energy_conservation() {
         "{err}"
     );
 
+    // `convert` and `predict` check what they write: the bright Lambertian is reported, the
+    // grey one is not.
+    let gain = "reflects more light than it receives: albedo 1.50";
+    let (_, err) = specgp_outputs(&["convert", "lambert.sbrdf:bright", "--out", "b.bsdf"], d);
+    assert!(
+        err.contains(&format!("lambert.sbrdf:bright {gain}")),
+        "{err}"
+    );
+    let (_, err) = specgp_outputs(&["convert", "lambert.sbrdf:grey", "--out", "g.bsdf"], d);
+    assert!(!err.contains("reflects more light"), "{err}");
+    specgp(
+        &[
+            "fit",
+            "lambert.sbrdf",
+            "--out",
+            "l.toml",
+            "--latent-dim",
+            "1",
+        ],
+        d,
+    );
+    let lambert = Model::load(&d.join("l.toml")).unwrap();
+    for m in &lambert.materials {
+        let at = m.coords[0].to_string();
+        let (_, err) = specgp_outputs(&["predict", "l.toml", "--at", &at, "--out", "p.npy"], d);
+        assert_eq!(err.contains(gain), m.name == "bright", "{}: {err}", m.name);
+    }
+
     // A training material at its own latent point.
     fitted_small(d, "400:700:100");
     let model = Model::load(&d.join("m.toml")).unwrap();
