@@ -94,45 +94,21 @@ impl AlbedoNodes {
             .collect()
     }
 
-    /// rho(wi) of `source` per channel into `out` (length: the source's channels): the nodes'
-    /// values summed in order, or for a grid source ([`BrdfSource::grid`]) each cell the nodes
-    /// touch evaluated once ([`AlbedoNodes::cell_weights`]; the same integral up to rounding).
+    /// rho(wi) of `source` per channel into `out` (length: the source's channels), its values
+    /// at the nodes summed in order ([`directional_albedo`] reads a grid source's cells once
+    /// instead).
     pub fn integrate(&self, source: &dyn BrdfSource, out: &mut [f64]) -> Result<()> {
-        match source.grid() {
-            Some(grid) => integrate_cells(&self.cell_weights(&grid), source, out),
-            None => {
-                crate::source::check_output_len(out, source.channels().len())?;
-                let mut f = vec![0.0; out.len()];
-                out.fill(0.0);
-                for &(wo, w) in &self.nodes {
-                    source.eval(self.wi, wo, &mut f)?;
-                    for (a, v) in out.iter_mut().zip(&f) {
-                        *a += w * v;
-                    }
-                }
-                Ok(())
+        crate::source::check_output_len(out, source.channels().len())?;
+        let mut f = vec![0.0; out.len()];
+        out.fill(0.0);
+        for &(wo, w) in &self.nodes {
+            source.eval(self.wi, wo, &mut f)?;
+            for (a, v) in out.iter_mut().zip(&f) {
+                *a += w * v;
             }
         }
+        Ok(())
     }
-}
-
-/// `sum weight * source.eval_cell(cell)` over `cells` ([`AlbedoNodes::cell_weights`]) into
-/// `out`.
-pub fn integrate_cells(
-    cells: &[(usize, f64)],
-    source: &dyn BrdfSource,
-    out: &mut [f64],
-) -> Result<()> {
-    crate::source::check_output_len(out, source.channels().len())?;
-    let mut f = vec![0.0; out.len()];
-    out.fill(0.0);
-    for &(a, w) in cells {
-        source.eval_cell(a, &mut f)?;
-        for (o, v) in out.iter_mut().zip(&f) {
-            *o += w * v;
-        }
-    }
-    Ok(())
 }
 
 /// The unit direction of elevation `theta` and azimuth `phi`.
@@ -447,6 +423,18 @@ mod tests {
         let same = GridAlbedo::new(&AngularGrid::new(8, 8, 16).unwrap(), &angles, 16).unwrap();
         let e = same.table(&NoGrid(&m)).unwrap_err().to_string();
         assert!(e.contains("not on a grid"), "{e}");
+    }
+
+    /// The peak is the first of equal largest values, in elevation then channel order.
+    #[test]
+    fn the_peak_is_the_first_largest_value() {
+        let table = AlbedoTable {
+            angles_deg: vec![0.0, 45.0, 80.0],
+            channels: Channels::Rgb,
+            values: vec![0.5, 0.9, 0.1, 0.9, 0.2, 0.9, 0.3, 0.4, 0.9],
+        };
+        let peak = table.peak().unwrap();
+        assert_eq!((peak.value, peak.angle_deg, peak.channel), (0.9, 0.0, 1));
     }
 
     #[test]
