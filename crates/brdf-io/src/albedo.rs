@@ -3,8 +3,10 @@
 //!
 //! rho(wi) = integral over the hemisphere of f(wi, wo) cos theta_o dwo.
 //!
-//! A physically plausible BRDF has rho <= 1 at every incidence; above 1 it creates energy, and a
-//! path tracer's paths gain energy at every bounce (a white furnace test glows). A white
+//! A physically plausible BRDF has rho <= 1 at every incidence (a fluorescent material can
+//! exceed 1 in a channel, shifting light from other wavelengths, which a BRDF cannot express);
+//! above 1 it creates energy, and a path tracer's paths gain energy at every bounce (a white
+//! furnace test glows). A white
 //! Lambertian (f = 1/pi) has rho = 1. With [`BrdfSource`]'s argument order (`wi` = Mitsuba's
 //! `si.wi`), rho is also the expected weight of a path tracer's BSDF sample, which is what
 //! decides whether a material gains energy in a renderer; for reciprocal data (MERL, stored and
