@@ -11,8 +11,11 @@
 //!
 //! ```sh
 //! cargo run --release -p render --example grid_interpolation_study [-- GRID ...]
+//! SHEET=docs/figures/grid-lookups.png cargo run --release -p render --example grid_interpolation_study -- 16,16,32
 //! ```
-//! (default grids 16,16,32 32,32,64 45,45,90; BENCHMARKS.md "albedo").
+//! (default grids 16,16,32 32,32,64 45,45,90; BENCHMARKS.md "albedo"). With `SHEET`, also a
+//! comparison sheet on the first grid: analytic, multilinear and log-multilinear spheres of the
+//! six materials whose multilinear spheres differ most, with Delta E 2000 maps (0-4).
 
 use brdf_io::albedo::{AlbedoTable, DEFAULT_RESOLUTION, directional_albedo};
 use brdf_io::store::StoreMaterial;
@@ -112,7 +115,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "| grid | lookup | materials above 1.005 | largest relative albedo error | mean / largest sphere Delta E 2000 | sharpest (carpaint_solid_red) albedo peak |"
     );
     println!("|---|---|---|---|---|---|");
-    for g in &grids {
+    let mut worst_spheres: Vec<(f64, usize)> = Vec::new();
+    for (gi, g) in grids.iter().enumerate() {
         let grid: AngularGrid = g.parse()?;
         let path = dir.path().join(format!("{}.sbrdf", g.replace(',', "x")));
         let opt = StoreOptions::default();
@@ -138,6 +142,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     .fold(0.0, f64::max);
                 s.worst_albedo = s.worst_albedo.max(err);
                 let de = mean_delta_e(&delta_e_map(img, &render_sphere(src, &opts)?)?);
+                if gi == 0 && v == 0 {
+                    worst_spheres.push((de, worst_spheres.len()));
+                }
                 s.delta_e_sum += de;
                 s.delta_e_max = s.delta_e_max.max(de);
                 if m.name == "carpaint_solid_red" {
@@ -164,6 +171,40 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     .map_or(0.0, |(_, (t, _))| peak(t))
             );
         }
+    }
+    if let Ok(out) = std::env::var("SHEET") {
+        let grid: AngularGrid = grids[0].parse()?;
+        let path = dir.path().join(format!("{}.sbrdf", grids[0].replace(',', "x")));
+        worst_spheres.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let picked: Vec<usize> = worst_spheres.iter().take(6).map(|w| w.1).collect();
+        let prepared: Vec<_> = picked
+            .iter()
+            .map(|&i| materials[i].prepare(&wavelengths))
+            .collect();
+        let stored: Vec<StoreMaterial> = picked
+            .iter()
+            .map(|&i| StoreMaterial::open(&path, &materials[i].name))
+            .collect::<Result<_, _>>()?;
+        let logs: Vec<LogInterpolated> = stored
+            .iter()
+            .map(|inner| LogInterpolated { inner, grid })
+            .collect();
+        let rows: Vec<render::sheet::SheetRow> = picked
+            .iter()
+            .enumerate()
+            .map(|(k, &i)| {
+                let sources: Vec<&dyn BrdfSource> = vec![&prepared[k], &stored[k], &logs[k]];
+                (materials[i].name.clone(), sources)
+            })
+            .collect();
+        let sheet = render::comparison_sheet(
+            &["analytic", "multilinear", "log-multilinear"],
+            &rows,
+            &opts,
+            4.0,
+        )?;
+        sheet.image.save_png(std::path::Path::new(&out))?;
+        println!("sheet on {}: {out}", grids[0]);
     }
     Ok(())
 }
