@@ -459,6 +459,48 @@ pub enum Channels {
 /// step is almost always a typo, and would make every store of it huge.
 pub const MAX_WAVELENGTHS: usize = 4096;
 
+/// Parses `START:END:STEP` (END included, and on the step: a range that stopped short of it
+/// silently, 400:700:70 giving 400-680, hid a typo or a wrong STEP) or a comma list of numbers,
+/// at most `max` values (`what` names them in that message), or says why not (the caller
+/// names the option and the units around it). Shared by `--wavelengths` and `specgp albedo
+/// --angles`.
+pub fn parse_values(spec: &str, max: usize, what: &str) -> std::result::Result<Vec<f64>, String> {
+    let num = |t: &str| {
+        t.trim()
+            .parse::<f64>()
+            .map_err(|_| format!("{:?} is not a number", t.trim()))
+    };
+    if !spec.contains(':') {
+        return spec.split(',').map(num).collect();
+    }
+    let parts: Vec<&str> = spec.split(':').collect();
+    if parts.len() != 3 {
+        return Err("a range needs exactly three fields".into());
+    }
+    let (start, end, step) = (num(parts[0])?, num(parts[1])?, num(parts[2])?);
+    if ![start, end, step].iter().all(|v| v.is_finite()) || step <= 0.0 || end < start {
+        return Err("need finite numbers, STEP > 0 and END >= START".into());
+    }
+    // Counted in f64 first: a tiny step would overflow the integer.
+    let steps = ((end - start) / step + 1e-9).floor();
+    if steps.is_nan() || steps >= max as f64 {
+        return Err(format!(
+            "more than {max} {what} (is STEP meant to be that small?)"
+        ));
+    }
+    let last = start + steps * step;
+    if (end - start) / step - steps > 1e-6 {
+        return Err(format!(
+            "END {end} is not START plus a whole number of STEPs (the range would stop at \
+             {last}); write {start}:{last}:{step}, or choose a STEP that divides {}",
+            end - start
+        ));
+    }
+    Ok((0..=steps as usize)
+        .map(|i| start + i as f64 * step)
+        .collect())
+}
+
 impl Channels {
     /// Spectral channels at the given wavelengths (nm); they must be finite, positive and
     /// strictly increasing.
@@ -485,44 +527,14 @@ impl Channels {
     /// START plus a whole number of STEPs; at most [`MAX_WAVELENGTHS`]) or a comma-separated
     /// list.
     pub fn parse_wavelengths(spec: &str) -> Result<Self> {
-        let bad = |why: &str| Error::InvalidGrid {
-            reason: format!(
-                "wavelengths {spec:?}: {why} (expected START:END:STEP or a comma list, in nm)"
-            ),
-        };
-        let num = |t: &str| t.trim().parse::<f64>().map_err(|_| bad("not a number"));
-        if spec.contains(':') {
-            let parts: Vec<&str> = spec.split(':').collect();
-            if parts.len() != 3 {
-                return Err(bad("a range needs exactly three fields"));
+        let values = parse_values(spec, MAX_WAVELENGTHS, "wavelengths").map_err(|why| {
+            Error::InvalidGrid {
+                reason: format!(
+                    "wavelengths {spec:?}: {why} (expected START:END:STEP or a comma list, in nm)"
+                ),
             }
-            let (start, end, step) = (num(parts[0])?, num(parts[1])?, num(parts[2])?);
-            if ![start, end, step].iter().all(|v| v.is_finite()) || step <= 0.0 || end < start {
-                return Err(bad("need finite numbers, STEP > 0 and END >= START"));
-            }
-            // Counted in f64 first: a tiny step would overflow the integer.
-            let steps = ((end - start) / step + 1e-9).floor();
-            if steps.is_nan() || steps >= MAX_WAVELENGTHS as f64 {
-                return Err(bad(&format!(
-                    "more than {MAX_WAVELENGTHS} wavelengths (is STEP meant to be that small?)"
-                )));
-            }
-            // END must be on the step: a range that stopped short of it silently (400:700:70
-            // gave 400-680 nm) hid a typo or a wrong STEP.
-            let last = start + steps * step;
-            if (end - start) / step - steps > 1e-6 {
-                return Err(bad(&format!(
-                    "END {end} is not START plus a whole number of STEPs (the range would \
-                     stop at {last}); write {start}:{last}:{step}, or choose a STEP that \
-                     divides {}",
-                    end - start
-                )));
-            }
-            let count = steps as usize + 1;
-            Self::spectral((0..count).map(|i| start + i as f64 * step).collect())
-        } else {
-            Self::spectral(spec.split(',').map(num).collect::<Result<_>>()?)
-        }
+        })?;
+        Self::spectral(values)
     }
 
     /// Number of channels.
@@ -1071,6 +1083,19 @@ mod tests {
             serde_json::from_str::<AngularGrid>(r#"{"n_theta_h":0,"n_theta_d":1,"n_phi_d":1}"#)
                 .is_err()
         );
+    }
+
+    /// The shared range/list parser names a bad token and its own limit's unit.
+    #[test]
+    fn parse_values_names_bad_tokens_and_its_limit() {
+        assert_eq!(parse_values("0:4:2", 10, "things"), Ok(vec![0.0, 2.0, 4.0]));
+        assert_eq!(parse_values(" 1, 2.5", 10, "things"), Ok(vec![1.0, 2.5]));
+        assert_eq!(
+            parse_values("1, x", 10, "things"),
+            Err("\"x\" is not a number".to_owned())
+        );
+        let e = parse_values("0:4:2", 2, "things").unwrap_err();
+        assert!(e.starts_with("more than 2 things"), "{e}");
     }
 
     #[test]

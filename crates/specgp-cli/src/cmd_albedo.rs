@@ -48,45 +48,15 @@ pub struct AlbedoArgs {
     pub resolution: usize,
 }
 
-/// Parses `--angles`: START:END:STEP (END included, and on the step) or a comma list, each in
-/// [0, 90) degrees.
+/// Parses `--angles`: START:END:STEP (END included, and on the step) or a comma list
+/// ([`brdf_io::grid::parse_values`]), each in [0, 90) degrees.
 pub fn parse_angles(spec: &str) -> anyhow::Result<Vec<f64>> {
     let bad = |why: String| {
         anyhow::anyhow!(
             "--angles {spec:?}: {why} (expected START:END:STEP or a comma list, in degrees)"
         )
     };
-    let num = |t: &str| {
-        t.trim()
-            .parse::<f64>()
-            .map_err(|_| bad(format!("{:?} is not a number", t.trim())))
-    };
-    let angles = if spec.contains(':') {
-        let parts: Vec<&str> = spec.split(':').collect();
-        if parts.len() != 3 {
-            return Err(bad("a range needs exactly three fields".into()));
-        }
-        let (start, end, step) = (num(parts[0])?, num(parts[1])?, num(parts[2])?);
-        if ![start, end, step].iter().all(|v| v.is_finite()) || step <= 0.0 || end < start {
-            return Err(bad("need finite numbers, STEP > 0 and END >= START".into()));
-        }
-        let steps = ((end - start) / step + 1e-9).floor();
-        if steps >= 10_000.0 {
-            return Err(bad("more than 10000 angles".into()));
-        }
-        if (end - start) / step - steps > 1e-6 {
-            return Err(bad(format!(
-                "END {end} is not START plus a whole number of STEPs"
-            )));
-        }
-        (0..=steps as usize)
-            .map(|i| start + i as f64 * step)
-            .collect()
-    } else {
-        spec.split(',')
-            .map(num)
-            .collect::<anyhow::Result<Vec<_>>>()?
-    };
+    let angles = brdf_io::grid::parse_values(spec, 10_000, "angles").map_err(bad)?;
     if let Some(a) = angles.iter().find(|a| !(0.0..90.0).contains(*a)) {
         return Err(bad(format!(
             "{a} is outside [0, 90): at 90 degrees the light grazes the surface"
