@@ -557,6 +557,19 @@ impl Channels {
             Self::Rgb => vec!["R".into(), "G".into(), "B".into()],
         }
     }
+
+    /// The name of channel `k` in messages: `600 nm`, or `R`, `G`, `B` (the index itself when
+    /// there is no channel `k`).
+    pub fn name(&self, k: usize) -> String {
+        match self {
+            Self::Spectral(wl) => wl
+                .get(k)
+                .map_or_else(|| format!("{k}"), |w| format!("{w} nm")),
+            Self::Rgb => ["R", "G", "B"]
+                .get(k)
+                .map_or_else(|| format!("{k}"), |c| c.to_string()),
+        }
+    }
 }
 
 /// Output channels of a source and how each comes from its stored channels (an RGL file's, a
@@ -1082,6 +1095,19 @@ mod tests {
         assert!(
             serde_json::from_str::<AngularGrid>(r#"{"n_theta_h":0,"n_theta_d":1,"n_phi_d":1}"#)
                 .is_err()
+        );
+    }
+
+    #[test]
+    fn channel_names_carry_their_unit() {
+        let w = Channels::parse_wavelengths("450,600.5").unwrap();
+        assert_eq!(
+            [w.name(0), w.name(1), w.name(2)],
+            ["450 nm", "600.5 nm", "2"]
+        );
+        assert_eq!(
+            [0, 1, 2, 3].map(|k| Channels::Rgb.name(k)),
+            ["R", "G", "B", "3"]
         );
     }
 

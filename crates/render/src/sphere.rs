@@ -656,18 +656,6 @@ fn project(weights: &[Vec<f64>; 3], needed: &[usize], acc: &[f64], k: f64) -> [f
     })
 }
 
-/// The name of channel `k` of `channels` in messages: `600 nm`, or `R`, `G`, `B`.
-fn channel_name(channels: &Channels, k: usize) -> String {
-    match channels {
-        Channels::Spectral(wl) => wl
-            .get(k)
-            .map_or_else(|| format!("{k}"), |w| format!("{w} nm")),
-        Channels::Rgb => ["R", "G", "B"]
-            .get(k)
-            .map_or_else(|| format!("{k}"), |c| c.to_string()),
-    }
-}
-
 /// Checks the values `f` a source returned for the `needed` channels: a NaN or infinite one is
 /// an [`Error::NonFiniteValue`] naming the channel and where it was looked up (`at`). Unchecked,
 /// NaN counted as 0 in [`project`] (a black sphere) and infinity gave NaN pixels (black in the
@@ -682,7 +670,7 @@ fn check_finite(
         None => Ok(()),
         Some(&k) => Err(Error::NonFiniteValue {
             value: f[k],
-            channel: channel_name(channels, k),
+            channel: channels.name(k),
             at: at(),
         }),
     }

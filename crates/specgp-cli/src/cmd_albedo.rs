@@ -83,14 +83,6 @@ pub fn luminance_weights(channels: &Channels) -> Result<Vec<f64>, String> {
     }
 }
 
-/// What follows a channel's label in prose: " nm" for a wavelength.
-fn label_unit(channels: &Channels) -> &'static str {
-    match channels {
-        Channels::Rgb => "",
-        Channels::Spectral(_) => " nm",
-    }
-}
-
 /// The CSV text of a table: `angle_deg,<channel labels>`, then one row per elevation.
 pub fn albedo_csv(table: &AlbedoTable) -> String {
     let mut out = format!("angle_deg,{}\n", table.channels.labels().join(","));
@@ -104,8 +96,6 @@ pub fn albedo_csv(table: &AlbedoTable) -> String {
 /// The printed table: per elevation Y (when the channels give one), the smallest and the
 /// largest channel with their labels.
 pub fn albedo_report(table: &AlbedoTable, luminance: Option<&[f64]>) -> String {
-    let labels = table.channels.labels();
-    let unit = label_unit(&table.channels);
     let mut out = String::new();
     out.push_str(&format!(
         "{:>9}  {:>8}  {:>21}  {:>21}\n",
@@ -126,7 +116,7 @@ pub fn albedo_report(table: &AlbedoTable, luminance: Option<&[f64]>) -> String {
                     i = j;
                 }
             }
-            format!("{:.4} ({}{unit})", row[i], labels[i])
+            format!("{:.4} ({})", row[i], table.channels.name(i))
         };
         out.push_str(&format!(
             "{a:>9}  {y:>8}  {:>21}  {:>21}\n",
@@ -201,11 +191,10 @@ pub fn albedo(args: &AlbedoArgs) -> anyhow::Result<()> {
         tracing::warn!("{warning}");
     } else if let Some(peak) = table.peak() {
         print(&format!(
-            "largest albedo {:.4} at {} degrees ({}{}): energy-conserving at these elevations",
+            "largest albedo {:.4} at {} degrees ({}): energy-conserving at these elevations",
             peak.value,
             peak.angle_deg,
-            table.channels.labels()[peak.channel],
-            label_unit(&table.channels)
+            table.channels.name(peak.channel)
         ));
     }
     Ok(())
@@ -216,13 +205,12 @@ pub fn albedo(args: &AlbedoArgs) -> anyhow::Result<()> {
 pub fn energy_warning(table: &AlbedoTable, what: &str) -> Option<String> {
     let peak = table.peak().filter(|p| p.value > 1.0 + ENERGY_TOLERANCE)?;
     Some(format!(
-        "{what} reflects more light than it receives: albedo {:.4} at {} degrees ({}{}); not \
+        "{what} reflects more light than it receives: albedo {:.4} at {} degrees ({}); not \
          physically plausible unless the material fluoresces (a path tracer gains energy at \
          each bounce; `specgp albedo` tells more)",
         peak.value,
         peak.angle_deg,
-        table.channels.labels()[peak.channel],
-        label_unit(&table.channels)
+        table.channels.name(peak.channel)
     ))
 }
 
