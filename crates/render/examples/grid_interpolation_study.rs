@@ -174,7 +174,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     if let Ok(out) = std::env::var("SHEET") {
         let grid: AngularGrid = grids[0].parse()?;
-        let path = dir.path().join(format!("{}.sbrdf", grids[0].replace(',', "x")));
+        let path = dir
+            .path()
+            .join(format!("{}.sbrdf", grids[0].replace(',', "x")));
         worst_spheres.sort_by(|a, b| b.0.total_cmp(&a.0));
         let picked: Vec<usize> = worst_spheres.iter().take(6).map(|w| w.1).collect();
         let prepared: Vec<_> = picked

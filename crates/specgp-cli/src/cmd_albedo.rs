@@ -253,6 +253,27 @@ mod tests {
         }
     }
 
+    /// Energy gain is an albedo strictly above 1 + ENERGY_TOLERANCE: a white diffuser at 1 and
+    /// the margin itself pass, just above it warns naming the source, elevation and channel.
+    #[test]
+    fn energy_warnings_start_just_above_the_margin() {
+        let table = |v: f64| AlbedoTable {
+            angles_deg: vec![0.0, 70.0],
+            channels: Channels::parse_wavelengths("500,600").unwrap(),
+            values: vec![0.5, 0.5, 0.25, v],
+        };
+        for quiet in [1.0, 1.0 + ENERGY_TOLERANCE, 0.999] {
+            assert_eq!(energy_warning(&table(quiet), "s"), None, "{quiet}");
+        }
+        let w = energy_warning(&table(1.0 + 1.1 * ENERGY_TOLERANCE), "x.bsdf").unwrap();
+        assert!(
+            w.starts_with(
+                "x.bsdf reflects more light than it receives: albedo 1.0055 at 70 degrees (600 nm)"
+            ),
+            "{w}"
+        );
+    }
+
     #[test]
     fn luminance_weights_give_one_for_white() {
         let rgb = luminance_weights(&Channels::Rgb).unwrap();
