@@ -317,14 +317,15 @@ fn predictions(s: &mut String, r: &Results) {
 
 /// The predictions' and the stored materials' largest directional albedo.
 fn energy(s: &mut String, r: &Results) {
-    use crate::stages::{ALBEDO_THETAS_DEG, ENERGY_MARGIN};
+    use crate::stages::ALBEDO_THETAS_DEG;
+    use brdf_io::albedo::{ENERGY_MARGIN, gains_energy};
     if r.predictions.is_empty() {
         return;
     }
     let above: Vec<_> = r
         .stored_albedo
         .iter()
-        .filter(|m| m.peak.value > 1.0 + ENERGY_MARGIN)
+        .filter(|m| gains_energy(m.peak.value))
         .collect();
     let angles: Vec<String> = ALBEDO_THETAS_DEG.iter().map(|a| a.to_string()).collect();
     let _ = write!(

@@ -83,10 +83,6 @@ pub struct StoredAlbedo {
 /// Incident elevations (degrees) of the energy check: the RGL writer's albedo check's, 0-88.
 pub use brdf_io::rgl::ALBEDO_THETAS_DEG;
 
-/// Albedo above 1 by more than this is reported as energy gain (the quadrature is within
-/// 0.4 %; `specgp albedo` uses the same margin).
-pub const ENERGY_MARGIN: f64 = 0.005;
-
 /// The energy check's quadrature on the predictor's grid ([`ALBEDO_THETAS_DEG`], 96 x 96 half
 /// vectors), built once for the stored materials and the predictions.
 pub fn grid_albedo(pred: &Predictor) -> Result<brdf_io::albedo::GridAlbedo> {

@@ -26,6 +26,17 @@ use crate::source::BrdfSource;
 /// Nodes per axis of the half-vector grid by default ([`AlbedoNodes::new`]): 96 x 96.
 pub const DEFAULT_RESOLUTION: usize = 96;
 
+/// An albedo above 1 by more than this counts as energy gain ([`gains_energy`]): above the
+/// quadrature's error (at most 0.4 % on the synthetic presets at 0-88 degrees, 1.5e-4 on a
+/// Lambertian).
+pub const ENERGY_MARGIN: f64 = 0.005;
+
+/// Whether an albedo reflects more light than arrives, beyond the quadrature's error: strictly
+/// above 1 + [`ENERGY_MARGIN`].
+pub fn gains_energy(albedo: f64) -> bool {
+    albedo > 1.0 + ENERGY_MARGIN
+}
+
 /// Quadrature nodes of the directional albedo at one incident direction: outgoing directions
 /// `wo` above the horizon with weights `cos theta_o dwo`, so that `sum weight * f(wi, wo)`
 /// estimates rho(wi).
@@ -437,6 +448,17 @@ mod tests {
         };
         let peak = table.peak().unwrap();
         assert_eq!((peak.value, peak.angle_deg, peak.channel), (0.9, 0.0, 1));
+    }
+
+    /// Energy gain starts strictly above 1 + ENERGY_MARGIN.
+    #[test]
+    fn energy_gain_starts_above_the_margin() {
+        for quiet in [0.5, 0.999, 1.0, 1.0 + ENERGY_MARGIN] {
+            assert!(!gains_energy(quiet), "{quiet}");
+        }
+        for gain in [1.0 + 1.1 * ENERGY_MARGIN, 1.5, f64::INFINITY] {
+            assert!(gains_energy(gain), "{gain}");
+        }
     }
 
     #[test]

@@ -14,7 +14,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
-use brdf_io::albedo::{AlbedoTable, DEFAULT_RESOLUTION, directional_albedo};
+use brdf_io::albedo::{AlbedoTable, DEFAULT_RESOLUTION, directional_albedo, gains_energy};
 use brdf_io::{BrdfSource, Channels};
 
 use crate::cmd_sample::SourceArgs;
@@ -26,10 +26,6 @@ pub const DEFAULT_ANGLES: &str = "0,10,20,30,40,50,60,70,75,80,85,88";
 pub const DEFAULT_ANGLES_DEG: [f64; 12] = [
     0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 75.0, 80.0, 85.0, 88.0,
 ];
-
-/// Albedo above 1 by more than this (the quadrature's error on sharp and grazing lobes is
-/// below 0.4 %, brdf_io::albedo) is reported as energy gain.
-pub const ENERGY_TOLERANCE: f64 = 0.005;
 
 /// Arguments of `specgp albedo`.
 #[derive(Debug, clap::Args)]
@@ -200,10 +196,10 @@ pub fn albedo(args: &AlbedoArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The warning for a table whose largest albedo exceeds 1 + [`ENERGY_TOLERANCE`], naming the
+/// The warning for a table whose largest albedo gains energy ([`gains_energy`]), naming the
 /// source `what`; `None` when it conserves energy.
 pub fn energy_warning(table: &AlbedoTable, what: &str) -> Option<String> {
-    let peak = table.peak().filter(|p| p.value > 1.0 + ENERGY_TOLERANCE)?;
+    let peak = table.peak().filter(|p| gains_energy(p.value))?;
     Some(format!(
         "{what} reflects more light than it receives: albedo {:.4} at {} degrees ({}); not \
          physically plausible unless the material fluoresces (a path tracer gains energy at \
@@ -253,19 +249,20 @@ mod tests {
         }
     }
 
-    /// Energy gain is an albedo strictly above 1 + ENERGY_TOLERANCE: a white diffuser at 1 and
+    /// Energy gain is an albedo strictly above 1 + ENERGY_MARGIN: a white diffuser at 1 and
     /// the margin itself pass, just above it warns naming the source, elevation and channel.
     #[test]
     fn energy_warnings_start_just_above_the_margin() {
+        use brdf_io::albedo::ENERGY_MARGIN;
         let table = |v: f64| AlbedoTable {
             angles_deg: vec![0.0, 70.0],
             channels: Channels::parse_wavelengths("500,600").unwrap(),
             values: vec![0.5, 0.5, 0.25, v],
         };
-        for quiet in [1.0, 1.0 + ENERGY_TOLERANCE, 0.999] {
+        for quiet in [1.0, 1.0 + ENERGY_MARGIN, 0.999] {
             assert_eq!(energy_warning(&table(quiet), "s"), None, "{quiet}");
         }
-        let w = energy_warning(&table(1.0 + 1.1 * ENERGY_TOLERANCE), "x.bsdf").unwrap();
+        let w = energy_warning(&table(1.0 + 1.1 * ENERGY_MARGIN), "x.bsdf").unwrap();
         assert!(
             w.starts_with(
                 "x.bsdf reflects more light than it receives: albedo 1.0055 at 70 degrees (600 nm)"
