@@ -136,7 +136,8 @@ pub fn albedo(args: &AlbedoArgs) -> anyhow::Result<()> {
     }
     let source = args.from.open()?;
     let start = std::time::Instant::now();
-    // A lazily predicted spectral source at 12 elevations takes a few seconds.
+    // Well under a second by default; about 1-2 s at --resolution 1024 (measured: an RGL file
+    // 0.95 s, a paper-grid model point 1.8 s).
     let spinner = indicatif::ProgressBar::new_spinner();
     spinner.set_message(format!(
         "integrating {} at {} elevations",
