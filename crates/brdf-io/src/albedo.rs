@@ -179,7 +179,8 @@ impl AlbedoTable {
 
 /// rho of `source` at each incident elevation of `angles_deg` (degrees, in [0, 90): at 90
 /// degrees the light grazes the surface and nothing is reflected), with
-/// [`AlbedoNodes::new`]`(theta, resolution)`; the elevations in parallel.
+/// [`AlbedoNodes::new`]`(theta, resolution)`; the elevations in parallel. A grid source goes
+/// through [`GridAlbedo`] (each touched cell evaluated once).
 ///
 /// Accuracy of the default resolution (96), measured by the tests: a Lambertian within 1.5e-4
 /// at every elevation up to 89 degrees; every synthetic preset (metals, clear coats, diffusers)
@@ -189,10 +190,10 @@ pub fn directional_albedo(
     angles_deg: &[f64],
     resolution: usize,
 ) -> Result<AlbedoTable> {
-    check_quadrature(angles_deg, resolution)?;
     if let Some(grid) = source.grid() {
         return GridAlbedo::new(&grid, angles_deg, resolution)?.table(source);
     }
+    check_quadrature(angles_deg, resolution)?;
     let channels = source.channels();
     let nc = channels.len();
     let mut values = vec![0.0; angles_deg.len() * nc];
@@ -231,9 +232,9 @@ fn check_quadrature(angles_deg: &[f64], resolution: usize) -> Result<()> {
 }
 
 /// [`directional_albedo`] on one grid, built once ([`AlbedoNodes::cell_weights`] per
-/// elevation) and applied to any number of grid sources on it: each then costs one
-/// [`BrdfSource::eval_cell`] per touched cell and elevation (every stored material of a
-/// dataset, say).
+/// elevation, merged by cell) and applied to any number of grid sources on it: each then
+/// costs one [`BrdfSource::eval_cell`] per cell any elevation touches (every stored material
+/// of a dataset, say).
 #[derive(Debug, Clone, PartialEq)]
 pub struct GridAlbedo {
     grid: AngularGrid,
