@@ -322,7 +322,7 @@ fn energy(s: &mut String, r: &Results) {
     if r.predictions.is_empty() {
         return;
     }
-    let above: Vec<_> = r
+    let mut above: Vec<_> = r
         .stored_albedo
         .iter()
         .filter(|m| gains_energy(m.peak.value))
@@ -343,9 +343,8 @@ fn energy(s: &mut String, r: &Results) {
     if above.is_empty() {
         let _ = writeln!(s, ".\n");
     } else {
-        let mut sorted = above.clone();
-        sorted.sort_by(|a, b| b.peak.value.total_cmp(&a.peak.value));
-        let list: Vec<String> = sorted
+        above.sort_by(|a, b| b.peak.value.total_cmp(&a.peak.value));
+        let list: Vec<String> = above
             .iter()
             .take(8)
             .map(|m| {
@@ -361,7 +360,7 @@ fn energy(s: &mut String, r: &Results) {
              between the bin centres (BENCHMARKS.md \"albedo\"), fluorescent ones exceed 1 in \
              their emission band, and predictions blend them.\n",
             list.join(", "),
-            if sorted.len() > 8 { ", ..." } else { "" }
+            if above.len() > 8 { ", ..." } else { "" }
         );
     }
     let _ = writeln!(
