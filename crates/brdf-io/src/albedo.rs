@@ -21,6 +21,7 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::grid::{AngularGrid, Channels, HalfDiff, Vec3};
+use crate::lookup::{Lookup, StencilSum};
 use crate::source::BrdfSource;
 
 /// Nodes per axis of the half-vector grid by default ([`AlbedoNodes::new`]): 96 x 96.
@@ -239,6 +240,7 @@ fn check_quadrature(angles_deg: &[f64], resolution: usize) -> Result<()> {
 pub struct GridAlbedo {
     grid: AngularGrid,
     angles_deg: Vec<f64>,
+    resolution: usize,
     /// Every cell any elevation touches, once, by index: (cell, its (elevation, weight)s).
     cells: Vec<(usize, Vec<(usize, f64)>)>,
 }
@@ -267,11 +269,16 @@ impl GridAlbedo {
         Ok(Self {
             grid: *grid,
             angles_deg: angles_deg.to_vec(),
+            resolution,
             cells,
         })
     }
 
-    /// The albedo table of `source`, which must be a grid source on this grid.
+    /// The albedo table of `source`, which must be a grid source on this grid. A source looked
+    /// up multilinearly costs a weighted sum per touched cell; another [`Lookup`] is not linear
+    /// in the cells, so its lookups are combined node by node from the touched cells, each
+    /// still evaluated once (the same sums as [`AlbedoNodes::integrate`] of the source's own
+    /// `eval`).
     pub fn table(&self, source: &dyn BrdfSource) -> Result<AlbedoTable> {
         if source.grid() != Some(self.grid) {
             return Err(Error::InvalidArgument {
@@ -283,6 +290,9 @@ impl GridAlbedo {
                         .map_or_else(|| "not on a grid".to_owned(), |g| format!("on grid {g}"))
                 ),
             });
+        }
+        if source.lookup() != Lookup::Multilinear {
+            return self.table_by_nodes(source);
         }
         let channels = source.channels();
         let nc = channels.len();
@@ -313,6 +323,55 @@ impl GridAlbedo {
             angles_deg: self.angles_deg.clone(),
             channels,
             values,
+        })
+    }
+
+    /// [`GridAlbedo::table`] of a source whose lookup is not multilinear: every touched cell
+    /// evaluated once, then each elevation's nodes looked up from them.
+    fn table_by_nodes(&self, source: &dyn BrdfSource) -> Result<AlbedoTable> {
+        let channels = source.channels();
+        let nc = channels.len();
+        let values = self
+            .cells
+            .par_chunks(CELLS_PER_TASK)
+            .map(|chunk| {
+                let mut v = vec![0.0; chunk.len() * nc];
+                for ((a, _), f) in chunk.iter().zip(v.chunks_exact_mut(nc.max(1))) {
+                    source.eval_cell(*a, f)?;
+                }
+                Ok(v)
+            })
+            .collect::<Result<Vec<_>>>()?
+            .concat();
+        let mut slot = vec![usize::MAX; self.grid.len()];
+        for (i, (a, _)) in self.cells.iter().enumerate() {
+            slot[*a] = i;
+        }
+        let mut rows = vec![0.0; self.angles_deg.len() * nc];
+        rows.par_chunks_mut(nc.max(1))
+            .zip(&self.angles_deg)
+            .for_each(|(row, deg)| {
+                let nodes = AlbedoNodes::new(deg.to_radians(), self.resolution);
+                let (mut sum, mut f) = (StencilSum::new(source.lookup(), nc), vec![0.0; nc]);
+                for &(wo, w) in nodes.nodes() {
+                    let Some(hd) = HalfDiff::from_dirs(nodes.wi(), wo) else {
+                        continue;
+                    };
+                    for (a, s) in self.grid.interpolation_stencil(&hd) {
+                        if s != 0.0 {
+                            sum.add(s, &values[slot[a] * nc..(slot[a] + 1) * nc]);
+                        }
+                    }
+                    sum.finish(&mut f);
+                    for (r, v) in row.iter_mut().zip(&f) {
+                        *r += w * v;
+                    }
+                }
+            });
+        Ok(AlbedoTable {
+            angles_deg: self.angles_deg.clone(),
+            channels,
+            values: rows,
         })
     }
 }
@@ -437,6 +496,40 @@ mod tests {
         let same = GridAlbedo::new(&AngularGrid::new(8, 8, 16).unwrap(), &angles, 16).unwrap();
         let e = same.table(&NoGrid(&m)).unwrap_err().to_string();
         assert!(e.contains("not on a grid"), "{e}");
+    }
+
+    /// A logarithmic lookup's albedo from the touched cells equals the pair-by-pair quadrature
+    /// of the source's own (logarithmic) lookups; a Lambertian reflects the same under both
+    /// lookups; the glossy material reflects less than multilinearly at every elevation (the
+    /// chords between bin centres overshoot its peak, convex in theta_h, and its growth
+    /// towards grazing theta_d).
+    #[test]
+    fn log_lookups_integrate_from_the_cells() {
+        use crate::lookup::{Lookup, WithLookup};
+        let dir = tempfile::tempdir().unwrap();
+        let path = store(dir.path());
+        let angles = [0.0, 35.0, 70.0, 86.0, 89.0];
+        for name in ["glossy", "white"] {
+            let m = crate::store::StoreMaterial::open(&path, name).unwrap();
+            let log = WithLookup::new(&m, Lookup::LogMultilinear).unwrap();
+            let cells = directional_albedo(&log, &angles, DEFAULT_RESOLUTION).unwrap();
+            let pairs = directional_albedo(&NoGrid(&log), &angles, DEFAULT_RESOLUTION).unwrap();
+            let linear = directional_albedo(&m, &angles, DEFAULT_RESOLUTION).unwrap();
+            assert_eq!(cells.channels, pairs.channels);
+            for (a, b) in cells.values.iter().zip(&pairs.values) {
+                assert!((a - b).abs() <= 1e-12 * b.abs(), "{name}: {a} vs {b}");
+            }
+            for (k, deg) in angles.iter().enumerate() {
+                for (a, b) in cells.row(k).iter().zip(linear.row(k)) {
+                    if name == "white" {
+                        assert!((a - b).abs() < 1e-12, "{deg}: {a} vs {b}");
+                    } else {
+                        // Measured: 0.904-0.995 of the multilinear albedo.
+                        assert!(*a < 0.996 * b, "{deg}: {a} vs {b}");
+                    }
+                }
+            }
+        }
     }
 
     /// The peak is the first of equal largest values, in elevation then channel order.

@@ -53,6 +53,7 @@
 pub mod albedo;
 pub mod error;
 pub mod grid;
+pub mod lookup;
 pub mod merl;
 pub mod nbrdf;
 pub mod npy;
@@ -74,6 +75,7 @@ pub fn has_extension(path: impl AsRef<std::path::Path>, ext: &str) -> bool {
         && name[name.len() - ext.len()..].eq_ignore_ascii_case(ext.as_bytes())
 }
 pub use grid::{AngularGrid, ChannelSelection, Channels, HalfDiff, Vec3, unit};
+pub use lookup::Lookup;
 pub use source::{Blend, BrdfSource, ImportReport};
 pub use store::{Store, StoreInfo, StoreOptions, StoreWriter};
 

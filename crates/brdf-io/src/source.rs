@@ -3,6 +3,7 @@
 
 use crate::error::{Error, Result};
 use crate::grid::{AngularGrid, Channels, Vec3};
+use crate::lookup::Lookup;
 
 /// A BRDF that can be evaluated at arbitrary direction pairs.
 ///
@@ -26,6 +27,13 @@ pub trait BrdfSource: Sync {
     /// [`BrdfSource::eval`] up to rounding. `None` (the default) for other sources.
     fn grid(&self) -> Option<AngularGrid> {
         None
+    }
+
+    /// For grid sources, how [`BrdfSource::eval`] combines the cells of a lookup's stencil; a
+    /// consumer that interpolates cells itself combines them the same way
+    /// ([`crate::lookup::StencilSum`]). Multilinear by default (see [`crate::lookup`]).
+    fn lookup(&self) -> Lookup {
+        Lookup::Multilinear
     }
 
     /// Values of every channel at flat cell index `a` of [`BrdfSource::grid`] into `out`
@@ -93,9 +101,13 @@ impl BrdfSource for Blend<'_> {
         Ok(())
     }
 
+    /// The sources' grid when both are on it and looked up multilinearly: a multilinear blend
+    /// of cells is the blend of the lookups, a logarithmic one is not (the blend is then
+    /// evaluated pair by pair).
     fn grid(&self) -> Option<AngularGrid> {
         let g = self.first.grid()?;
-        (self.second.grid() == Some(g)).then_some(g)
+        let linear = [self.first.lookup(), self.second.lookup()] == [Lookup::Multilinear; 2];
+        (self.second.grid() == Some(g) && linear).then_some(g)
     }
 
     fn eval_cell(&self, a: usize, out: &mut [f64]) -> Result<()> {
@@ -111,6 +123,42 @@ impl BrdfSource for Blend<'_> {
         self.second.prefetch_cell(a);
     }
 }
+
+/// Implements [`BrdfSource`] for a pointer type by forwarding every method to the source it
+/// points to.
+macro_rules! forward_source {
+    ($($pointer:ty),*) => {$(
+        impl<S: BrdfSource + ?Sized> BrdfSource for $pointer {
+            fn channels(&self) -> Channels {
+                (**self).channels()
+            }
+
+            fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+                (**self).eval(wi, wo, out)
+            }
+
+            fn grid(&self) -> Option<AngularGrid> {
+                (**self).grid()
+            }
+
+            fn lookup(&self) -> Lookup {
+                (**self).lookup()
+            }
+
+            fn eval_cell(&self, a: usize, out: &mut [f64]) -> Result<()> {
+                (**self).eval_cell(a, out)
+            }
+
+            fn prefetch_cell(&self, a: usize) {
+                (**self).prefetch_cell(a);
+            }
+        }
+    )*};
+}
+
+// A boxed or borrowed source is the source (command lines open sources by kind at run time;
+// wrappers such as `WithLookup` may borrow one).
+forward_source!(Box<S>, &S);
 
 /// The argument check every [`BrdfSource::eval`] starts with: `out` must have one slot per
 /// channel (`channels`), else an [`Error::InvalidArgument`] saying so.
@@ -1051,5 +1099,29 @@ mod tests {
         let other_grid = Ramp(AngularGrid::new(2, 2, 8).unwrap(), 1.0);
         assert_eq!(Blend::new(&one, &other_grid, 0.5).unwrap().grid(), None);
         assert!(Blend::new(&one, &ten, f64::NAN).is_err());
+        // A logarithmic lookup of blended cells is not the blend of the lookups: a blend with
+        // such a source is evaluated pair by pair (no grid), with each source's own lookup.
+        let log = crate::lookup::WithLookup::new(&ten, Lookup::LogMultilinear).unwrap();
+        for (x, y) in [
+            (&one as &dyn BrdfSource, &log as &dyn BrdfSource),
+            (&log, &one),
+        ] {
+            let b = Blend::new(x, y, 0.25).unwrap();
+            assert_eq!((b.grid(), b.lookup()), (None, Lookup::Multilinear));
+        }
+        let b = Blend::new(&log, &log, 0.25).unwrap();
+        assert_eq!(b.grid(), None);
+        let (wi, wo) = ([0.3, 0.0, 0.5], [0.0, 0.2, 1.0]);
+        let (mut own, mut mixed) = ([0.0; 3], [0.0; 3]);
+        log.eval(wi, wo, &mut own).unwrap();
+        b.eval(wi, wo, &mut mixed).unwrap();
+        for (m, o) in mixed.iter().zip(&own) {
+            assert!((m - o).abs() <= 1e-15 * o, "{mixed:?} vs {own:?}");
+        }
+        // A boxed or borrowed source reports its source's lookup.
+        let boxed: Box<dyn BrdfSource> = Box::new(log);
+        let borrowed: &dyn BrdfSource = &&boxed;
+        assert_eq!(borrowed.lookup(), Lookup::LogMultilinear);
+        assert_eq!(boxed.grid(), Some(g));
     }
 }

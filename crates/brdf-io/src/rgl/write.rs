@@ -53,6 +53,7 @@ use super::{Corners, RglBsdf, Table2D, Warp, phi2u, theta2u};
 use crate::albedo::{AlbedoNodes, direction};
 use crate::error::{Error, Result};
 use crate::grid::Channels;
+use crate::lookup::StencilSum;
 use crate::source::BrdfSource;
 use crate::tensor::{Field, TensorFile};
 
@@ -341,7 +342,8 @@ fn eval_finite(
 }
 
 /// A grid source ([`BrdfSource::grid`]) whose cells are evaluated once each, when first
-/// needed, and interpolated with the grid's stencil: the writer evaluates the source ~10^5
+/// needed, and interpolated with the grid's stencil (combined by the source's
+/// [`BrdfSource::lookup`]): the writer evaluates the source ~10^5
 /// times per file, and a lazily predicted material costs N multiply-adds per value per cell,
 /// so each lookup would otherwise redo 8 cells' predictions. Equal to the source's own `eval`
 /// up to rounding (the trait's contract for grid sources).
@@ -377,6 +379,7 @@ impl BrdfSource for CachedCells<'_> {
             Some(hd) if wi[2] > 0.0 && wo[2] > 0.0 => hd,
             _ => return Ok(()),
         };
+        let mut sum = StencilSum::new(self.source.lookup(), out.len());
         for (a, w) in self.grid.interpolation_stencil(&hd) {
             if w == 0.0 {
                 continue;
@@ -388,7 +391,7 @@ impl BrdfSource for CachedCells<'_> {
                     .map(|()| v.into_boxed_slice())
             });
             match cell {
-                Ok(v) => out.iter_mut().zip(v.iter()).for_each(|(o, c)| *o += w * c),
+                Ok(v) => sum.add(w, v),
                 Err(e) => {
                     return Err(Error::InvalidArgument {
                         reason: format!("cell {a} of the source: {e}"),
@@ -396,6 +399,7 @@ impl BrdfSource for CachedCells<'_> {
                 }
             }
         }
+        sum.finish(out);
         Ok(())
     }
 }
