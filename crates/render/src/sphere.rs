@@ -65,7 +65,7 @@
 
 use std::sync::OnceLock;
 
-use brdf_io::{AngularGrid, BrdfSource, Channels, HalfDiff, Vec3};
+use brdf_io::{AngularGrid, BrdfSource, Channels, HalfDiff, Lookup, Vec3};
 use rayon::prelude::*;
 
 use crate::colour::{ColourPipeline, Illuminant};
@@ -841,11 +841,16 @@ impl<'a> Shader<'a> {
             table: None,
             studio,
             scale: 2f64.powf(opts.exposure),
-            cells: source.grid().map(|grid| GridCells {
-                grid,
-                colours: (0..grid.len()).map(|_| OnceLock::new()).collect(),
-                valid: grid.validity_mask(),
-            }),
+            // (Only under multilinear lookups: another lookup is not linear in the cells, so
+            // its pixels evaluate the source, which combines the cells its way.)
+            cells: source
+                .grid()
+                .filter(|_| source.lookup() == Lookup::Multilinear)
+                .map(|grid| GridCells {
+                    grid,
+                    colours: (0..grid.len()).map(|_| OnceLock::new()).collect(),
+                    valid: grid.validity_mask(),
+                }),
         };
         if let EnvMode::Table(spec) = opts.env_mode
             && opts.env_radiance > 0.0
@@ -2561,6 +2566,55 @@ mod tests {
         let b = render_plane(&Opaque(&src), &opts, &plane).unwrap();
         assert_eq!(a.alpha, b.alpha);
         assert!(max_rel_diff(&a, &b) < 1e-9, "{}", max_rel_diff(&a, &b));
+    }
+
+    /// A logarithmic lookup ([`brdf_io::lookup::WithLookup`]) renders through its plan as the
+    /// per-pixel shader and a source without a grid do (the plan combines each needed channel
+    /// of the cells, then projects), evaluating the same cells once; it darkens the glossy
+    /// lobe's rim against the multilinear render, and leaves constant cells as they were.
+    #[test]
+    fn log_lookups_render_through_plans_like_the_shader() {
+        use brdf_io::lookup::WithLookup;
+        let opts = SphereOptions {
+            size: 40,
+            light: (30.0, 200.0),
+            env_mode: EnvMode::Table(EnvTableSpec::FAST),
+            ..SphereOptions::default()
+        };
+        let (src, linear_src) = (Tabulated::new(1.0), Tabulated::new(1.0));
+        let log = WithLookup::new(&src, Lookup::LogMultilinear).unwrap();
+        let planned = render_sphere(&log, &opts).unwrap();
+        let linear = render_sphere(&linear_src, &opts).unwrap();
+        assert_eq!(src.calls(), linear_src.calls());
+        let shader = render_sphere_unplanned(&log, &opts);
+        let generic = render_sphere(&Opaque(&log), &opts).unwrap();
+        for other in [&shader, &generic] {
+            assert_eq!(planned.alpha, other.alpha);
+            let d = max_rel_diff(&planned, other);
+            assert!(d < 1e-12, "{d:e}");
+        }
+        let (m, _) = mean_colour(&planned);
+        let (ml, _) = mean_colour(&linear);
+        assert!(m[1] > 0.01, "{m:?}");
+        assert!(max_rel_diff(&planned, &linear) > 1e-3);
+        let darker = |c: usize| m[c] < ml[c];
+        assert!((0..3).all(darker), "{m:?} vs {ml:?}");
+        // Constant cells: the same picture under both lookups (to rounding).
+        let grid = AngularGrid::new(8, 8, 16).unwrap();
+        let flat = crate::cache::CellCache::new(
+            grid,
+            Channels::Rgb,
+            Box::new(|_, out: &mut [f64]| {
+                out.copy_from_slice(&[0.1, 0.2, 0.05]);
+                Ok(())
+            }),
+        );
+        let a = render_sphere(&flat, &opts).unwrap();
+        let b = render_sphere(
+            &WithLookup::new(&flat, Lookup::LogMultilinear).unwrap(),
+            &opts,
+        );
+        assert!(max_rel_diff(&b.unwrap(), &a) < 1e-12);
     }
 
     #[test]

@@ -8,6 +8,8 @@
 //! material. A plan records them once, with the cells they touch renumbered compactly; a render
 //! then evaluates exactly those cells once ([`BrdfSource::eval_cell`], in index order, in
 //! parallel), projects them to linear sRGB and combines them: a few multiply-adds per pixel.
+//! A source whose [`BrdfSource::lookup`] is not multilinear keeps each cell's needed channels
+//! and their logarithms instead; its lookups combine them channel by channel, then project.
 //!
 //! Only images up to [`MAX_CACHED_PIXELS`] pixels are rendered through plans (larger ones are
 //! shaded directly, faster and in a fraction of the memory), and the plans of recent scenes (up
@@ -18,7 +20,8 @@
 
 use std::sync::{Arc, Mutex, PoisonError};
 
-use brdf_io::{AngularGrid, BrdfSource, HalfDiff, Vec3};
+use brdf_io::lookup::{StencilSum, cell_logs};
+use brdf_io::{AngularGrid, BrdfSource, HalfDiff, Lookup, Vec3};
 use rayon::prelude::*;
 
 use super::{
@@ -228,17 +231,76 @@ impl Plan {
     }
 }
 
-/// Linear sRGB interpolated from the projected cells.
-fn interpolate(colours: &[[f64; 3]], s: &Stencil) -> [f64; 3] {
-    let mut rgb = [0.0; 3];
-    for &(a, w) in s {
-        if w == 0.0 {
-            continue;
+/// The plan's cells of one material, as its lookups read them.
+enum Cells {
+    /// Multilinear lookups: each cell's linear sRGB (the projection is linear, so
+    /// interpolating projected cells is projecting the interpolated values).
+    Colours(Vec<[f64; 3]>),
+    /// Other lookups ([`BrdfSource::lookup`]), which are not linear in the cells: per cell,
+    /// the needed channels' values, then their logarithms ([`cell_logs`]); a lookup combines
+    /// them channel by channel and projects the result.
+    Channels {
+        lookup: Lookup,
+        /// Needed channels per cell.
+        m: usize,
+        /// 2 m values per cell.
+        data: Vec<f64>,
+    },
+}
+
+/// A lookup's working space for [`Cells::Channels`] (one per parallel task).
+struct Scratch {
+    sum: StencilSum,
+    f: Vec<f64>,
+}
+
+impl Cells {
+    fn scratch(&self) -> Scratch {
+        match self {
+            Cells::Colours(_) => Scratch {
+                sum: StencilSum::new(Lookup::Multilinear, 0),
+                f: Vec::new(),
+            },
+            Cells::Channels { lookup, m, .. } => Scratch {
+                sum: StencilSum::new(*lookup, *m),
+                f: vec![0.0; *m],
+            },
         }
-        let cell = colours[a as usize];
-        (0..3).for_each(|c| rgb[c] += w * cell[c]);
     }
-    rgb
+
+    /// Linear sRGB interpolated from the cells (`weights`: the colour rows of the needed
+    /// channels, `all`: 0..m).
+    fn interpolate(
+        &self,
+        s: &Stencil,
+        weights: &[Vec<f64>; 3],
+        all: &[usize],
+        scratch: &mut Scratch,
+    ) -> [f64; 3] {
+        match self {
+            Cells::Colours(colours) => {
+                let mut rgb = [0.0; 3];
+                for &(a, w) in s {
+                    if w == 0.0 {
+                        continue;
+                    }
+                    let cell = colours[a as usize];
+                    (0..3).for_each(|c| rgb[c] += w * cell[c]);
+                }
+                rgb
+            }
+            Cells::Channels { m, data, .. } => {
+                for &(a, w) in s {
+                    if w != 0.0 {
+                        let cell = &data[a as usize * 2 * m..(a as usize + 1) * 2 * m];
+                        scratch.sum.add_with_logs(w, &cell[..*m], &cell[*m..]);
+                    }
+                }
+                scratch.sum.finish(&mut scratch.f);
+                project(weights, all, &scratch.f, 1.0)
+            }
+        }
+    }
 }
 
 /// Renders the scene `sight` of a grid source with the pre-integrated environment of `spec`
@@ -264,43 +326,71 @@ pub(super) fn render(
     };
     let plan = plan_for(key, || Plan::build(key, opts.light_dir(), sight));
     let nc = channels.len();
-    let colours: Vec<[f64; 3]> = plan
+    let lookup = source.lookup();
+    let m = needed.len();
+    // Each planned cell evaluated once, in parallel, into what its lookups read.
+    let records: Vec<f64> = plan
         .cells
         .par_chunks(256)
         .map(|chunk| {
             let mut f = vec![0.0; nc];
-            chunk
-                .iter()
-                .enumerate()
-                .map(|(i, &a)| {
-                    if let Some(&next) = chunk.get(i + PREFETCH_AHEAD) {
-                        source.prefetch_cell(next as usize);
-                    }
-                    source.eval_cell(a as usize, &mut f)?;
-                    check_finite(&f, &needed, &channels, || cell_place(&grid, a as usize))?;
-                    Ok(project(&weights, &needed, &f, 1.0))
-                })
-                .collect::<Result<Vec<_>>>()
+            let mut out = Vec::new();
+            for (i, &a) in chunk.iter().enumerate() {
+                if let Some(&next) = chunk.get(i + PREFETCH_AHEAD) {
+                    source.prefetch_cell(next as usize);
+                }
+                source.eval_cell(a as usize, &mut f)?;
+                check_finite(&f, &needed, &channels, || cell_place(&grid, a as usize))?;
+                if lookup == Lookup::Multilinear {
+                    out.extend(project(&weights, &needed, &f, 1.0));
+                } else {
+                    let values: Vec<f64> = needed.iter().map(|&k| f[k]).collect();
+                    let mut logs = vec![0.0; m];
+                    cell_logs(&values, &mut logs);
+                    out.extend(values.into_iter().chain(logs));
+                }
+            }
+            Ok(out)
         })
         .collect::<Result<Vec<_>>>()?
         .concat();
+    let cells = if lookup == Lookup::Multilinear {
+        Cells::Colours(
+            records
+                .chunks_exact(3)
+                .map(|c| [c[0], c[1], c[2]])
+                .collect(),
+        )
+    } else {
+        Cells::Channels {
+            lookup,
+            m,
+            data: records,
+        }
+    };
+    let all: Vec<usize> = (0..m).collect();
     let table = key.env.then(|| EnvTable {
         theta_max: ENV_TABLE_MAX_DEGREES.to_radians(),
         rgb: plan
             .env
             .par_iter()
-            .map(|dirs| {
-                let mut acc = [0.0; 3];
-                for (w, s) in dirs {
-                    let rgb = s.as_ref().map_or([0.0; 3], |s| interpolate(&colours, s));
-                    (0..3).for_each(|c| acc[c] += w * rgb[c]);
-                }
-                acc.map(|v| opts.env_radiance * v)
-            })
+            .map_init(
+                || cells.scratch(),
+                |scratch, dirs| {
+                    let mut acc = [0.0; 3];
+                    for (w, s) in dirs {
+                        let rgb = s
+                            .as_ref()
+                            .map_or([0.0; 3], |s| cells.interpolate(s, &weights, &all, scratch));
+                        (0..3).for_each(|c| acc[c] += w * rgb[c]);
+                    }
+                    acc.map(|v| opts.env_radiance * v)
+                },
+            )
             .collect(),
     });
     let (scale, e) = (2f64.powf(opts.exposure), opts.light_irradiance);
-    let shade = |p: &PixelLookup| {
+    let shade = |p: &PixelLookup, scratch: &mut Scratch| {
         let mut acc = [0.0; 3];
         if p.wo_z <= 0.0 {
             return acc;
@@ -308,7 +398,7 @@ pub(super) fn render(
         if let Some((cos_i, s)) = &p.light
             && e != 0.0
         {
-            let rgb = interpolate(&colours, s);
+            let rgb = cells.interpolate(s, &weights, &all, scratch);
             let k = cos_i * e;
             (0..3).for_each(|c| acc[c] += k * rgb[c]);
         }
@@ -327,12 +417,15 @@ pub(super) fn render(
         .par_chunks_mut(size)
         .zip(img.alpha.par_chunks_mut(size))
         .zip(&plan.rows)
-        .for_each(|((rgb, alpha), row)| {
-            for p in row {
-                rgb[p.x as usize] = shade(p);
-                alpha[p.x as usize] = p.coverage;
-            }
-        });
+        .for_each_init(
+            || cells.scratch(),
+            |scratch, ((rgb, alpha), row)| {
+                for p in row {
+                    rgb[p.x as usize] = shade(p, scratch);
+                    alpha[p.x as usize] = p.coverage;
+                }
+            },
+        );
     Ok(img)
 }
 
