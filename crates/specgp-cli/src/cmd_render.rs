@@ -61,6 +61,8 @@ pub struct RenderArgs {
     /// the latent point) instead of the exact one.
     #[arg(long)]
     pub smooth: bool,
+    #[command(flatten)]
+    pub lookup: crate::cmd_sample::LookupArg,
 }
 
 /// Parses `THETA,PHI` (degrees).
@@ -125,6 +127,7 @@ pub fn render(args: &RenderArgs) -> anyhow::Result<()> {
         opts.illuminant,
         crate::cmd_sample::predictor_kind(args.smooth),
     )?;
+    let source = args.lookup.apply(source, &args.source)?;
     if opts.illuminant != Illuminant::D65 && source.channels() == brdf_io::Channels::Rgb {
         bail!(
             "--illuminant {}: {} is RGB, shown as stored (linear sRGB); an illuminant applies \
@@ -433,6 +436,7 @@ mod tests {
             view: None,
             env: "table".into(),
             smooth: false,
+            lookup: Default::default(),
         };
         render(&args).unwrap();
         let (w, h, px) = render::image::read_png_rgba8(&out).unwrap();

@@ -4,8 +4,9 @@
 //! Sources plug in through [`brdf_io::BrdfSource`]; [`open_source`] maps a SOURCE argument to one:
 //! - `FILE.bsdf`: an RGL file (spectral files may be evaluated at `--wavelengths`);
 //! - `FILE.binary`: a MERL file (nearest cell, as MERL's own lookup);
-//! - `DATA.sbrdf:MATERIAL`: a stored material (multilinear interpolation on the store's grid;
-//!   `--wavelengths` interpolates between stored wavelengths);
+//! - `DATA.sbrdf:MATERIAL`: a stored material (multilinear interpolation on the store's grid,
+//!   or logarithmic with `--lookup log`; `--wavelengths` interpolates between stored
+//!   wavelengths);
 //! - `MODEL.toml@X,Y`: the GP prediction (exact predictor) at a latent point, evaluated lazily
 //!   (nothing materialised; `--wavelengths` interpolates between stored wavelengths).
 //!
@@ -14,7 +15,8 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use brdf_io::{BrdfSource, Channels, Vec3};
+use brdf_io::lookup::WithLookup;
+use brdf_io::{BrdfSource, Channels, Lookup, Vec3};
 use predict::PredictorKind;
 
 /// A BRDF source argument with the options every command that reads one takes (`sample`,
@@ -34,6 +36,35 @@ pub struct SourceArgs {
     /// the latent point) instead of the exact one.
     #[arg(long)]
     pub smooth: bool,
+    #[command(flatten)]
+    pub lookup: LookupArg,
+}
+
+/// The `--lookup` option of the commands that read a SOURCE.
+#[derive(Debug, Clone, Copy, Default, clap::Args)]
+pub struct LookupArg {
+    /// How stored and predicted materials are looked up between the grid's bin centres:
+    /// `linear` (multilinear, the default) or `log` (ln f interpolated: exact for diffuse
+    /// materials, and glossy ones gain no energy at grazing angles; BENCHMARKS.md "albedo").
+    /// RGL, MERL and Neural-BRDF files have their own evaluation: `log` is refused for them.
+    #[arg(long = "lookup", default_value = "linear")]
+    pub lookup: Lookup,
+}
+
+impl LookupArg {
+    /// `source` (opened from SOURCE `spec`) looked up this way.
+    pub fn apply(
+        self,
+        source: Box<dyn BrdfSource>,
+        spec: &str,
+    ) -> anyhow::Result<Box<dyn BrdfSource>> {
+        if self.lookup == Lookup::Multilinear && source.lookup() == Lookup::Multilinear {
+            return Ok(source);
+        }
+        let source = WithLookup::new(source, self.lookup)
+            .with_context(|| format!("--lookup {}: {spec}", self.lookup))?;
+        Ok(Box::new(source))
+    }
 }
 
 impl SourceArgs {
@@ -50,11 +81,12 @@ impl SourceArgs {
             .as_deref()
             .map(Channels::parse_wavelengths)
             .transpose()?;
-        open_source(
+        let source = open_source(
             &self.source,
             wavelengths.as_ref(),
             predictor_kind(self.smooth),
-        )
+        )?;
+        self.lookup.apply(source, &self.source)
     }
 }
 
