@@ -8,18 +8,21 @@
 //!
 //! ```sh
 //! specgp synth --out /tmp/b/synth.sbrdf && specgp fit /tmp/b/synth.sbrdf --out /tmp/b/model.toml
-//! cargo run --release -p render --example render_bench -- /tmp/b/model.toml [SIZE] [--sidecar] [--loop N]
+//! cargo run --release -p render --example render_bench -- /tmp/b/model.toml [SIZE] [--sidecar] [--loop N] [--lookup log]
 //! cargo run --release -p render --example render_bench -- /tmp/b/model.toml [SIZE] --stored-materials
 //! ```
 //! `--stored-materials` runs the accuracy study of the environment table instead: every stored
 //! material of the model's dataset rendered with several table resolutions against a dense table
 //! (the images' largest and mean linear sRGB difference and largest 8-bit code difference).
-//! The latent point is the midpoint of the first two materials.
+//! The latent point is the midpoint of the first two materials. `--lookup log`: every material
+//! (lazy, cached and materialised) looked up logarithmically between bin centres
+//! ([`brdf_io::lookup::WithLookup`]).
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
-use brdf_io::{AngularGrid, BrdfSource, Channels, Vec3};
+use brdf_io::lookup::WithLookup;
+use brdf_io::{AngularGrid, BrdfSource, Channels, Lookup, Vec3};
 
 use render::cache::predicted;
 use render::{EnvMode, EnvTableSpec, SphereOptions, render_sphere};
@@ -46,6 +49,9 @@ impl<S: BrdfSource> BrdfSource for Counted<S> {
     }
     fn grid(&self) -> Option<AngularGrid> {
         BrdfSource::grid(&self.0)
+    }
+    fn lookup(&self) -> Lookup {
+        self.0.lookup()
     }
     fn eval_cell(&self, a: usize, out: &mut [f64]) -> brdf_io::Result<()> {
         self.1.fetch_add(1, Ordering::Relaxed);
@@ -155,6 +161,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .map(|s| s.parse())
         .transpose()?
         .unwrap_or(256);
+    let lookup: Lookup = match args.iter().position(|a| a == "--lookup") {
+        Some(at) => args.get(at + 1).ok_or("--lookup linear|log")?.parse()?,
+        None => Lookup::Multilinear,
+    };
     let mut pred = predict::Predictor::open(&model)?;
     if args.iter().any(|a| a == "--stored-materials") {
         return stored_materials_study(pred.store().clone(), size);
@@ -184,7 +194,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ..SphereOptions::default()
     };
     println!(
-        "model {} ({} materials, grid {}, {} channels), point {x:?}, {size}x{size}, {} rayon threads",
+        "model {} ({} materials, grid {}, {} channels), point {x:?}, {size}x{size}, {} rayon threads, {lookup} lookups",
         model.display(),
         mats.len(),
         pred.grid(),
@@ -192,12 +202,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         rayon::current_num_threads()
     );
     let needed = render::colour::needed_wavelengths(pred.channels(), opts.illuminant)?;
-    let lazy_material = || -> Result<predict::PredictedMaterial, Box<dyn std::error::Error>> {
-        let mut m = pred.predict(&x, predict::PredictorKind::Exact)?;
-        if let Some(w) = &needed {
-            m = m.with_wavelengths(w)?;
-        }
-        Ok(m)
+    let predicted_material =
+        || -> Result<predict::PredictedMaterial, Box<dyn std::error::Error>> {
+            let mut m = pred.predict(&x, predict::PredictorKind::Exact)?;
+            if let Some(w) = &needed {
+                m = m.with_wavelengths(w)?;
+            }
+            Ok(m)
+        };
+    let lazy_material = || -> Result<_, Box<dyn std::error::Error>> {
+        Ok(WithLookup::new(predicted_material()?, lookup)?)
     };
     // `--loop N`: only the mean time of N lazy renders, each of a new prediction at the same
     // point, the scene's plan cached (a steadier number than the medians of 5 below, for
@@ -242,7 +256,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         if lazy.len() == 5 {
             // Renders of a material behind a persistent cell cache, once warm: the cost of the
             // lookups alone.
-            let src = predicted(lazy_material()?);
+            let src = WithLookup::new(predicted(predicted_material()?), lookup)?;
             render_sphere(&src, &opts)?;
             let mut warm = Vec::new();
             for _ in 0..3 {
@@ -275,7 +289,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 "per-pixel environment (20 directions per pixel) on the warm cache: {t_pp:.3} s \
                  ({} cells computed now); |table - per-pixel| linear sRGB: max {max:.2e}, mean \
                  (G) {:.2e}, mean G value {:.3}",
-                src.computed_cells(),
+                src.inner().computed_cells(),
                 sum / n.max(1) as f64,
                 render::sphere::mean_colour(img).0[1]
             );
@@ -370,7 +384,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let path = dir.path().join(format!("m{run}.sbrdf"));
         m.materialize(&path, |_, _| {})?;
         let t_mat = t.elapsed().as_secs_f64();
-        let src = brdf_io::store::StoreMaterial::open(&path, m.label())?;
+        let src = WithLookup::new(
+            brdf_io::store::StoreMaterial::open(&path, m.label())?,
+            lookup,
+        )?;
         let img = render_sphere(&src, &opts)?;
         let total = t.elapsed().as_secs_f64();
         mat.push(total);

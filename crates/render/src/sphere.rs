@@ -2615,6 +2615,25 @@ mod tests {
             &opts,
         );
         assert!(max_rel_diff(&b.unwrap(), &a) < 1e-12);
+        // Cells with zero and negative channels (a raw GP mean): those lookups fall back to
+        // the multilinear sum in those channels, through the plan as through the source.
+        let mixed = crate::cache::CellCache::new(
+            grid,
+            Channels::parse_wavelengths("400:700:50").unwrap(),
+            Box::new(move |a, out: &mut [f64]| {
+                let hd = grid.bin_centre_flat(a);
+                for (k, o) in out.iter_mut().enumerate() {
+                    *o = 0.3 * (3.0 * hd.theta_h + k as f64).sin() + 0.1 * hd.theta_d;
+                }
+                Ok(())
+            }),
+        );
+        let log = WithLookup::new(&mixed, Lookup::LogMultilinear).unwrap();
+        let planned = render_sphere(&log, &opts).unwrap();
+        let generic = render_sphere(&Opaque(&log), &opts).unwrap();
+        assert!(max_rel_diff(&planned, &generic) < 1e-12);
+        let linear = render_sphere(&mixed, &opts).unwrap();
+        assert!(max_rel_diff(&planned, &linear) > 1e-3);
     }
 
     #[test]

@@ -22,6 +22,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 
 use brdf_io::lookup::{StencilSum, cell_logs};
 use brdf_io::{AngularGrid, BrdfSource, HalfDiff, Lookup, Vec3};
+use gp_core::fastmath::exp_lanes;
 use rayon::prelude::*;
 
 use super::{
@@ -243,8 +244,13 @@ enum Cells {
         lookup: Lookup,
         /// Needed channels per cell.
         m: usize,
-        /// 2 m values per cell.
-        data: Vec<f64>,
+        /// m values per cell.
+        values: Vec<f64>,
+        /// Their m logarithms per cell (apart: lookups of positive cells read only these).
+        logs: Vec<f64>,
+        /// Per cell, whether every needed channel is positive: a logarithmic lookup whose
+        /// weighted cells all are needs only the sums of logarithms.
+        positive: Vec<bool>,
     },
 }
 
@@ -252,6 +258,7 @@ enum Cells {
 struct Scratch {
     sum: StencilSum,
     f: Vec<f64>,
+    logs: Vec<f64>,
 }
 
 impl Cells {
@@ -260,23 +267,19 @@ impl Cells {
             Cells::Colours(_) => Scratch {
                 sum: StencilSum::new(Lookup::Multilinear, 0),
                 f: Vec::new(),
+                logs: Vec::new(),
             },
             Cells::Channels { lookup, m, .. } => Scratch {
                 sum: StencilSum::new(*lookup, *m),
                 f: vec![0.0; *m],
+                logs: vec![0.0; *m],
             },
         }
     }
 
-    /// Linear sRGB interpolated from the cells (`weights`: the colour rows of the needed
-    /// channels, `all`: 0..m).
-    fn interpolate(
-        &self,
-        s: &Stencil,
-        weights: &[Vec<f64>; 3],
-        all: &[usize],
-        scratch: &mut Scratch,
-    ) -> [f64; 3] {
+    /// Linear sRGB interpolated from the cells (`columns`: the linear-sRGB weights of each
+    /// needed channel, for [`Cells::Channels`]).
+    fn interpolate(&self, s: &Stencil, columns: &[[f64; 3]], scratch: &mut Scratch) -> [f64; 3] {
         match self {
             Cells::Colours(colours) => {
                 let mut rgb = [0.0; 3];
@@ -289,15 +292,48 @@ impl Cells {
                 }
                 rgb
             }
-            Cells::Channels { m, data, .. } => {
-                for &(a, w) in s {
-                    if w != 0.0 {
-                        let cell = &data[a as usize * 2 * m..(a as usize + 1) * 2 * m];
-                        scratch.sum.add_with_logs(w, &cell[..*m], &cell[*m..]);
+            Cells::Channels {
+                lookup,
+                m,
+                values,
+                logs,
+                positive,
+            } => {
+                let range = |a: u32| a as usize * m..(a as usize + 1) * m;
+                let weighted = || s.iter().filter(|(_, w)| *w != 0.0);
+                if *lookup == Lookup::LogMultilinear
+                    && weighted().all(|(a, _)| positive[*a as usize])
+                {
+                    // Every channel's logarithm is defined: exp of the weighted sums (the
+                    // source's own lookup to rounding; `exp_lanes` vectorises).
+                    scratch.logs.fill(0.0);
+                    for &(a, w) in weighted() {
+                        scratch
+                            .logs
+                            .iter_mut()
+                            .zip(&logs[range(a)])
+                            .for_each(|(l, g)| *l += w * g);
                     }
+                    for (f, l) in scratch.f.iter_mut().zip(&scratch.logs) {
+                        *f = exp_lanes(*l);
+                    }
+                } else {
+                    for &(a, w) in weighted() {
+                        let cell = range(a);
+                        scratch
+                            .sum
+                            .add_with_logs(w, &values[cell.clone()], &logs[cell]);
+                    }
+                    scratch.sum.finish(&mut scratch.f);
                 }
-                scratch.sum.finish(&mut scratch.f);
-                project(weights, all, &scratch.f, 1.0)
+                // `project`'s sums, the three rows in one pass (each row's terms in the same
+                // order); negative values count as 0.
+                let mut rgb = [0.0; 3];
+                for (c, f) in columns.iter().zip(&scratch.f) {
+                    let f = f.max(0.0);
+                    (0..3).for_each(|r| rgb[r] += c[r] * f);
+                }
+                rgb
             }
         }
     }
@@ -362,13 +398,24 @@ pub(super) fn render(
                 .collect(),
         )
     } else {
+        let (mut values, mut logs) = (Vec::new(), Vec::new());
+        let mut positive = Vec::new();
+        for c in records.chunks_exact(2 * m.max(1)) {
+            values.extend_from_slice(&c[..m]);
+            logs.extend_from_slice(&c[m..]);
+            positive.push(c[m..].iter().all(|g| !g.is_nan()));
+        }
         Cells::Channels {
             lookup,
             m,
-            data: records,
+            values,
+            logs,
+            positive,
         }
     };
-    let all: Vec<usize> = (0..m).collect();
+    let columns: Vec<[f64; 3]> = (0..m)
+        .map(|k| [weights[0][k], weights[1][k], weights[2][k]])
+        .collect();
     let table = key.env.then(|| EnvTable {
         theta_max: ENV_TABLE_MAX_DEGREES.to_radians(),
         rgb: plan
@@ -381,7 +428,7 @@ pub(super) fn render(
                     for (w, s) in dirs {
                         let rgb = s
                             .as_ref()
-                            .map_or([0.0; 3], |s| cells.interpolate(s, &weights, &all, scratch));
+                            .map_or([0.0; 3], |s| cells.interpolate(s, &columns, scratch));
                         (0..3).for_each(|c| acc[c] += w * rgb[c]);
                     }
                     acc.map(|v| opts.env_radiance * v)
@@ -398,7 +445,7 @@ pub(super) fn render(
         if let Some((cos_i, s)) = &p.light
             && e != 0.0
         {
-            let rgb = cells.interpolate(s, &weights, &all, scratch);
+            let rgb = cells.interpolate(s, &columns, scratch);
             let k = cos_i * e;
             (0..3).for_each(|c| acc[c] += k * rgb[c]);
         }
