@@ -62,6 +62,11 @@ pub struct PredictArgs {
     pub sidecar: bool,
     #[command(flatten)]
     pub rgl: crate::cmd_convert::RglArgs,
+    /// How the prediction is looked up between the grid's bin centres, for a `.bsdf` output and
+    /// for the energy check of every output: `linear` (multilinear, the default) or `log` (ln f
+    /// interpolated; see `specgp sample --lookup`).
+    #[arg(long, default_value = "linear")]
+    pub lookup: brdf_io::Lookup,
 }
 
 /// Arguments of `specgp evaluate`.
@@ -452,10 +457,11 @@ pub fn predict(args: &PredictArgs) -> anyhow::Result<()> {
     if let Some(spec) = &args.wavelengths {
         material = material.with_wavelengths(&Channels::parse_wavelengths(spec)?)?;
     }
+    let looked_up = brdf_io::lookup::WithLookup::new(&material, args.lookup)?;
     if bsdf {
-        return crate::cmd_convert::write_bsdf(&material, material.label(), &args.out, &args.rgl);
+        return crate::cmd_convert::write_bsdf(&looked_up, material.label(), &args.out, &args.rgl);
     }
-    crate::cmd_albedo::warn_on_energy_gain(&material, material.label());
+    crate::cmd_albedo::warn_on_energy_gain(&looked_up, material.label());
     let pb = bar(pred.store().n_chunks() as u64, "predict");
     let spectral_merl =
         brdf_io::has_extension(&args.out, "binary") && material.channels() != &Channels::Rgb;

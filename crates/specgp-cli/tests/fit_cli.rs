@@ -3299,6 +3299,29 @@ fn log_lookups_from_the_command_line() {
         "{a:?} {b:?}"
     );
 
+    // predict: a `.bsdf` output holds the prediction's logarithmic lookups, as `convert` of
+    // the model point does.
+    specgp(
+        &["fit", "data.sbrdf", "--out", "m.toml", "--latent-dim", "2"],
+        d,
+    );
+    let model = Model::load(&d.join("m.toml")).unwrap();
+    let gold = model.materials.iter().find(|m| m.name == "metal_gold");
+    let c = &gold.unwrap().coords;
+    let at = format!("{},{}", c[0], c[1]);
+    let args = ["predict", "m.toml", "--at", &at, "--out", "p.bsdf"];
+    specgp(&[&args[..], &["--lookup", "log"]].concat(), d);
+    let point = format!("m.toml@{at}");
+    let predicted = albedo(&[&point, "--lookup", "log"]);
+    let file = albedo(&["p.bsdf"]);
+    for ((f, g), s) in file.iter().zip(&predicted).zip(&log) {
+        for ((a, b), c) in f.1.iter().zip(&g.1).zip(&s.1) {
+            assert!((a - b).abs() < 0.01 * b, "{}: {a} vs {b}", f.0);
+            // The exact predictor returns the training material at its own point.
+            assert!((b - c).abs() < 1e-5 * c, "{}: {b} vs {c}", f.0);
+        }
+    }
+
     let e = specgp_fails(&["albedo", "gold.bsdf", "--lookup", "log"], d);
     assert!(
         e.contains("--lookup log: gold.bsdf") && e.contains("applies to grid sources"),
