@@ -1,7 +1,7 @@
 //! Study: how stored materials' lookups, multilinear between bin centres, change the
 //! reflected energy and the picture, against the analytic synthetic materials they were
-//! sampled from; and what interpolating the logarithm of the stored values (geometric
-//! interpolation, a candidate lookup, not what the library does) would change.
+//! sampled from; and what interpolating the logarithm of the stored values instead (geometric
+//! interpolation, `brdf_io::Lookup::LogMultilinear`, opt-in) changes.
 //!
 //! For every synthetic preset (canonical seed, 400-700 nm in 50 nm steps) and each grid:
 //! the largest directional albedo over 0-88 degrees (`brdf_io::albedo`, 96 x 96 half
@@ -18,57 +18,13 @@
 //! six materials whose multilinear spheres differ most, with Delta E 2000 maps (0-4).
 
 use brdf_io::albedo::{AlbedoTable, DEFAULT_RESOLUTION, directional_albedo};
+use brdf_io::lookup::WithLookup;
 use brdf_io::store::StoreMaterial;
-use brdf_io::{AngularGrid, BrdfSource, Channels, HalfDiff, StoreOptions, Vec3};
+use brdf_io::{AngularGrid, BrdfSource, Channels, Lookup, StoreOptions};
 use render::sheet::{delta_e_map, mean_delta_e};
 use render::{SphereOptions, render_sphere};
 
 const ANGLES: [f64; 9] = [0.0, 20.0, 40.0, 60.0, 70.0, 80.0, 85.0, 87.0, 88.0];
-
-/// A stored material looked up by interpolating ln f between the stencil's cells (where every
-/// weighted cell is positive; linearly otherwise).
-struct LogInterpolated<'a> {
-    inner: &'a StoreMaterial,
-    grid: AngularGrid,
-}
-
-impl BrdfSource for LogInterpolated<'_> {
-    fn channels(&self) -> Channels {
-        self.inner.channels()
-    }
-
-    fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
-        out.fill(0.0);
-        let (Some(i), Some(o)) = (brdf_io::unit(wi), brdf_io::unit(wo)) else {
-            return Ok(());
-        };
-        let Some(hd) = HalfDiff::from_dirs(i, o).filter(|_| i[2] > 0.0 && o[2] > 0.0) else {
-            return Ok(());
-        };
-        let n = out.len();
-        let (mut buf, mut logs, mut positive) = (vec![0.0; n], vec![0.0; n], vec![true; n]);
-        for (a, w) in self.grid.interpolation_stencil(&hd) {
-            if w == 0.0 {
-                continue;
-            }
-            self.inner.eval_cell(a, &mut buf)?;
-            for k in 0..n {
-                out[k] += w * buf[k];
-                if buf[k] > 0.0 {
-                    logs[k] += w * buf[k].ln();
-                } else {
-                    positive[k] = false;
-                }
-            }
-        }
-        for k in 0..n {
-            if positive[k] {
-                out[k] = logs[k].exp();
-            }
-        }
-        Ok(())
-    }
-}
 
 /// The largest value of a table.
 fn peak(t: &AlbedoTable) -> f64 {
@@ -125,10 +81,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let mut red = [0.0; 2];
         for (m, (exact, img)) in materials.iter().zip(&analytic) {
             let stored = StoreMaterial::open(&path, &m.name)?;
-            let log = LogInterpolated {
-                inner: &stored,
-                grid,
-            };
+            let log = WithLookup::new(&stored, Lookup::LogMultilinear)?;
             let variants: [&dyn BrdfSource; 2] = [&stored, &log];
             for (v, src) in variants.into_iter().enumerate() {
                 let t = directional_albedo(src, &ANGLES, DEFAULT_RESOLUTION)?;
@@ -173,7 +126,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     if let Ok(out) = std::env::var("SHEET") {
-        let grid: AngularGrid = grids[0].parse()?;
         let path = dir
             .path()
             .join(format!("{}.sbrdf", grids[0].replace(',', "x")));
@@ -187,10 +139,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .iter()
             .map(|&i| StoreMaterial::open(&path, &materials[i].name))
             .collect::<Result<_, _>>()?;
-        let logs: Vec<LogInterpolated> = stored
+        let logs: Vec<WithLookup<&StoreMaterial>> = stored
             .iter()
-            .map(|inner| LogInterpolated { inner, grid })
-            .collect();
+            .map(|m| WithLookup::new(m, Lookup::LogMultilinear))
+            .collect::<Result<_, _>>()?;
         let rows: Vec<render::sheet::SheetRow> = picked
             .iter()
             .enumerate()
