@@ -72,6 +72,13 @@ pub fn cell_logs(values: &[f64], logs: &mut [f64]) {
     }
 }
 
+/// One channel's logarithmic lookup from its two sums over the weighted cells: `log`, the sum
+/// of w ln v (NaN when a cell is not positive), gives exp(log); a NaN gives the multilinear sum
+/// `linear`. What [`StencilSum::finish`] writes per channel, for callers that sum themselves.
+pub fn finish_channel(linear: f64, log: f64) -> f64 {
+    if log.is_nan() { linear } else { log.exp() }
+}
+
 /// The running combination of a stencil's cells under a [`Lookup`], one value per channel: add
 /// each weighted cell in stencil order, then [`StencilSum::finish`]. The multilinear sum is the
 /// arithmetic every multilinear lookup does (zero, then `+= w * v` per cell), so its bits are
@@ -124,9 +131,7 @@ impl StencilSum {
     pub fn finish(&mut self, out: &mut [f64]) {
         out.copy_from_slice(&self.linear);
         for (o, l) in out.iter_mut().zip(&self.log) {
-            if !l.is_nan() {
-                *o = l.exp();
-            }
+            *o = finish_channel(*o, *l);
         }
         self.linear.fill(0.0);
         self.log.fill(0.0);
@@ -314,6 +319,8 @@ mod tests {
         let mut again = [0.0; 3];
         with_logs.finish(&mut again);
         assert_eq!(again, out);
+        assert_eq!(finish_channel(0.7, f64::NAN), 0.7);
+        assert_eq!(finish_channel(0.7, 2f64.ln()), 2f64.ln().exp());
         // `finish` empties the sums.
         linear.add(1.0, &[5.0, 6.0, 7.0]);
         linear.finish(&mut out);

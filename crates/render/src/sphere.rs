@@ -65,6 +65,7 @@
 
 use std::sync::OnceLock;
 
+use brdf_io::lookup::{cell_logs, finish_channel};
 use brdf_io::{AngularGrid, BrdfSource, Channels, HalfDiff, Lookup, Vec3};
 use rayon::prelude::*;
 
@@ -803,8 +804,13 @@ pub struct Shader<'a> {
 /// A grid source's cells as a [`Shader`] reads them.
 struct GridCells {
     grid: AngularGrid,
-    /// Each touched cell's linear sRGB, computed on first use.
+    /// Multilinear lookups: each touched cell's linear sRGB, computed on first use.
     colours: Vec<OnceLock<[f64; 3]>>,
+    /// Other lookups ([`BrdfSource::lookup`], not linear in the cells): each touched cell's
+    /// needed channels, then their logarithms ([`cell_logs`]), computed on first use (empty
+    /// under multilinear lookups).
+    channels: Vec<OnceLock<Box<[f64]>>>,
+    lookup: Lookup,
     /// The grid's [`AngularGrid::validity_mask`], computed once: a lookup near the horizon
     /// reads its corners' validity here instead of computing their bin centres' directions
     /// (per-pixel quadratures look up hundreds of grazing directions per pixel).
@@ -841,16 +847,21 @@ impl<'a> Shader<'a> {
             table: None,
             studio,
             scale: 2f64.powf(opts.exposure),
-            // (Only under multilinear lookups: another lookup is not linear in the cells, so
-            // its pixels evaluate the source, which combines the cells its way.)
-            cells: source
-                .grid()
-                .filter(|_| source.lookup() == Lookup::Multilinear)
-                .map(|grid| GridCells {
+            cells: source.grid().map(|grid| {
+                let lookup = source.lookup();
+                let n = if lookup == Lookup::Multilinear {
+                    (grid.len(), 0)
+                } else {
+                    (0, grid.len())
+                };
+                GridCells {
                     grid,
-                    colours: (0..grid.len()).map(|_| OnceLock::new()).collect(),
+                    colours: (0..n.0).map(|_| OnceLock::new()).collect(),
+                    channels: (0..n.1).map(|_| OnceLock::new()).collect(),
+                    lookup,
                     valid: grid.validity_mask(),
-                }),
+                }
+            }),
         };
         if let EnvMode::Table(spec) = opts.env_mode
             && opts.env_radiance > 0.0
@@ -1001,11 +1012,16 @@ impl<'a> Shader<'a> {
         let Some(GridCells {
             grid,
             colours: cells,
+            channels,
+            lookup,
             valid,
         }) = &self.cells
         else {
             return self.eval_rgb(wi, wo, f);
         };
+        if *lookup != Lookup::Multilinear {
+            return self.channels_at(grid, channels, valid, hd, f);
+        }
         let mut rgb = [0.0; 3];
         for (a, w) in grid.interpolation_stencil_with(hd, |a| valid[a]) {
             if w == 0.0 {
@@ -1024,6 +1040,52 @@ impl<'a> Shader<'a> {
             (0..3).for_each(|c| rgb[c] += w * cell[c]);
         }
         Ok(rgb)
+    }
+
+    /// [`Shader::rgb_at`] of a source looked up otherwise than multilinearly: the stencil's
+    /// cells (each evaluated once per render, kept as its needed channels and their
+    /// logarithms) combined channel by channel as the source's own lookup does
+    /// ([`finish_channel`]), then projected.
+    fn channels_at(
+        &self,
+        grid: &AngularGrid,
+        cells: &[OnceLock<Box<[f64]>>],
+        valid: &[bool],
+        hd: &HalfDiff,
+        f: &mut [f64],
+    ) -> Result<[f64; 3]> {
+        let m = self.needed.len();
+        let mut corners: [(&[f64], f64); 8] = [(&[], 0.0); 8];
+        let mut n = 0;
+        for (a, w) in grid.interpolation_stencil_with(hd, |a| valid[a]) {
+            if w == 0.0 {
+                continue;
+            }
+            let cell = match cells[a].get() {
+                Some(c) => c,
+                None => {
+                    self.source.eval_cell(a, f)?;
+                    check_finite(f, &self.needed, &self.channels, || cell_place(grid, a))?;
+                    let mut c: Vec<f64> = self.needed.iter().map(|&k| f[k]).collect();
+                    c.resize(2 * m, 0.0);
+                    let (values, logs) = c.split_at_mut(m);
+                    cell_logs(values, logs);
+                    // Another thread may have filled it meanwhile: both computed the same.
+                    cells[a].get_or_init(|| c.into_boxed_slice())
+                }
+            };
+            corners[n] = (cell, w);
+            n += 1;
+        }
+        for (k, &channel) in self.needed.iter().enumerate() {
+            let (mut linear, mut log) = (0.0, 0.0);
+            for &(c, w) in &corners[..n] {
+                linear += w * c[k];
+                log += w * c[m + k];
+            }
+            f[channel] = finish_channel(linear, log);
+        }
+        Ok(self.to_rgb(f, 1.0))
     }
 }
 
@@ -2632,6 +2694,20 @@ mod tests {
         let planned = render_sphere(&log, &opts).unwrap();
         let generic = render_sphere(&Opaque(&log), &opts).unwrap();
         assert!(max_rel_diff(&planned, &generic) < 1e-12);
+        let shader = render_sphere_unplanned(&log, &opts);
+        assert!(max_rel_diff(&shader, &generic) < 1e-12);
+        // The shader evaluates each cell it needs once under either lookup (one thread: two
+        // threads may race to the same cell).
+        let (a, b) = (Tabulated::new(1.0), Tabulated::new(1.0));
+        let one_thread = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let log = WithLookup::new(&a, Lookup::LogMultilinear).unwrap();
+        one_thread.install(|| render_sphere_unplanned(&log, &opts));
+        one_thread.install(|| render_sphere_unplanned(&b, &opts));
+        assert_eq!(a.calls(), b.calls());
+        assert!(a.calls() > 0);
         let linear = render_sphere(&mixed, &opts).unwrap();
         assert!(max_rel_diff(&planned, &linear) > 1e-3);
     }
