@@ -40,6 +40,11 @@ pub struct PipelineParams {
     /// Materials outside the training set to place in the latent space.
     #[serde(default)]
     pub locate: LocateParams,
+    /// How stored and predicted materials are looked up between the grid's bin centres, in
+    /// the figures, the energy section and the `.bsdf` exports: `linear` (multilinear, the
+    /// default) or `log` (`specgp render --lookup log`, BENCHMARKS.md "albedo").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lookup: Option<String>,
 }
 
 /// The `[data]` table.
@@ -317,6 +322,8 @@ pub struct PipelineConfig {
     pub predict: PredictConfig,
     /// Files to locate (resolved against the project root).
     pub locate: Vec<PathBuf>,
+    /// The lookup between bin centres (`lookup`; multilinear by default).
+    pub lookup: brdf_io::Lookup,
 }
 
 impl PipelineConfig {
@@ -594,6 +601,12 @@ impl PipelineParams {
             )));
         }
         let locate = l.files.iter().map(|f| resolve(f)).collect();
+        let lookup = match &self.lookup {
+            Some(name) => name
+                .parse()
+                .map_err(|_| bad(format!("lookup {name:?}: expected linear or log")))?,
+            None => brdf_io::Lookup::Multilinear,
+        };
         let predict = PredictConfig {
             points: p.points.clone(),
             midpoints: p.midpoints.clone(),
@@ -618,6 +631,7 @@ impl PipelineParams {
             fit_source,
             predict,
             locate,
+            lookup,
             params: self,
         })
     }

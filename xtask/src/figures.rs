@@ -6,8 +6,9 @@
 use std::path::Path;
 use std::time::Instant;
 
-use brdf_io::BrdfSource;
+use brdf_io::lookup::WithLookup;
 use brdf_io::store::StoreMaterial;
+use brdf_io::{BrdfSource, Lookup};
 use predict::evaluate::LooRow;
 use predict::{Predictor, PredictorKind};
 use render::{Image, SphereOptions, render_sphere};
@@ -89,6 +90,8 @@ fn as_sources<T: BrdfSource>(v: &[T]) -> Vec<&dyn BrdfSource> {
 struct Scene<'a> {
     pred: &'a Predictor,
     opts: SphereOptions,
+    /// The lookup between bin centres of every material rendered ([`Scene::look`]).
+    lookup: Lookup,
     out: &'a Path,
     loo: Option<&'a [LooRow]>,
 }
@@ -97,6 +100,13 @@ impl Scene<'_> {
     /// The width of a sphere's cell in a sheet: the sphere and 8 pixels between neighbours.
     fn cell(&self) -> usize {
         self.opts.size + 8
+    }
+
+    /// `source` (a stored or predicted material) with the run's lookup; `path`: the figure, for
+    /// errors.
+    fn look<'s>(&self, source: impl BrdfSource + 's, path: &Path) -> Result<Looked<'s>> {
+        WithLookup::new(Box::new(source) as Box<dyn BrdfSource + 's>, self.lookup)
+            .map_err(|e| err(path, e))
     }
 
     /// The GP's prediction of material `name` held out (leave-one-out), labelled `loo-NAME`;
@@ -115,22 +125,26 @@ impl Scene<'_> {
     }
 }
 
+/// A material as [`Scene::look`] gives it.
+type Looked<'s> = WithLookup<Box<dyn BrdfSource + 's>>;
+
 /// A figure file (relative to the output directory) and its caption.
 type Caption = (String, String);
 
 /// A mean Delta E per column of the comparison sheet, by column name.
 type ColumnDeltaE = Vec<(String, f64)>;
 
-/// Renders the figures of a pipeline run into `out`.
+/// Renders the figures of a pipeline run of `config` into `out` (its `[render]` settings, its
+/// midpoints' pairs as paths, its lookup).
 pub fn render_figures(
     pred: &Predictor,
     predictions: &[PredictionRow],
     evaluation: Option<&predict::evaluate::Evaluation>,
-    render: &crate::config::RenderParams,
-    pairs: &[[String; 2]],
+    config: &crate::config::PipelineConfig,
     located: &[predict::locate::Location],
     out: &Path,
 ) -> Result<Figures> {
+    let (render, pairs) = (&config.params.render, &config.params.predict.midpoints);
     let start = Instant::now();
     // Every figure renders predictions of this one model: each cell's logarithms once.
     let pred = &pred.with_forward_cache();
@@ -141,6 +155,7 @@ pub fn render_figures(
             env_mode: render.env_mode().map_err(|reason| err(out, reason))?,
             ..SphereOptions::default()
         },
+        lookup: config.lookup,
         out,
         loo: evaluation.and_then(|e| e.loo.as_deref()),
     };
@@ -202,11 +217,13 @@ fn sheet_figure(
         let name = &model.materials[i].name;
         let measured =
             StoreMaterial::by_index(store.clone(), i).map_err(|e| err(&sheet_path, e))?;
+        let measured = scene.look(measured, &sheet_path)?;
         let a = render_sphere(&measured, opts).map_err(|e| err(&sheet_path, e))?;
         let rec = pred
             .predict(&model.materials[i].coords, PredictorKind::Smooth)
             .map_err(|e| err(&sheet_path, e))?;
-        let b = render_sphere(&rec, opts).map_err(|e| err(&sheet_path, e))?;
+        let b =
+            render_sphere(&scene.look(rec, &sheet_path)?, opts).map_err(|e| err(&sheet_path, e))?;
         spheres += 2;
         let de = mean_delta_e(&a, &b).map_err(|e| err(&sheet_path, e))?;
         let x = 4 + col * cell;
@@ -228,7 +245,8 @@ fn sheet_figure(
             held_out_delta_e: None,
         });
         if let Some(held) = scene.held_out(name).map_err(|e| err(&sheet_path, e))? {
-            let c = render_sphere(&held, opts).map_err(|e| err(&sheet_path, e))?;
+            let c = render_sphere(&scene.look(held, &sheet_path)?, opts)
+                .map_err(|e| err(&sheet_path, e))?;
             spheres += 1;
             let de = mean_delta_e(&a, &c).map_err(|e| err(&sheet_path, e))?;
             let y3 = 4 + 2 * (cell + label_h);
@@ -291,19 +309,25 @@ fn comparison_figure(scene: &Scene<'_>, picks: &[usize]) -> Result<(Caption, usi
     let (model, store) = (pred.model(), pred.store().clone());
     let comparison_path = out.join("comparison.png");
     let e = |e: predict::Error| err(&comparison_path, e);
-    let mut kept: Vec<Vec<Box<dyn BrdfSource>>> = Vec::new();
+    let mut kept: Vec<Vec<Looked<'_>>> = Vec::new();
     for &i in picks {
         let x = &model.materials[i].coords;
-        let mut row: Vec<Box<dyn BrdfSource>> = vec![
-            Box::new(
-                StoreMaterial::by_index(store.clone(), i).map_err(|e| err(&comparison_path, e))?,
-            ),
-            Box::new(pred.predict(x, PredictorKind::Exact).map_err(e)?),
-            Box::new(pred.predict(x, PredictorKind::Smooth).map_err(e)?),
+        let stored =
+            StoreMaterial::by_index(store.clone(), i).map_err(|e| err(&comparison_path, e))?;
+        let mut row = vec![
+            scene.look(stored, &comparison_path)?,
+            scene.look(
+                pred.predict(x, PredictorKind::Exact).map_err(e)?,
+                &comparison_path,
+            )?,
+            scene.look(
+                pred.predict(x, PredictorKind::Smooth).map_err(e)?,
+                &comparison_path,
+            )?,
         ];
         let name = &model.materials[i].name;
         if let Some(held) = scene.held_out(name).map_err(e)? {
-            row.push(Box::new(held));
+            row.push(scene.look(held, &comparison_path)?);
         }
         kept.push(row);
     }
@@ -316,7 +340,7 @@ fn comparison_figure(scene: &Scene<'_>, picks: &[usize]) -> Result<(Caption, usi
         .zip(&kept)
         .map(|(&i, row)| {
             let name = model.materials[i].name.to_uppercase();
-            (name, row.iter().map(|b| b.as_ref()).collect())
+            (name, as_sources(row))
         })
         .collect();
     let comparison = render::comparison_sheet(&columns, &rows, opts, COMPARISON_DE_MAX)
@@ -383,17 +407,18 @@ fn paths_figure(scene: &Scene<'_>, pairs: &[[String; 2]]) -> Result<(Caption, us
             .iter()
             .map(|&s| {
                 let x: Vec<f64> = xa.iter().zip(xb).map(|(p, q)| p + s * (q - p)).collect();
-                pred.predict(&x, PredictorKind::Exact)
+                scene.look(pred.predict(&x, PredictorKind::Exact).map_err(e)?, &path)
             })
-            .collect::<predict::Result<Vec<_>>>()
-            .map_err(e)?;
+            .collect::<Result<Vec<_>>>()?;
         let lerp = t
             .iter()
-            .map(|&s| pred.lerp(a, b, 1.0 - s))
-            .collect::<predict::Result<Vec<_>>>()
-            .map_err(e)?;
-        let stored_a = StoreMaterial::by_index(store.clone(), ia).map_err(|e| err(&path, e))?;
-        let stored_b = StoreMaterial::by_index(store.clone(), ib).map_err(|e| err(&path, e))?;
+            .map(|&s| scene.look(pred.lerp(a, b, 1.0 - s).map_err(e)?, &path))
+            .collect::<Result<Vec<_>>>()?;
+        let stored = |i| StoreMaterial::by_index(store.clone(), i).map_err(|e| err(&path, e));
+        let (stored_a, stored_b) = (
+            scene.look(stored(ia)?, &path)?,
+            scene.look(stored(ib)?, &path)?,
+        );
         let blends = t
             .iter()
             .map(|&s| brdf_io::Blend::new(&stored_a, &stored_b, 1.0 - s))
@@ -468,7 +493,7 @@ fn predictions_figure(
             PredictorKind::Exact
         };
         let m = pred.predict(&p.point, kind).map_err(|e| err(&path, e))?;
-        let s = render_sphere(&m, opts).map_err(|e| err(&path, e))?;
+        let s = render_sphere(&scene.look(m, &path)?, opts).map_err(|e| err(&path, e))?;
         spheres += 1;
         let x = 4 + col * cell;
         img.blit(&s, x as i64, 4);

@@ -549,7 +549,7 @@ fn run_in(config: &PipelineConfig, out: &Path, published: &Path) -> Result<Resul
     let stored_albedo = if predictions.is_empty() {
         Vec::new()
     } else {
-        crate::stages::stored_albedo(&pred, &albedo_weights)?
+        crate::stages::stored_albedo(&pred, &albedo_weights, config.lookup)?
     };
     stages.push(StageStatus {
         name: "predict".into(),
@@ -593,14 +593,12 @@ fn run_in(config: &PipelineConfig, out: &Path, published: &Path) -> Result<Resul
 
     // Render.
     let t = Instant::now();
-    let r = &config.params.render;
-    let figures = if r.enabled {
+    let figures = if config.params.render.enabled {
         Some(crate::figures::render_figures(
             &pred,
             &predictions,
             evaluation.as_ref(),
-            r,
-            &config.params.predict.midpoints,
+            config,
             &located,
             out,
         )?)

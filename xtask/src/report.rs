@@ -335,10 +335,16 @@ fn energy(s: &mut String, r: &Results) {
          channel. Above 1 a material reflects more light than it receives in that channel, \
          which only a fluorescent one can (shifting light from other wavelengths), and a path \
          tracer turns into energy gained at every bounce. {} of the {} stored materials exceed \
-         1 + {ENERGY_MARGIN} as the lookups see them",
+         1 + {ENERGY_MARGIN} as the {} lookups between bin centres see them",
         angles.join(", "),
         above.len(),
-        r.stored_albedo.len()
+        r.stored_albedo.len(),
+        match r.config.lookup.as_deref().map(str::parse) {
+            Some(Ok(brdf_io::Lookup::LogMultilinear)) => {
+                "logarithmic (`lookup = \"log\"`: the figures and `.bsdf` files too)"
+            }
+            _ => "multilinear",
+        }
     );
     if above.is_empty() {
         let _ = writeln!(s, ".\n");

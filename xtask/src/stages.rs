@@ -3,6 +3,7 @@
 use std::path::Path;
 use std::time::Instant;
 
+use brdf_io::lookup::WithLookup;
 use predict::evaluate::{EvalOptions, Evaluation, Stage, evaluate};
 use predict::{Predictor, PredictorKind};
 use serde::Serialize;
@@ -118,13 +119,15 @@ fn peak_of(table: &brdf_io::albedo::AlbedoTable) -> AlbedoPeak {
 pub fn stored_albedo(
     pred: &Predictor,
     weights: &brdf_io::albedo::GridAlbedo,
+    lookup: brdf_io::Lookup,
 ) -> Result<Vec<StoredAlbedo>> {
     let path = pred.model().dataset.path.clone();
     let err = |e: brdf_io::Error| Error::stage("predict", &path, e);
     let store = pred.store();
     (0..store.n_materials())
         .map(|i| {
-            let source = brdf_io::store::StoreMaterial::by_index(store.clone(), i).map_err(err)?;
+            let source = brdf_io::store::StoreMaterial::by_index(store.clone(), i);
+            let source = WithLookup::new(source.map_err(err)?, lookup).map_err(err)?;
             Ok(StoredAlbedo {
                 material: store.names()[i].to_owned(),
                 peak: peak_of(&weights.table(&source).map_err(err)?),
@@ -210,12 +213,14 @@ pub fn predict_points(
         let t = Instant::now();
         let m = pred.predict(&x, k).map_err(err)?;
         let weights_us = t.elapsed().as_secs_f64() * 1e6;
+        let looked_up = WithLookup::new(&m, config.lookup)
+            .map_err(|e| Error::stage("predict", out.join("model.toml"), e))?;
         // The variance of the predictor used (the exact one's is 0 at a training point).
         let variance = pred.variance_transformed(&x, k).map_err(err)?;
         let (lookup_us, lookup_mean) = time_lookups(&m, 4096)?;
         let albedo = peak_of(
             &weights
-                .table(&m)
+                .table(&looked_up)
                 .map_err(|e| Error::stage("predict", out.join("model.toml"), e))?,
         );
         let (file, file_bytes, materialize_seconds) = if config.predict.materialize {
@@ -238,7 +243,7 @@ pub fn predict_points(
                 tolerance: None,
                 ..Default::default()
             };
-            let summary = brdf_io::rgl::write_rgl(&m, &path, &options)
+            let summary = brdf_io::rgl::write_rgl(&looked_up, &path, &options)
                 .map_err(|e| Error::stage("predict", &path, e))?;
             Some(BsdfFile {
                 bytes: brdf_io::output::output_len(&path).unwrap_or(0),

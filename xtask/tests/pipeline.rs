@@ -1232,6 +1232,97 @@ fn render_env_studio_lights_the_figures() {
     assert_ne!(table_png, studio_png);
 }
 
+/// `lookup = "log"` reaches every lookup of a run: the figures change, the energy section
+/// says so, the stored materials and the prediction reflect less (glossy materials gain
+/// energy between bin centres under multilinear lookups) and the `.bsdf` export follows the
+/// logarithmic lookups; results.json records the key only when given; other values are
+/// refused with the reason.
+#[test]
+fn lookup_log_reaches_figures_energy_and_exports() {
+    let root = project_root();
+    let dir = tempfile::tempdir().unwrap();
+    let write = |name: &str, lookup: &str| {
+        let path = dir.path().join(format!("{name}.toml"));
+        std::fs::write(
+            &path,
+            format!(
+                "name = \"{name}\"\n{lookup}[data]\nkind = \"synth\"\ngrid = \"8,8,16\"\n\
+                 wavelengths = \"400:700:100\"\nonly = [\"metal_gold\", \"metal_chromium\", \
+                 \"paper_white\"]\n[fit]\nlatent_dim = 2\nmax_iterations = 20\n[predict]\n\
+                 midpoints = [[\"metal_gold\", \"paper_white\"]]\nbsdf = true\n\
+                 [evaluate]\nloo = false\n[render]\nsize = 16\nsheet_materials = 3\n"
+            ),
+        )
+        .unwrap();
+        path
+    };
+    let run = |name: &str, lookup: &str| {
+        let config = PipelineConfig::load(&write(name, lookup), &root).unwrap();
+        let out = dir.path().join(name);
+        xtask::run(&config, &out).unwrap();
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap())
+                .unwrap();
+        let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+        (out, json, report)
+    };
+    let (linear, linear_json, linear_report) = run("linear", "");
+    let (log, log_json, log_report) = run("log", "lookup = \"log\"\n");
+    assert!(
+        linear_report.contains("as the multilinear lookups"),
+        "{linear_report}"
+    );
+    assert!(
+        log_report.contains("as the logarithmic (`lookup = \"log\"`"),
+        "{log_report}"
+    );
+    assert!(linear_json["config"].get("lookup").is_none());
+    assert_eq!(log_json["config"]["lookup"], "log");
+    for f in [
+        "sheet.png",
+        "comparison.png",
+        "paths.png",
+        "predictions.png",
+    ] {
+        assert_ne!(
+            std::fs::read(linear.join(f)).unwrap(),
+            std::fs::read(log.join(f)).unwrap(),
+            "{f}"
+        );
+    }
+    let peak = |json: &serde_json::Value, pointer: &str| {
+        json.pointer(pointer).and_then(|v| v.as_f64()).unwrap()
+    };
+    for i in 0..3 {
+        let p = format!("/stored_albedo/{i}/peak/value");
+        let (a, b) = (peak(&linear_json, &p), peak(&log_json, &p));
+        assert!(b < a, "{p}: {b} vs {a}");
+    }
+    let p = "/predictions/0/albedo/value";
+    assert!(peak(&log_json, p) < peak(&linear_json, p));
+    // The export holds the logarithmic lookups: its albedo, integrated from the file, is
+    // the prediction's as the energy section saw it (to the writer's accuracy).
+    let file = brdf_io::rgl::RglBsdf::open(log.join("prediction-1.bsdf")).unwrap();
+    let table = brdf_io::albedo::directional_albedo(
+        &file,
+        &xtask::stages::ALBEDO_THETAS_DEG,
+        brdf_io::albedo::DEFAULT_RESOLUTION,
+    )
+    .unwrap();
+    let (got, want) = (table.peak().unwrap().value, peak(&log_json, p));
+    assert!((got - want).abs() < 0.02 * want, "{got} vs {want}");
+    assert!((got - peak(&linear_json, p)).abs() > 0.05 * want);
+
+    let bad = PipelineConfig::load(&write("bad", "lookup = \"cubic\"\n"), &root)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        bad.contains("lookup \"cubic\": expected linear or log"),
+        "{bad}"
+    );
+}
+
 /// `cargo xtask bench` publishes bench.json, bench.md and bench.png together: into a new nested
 /// output directory that appears only when the run succeeds (no scratch or staging directory
 /// left), replacing an earlier run's set and keeping the user's other files; an output path
