@@ -21,7 +21,7 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::grid::{AngularGrid, Channels, HalfDiff, Vec3};
-use crate::lookup::{Lookup, StencilSum};
+use crate::lookup::{Lookup, cell_record, combine};
 use crate::source::BrdfSource;
 
 /// Nodes per axis of the half-vector grid by default ([`AlbedoNodes::new`]): 96 x 96.
@@ -331,15 +331,19 @@ impl GridAlbedo {
     fn table_by_nodes(&self, source: &dyn BrdfSource) -> Result<AlbedoTable> {
         let channels = source.channels();
         let nc = channels.len();
-        let values = self
+        let lookup = source.lookup();
+        let records = self
             .cells
             .par_chunks(CELLS_PER_TASK)
             .map(|chunk| {
-                let mut v = vec![0.0; chunk.len() * nc];
-                for ((a, _), f) in chunk.iter().zip(v.chunks_exact_mut(nc.max(1))) {
-                    source.eval_cell(*a, f)?;
-                }
-                Ok(v)
+                let mut f = vec![0.0; nc];
+                chunk
+                    .iter()
+                    .map(|(a, _)| {
+                        source.eval_cell(*a, &mut f)?;
+                        Ok(cell_record(lookup, &f))
+                    })
+                    .collect::<Result<Vec<_>>>()
             })
             .collect::<Result<Vec<_>>>()?
             .concat();
@@ -352,17 +356,20 @@ impl GridAlbedo {
             .zip(&self.angles_deg)
             .for_each(|(row, deg)| {
                 let nodes = AlbedoNodes::new(deg.to_radians(), self.resolution);
-                let (mut sum, mut f) = (StencilSum::new(source.lookup(), nc), vec![0.0; nc]);
+                let mut f = vec![0.0; nc];
                 for &(wo, w) in nodes.nodes() {
                     let Some(hd) = HalfDiff::from_dirs(nodes.wi(), wo) else {
                         continue;
                     };
+                    let mut cells: [(&[f64], f64); 8] = [(&[], 0.0); 8];
+                    let mut k = 0;
                     for (a, s) in self.grid.interpolation_stencil(&hd) {
                         if s != 0.0 {
-                            sum.add(s, &values[slot[a] * nc..(slot[a] + 1) * nc]);
+                            cells[k] = (&records[slot[a]], s);
+                            k += 1;
                         }
                     }
-                    sum.finish(&mut f);
+                    combine(lookup, &cells[..k], &mut f);
                     for (r, v) in row.iter_mut().zip(&f) {
                         *r += w * v;
                     }

@@ -14,6 +14,7 @@
 
 use std::fmt;
 use std::str::FromStr;
+use std::sync::OnceLock;
 
 use crate::error::{Error, Result};
 use crate::grid::{AngularGrid, Channels, HalfDiff, Vec3};
@@ -64,77 +65,50 @@ impl FromStr for Lookup {
     }
 }
 
-/// ln v where v > 0, NaN otherwise: a cell's logarithms for [`StencilSum::add_with_logs`] (a NaN
-/// marks a channel whose lookup falls back to the multilinear sum).
+/// ln v where v > 0, NaN otherwise: a cell's logarithms (a NaN marks a channel whose lookup
+/// falls back to the multilinear sum).
 pub fn cell_logs(values: &[f64], logs: &mut [f64]) {
     for (l, &v) in logs.iter_mut().zip(values) {
         *l = if v > 0.0 { v.ln() } else { f64::NAN };
     }
 }
 
-/// One channel's logarithmic lookup from its two sums over the weighted cells: `log`, the sum
-/// of w ln v (NaN when a cell is not positive), gives exp(log); a NaN gives the multilinear sum
-/// `linear`. What [`StencilSum::finish`] writes per channel, for callers that sum themselves.
-pub fn finish_channel(linear: f64, log: f64) -> f64 {
-    if log.is_nan() { linear } else { log.exp() }
+/// A cell as [`combine`] reads it under `lookup`: its values, then (other than multilinear
+/// lookups) their logarithms ([`cell_logs`]), computed once for a cell read many times.
+pub fn cell_record(lookup: Lookup, values: &[f64]) -> Box<[f64]> {
+    let n = values.len();
+    let mut record = values.to_vec();
+    if lookup != Lookup::Multilinear {
+        record.resize(2 * n, 0.0);
+        let (v, l) = record.split_at_mut(n);
+        cell_logs(v, l);
+    }
+    record.into_boxed_slice()
 }
 
-/// The running combination of a stencil's cells under a [`Lookup`], one value per channel: add
-/// each weighted cell in stencil order, then [`StencilSum::finish`]. The multilinear sum is the
-/// arithmetic every multilinear lookup does (zero, then `+= w * v` per cell), so its bits are
-/// theirs.
-#[derive(Debug, Clone)]
-pub struct StencilSum {
-    linear: Vec<f64>,
-    /// sum w ln v per channel (log lookups only); NaN once a weighted cell is not positive.
-    log: Vec<f64>,
-}
-
-impl StencilSum {
-    /// An empty sum of `channels` channels.
-    pub fn new(lookup: Lookup, channels: usize) -> Self {
-        let log_len = if lookup == Lookup::LogMultilinear {
-            channels
-        } else {
-            0
+/// The lookup's value per channel into `out`, from the stencil's cells as (record
+/// ([`cell_record`] of `out.len()` channels), weight) pairs in stencil order (callers skip
+/// zero weights, which [`AngularGrid::interpolation_stencil`] gives to cells that hold no
+/// value). Multilinear: sum w v, from 0 in stencil order (the arithmetic of every multilinear
+/// lookup, so its bits). Logarithmic: exp(sum w ln v) in a channel whose weighted cells are all
+/// positive, the multilinear sum in the others.
+pub fn combine(lookup: Lookup, cells: &[(&[f64], f64)], out: &mut [f64]) {
+    let m = out.len();
+    for (k, o) in out.iter_mut().enumerate() {
+        let mut linear = 0.0;
+        for &(record, w) in cells {
+            linear += w * record[k];
+        }
+        *o = match lookup {
+            Lookup::Multilinear => linear,
+            Lookup::LogMultilinear => {
+                let mut log = 0.0;
+                for &(record, w) in cells {
+                    log += w * record[m + k];
+                }
+                if log.is_nan() { linear } else { log.exp() }
+            }
         };
-        Self {
-            linear: vec![0.0; channels],
-            log: vec![0.0; log_len],
-        }
-    }
-
-    /// Adds a cell's `values` with weight `weight` (callers skip zero weights, which
-    /// [`AngularGrid::interpolation_stencil`] gives to cells that hold no value).
-    pub fn add(&mut self, weight: f64, values: &[f64]) {
-        for (s, v) in self.linear.iter_mut().zip(values) {
-            *s += weight * v;
-        }
-        for (l, &v) in self.log.iter_mut().zip(values) {
-            *l += weight * if v > 0.0 { v.ln() } else { f64::NAN };
-        }
-    }
-
-    /// [`StencilSum::add`] with the cell's logarithms computed beforehand ([`cell_logs`]), for
-    /// callers that read a cell many times (the renderer's plans): the same bits.
-    pub fn add_with_logs(&mut self, weight: f64, values: &[f64], logs: &[f64]) {
-        for (s, v) in self.linear.iter_mut().zip(values) {
-            *s += weight * v;
-        }
-        for (l, g) in self.log.iter_mut().zip(logs) {
-            *l += weight * g;
-        }
-    }
-
-    /// Writes the lookup's value per channel into `out` (as long as the channels) and empties
-    /// the sum for the next lookup.
-    pub fn finish(&mut self, out: &mut [f64]) {
-        out.copy_from_slice(&self.linear);
-        for (o, l) in out.iter_mut().zip(&self.log) {
-            *o = finish_channel(*o, *l);
-        }
-        self.linear.fill(0.0);
-        self.log.fill(0.0);
     }
 }
 
@@ -146,6 +120,9 @@ pub struct WithLookup<S> {
     inner: S,
     grid: AngularGrid,
     lookup: Lookup,
+    /// Other than multilinear lookups: each cell's [`cell_record`], made when first read (its
+    /// logarithms once, not per lookup); empty under multilinear lookups.
+    records: Vec<OnceLock<Box<[f64]>>>,
 }
 
 impl<S: BrdfSource> WithLookup<S> {
@@ -158,16 +135,36 @@ impl<S: BrdfSource> WithLookup<S> {
                  not to a source with its own evaluation"
             ),
         })?;
+        let cached = if lookup == Lookup::Multilinear {
+            0
+        } else {
+            grid.len()
+        };
         Ok(Self {
             inner,
             grid,
             lookup,
+            records: (0..cached).map(|_| OnceLock::new()).collect(),
         })
     }
 
     /// The wrapped source.
     pub fn inner(&self) -> &S {
         &self.inner
+    }
+
+    /// Cell `a`'s record: cached (logarithmic lookups) or evaluated into `scratch`.
+    fn record<'s>(&'s self, a: usize, scratch: &'s mut [f64]) -> Result<&'s [f64]> {
+        let Some(cached) = self.records.get(a) else {
+            self.inner.eval_cell(a, scratch)?;
+            return Ok(scratch);
+        };
+        if let Some(r) = cached.get() {
+            return Ok(r);
+        }
+        self.inner.eval_cell(a, scratch)?;
+        // Another thread may have filled it meanwhile: both computed the same.
+        Ok(cached.get_or_init(|| cell_record(self.lookup, scratch)))
     }
 }
 
@@ -182,16 +179,21 @@ impl<S: BrdfSource> BrdfSource for WithLookup<S> {
         let Some(hd) = HalfDiff::from_dirs(wi, wo).filter(|_| wi[2] > 0.0 && wo[2] > 0.0) else {
             return Ok(());
         };
-        let mut sum = StencilSum::new(self.lookup, out.len());
-        let mut cell = vec![0.0; out.len()];
+        // Multilinear lookups evaluate each cell into its own scratch (not cached).
+        let n = out.len();
+        let mut scratch = vec![0.0; 8 * n];
+        let mut parts = scratch.chunks_exact_mut(n.max(1));
+        let mut cells: [(&[f64], f64); 8] = [(&[], 0.0); 8];
+        let mut k = 0;
         for (a, w) in self.grid.interpolation_stencil(&hd) {
             if w == 0.0 {
                 continue;
             }
-            self.inner.eval_cell(a, &mut cell)?;
-            sum.add(w, &cell);
+            let part = parts.next().unwrap_or_default();
+            cells[k] = (self.record(a, part)?, w);
+            k += 1;
         }
-        sum.finish(out);
+        combine(self.lookup, &cells[..k], out);
         Ok(())
     }
 
@@ -289,44 +291,38 @@ mod tests {
     }
 
     /// The multilinear sum is the plain weighted sum (same bits); the logarithmic one is the
-    /// weighted geometric mean in positive channels and falls back to the sum per channel.
+    /// weighted geometric mean in positive channels and falls back to the sum per channel;
+    /// records hold the logarithms only for logarithmic lookups.
     #[test]
-    fn sums_combine_cells_per_channel() {
+    fn lookups_combine_cells_per_channel() {
         let cells = [[2.0, 0.0, 1.5], [8.0, 3.0, -0.5], [4.0, 1.0, 2.0]];
         let weights = [0.25, 0.5, 0.25];
         let mut plain = [0.0; 3];
         for (c, w) in cells.iter().zip(weights) {
             plain.iter_mut().zip(c).for_each(|(p, v)| *p += w * v);
         }
-        let mut linear = StencilSum::new(Lookup::Multilinear, 3);
-        let mut log = StencilSum::new(Lookup::LogMultilinear, 3);
-        let mut with_logs = StencilSum::new(Lookup::LogMultilinear, 3);
-        for (c, w) in cells.iter().zip(weights) {
-            linear.add(w, c);
-            log.add(w, c);
-            let mut l = [0.0; 3];
-            cell_logs(c, &mut l);
-            with_logs.add_with_logs(w, c, &l);
-        }
-        let mut out = [0.0; 3];
-        linear.finish(&mut out);
-        assert_eq!(out, plain);
-        log.finish(&mut out);
+        let combined = |lookup: Lookup| {
+            let records: Vec<Box<[f64]>> = cells.iter().map(|c| cell_record(lookup, c)).collect();
+            let pairs: Vec<(&[f64], f64)> = records.iter().map(|r| &r[..]).zip(weights).collect();
+            let mut out = [0.0; 3];
+            combine(lookup, &pairs, &mut out);
+            out
+        };
+        assert_eq!(combined(Lookup::Multilinear), plain);
+        let log = combined(Lookup::LogMultilinear);
         // 2^0.25 8^0.5 4^0.25 = 2^(0.25 + 1.5 + 0.5) = 2^2.25.
-        assert!((out[0] - 2f64.powf(2.25)).abs() < 1e-14, "{out:?}");
+        assert!((log[0] - 2f64.powf(2.25)).abs() < 1e-14, "{log:?}");
         // A zero cell in channel 1, a negative one in channel 2: the multilinear sums.
-        assert_eq!(out[1..], plain[1..]);
-        let mut again = [0.0; 3];
-        with_logs.finish(&mut again);
-        assert_eq!(again, out);
-        assert_eq!(finish_channel(0.7, f64::NAN), 0.7);
-        assert_eq!(finish_channel(0.7, 2f64.ln()), 2f64.ln().exp());
-        // `finish` empties the sums.
-        linear.add(1.0, &[5.0, 6.0, 7.0]);
-        linear.finish(&mut out);
-        assert_eq!(out, [5.0, 6.0, 7.0]);
-        log.add(1.0, &[5.0, 6.0, 7.0]);
-        log.finish(&mut out);
+        assert_eq!(log[1..], plain[1..]);
+        assert_eq!(cell_record(Lookup::Multilinear, &cells[0])[..], cells[0]);
+        let r = cell_record(Lookup::LogMultilinear, &cells[1]);
+        assert_eq!(r[..4], [8.0, 3.0, -0.5, 8f64.ln()]);
+        assert_eq!(r[4], 3f64.ln());
+        assert!(r[5].is_nan());
+        // One cell of weight 1: its values.
+        let one = cell_record(Lookup::LogMultilinear, &[5.0, 6.0, 7.0]);
+        let mut out = [0.0; 3];
+        combine(Lookup::LogMultilinear, &[(&one, 1.0)], &mut out);
         for (o, v) in out.iter().zip([5.0, 6.0, 7.0]) {
             assert!((o - v).abs() < 1e-14 * v, "{out:?}");
         }

@@ -31,7 +31,7 @@ pub trait BrdfSource: Sync {
 
     /// For grid sources, how [`BrdfSource::eval`] combines the cells of a lookup's stencil; a
     /// consumer that interpolates cells itself combines them the same way
-    /// ([`crate::lookup::StencilSum`]). Multilinear by default (see [`crate::lookup`]).
+    /// ([`crate::lookup::combine`]). Multilinear by default (see [`crate::lookup`]).
     fn lookup(&self) -> Lookup {
         Lookup::Multilinear
     }

@@ -65,7 +65,7 @@
 
 use std::sync::OnceLock;
 
-use brdf_io::lookup::{cell_logs, finish_channel};
+use brdf_io::lookup::{cell_record, combine};
 use brdf_io::{AngularGrid, BrdfSource, Channels, HalfDiff, Lookup, Vec3};
 use rayon::prelude::*;
 
@@ -807,7 +807,7 @@ struct GridCells {
     /// Multilinear lookups: each touched cell's linear sRGB, computed on first use.
     colours: Vec<OnceLock<[f64; 3]>>,
     /// Other lookups ([`BrdfSource::lookup`], not linear in the cells): each touched cell's
-    /// needed channels, then their logarithms ([`cell_logs`]), computed on first use (empty
+    /// needed channels' [`cell_record`], computed on first use (empty
     /// under multilinear lookups).
     channels: Vec<OnceLock<Box<[f64]>>>,
     lookup: Lookup,
@@ -1020,7 +1020,7 @@ impl<'a> Shader<'a> {
             return self.eval_rgb(wi, wo, f);
         };
         if *lookup != Lookup::Multilinear {
-            return self.channels_at(grid, channels, valid, hd, f);
+            return self.channels_at(grid, channels, *lookup, valid, hd, f);
         }
         let mut rgb = [0.0; 3];
         for (a, w) in grid.interpolation_stencil_with(hd, |a| valid[a]) {
@@ -1043,47 +1043,48 @@ impl<'a> Shader<'a> {
     }
 
     /// [`Shader::rgb_at`] of a source looked up otherwise than multilinearly: the stencil's
-    /// cells (each evaluated once per render, kept as its needed channels and their
-    /// logarithms) combined channel by channel as the source's own lookup does
-    /// ([`finish_channel`]), then projected.
+    /// cells (each evaluated once per render, kept as the [`cell_record`] of its needed
+    /// channels) combined as the source's own lookup does ([`combine`]), then projected.
     fn channels_at(
         &self,
         grid: &AngularGrid,
         cells: &[OnceLock<Box<[f64]>>],
+        lookup: Lookup,
         valid: &[bool],
         hd: &HalfDiff,
         f: &mut [f64],
     ) -> Result<[f64; 3]> {
-        let m = self.needed.len();
-        let mut corners: [(&[f64], f64); 8] = [(&[], 0.0); 8];
+        let mut weighted: [(&[f64], f64); 8] = [(&[], 0.0); 8];
         let mut n = 0;
         for (a, w) in grid.interpolation_stencil_with(hd, |a| valid[a]) {
             if w == 0.0 {
                 continue;
             }
-            let cell = match cells[a].get() {
+            let record = match cells[a].get() {
                 Some(c) => c,
                 None => {
                     self.source.eval_cell(a, f)?;
                     check_finite(f, &self.needed, &self.channels, || cell_place(grid, a))?;
-                    let mut c: Vec<f64> = self.needed.iter().map(|&k| f[k]).collect();
-                    c.resize(2 * m, 0.0);
-                    let (values, logs) = c.split_at_mut(m);
-                    cell_logs(values, logs);
+                    let values: Vec<f64> = self.needed.iter().map(|&k| f[k]).collect();
                     // Another thread may have filled it meanwhile: both computed the same.
-                    cells[a].get_or_init(|| c.into_boxed_slice())
+                    cells[a].get_or_init(|| cell_record(lookup, &values))
                 }
             };
-            corners[n] = (cell, w);
+            weighted[n] = (record, w);
             n += 1;
         }
-        for (k, &channel) in self.needed.iter().enumerate() {
-            let (mut linear, mut log) = (0.0, 0.0);
-            for &(c, w) in &corners[..n] {
-                linear += w * c[k];
-                log += w * c[m + k];
-            }
-            f[channel] = finish_channel(linear, log);
+        // (No allocation per lookup for up to 64 needed channels.)
+        let (mut stack, mut heap) = ([0.0; 64], Vec::new());
+        let m = self.needed.len();
+        let values = if m <= stack.len() {
+            &mut stack[..m]
+        } else {
+            heap.resize(m, 0.0);
+            &mut heap[..]
+        };
+        combine(lookup, &weighted[..n], values);
+        for (&channel, v) in self.needed.iter().zip(values.iter()) {
+            f[channel] = *v;
         }
         Ok(self.to_rgb(f, 1.0))
     }

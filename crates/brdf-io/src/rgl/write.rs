@@ -53,7 +53,7 @@ use super::{Corners, RglBsdf, Table2D, Warp, phi2u, theta2u};
 use crate::albedo::{AlbedoNodes, direction};
 use crate::error::{Error, Result};
 use crate::grid::Channels;
-use crate::lookup::StencilSum;
+use crate::lookup::{cell_record, combine};
 use crate::source::BrdfSource;
 use crate::tensor::{Field, TensorFile};
 
@@ -379,7 +379,9 @@ impl BrdfSource for CachedCells<'_> {
             Some(hd) if wi[2] > 0.0 && wo[2] > 0.0 => hd,
             _ => return Ok(()),
         };
-        let mut sum = StencilSum::new(self.source.lookup(), out.len());
+        let lookup = self.source.lookup();
+        let mut cells: [(&[f64], f64); 8] = [(&[], 0.0); 8];
+        let mut k = 0;
         for (a, w) in self.grid.interpolation_stencil(&hd) {
             if w == 0.0 {
                 continue;
@@ -388,10 +390,13 @@ impl BrdfSource for CachedCells<'_> {
                 let mut v = vec![0.0; self.channels.len()];
                 self.source
                     .eval_cell(a, &mut v)
-                    .map(|()| v.into_boxed_slice())
+                    .map(|()| cell_record(lookup, &v))
             });
             match cell {
-                Ok(v) => sum.add(w, v),
+                Ok(record) => {
+                    cells[k] = (record, w);
+                    k += 1;
+                }
                 Err(e) => {
                     return Err(Error::InvalidArgument {
                         reason: format!("cell {a} of the source: {e}"),
@@ -399,7 +404,7 @@ impl BrdfSource for CachedCells<'_> {
                 }
             }
         }
-        sum.finish(out);
+        combine(lookup, &cells[..k], out);
         Ok(())
     }
 }

@@ -20,7 +20,7 @@
 
 use std::sync::{Arc, Mutex, PoisonError};
 
-use brdf_io::lookup::{StencilSum, cell_logs};
+use brdf_io::lookup::{cell_record, combine};
 use brdf_io::{AngularGrid, BrdfSource, HalfDiff, Lookup, Vec3};
 use gp_core::fastmath::exp_lanes;
 use rayon::prelude::*;
@@ -237,17 +237,15 @@ enum Cells {
     /// Multilinear lookups: each cell's linear sRGB (the projection is linear, so
     /// interpolating projected cells is projecting the interpolated values).
     Colours(Vec<[f64; 3]>),
-    /// Other lookups ([`BrdfSource::lookup`]), which are not linear in the cells: per cell,
-    /// the needed channels' values, then their logarithms ([`cell_logs`]); a lookup combines
-    /// them channel by channel and projects the result.
+    /// Other lookups ([`BrdfSource::lookup`]), which are not linear in the cells: each cell's
+    /// record of its needed channels ([`cell_record`]: values, then logarithms); a lookup
+    /// combines them channel by channel and projects the result.
     Channels {
         lookup: Lookup,
         /// Needed channels per cell.
         m: usize,
-        /// m values per cell.
-        values: Vec<f64>,
-        /// Their m logarithms per cell (apart: lookups of positive cells read only these).
-        logs: Vec<f64>,
+        /// 2 m values per cell.
+        records: Vec<f64>,
         /// Per cell, whether every needed channel is positive: a logarithmic lookup whose
         /// weighted cells all are needs only the sums of logarithms.
         positive: Vec<bool>,
@@ -256,7 +254,6 @@ enum Cells {
 
 /// A lookup's working space for [`Cells::Channels`] (one per parallel task).
 struct Scratch {
-    sum: StencilSum,
     f: Vec<f64>,
     logs: Vec<f64>,
 }
@@ -265,12 +262,10 @@ impl Cells {
     fn scratch(&self) -> Scratch {
         match self {
             Cells::Colours(_) => Scratch {
-                sum: StencilSum::new(Lookup::Multilinear, 0),
                 f: Vec::new(),
                 logs: Vec::new(),
             },
-            Cells::Channels { lookup, m, .. } => Scratch {
-                sum: StencilSum::new(*lookup, *m),
+            Cells::Channels { m, .. } => Scratch {
                 f: vec![0.0; *m],
                 logs: vec![0.0; *m],
             },
@@ -295,11 +290,10 @@ impl Cells {
             Cells::Channels {
                 lookup,
                 m,
-                values,
-                logs,
+                records,
                 positive,
             } => {
-                let range = |a: u32| a as usize * m..(a as usize + 1) * m;
+                let record = |a: u32| &records[a as usize * 2 * m..(a as usize + 1) * 2 * m];
                 let weighted = || s.iter().filter(|(_, w)| *w != 0.0);
                 if *lookup == Lookup::LogMultilinear
                     && weighted().all(|(a, _)| positive[*a as usize])
@@ -311,20 +305,20 @@ impl Cells {
                         scratch
                             .logs
                             .iter_mut()
-                            .zip(&logs[range(a)])
+                            .zip(&record(a)[*m..])
                             .for_each(|(l, g)| *l += w * g);
                     }
                     for (f, l) in scratch.f.iter_mut().zip(&scratch.logs) {
                         *f = exp_lanes(*l);
                     }
                 } else {
+                    let mut cells: [(&[f64], f64); 8] = [(&[], 0.0); 8];
+                    let mut k = 0;
                     for &(a, w) in weighted() {
-                        let cell = range(a);
-                        scratch
-                            .sum
-                            .add_with_logs(w, &values[cell.clone()], &logs[cell]);
+                        cells[k] = (record(a), w);
+                        k += 1;
                     }
-                    scratch.sum.finish(&mut scratch.f);
+                    combine(*lookup, &cells[..k], &mut scratch.f);
                 }
                 // `project`'s sums, the three rows in one pass (each row's terms in the same
                 // order); negative values count as 0.
@@ -381,9 +375,7 @@ pub(super) fn render(
                     out.extend(project(&weights, &needed, &f, 1.0));
                 } else {
                     let values: Vec<f64> = needed.iter().map(|&k| f[k]).collect();
-                    let mut logs = vec![0.0; m];
-                    cell_logs(&values, &mut logs);
-                    out.extend(values.into_iter().chain(logs));
+                    out.extend(cell_record(lookup, &values));
                 }
             }
             Ok(out)
@@ -398,18 +390,17 @@ pub(super) fn render(
                 .collect(),
         )
     } else {
-        let (mut values, mut logs) = (Vec::new(), Vec::new());
-        let mut positive = Vec::new();
-        for c in records.chunks_exact(2 * m.max(1)) {
-            values.extend_from_slice(&c[..m]);
-            logs.extend_from_slice(&c[m..]);
-            positive.push(c[m..].iter().all(|g| !g.is_nan()));
-        }
+        let positive = (0..plan.cells.len())
+            .map(|i| {
+                records[(2 * i + 1) * m..(2 * i + 2) * m]
+                    .iter()
+                    .all(|g| !g.is_nan())
+            })
+            .collect();
         Cells::Channels {
             lookup,
             m,
-            values,
-            logs,
+            records,
             positive,
         }
     };
