@@ -1027,19 +1027,30 @@ impl<'a> Shader<'a> {
             if w == 0.0 {
                 continue;
             }
-            let cell = match cells[a].get() {
-                Some(c) => c,
-                None => {
-                    self.source.eval_cell(a, f)?;
-                    check_finite(f, &self.needed, &self.channels, || cell_place(grid, a))?;
-                    let c = self.to_rgb(f, 1.0);
-                    // Another thread may have filled it meanwhile: both computed the same.
-                    cells[a].get_or_init(|| c)
-                }
-            };
+            let cell = self.cached_cell(grid, cells, a, f, |f| self.to_rgb(f, 1.0))?;
             (0..3).for_each(|c| rgb[c] += w * cell[c]);
         }
         Ok(rgb)
+    }
+
+    /// Cell `a` of `cells`, made by `make` from the source's values there (checked) when first
+    /// needed.
+    fn cached_cell<'c, T>(
+        &self,
+        grid: &AngularGrid,
+        cells: &'c [OnceLock<T>],
+        a: usize,
+        f: &mut [f64],
+        make: impl FnOnce(&[f64]) -> T,
+    ) -> Result<&'c T> {
+        if let Some(c) = cells[a].get() {
+            return Ok(c);
+        }
+        self.source.eval_cell(a, f)?;
+        check_finite(f, &self.needed, &self.channels, || cell_place(grid, a))?;
+        let c = make(f);
+        // Another thread may have filled it meanwhile: both computed the same.
+        Ok(cells[a].get_or_init(|| c))
     }
 
     /// [`Shader::rgb_at`] of a source looked up otherwise than multilinearly: the stencil's
@@ -1060,16 +1071,10 @@ impl<'a> Shader<'a> {
             if w == 0.0 {
                 continue;
             }
-            let record = match cells[a].get() {
-                Some(c) => c,
-                None => {
-                    self.source.eval_cell(a, f)?;
-                    check_finite(f, &self.needed, &self.channels, || cell_place(grid, a))?;
-                    let values: Vec<f64> = self.needed.iter().map(|&k| f[k]).collect();
-                    // Another thread may have filled it meanwhile: both computed the same.
-                    cells[a].get_or_init(|| cell_record(lookup, &values))
-                }
-            };
+            let record = self.cached_cell(grid, cells, a, f, |f| {
+                let values: Vec<f64> = self.needed.iter().map(|&k| f[k]).collect();
+                cell_record(lookup, &values)
+            })?;
             weighted[n] = (record, w);
             n += 1;
         }
