@@ -67,7 +67,7 @@ impl FromStr for Lookup {
 
 /// ln v where v > 0, NaN otherwise: a cell's logarithms (a NaN marks a channel whose lookup
 /// falls back to the multilinear sum).
-pub fn cell_logs(values: &[f64], logs: &mut [f64]) {
+fn cell_logs(values: &[f64], logs: &mut [f64]) {
     for (l, &v) in logs.iter_mut().zip(values) {
         *l = if v > 0.0 { v.ln() } else { f64::NAN };
     }
@@ -119,6 +119,8 @@ pub fn combine(lookup: Lookup, cells: &[(&[f64], f64)], out: &mut [f64]) {
 pub struct WithLookup<S> {
     inner: S,
     grid: AngularGrid,
+    /// The inner source's channel count.
+    n_channels: usize,
     lookup: Lookup,
     /// Other than multilinear lookups: each cell's [`cell_record`], made when first read (its
     /// logarithms once, not per lookup); empty under multilinear lookups.
@@ -141,6 +143,7 @@ impl<S: BrdfSource> WithLookup<S> {
             grid.len()
         };
         Ok(Self {
+            n_channels: inner.channels().len(),
             inner,
             grid,
             lookup,
@@ -174,7 +177,7 @@ impl<S: BrdfSource> BrdfSource for WithLookup<S> {
     }
 
     fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
-        check_output_len(out, self.inner.channels().len())?;
+        check_output_len(out, self.n_channels)?;
         out.fill(0.0);
         let Some(hd) = HalfDiff::from_dirs(wi, wo).filter(|_| wi[2] > 0.0 && wo[2] > 0.0) else {
             return Ok(());
