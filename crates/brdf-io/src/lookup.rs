@@ -74,7 +74,8 @@ fn cell_logs(values: &[f64], logs: &mut [f64]) {
 }
 
 /// A cell as [`combine`] reads it under `lookup`: its values, then (other than multilinear
-/// lookups) their logarithms ([`cell_logs`]), computed once for a cell read many times.
+/// lookups) their logarithms (ln v where v > 0, NaN otherwise), computed once for a cell read
+/// many times.
 pub fn cell_record(lookup: Lookup, values: &[f64]) -> Box<[f64]> {
     let n = values.len();
     let mut record = values.to_vec();
