@@ -9,14 +9,17 @@
 //! then evaluates exactly those cells once ([`BrdfSource::eval_cell`], in index order, in
 //! parallel), projects them to linear sRGB and combines them: a few multiply-adds per pixel.
 //! A source whose [`BrdfSource::lookup`] is not multilinear keeps each cell's needed channels
-//! and their logarithms instead; its lookups combine them channel by channel, then project.
+//! and their logarithms instead; its lookups combine them channel by channel, then project
+//! (equal to the per-pixel shader's to rounding: the plan takes its exponentials with
+//! `exp_lanes`, relative error below 1e-15).
 //!
 //! Only images up to [`MAX_CACHED_PIXELS`] pixels are rendered through plans (larger ones are
 //! shaded directly, faster and in a fraction of the memory), and the plans of recent scenes (up
 //! to [`CACHED_PLANS`]) are kept for the process, so rendering another material of the same scene (latent-map
 //! thumbnails, comparison sheets, moving through the latent space) skips the geometry. A plan
 //! holds no BRDF value: every render evaluates its material's cells afresh. The arithmetic is
-//! the per-pixel shader's, in the same order: planned and unplanned renders are identical.
+//! the per-pixel shader's, in the same order: planned and unplanned renders are identical
+//! (under multilinear lookups; to rounding under others, see above).
 
 use std::sync::{Arc, Mutex, PoisonError};
 
