@@ -239,6 +239,10 @@ pub struct MapArgs {
     /// thumbnails of 64 px take about 2 s instead of 0.4 s).
     #[arg(long, default_value = "table", requires = "thumbnails")]
     pub env: String,
+    /// The thumbnails' lookup between the grid's bin centres, as `render --lookup`: `linear`
+    /// or `log`.
+    #[arg(long, default_value = "linear", requires = "thumbnails")]
+    pub lookup: brdf_io::Lookup,
     /// With --thumbnails or --locate (the only parts of a map that read the data): the dataset
     /// store, when it moved since fitting (default: the path in the model).
     #[arg(long)]
@@ -367,7 +371,7 @@ pub fn map(args: &MapArgs) -> anyhow::Result<()> {
             if let Some(w) = &needed {
                 m = m.with_wavelengths(w).map_err(err)?;
             }
-            Ok(Box::new(m))
+            Ok(Box::new(brdf_io::lookup::WithLookup::new(m, args.lookup)?))
         };
         // Studio and per-pixel thumbnails take seconds (36 of 64 px: ~2 s): a spinner.
         let spinner = indicatif::ProgressBar::new_spinner();

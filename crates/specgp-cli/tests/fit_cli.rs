@@ -3322,6 +3322,18 @@ fn log_lookups_from_the_command_line() {
         }
     }
 
+    // map: thumbnails of predictions under either lookup.
+    for lookup in ["linear", "log"] {
+        let out = format!("map-{lookup}.png");
+        let args = ["map", "m.toml", "--thumbnails", "--grid", "2"];
+        let rest = ["--thumbnail-size", "16", "--lookup", lookup, "--out", &out];
+        specgp(&[&args[..], &rest[..]].concat(), d);
+    }
+    assert_ne!(
+        std::fs::read(d.join("map-linear.png")).unwrap(),
+        std::fs::read(d.join("map-log.png")).unwrap()
+    );
+
     let e = specgp_fails(&["albedo", "gold.bsdf", "--lookup", "log"], d);
     assert!(
         e.contains("--lookup log: gold.bsdf") && e.contains("applies to grid sources"),
