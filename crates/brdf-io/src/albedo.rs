@@ -21,7 +21,7 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::grid::{AngularGrid, Channels, HalfDiff, Vec3};
-use crate::lookup::{Lookup, cell_record, combine};
+use crate::lookup::{Lookup, cell_record, look_up};
 use crate::source::BrdfSource;
 
 /// Nodes per axis of the half-vector grid by default ([`AlbedoNodes::new`]): 96 x 96.
@@ -361,15 +361,10 @@ impl GridAlbedo {
                     let Some(hd) = HalfDiff::from_dirs(nodes.wi(), wo) else {
                         continue;
                     };
-                    let mut cells: [(&[f64], f64); 8] = [(&[], 0.0); 8];
-                    let mut k = 0;
-                    for (a, s) in self.grid.interpolation_stencil(&hd) {
-                        if s != 0.0 {
-                            cells[k] = (&records[slot[a]], s);
-                            k += 1;
-                        }
-                    }
-                    combine(lookup, &cells[..k], &mut f);
+                    let stencil = self.grid.interpolation_stencil(&hd);
+                    let record =
+                        |a: usize| Ok::<_, std::convert::Infallible>(&records[slot[a]][..]);
+                    let Ok(()) = look_up(lookup, stencil, record, &mut f);
                     for (r, v) in row.iter_mut().zip(&f) {
                         *r += w * v;
                     }

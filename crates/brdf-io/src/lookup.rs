@@ -113,6 +113,27 @@ pub fn combine(lookup: Lookup, cells: &[(&[f64], f64)], out: &mut [f64]) {
     }
 }
 
+/// [`combine`] of the weighted cells of `stencil` (an interpolation stencil: at most 8 flat cell
+/// index and weight pairs; zero weights skipped) whose records `record` gives (each at most once per
+/// lookup; e.g. from a cache): a whole lookup, into `out`.
+pub fn look_up<'r, E>(
+    lookup: Lookup,
+    stencil: impl IntoIterator<Item = (usize, f64)>,
+    mut record: impl FnMut(usize) -> std::result::Result<&'r [f64], E>,
+    out: &mut [f64],
+) -> std::result::Result<(), E> {
+    let mut cells: [(&[f64], f64); 8] = [(&[], 0.0); 8];
+    let mut k = 0;
+    for (a, w) in stencil {
+        if w != 0.0 {
+            cells[k] = (record(a)?, w);
+            k += 1;
+        }
+    }
+    combine(lookup, &cells[..k], out);
+    Ok(())
+}
+
 /// A grid source looked up with another [`Lookup`]: the same cells ([`BrdfSource::eval_cell`]),
 /// combined by `lookup` in [`BrdfSource::eval`] and reported by [`BrdfSource::lookup`], so that
 /// consumers that interpolate cells themselves (the renderer, the RGL writer, the albedo) do
@@ -187,18 +208,13 @@ impl<S: BrdfSource> BrdfSource for WithLookup<S> {
         let n = out.len();
         let mut scratch = vec![0.0; 8 * n];
         let mut parts = scratch.chunks_exact_mut(n.max(1));
-        let mut cells: [(&[f64], f64); 8] = [(&[], 0.0); 8];
-        let mut k = 0;
-        for (a, w) in self.grid.interpolation_stencil(&hd) {
-            if w == 0.0 {
-                continue;
-            }
-            let part = parts.next().unwrap_or_default();
-            cells[k] = (self.record(a, part)?, w);
-            k += 1;
-        }
-        combine(self.lookup, &cells[..k], out);
-        Ok(())
+        let stencil = self.grid.interpolation_stencil(&hd);
+        look_up(
+            self.lookup,
+            stencil,
+            |a| self.record(a, parts.next().unwrap_or_default()),
+            out,
+        )
     }
 
     fn grid(&self) -> Option<AngularGrid> {

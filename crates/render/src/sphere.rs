@@ -65,7 +65,7 @@
 
 use std::sync::OnceLock;
 
-use brdf_io::lookup::{cell_record, combine};
+use brdf_io::lookup::{cell_record, look_up};
 use brdf_io::{AngularGrid, BrdfSource, Channels, HalfDiff, Lookup, Vec3};
 use rayon::prelude::*;
 
@@ -1065,19 +1065,6 @@ impl<'a> Shader<'a> {
         hd: &HalfDiff,
         f: &mut [f64],
     ) -> Result<[f64; 3]> {
-        let mut weighted: [(&[f64], f64); 8] = [(&[], 0.0); 8];
-        let mut n = 0;
-        for (a, w) in grid.interpolation_stencil_with(hd, |a| valid[a]) {
-            if w == 0.0 {
-                continue;
-            }
-            let record = self.cached_cell(grid, cells, a, f, |f| {
-                let values: Vec<f64> = self.needed.iter().map(|&k| f[k]).collect();
-                cell_record(lookup, &values)
-            })?;
-            weighted[n] = (record, w);
-            n += 1;
-        }
         // (No allocation per lookup for up to 64 needed channels.)
         let (mut stack, mut heap) = ([0.0; 64], Vec::new());
         let m = self.needed.len();
@@ -1087,7 +1074,15 @@ impl<'a> Shader<'a> {
             heap.resize(m, 0.0);
             &mut heap[..]
         };
-        combine(lookup, &weighted[..n], values);
+        let stencil = grid.interpolation_stencil_with(hd, |a| valid[a]);
+        let record = |a| {
+            let cell = self.cached_cell(grid, cells, a, f, |f| {
+                let values: Vec<f64> = self.needed.iter().map(|&k| f[k]).collect();
+                cell_record(lookup, &values)
+            });
+            cell.map(|r| &r[..])
+        };
+        look_up(lookup, stencil, record, values)?;
         for (&channel, v) in self.needed.iter().zip(values.iter()) {
             f[channel] = *v;
         }

@@ -53,7 +53,7 @@ use super::{Corners, RglBsdf, Table2D, Warp, phi2u, theta2u};
 use crate::albedo::{AlbedoNodes, direction};
 use crate::error::{Error, Result};
 use crate::grid::Channels;
-use crate::lookup::{cell_record, combine};
+use crate::lookup::{cell_record, look_up};
 use crate::source::BrdfSource;
 use crate::tensor::{Field, TensorFile};
 
@@ -380,12 +380,7 @@ impl BrdfSource for CachedCells<'_> {
             _ => return Ok(()),
         };
         let lookup = self.source.lookup();
-        let mut cells: [(&[f64], f64); 8] = [(&[], 0.0); 8];
-        let mut k = 0;
-        for (a, w) in self.grid.interpolation_stencil(&hd) {
-            if w == 0.0 {
-                continue;
-            }
+        let record = |a: usize| {
             let cell = self.cells[a].get_or_init(|| {
                 let mut v = vec![0.0; self.channels.len()];
                 self.source
@@ -393,19 +388,13 @@ impl BrdfSource for CachedCells<'_> {
                     .map(|()| cell_record(lookup, &v))
             });
             match cell {
-                Ok(record) => {
-                    cells[k] = (record, w);
-                    k += 1;
-                }
-                Err(e) => {
-                    return Err(Error::InvalidArgument {
-                        reason: format!("cell {a} of the source: {e}"),
-                    });
-                }
+                Ok(record) => Ok(&record[..]),
+                Err(e) => Err(Error::InvalidArgument {
+                    reason: format!("cell {a} of the source: {e}"),
+                }),
             }
-        }
-        combine(lookup, &cells[..k], out);
-        Ok(())
+        };
+        look_up(lookup, self.grid.interpolation_stencil(&hd), record, out)
     }
 }
 

@@ -21,9 +21,10 @@
 //! the per-pixel shader's, in the same order: planned and unplanned renders are identical
 //! (under multilinear lookups; to rounding under others, see above).
 
+use std::convert::Infallible;
 use std::sync::{Arc, Mutex, PoisonError};
 
-use brdf_io::lookup::{cell_record, combine};
+use brdf_io::lookup::{cell_record, look_up};
 use brdf_io::{AngularGrid, BrdfSource, HalfDiff, Lookup, Vec3};
 use gp_core::fastmath::exp_lanes;
 use rayon::prelude::*;
@@ -315,13 +316,9 @@ impl Cells {
                         *f = exp_lanes(*l);
                     }
                 } else {
-                    let mut cells: [(&[f64], f64); 8] = [(&[], 0.0); 8];
-                    let mut k = 0;
-                    for &(a, w) in weighted() {
-                        cells[k] = (record(a), w);
-                        k += 1;
-                    }
-                    combine(*lookup, &cells[..k], &mut scratch.f);
+                    let stencil = s.iter().map(|&(a, w)| (a as usize, w));
+                    let record = |a: usize| Ok::<_, Infallible>(record(a as u32));
+                    let Ok(()) = look_up(*lookup, stencil, record, &mut scratch.f);
                 }
                 // `project`'s sums, the three rows in one pass (each row's terms in the same
                 // order); negative values count as 0.
