@@ -407,10 +407,17 @@ mod tests {
                 assert!((v - (0.2 + 0.1 * k as f64)).abs() < 1e-15, "{a:?}");
             }
         }
-        // Below the horizon: zero in every channel; a short output is refused.
-        a = [1.0; 3];
-        log.eval([0.0, 0.0, 1.0], [0.0, 0.3, -1.0], &mut a).unwrap();
-        assert_eq!(a, [0.0; 3]);
+        // Below the horizon, and exactly at it on either side: zero in every channel; a
+        // short output is refused.
+        for (wi, wo) in [
+            ([0.0, 0.0, 1.0], [0.0, 0.3, -1.0]),
+            ([1.0, 0.0, 0.0], [0.0, 0.0, 1.0]),
+            ([0.0, 0.0, 1.0], [0.0, 1.0, 0.0]),
+        ] {
+            a = [1.0; 3];
+            log.eval(wi, wo, &mut a).unwrap();
+            assert_eq!(a, [0.0; 3], "{wi:?} {wo:?}");
+        }
         assert!(
             log.eval([0.0, 0.0, 1.0], [0.0, 0.0, 1.0], &mut [0.0; 2])
                 .is_err()
@@ -453,5 +460,26 @@ mod tests {
         // The lookup of a wrapper of a wrapper is the outer one's.
         let twice = WithLookup::new(&w, Lookup::Multilinear).unwrap();
         assert_eq!(twice.lookup(), Lookup::Multilinear);
+        // Prefetch hints reach the wrapped source.
+        struct Hinted<S>(S, std::sync::Mutex<Vec<usize>>);
+        impl<S: BrdfSource> BrdfSource for Hinted<S> {
+            fn channels(&self) -> Channels {
+                self.0.channels()
+            }
+            fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+                self.0.eval(wi, wo, out)
+            }
+            fn grid(&self) -> Option<AngularGrid> {
+                self.0.grid()
+            }
+            fn prefetch_cell(&self, a: usize) {
+                self.1.lock().unwrap().push(a);
+            }
+        }
+        let hinted = Hinted(w, std::sync::Mutex::new(Vec::new()));
+        let outer = WithLookup::new(&hinted, Lookup::LogMultilinear).unwrap();
+        outer.prefetch_cell(5);
+        outer.prefetch_cell(9);
+        assert_eq!(*hinted.1.lock().unwrap(), [5, 9]);
     }
 }
