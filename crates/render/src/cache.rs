@@ -12,7 +12,8 @@
 
 use std::sync::OnceLock;
 
-use brdf_io::{AngularGrid, BrdfSource, Channels, HalfDiff, Vec3};
+use brdf_io::lookup::look_up;
+use brdf_io::{AngularGrid, BrdfSource, Channels, HalfDiff, Lookup, Vec3};
 
 /// A lazily predicted material behind a cell cache: each touched cell is predicted once
 /// (N multiply-adds per value) over all renders, nothing else is materialised. Use it to
@@ -83,15 +84,8 @@ impl BrdfSource for CellCache<'_> {
             Some(hd) if wi[2] > 0.0 && wo[2] > 0.0 => hd,
             _ => return Ok(()),
         };
-        for (a, w) in self.grid.interpolation_stencil(&hd) {
-            if w == 0.0 {
-                continue;
-            }
-            for (o, v) in out.iter_mut().zip(self.cell(a)?) {
-                *o += w * v;
-            }
-        }
-        Ok(())
+        let stencil = self.grid.interpolation_stencil(&hd);
+        look_up(Lookup::Multilinear, stencil, |a| self.cell(a), out)
     }
 
     fn grid(&self) -> Option<AngularGrid> {
