@@ -457,6 +457,18 @@ mod tests {
         path
     }
 
+    /// The albedo of grid source `source` from its cells, after checking that it equals the
+    /// pair-by-pair quadrature of its own lookups up to rounding (`name` for messages).
+    fn from_cells_as_pairs(source: &dyn BrdfSource, angles: &[f64], name: &str) -> AlbedoTable {
+        let cells = directional_albedo(source, angles, DEFAULT_RESOLUTION).unwrap();
+        let pairs = directional_albedo(&NoGrid(source), angles, DEFAULT_RESOLUTION).unwrap();
+        assert_eq!(cells.channels, pairs.channels);
+        for (a, b) in cells.values.iter().zip(&pairs.values) {
+            assert!((a - b).abs() <= 1e-12 * b.abs(), "{name}: {a} vs {b}");
+        }
+        cells
+    }
+
     /// A grid source's albedo from its cells (each evaluated once) equals the pair-by-pair
     /// quadrature of its interpolated values up to rounding; a Lambertian grid source reflects
     /// its albedo; the weights of one grid refuse a source on another or none.
@@ -467,12 +479,7 @@ mod tests {
         let angles = [0.0, 35.0, 70.0, 86.0, 89.0];
         for name in ["glossy", "white"] {
             let m = crate::store::StoreMaterial::open(&path, name).unwrap();
-            let cells = directional_albedo(&m, &angles, DEFAULT_RESOLUTION).unwrap();
-            let pairs = directional_albedo(&NoGrid(&m), &angles, DEFAULT_RESOLUTION).unwrap();
-            assert_eq!(cells.channels, pairs.channels);
-            for (a, b) in cells.values.iter().zip(&pairs.values) {
-                assert!((a - b).abs() <= 1e-12 * b.abs(), "{name}: {a} vs {b}");
-            }
+            let cells = from_cells_as_pairs(&m, &angles, name);
             if name == "white" {
                 assert!(
                     cells.values.iter().all(|v| (v - 0.6).abs() < 2e-4),
@@ -514,13 +521,8 @@ mod tests {
         for name in ["glossy", "white"] {
             let m = crate::store::StoreMaterial::open(&path, name).unwrap();
             let log = WithLookup::new(&m, Lookup::LogMultilinear).unwrap();
-            let cells = directional_albedo(&log, &angles, DEFAULT_RESOLUTION).unwrap();
-            let pairs = directional_albedo(&NoGrid(&log), &angles, DEFAULT_RESOLUTION).unwrap();
+            let cells = from_cells_as_pairs(&log, &angles, name);
             let linear = directional_albedo(&m, &angles, DEFAULT_RESOLUTION).unwrap();
-            assert_eq!(cells.channels, pairs.channels);
-            for (a, b) in cells.values.iter().zip(&pairs.values) {
-                assert!((a - b).abs() <= 1e-12 * b.abs(), "{name}: {a} vs {b}");
-            }
             for (k, deg) in angles.iter().enumerate() {
                 for (a, b) in cells.row(k).iter().zip(linear.row(k)) {
                     if name == "white" {
