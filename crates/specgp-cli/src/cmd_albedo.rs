@@ -173,8 +173,14 @@ pub fn albedo(args: &AlbedoArgs) -> anyhow::Result<()> {
             w.last().copied().unwrap_or(0.0)
         ),
     };
+    // Files with their own evaluation are always multilinear here; a grid source looked up
+    // another way says so (the numbers depend on it).
+    let lookup = match source.lookup() {
+        brdf_io::Lookup::Multilinear => String::new(),
+        other => format!("{other} lookups between bin centres; "),
+    };
     print(&format!(
-        "directional albedo of {} ({channels}; {r} x {r} half vectors, {seconds:.2} s)",
+        "directional albedo of {} ({channels}; {lookup}{r} x {r} half vectors, {seconds:.2} s)",
         args.from.source,
         r = args.resolution
     ));

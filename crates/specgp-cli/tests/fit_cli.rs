@@ -3247,6 +3247,21 @@ fn log_lookups_from_the_command_line() {
     }
     let explicit = albedo(&["data.sbrdf:metal_gold", "--lookup", "linear"]);
     assert_eq!(explicit, linear);
+    // The table's header names a lookup other than the default.
+    let header = |lookup: &str| {
+        let args = ["albedo", "data.sbrdf:metal_gold", "--lookup", lookup];
+        specgp(&args, d)
+            .lines()
+            .next()
+            .unwrap_or_default()
+            .to_owned()
+    };
+    let (linear_header, log_header) = (header("linear"), header("log"));
+    assert!(
+        log_header.contains("; log lookups between bin centres; ")
+            && !linear_header.contains("lookups"),
+        "{linear_header} / {log_header}"
+    );
 
     // The written file holds the logarithmic lookups (to the writer's accuracy).
     specgp(
