@@ -65,9 +65,9 @@ impl FromStr for Lookup {
     }
 }
 
-/// ln v where v > 0, NaN otherwise: a cell's logarithms (a NaN marks a channel whose lookup
-/// falls back to the multilinear sum).
-fn cell_logs(values: &[f64], logs: &mut [f64]) {
+/// ln v where v > 0, NaN otherwise, into `logs`: a cell's logarithms as [`cell_record`] keeps
+/// them (a NaN marks a channel whose logarithmic lookup falls back to the multilinear sum).
+pub fn cell_logs(values: &[f64], logs: &mut [f64]) {
     for (l, &v) in logs.iter_mut().zip(values) {
         *l = if v > 0.0 { v.ln() } else { f64::NAN };
     }
