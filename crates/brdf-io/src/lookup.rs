@@ -95,21 +95,29 @@ pub fn cell_record(lookup: Lookup, values: &[f64]) -> Box<[f64]> {
 /// positive, the multilinear sum in the others.
 pub fn combine(lookup: Lookup, cells: &[(&[f64], f64)], out: &mut [f64]) {
     let m = out.len();
-    for (k, o) in out.iter_mut().enumerate() {
-        let mut linear = 0.0;
+    // Cell by cell over all channels (a loop that vectorises); each channel's terms in stencil
+    // order either way.
+    let weighted_sums = |offset: usize, out: &mut [f64]| {
+        out.fill(0.0);
         for &(record, w) in cells {
-            linear += w * record[k];
+            let part = &record[offset..offset + m];
+            out.iter_mut().zip(part).for_each(|(o, v)| *o += w * v);
         }
-        *o = match lookup {
-            Lookup::Multilinear => linear,
-            Lookup::LogMultilinear => {
-                let mut log = 0.0;
-                for &(record, w) in cells {
-                    log += w * record[m + k];
-                }
-                if log.is_nan() { linear } else { log.exp() }
+    };
+    match lookup {
+        Lookup::Multilinear => weighted_sums(0, out),
+        Lookup::LogMultilinear => {
+            weighted_sums(m, out);
+            for (k, o) in out.iter_mut().enumerate() {
+                *o = if o.is_nan() {
+                    cells
+                        .iter()
+                        .fold(0.0, |linear, &(record, w)| linear + w * record[k])
+                } else {
+                    o.exp()
+                };
             }
-        };
+        }
     }
 }
 
