@@ -25,12 +25,11 @@ use std::sync::{Arc, Mutex, PoisonError};
 
 use brdf_io::lookup::cell_logs;
 use brdf_io::{AngularGrid, BrdfSource, HalfDiff, Lookup, Vec3};
-use gp_core::fastmath::exp_lanes;
 use rayon::prelude::*;
 
 use super::{
-    ENV_TABLE_MAX_DEGREES, EnvTable, EnvTableSpec, Sight, SphereOptions, basis, cell_place,
-    check_finite, colour_weights, dot, project,
+    ENV_TABLE_MAX_DEGREES, EnvTable, EnvTableSpec, LogCell, Sight, SphereOptions, basis,
+    cell_place, check_finite, colour_weights, dot, log_combine, project,
 };
 use crate::error::Result;
 use crate::image::Image;
@@ -243,7 +242,7 @@ enum Cells {
     /// Logarithmic lookups ([`Lookup::LogMultilinear`]), which are not linear in the cells:
     /// each cell's needed channels and their logarithms ([`cell_logs`]), apart (a lookup reads
     /// the logarithms, the values only where one is NaN: fewer bytes and cache lines per
-    /// lookup); a lookup combines them channel by channel ([`log_lookup`]) and projects the
+    /// lookup); a lookup combines them channel by channel ([`log_combine`]) and projects the
     /// result.
     Logs {
         /// Needed channels per cell.
@@ -283,8 +282,19 @@ impl Cells {
                 }
                 rgb
             }
-            Cells::Logs { values, logs, .. } => {
-                log_lookup(s, values, logs, &mut scratch.f);
+            Cells::Logs { m, values, logs } => {
+                fn cell(v: &[f64], a: u32, m: usize) -> &[f64] {
+                    &v[a as usize * m..(a as usize + 1) * m]
+                }
+                let mut cells: [LogCell; 8] = [(&[], &[], 0.0); 8];
+                let mut n = 0;
+                for &(a, w) in s {
+                    if w != 0.0 {
+                        cells[n] = (cell(values, a, *m), cell(logs, a, *m), w);
+                        n += 1;
+                    }
+                }
+                log_combine(&cells[..n], &mut scratch.f);
                 // `project`'s sums, the three rows in one pass (each row's terms in the same
                 // order); negative values count as 0.
                 let mut rgb = [0.0; 3];
@@ -440,170 +450,4 @@ pub fn clear_plans() {
 #[cfg(test)]
 pub(super) fn cached_plans() -> usize {
     CACHE.lock().unwrap_or_else(PoisonError::into_inner).len()
-}
-
-/// The logarithmic lookup of stencil `s` into `out` from the cells' `values` and `logs`
-/// ([`Cells::Logs`], `out.len()` channels per cell): [`brdf_io::lookup::combine`]'s rule, exp of
-/// the weighted sum of logarithms per channel, the weighted sum of values where a weighted
-/// cell's logarithm is NaN (its value is not positive); `exp_lanes` for the exponentials (the
-/// source's own lookup to rounding). Compiled for AVX2 + FMA as well and chosen at run time;
-/// the same arithmetic, so the same bits, in every build.
-fn log_lookup(s: &Stencil, values: &[f64], logs: &[f64], out: &mut [f64]) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-        // SAFETY: the CPU supports AVX2 and FMA (checked just above), the only requirement
-        // of a `#[target_feature]` function.
-        unsafe { log_lookup_avx2(s, values, logs, out) };
-        return;
-    }
-    log_lookup_portable(s, values, logs, out);
-}
-
-/// [`log_lookup`] compiled for AVX2 + FMA (4 lanes instead of SSE2's 2, and no library call
-/// per rounding in `exp_lanes`).
-///
-/// # Safety
-/// The CPU must support AVX2 and FMA.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn log_lookup_avx2(s: &Stencil, values: &[f64], logs: &[f64], out: &mut [f64]) {
-    log_lookup_portable(s, values, logs, out);
-}
-
-/// [`log_lookup`]'s arithmetic (inlined into each build).
-#[inline(always)]
-fn log_lookup_portable(s: &Stencil, values: &[f64], logs: &[f64], out: &mut [f64]) {
-    let m = out.len();
-    fn cell(v: &[f64], a: u32, m: usize) -> &[f64] {
-        &v[a as usize * m..(a as usize + 1) * m]
-    }
-    out.fill(0.0);
-    for &(a, w) in s {
-        if w != 0.0 {
-            out.iter_mut()
-                .zip(cell(logs, a, m))
-                .for_each(|(o, g)| *o += w * g);
-        }
-    }
-    let mut fallback = false;
-    for o in out.iter_mut() {
-        fallback |= o.is_nan();
-        *o = exp_lanes(*o);
-    }
-    if fallback {
-        for (k, o) in out.iter_mut().enumerate() {
-            if o.is_nan() {
-                *o = 0.0;
-                for &(a, w) in s {
-                    if w != 0.0 {
-                        *o += w * cell(values, a, m)[k];
-                    }
-                }
-            }
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Every build of [`log_lookup`] gives the same bits, and they are `combine`'s rule to
-    /// rounding: exp of the weighted log sums, the weighted sums of values in channels where a
-    /// weighted cell is not positive (zero weights skip their cells, NaN logarithms included).
-    #[test]
-    fn log_lookups_follow_combine_in_every_build() {
-        let m = 11;
-        let n_cells = 12;
-        // Values over six decades; cell 3 has a zero, cell 5 a negative value, cell 7 (given
-        // zero weight below) a zero in every channel.
-        let mut values: Vec<f64> = (0..n_cells * m)
-            .map(|i| 10f64.powf(((i * 37) % 61) as f64 / 10.0 - 3.0))
-            .collect();
-        values[3 * m + 2] = 0.0;
-        values[5 * m + 4] = -0.25;
-        values[7 * m..8 * m].fill(0.0);
-        let mut logs = vec![0.0; values.len()];
-        for (v, l) in values.chunks_exact(m).zip(logs.chunks_exact_mut(m)) {
-            cell_logs(v, l);
-        }
-        let stencils: [Stencil; 3] = [
-            [0, 1, 2, 4, 6, 8, 9, 10].map(|a| (a, 0.125)),
-            [
-                (3, 0.3),
-                (1, 0.2),
-                (5, 0.1),
-                (2, 0.1),
-                (4, 0.1),
-                (6, 0.1),
-                (8, 0.05),
-                (9, 0.05),
-            ],
-            [
-                (7, 0.0),
-                (3, 0.5),
-                (11, 0.5),
-                (7, 0.0),
-                (0, 0.0),
-                (0, 0.0),
-                (0, 0.0),
-                (0, 0.0),
-            ],
-        ];
-        for s in &stencils {
-            let mut portable = vec![0.0; m];
-            log_lookup_portable(s, &values, &logs, &mut portable);
-            let mut dispatched = vec![0.0; m];
-            log_lookup(s, &values, &logs, &mut dispatched);
-            assert_eq!(
-                portable.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-                dispatched.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
-            );
-            #[cfg(target_arch = "x86_64")]
-            if std::arch::is_x86_feature_detected!("avx2")
-                && std::arch::is_x86_feature_detected!("fma")
-            {
-                let mut avx2 = vec![0.0; m];
-                // SAFETY: AVX2 and FMA checked just above.
-                unsafe { log_lookup_avx2(s, &values, &logs, &mut avx2) };
-                assert_eq!(
-                    portable.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-                    avx2.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
-                );
-            }
-            let record = |a: u32| {
-                let a = a as usize;
-                [&values[a * m..(a + 1) * m], &logs[a * m..(a + 1) * m]].concat()
-            };
-            let records: Vec<(Vec<f64>, f64)> = s
-                .iter()
-                .filter(|(_, w)| *w != 0.0)
-                .map(|&(a, w)| (record(a), w))
-                .collect();
-            let cells: Vec<(&[f64], f64)> = records.iter().map(|(r, w)| (&r[..], *w)).collect();
-            let mut want = vec![0.0; m];
-            brdf_io::lookup::combine(Lookup::LogMultilinear, &cells, &mut want);
-            for (k, (got, want)) in portable.iter().zip(&want).enumerate() {
-                assert!(
-                    (got - want).abs() <= 4.0 * f64::EPSILON * want.abs(),
-                    "channel {k}: {got} vs {want}"
-                );
-            }
-        }
-        // The second stencil's channels 2 (a zero) and 4 (a negative value) are the multilinear
-        // sums; the third's channel 2 too (cell 7's zeros have zero weight).
-        let mut out = vec![0.0; m];
-        log_lookup(&stencils[1], &values, &logs, &mut out);
-        let linear = |s: &Stencil, k: usize| {
-            s.iter()
-                .filter(|(_, w)| *w != 0.0)
-                .fold(0.0, |acc, &(a, w)| acc + w * values[a as usize * m + k])
-        };
-        assert_eq!(out[2], linear(&stencils[1], 2));
-        assert_eq!(out[4], linear(&stencils[1], 4));
-        assert!((out[0] - linear(&stencils[1], 0)).abs() > 1e-6 * out[0]);
-        log_lookup(&stencils[2], &values, &logs, &mut out);
-        assert_eq!(out[2], linear(&stencils[2], 2));
-        assert!(out.iter().all(|v| v.is_finite()));
-    }
 }
