@@ -9,9 +9,9 @@
 //! then evaluates exactly those cells once ([`BrdfSource::eval_cell`], in index order, in
 //! parallel), projects them to linear sRGB and combines them: a few multiply-adds per pixel.
 //! A source whose [`BrdfSource::lookup`] is not multilinear keeps each cell's needed channels
-//! and their logarithms instead; its lookups combine them channel by channel, then project
-//! (equal to the per-pixel shader's to rounding: the plan takes its exponentials with
-//! `exp_lanes`, relative error below 1e-15).
+//! and their logarithms instead; its lookups combine them channel by channel with the
+//! per-pixel shader's kernel (`log_combine`: the source's own lookup to rounding, exponentials
+//! by `exp_lanes` with relative error below 1e-15), then project.
 //!
 //! Only images up to [`MAX_CACHED_PIXELS`] pixels are rendered through plans (larger ones are
 //! shaded directly, faster and in a fraction of the memory), and the plans of recent scenes (up
