@@ -17,6 +17,8 @@
 //! crowd towards the mirror direction, so a sharp specular peak is integrated as well as a
 //! broad lobe ([`AlbedoNodes`]). The RGL writer checks its files with the same nodes.
 
+use std::sync::OnceLock;
+
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
@@ -243,6 +245,31 @@ pub struct GridAlbedo {
     resolution: usize,
     /// Every cell any elevation touches, once, by index: (cell, its (elevation, weight)s).
     cells: Vec<(usize, Vec<(usize, f64)>)>,
+    /// Each elevation's nodes for lookups that are not multilinear, made by the first such
+    /// table when there are at most [`MAX_CACHED_NODES`] nodes in all.
+    node_stencils: NodeStencils,
+}
+
+/// A quadrature node of [`GridAlbedo`]'s tables by lookup: its weight and its stencil as
+/// (position in [`GridAlbedo`]'s `cells`, weight) pairs (position 0 where the weight is 0).
+type NodeStencil = (f64, [(u32, f64); 8]);
+
+/// Most nodes (elevations x resolution^2) whose stencils a [`GridAlbedo`] keeps for the tables
+/// of sources looked up logarithmically (136 B each: at most ~36 MB; the pipeline's 8 x 96 x 96
+/// take 10 MB). Every such table then skips the nodes' directions, half/difference angles and
+/// stencils (sin/cos, acos, atan2: ~15 % of a `lookup = "log"` pipeline's samples before); more
+/// nodes (e.g. `specgp albedo --resolution 1024`, one source) are computed per table instead.
+const MAX_CACHED_NODES: usize = 1 << 18;
+
+/// [`GridAlbedo`]'s cached [`NodeStencil`]s per elevation: derived from its other fields, so
+/// they take no part in comparisons.
+#[derive(Debug, Clone, Default)]
+struct NodeStencils(OnceLock<Vec<Vec<NodeStencil>>>);
+
+impl PartialEq for NodeStencils {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
 }
 
 /// Cells per parallel task of [`GridAlbedo::table`] (fixed, so the sums' order, hence their
@@ -271,6 +298,7 @@ impl GridAlbedo {
             angles_deg: angles_deg.to_vec(),
             resolution,
             cells,
+            node_stencils: NodeStencils::default(),
         })
     }
 
@@ -292,7 +320,7 @@ impl GridAlbedo {
             });
         }
         if source.lookup() != Lookup::Multilinear {
-            return self.table_by_nodes(source);
+            return self.table_by_nodes(source, MAX_CACHED_NODES);
         }
         let channels = source.channels();
         let nc = channels.len();
@@ -327,8 +355,13 @@ impl GridAlbedo {
     }
 
     /// [`GridAlbedo::table`] of a source whose lookup is not multilinear: every touched cell
-    /// evaluated once, then each elevation's nodes looked up from them.
-    fn table_by_nodes(&self, source: &dyn BrdfSource) -> Result<AlbedoTable> {
+    /// evaluated once, then each elevation's nodes looked up from them (their stencils kept
+    /// for later tables when there are at most `max_cached_nodes`).
+    fn table_by_nodes(
+        &self,
+        source: &dyn BrdfSource,
+        max_cached_nodes: usize,
+    ) -> Result<AlbedoTable> {
         let channels = source.channels();
         let nc = channels.len();
         let lookup = source.lookup();
@@ -347,23 +380,31 @@ impl GridAlbedo {
             })
             .collect::<Result<Vec<_>>>()?
             .concat();
-        let mut slot = vec![usize::MAX; self.grid.len()];
-        for (i, (a, _)) in self.cells.iter().enumerate() {
-            slot[*a] = i;
-        }
+        let n_nodes = self.angles_deg.len() * self.resolution.saturating_mul(self.resolution);
+        let cached = (n_nodes <= max_cached_nodes).then(|| {
+            self.node_stencils.0.get_or_init(|| {
+                (0..self.angles_deg.len())
+                    .into_par_iter()
+                    .map(|k| self.node_stencils(k))
+                    .collect()
+            })
+        });
         let mut rows = vec![0.0; self.angles_deg.len() * nc];
         rows.par_chunks_mut(nc.max(1))
-            .zip(&self.angles_deg)
-            .for_each(|(row, deg)| {
-                let nodes = AlbedoNodes::new(deg.to_radians(), self.resolution);
+            .enumerate()
+            .for_each(|(k, row)| {
+                let fresh;
+                let nodes = match cached {
+                    Some(cached) => &cached[k],
+                    None => {
+                        fresh = self.node_stencils(k);
+                        &fresh
+                    }
+                };
                 let mut f = vec![0.0; nc];
-                for &(wo, w) in nodes.nodes() {
-                    let Some(hd) = HalfDiff::from_dirs(nodes.wi(), wo) else {
-                        continue;
-                    };
-                    let stencil = self.grid.interpolation_stencil(&hd);
-                    let record =
-                        |a: usize| Ok::<_, std::convert::Infallible>(&records[slot[a]][..]);
+                for (w, stencil) in nodes {
+                    let stencil = stencil.iter().map(|&(i, s)| (i as usize, s));
+                    let record = |i: usize| Ok::<_, std::convert::Infallible>(&records[i][..]);
                     let Ok(()) = look_up(lookup, stencil, record, &mut f);
                     for (r, v) in row.iter_mut().zip(&f) {
                         *r += w * v;
@@ -375,6 +416,28 @@ impl GridAlbedo {
             channels,
             values: rows,
         })
+    }
+
+    /// The nodes of elevation `k` (those with half/difference angles) as [`NodeStencil`]s, in
+    /// the order of [`AlbedoNodes::nodes`].
+    fn node_stencils(&self, k: usize) -> Vec<NodeStencil> {
+        let mut position = vec![u32::MAX; self.grid.len()];
+        for (i, (a, _)) in self.cells.iter().enumerate() {
+            position[*a] = i as u32;
+        }
+        let nodes = AlbedoNodes::new(self.angles_deg[k].to_radians(), self.resolution);
+        nodes
+            .nodes()
+            .iter()
+            .filter_map(|&(wo, w)| {
+                let hd = HalfDiff::from_dirs(nodes.wi(), wo)?;
+                let stencil = self.grid.interpolation_stencil(&hd);
+                Some((
+                    w,
+                    stencil.map(|(a, s)| (if s != 0.0 { position[a] } else { 0 }, s)),
+                ))
+            })
+            .collect()
     }
 }
 
@@ -534,6 +597,41 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A logarithmic table through the cached node stencils (filled by the first table, read by
+    /// the later ones) has the bits of one whose nodes are computed afresh; a filled cache
+    /// changes no comparison.
+    #[test]
+    fn cached_node_stencils_give_the_same_tables() {
+        use crate::lookup::{Lookup, WithLookup};
+        let dir = tempfile::tempdir().unwrap();
+        let path = store(dir.path());
+        let angles = [0.0, 35.0, 70.0, 86.0, 89.0];
+        let grid = AngularGrid::new(8, 8, 16).unwrap();
+        let cached = GridAlbedo::new(&grid, &angles, 24).unwrap();
+        let unfilled = cached.clone();
+        let fresh = GridAlbedo::new(&grid, &angles, 24).unwrap();
+        let bits = |t: &AlbedoTable| t.values.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        for name in ["glossy", "white", "glossy"] {
+            let m = crate::store::StoreMaterial::open(&path, name).unwrap();
+            let log = WithLookup::new(&m, Lookup::LogMultilinear).unwrap();
+            let through_cache = cached.table_by_nodes(&log, usize::MAX).unwrap();
+            let afresh = fresh.table_by_nodes(&log, 0).unwrap();
+            assert_eq!(bits(&through_cache), bits(&afresh), "{name}");
+            assert_eq!(bits(&through_cache), bits(&cached.table(&log).unwrap()));
+        }
+        assert!(cached.node_stencils.0.get().is_some() && fresh.node_stencils.0.get().is_none());
+        assert_eq!(cached, unfilled);
+        let nodes: usize = cached
+            .node_stencils
+            .0
+            .get()
+            .unwrap()
+            .iter()
+            .map(Vec::len)
+            .sum();
+        assert!(nodes > angles.len() * 24 * 24 / 4, "{nodes}");
     }
 
     /// The peak is the first of equal largest values, in elevation then channel order.
