@@ -662,6 +662,27 @@ fn project(weights: &[Vec<f64>; 3], needed: &[usize], acc: &[f64], k: f64) -> [f
 /// ([`brdf_io::lookup::cell_logs`]: NaN where a value is not positive) and its weight.
 type LogCell<'a> = (&'a [f64], &'a [f64], f64);
 
+/// The logarithmic lookup of the weighted cells of `stencil` (at most 8 (cell, weight) pairs;
+/// zero weights skipped) into `out`, with `cell(a)` giving cell a's values and logarithms
+/// (each at most once per lookup): `brdf_io::lookup::look_up`'s gathering, [`log_combine`].
+fn log_look_up<'c, E>(
+    stencil: impl IntoIterator<Item = (usize, f64)>,
+    mut cell: impl FnMut(usize) -> std::result::Result<(&'c [f64], &'c [f64]), E>,
+    out: &mut [f64],
+) -> std::result::Result<(), E> {
+    let mut weighted: [LogCell; 8] = [(&[], &[], 0.0); 8];
+    let mut n = 0;
+    for (a, w) in stencil {
+        if w != 0.0 {
+            let (values, logs) = cell(a)?;
+            weighted[n] = (values, logs, w);
+            n += 1;
+        }
+    }
+    log_combine(&weighted[..n], out);
+    Ok(())
+}
+
 /// The logarithmic lookup of the weighted `cells` (non-zero weights, in stencil order) into
 /// `out`: [`brdf_io::lookup::combine`]'s rule, exp of the weighted sum of logarithms per
 /// channel, the weighted sum of values where a cell's logarithm is NaN; `exp_lanes` for the
@@ -1138,17 +1159,7 @@ impl<'a> Shader<'a> {
             cell.map(|r| &r[..])
         };
         if lookup == Lookup::LogMultilinear {
-            // `look_up`'s gathering, `combine`'s rule with vectorised exponentials.
-            let mut weighted: [LogCell; 8] = [(&[], &[], 0.0); 8];
-            let mut n = 0;
-            for (a, w) in stencil {
-                if w != 0.0 {
-                    let (v, logs) = record(a)?.split_at(m);
-                    weighted[n] = (v, logs, w);
-                    n += 1;
-                }
-            }
-            log_combine(&weighted[..n], values);
+            log_look_up(stencil, |a| record(a).map(|r| r.split_at(m)), values)?;
         } else {
             look_up(lookup, stencil, record, values)?;
         }

@@ -10,7 +10,7 @@
 //! parallel), projects them to linear sRGB and combines them: a few multiply-adds per pixel.
 //! A source whose [`BrdfSource::lookup`] is not multilinear keeps each cell's needed channels
 //! and their logarithms instead; its lookups combine them channel by channel with the
-//! per-pixel shader's kernel (`log_combine`: the source's own lookup to rounding, exponentials
+//! per-pixel shader's kernel (`log_look_up`: the source's own lookup to rounding, exponentials
 //! by `exp_lanes` with relative error below 1e-15), then project.
 //!
 //! Only images up to [`MAX_CACHED_PIXELS`] pixels are rendered through plans (larger ones are
@@ -21,6 +21,7 @@
 //! the per-pixel shader's, in the same order: planned and unplanned renders are identical
 //! (under multilinear lookups; to rounding under others, see above).
 
+use std::convert::Infallible;
 use std::sync::{Arc, Mutex, PoisonError};
 
 use brdf_io::lookup::cell_logs;
@@ -28,8 +29,8 @@ use brdf_io::{AngularGrid, BrdfSource, HalfDiff, Lookup, Vec3};
 use rayon::prelude::*;
 
 use super::{
-    ENV_TABLE_MAX_DEGREES, EnvTable, EnvTableSpec, LogCell, Sight, SphereOptions, basis,
-    cell_place, check_finite, colour_weights, dot, log_combine, project,
+    ENV_TABLE_MAX_DEGREES, EnvTable, EnvTableSpec, Sight, SphereOptions, basis, cell_place,
+    check_finite, colour_weights, dot, log_look_up, project,
 };
 use crate::error::Result;
 use crate::image::Image;
@@ -242,7 +243,7 @@ enum Cells {
     /// Logarithmic lookups ([`Lookup::LogMultilinear`]), which are not linear in the cells:
     /// each cell's needed channels and their logarithms ([`cell_logs`]), apart (a lookup reads
     /// the logarithms, the values only where one is NaN: fewer bytes and cache lines per
-    /// lookup); a lookup combines them channel by channel ([`log_combine`]) and projects the
+    /// lookup); a lookup combines them channel by channel ([`log_look_up`]) and projects the
     /// result.
     Logs {
         /// Needed channels per cell.
@@ -283,18 +284,12 @@ impl Cells {
                 rgb
             }
             Cells::Logs { m, values, logs } => {
-                fn cell(v: &[f64], a: u32, m: usize) -> &[f64] {
-                    &v[a as usize * m..(a as usize + 1) * m]
-                }
-                let mut cells: [LogCell; 8] = [(&[], &[], 0.0); 8];
-                let mut n = 0;
-                for &(a, w) in s {
-                    if w != 0.0 {
-                        cells[n] = (cell(values, a, *m), cell(logs, a, *m), w);
-                        n += 1;
-                    }
-                }
-                log_combine(&cells[..n], &mut scratch.f);
+                let stencil = s.iter().map(|&(a, w)| (a as usize, w));
+                let cell = |a: usize| {
+                    let at = a * m..(a + 1) * m;
+                    Ok::<_, Infallible>((&values[at.clone()], &logs[at]))
+                };
+                let Ok(()) = log_look_up(stencil, cell, &mut scratch.f);
                 // `project`'s sums, the three rows in one pass (each row's terms in the same
                 // order); negative values count as 0.
                 let mut rgb = [0.0; 3];
