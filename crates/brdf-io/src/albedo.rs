@@ -380,15 +380,29 @@ impl GridAlbedo {
             })
             .collect::<Result<Vec<_>>>()?
             .concat();
+        // Each touched cell's position in `cells` (and so in `records`), by flat index.
+        let positions = || {
+            let mut position = vec![u32::MAX; self.grid.len()];
+            for (i, (a, _)) in self.cells.iter().enumerate() {
+                position[*a] = i as u32;
+            }
+            position
+        };
         let n_nodes = self.angles_deg.len() * self.resolution.saturating_mul(self.resolution);
         let cached = (n_nodes <= max_cached_nodes).then(|| {
             self.node_stencils.0.get_or_init(|| {
+                let position = positions();
                 (0..self.angles_deg.len())
                     .into_par_iter()
-                    .map(|k| self.node_stencils(k))
+                    .map(|k| self.node_stencils(k, &position))
                     .collect()
             })
         });
+        let position = if cached.is_none() {
+            positions()
+        } else {
+            Vec::new()
+        };
         let mut rows = vec![0.0; self.angles_deg.len() * nc];
         rows.par_chunks_mut(nc.max(1))
             .enumerate()
@@ -397,7 +411,7 @@ impl GridAlbedo {
                 let nodes = match cached {
                     Some(cached) => &cached[k],
                     None => {
-                        fresh = self.node_stencils(k);
+                        fresh = self.node_stencils(k, &position);
                         &fresh
                     }
                 };
@@ -419,12 +433,9 @@ impl GridAlbedo {
     }
 
     /// The nodes of elevation `k` (those with half/difference angles) as [`NodeStencil`]s, in
-    /// the order of [`AlbedoNodes::nodes`].
-    fn node_stencils(&self, k: usize) -> Vec<NodeStencil> {
-        let mut position = vec![u32::MAX; self.grid.len()];
-        for (i, (a, _)) in self.cells.iter().enumerate() {
-            position[*a] = i as u32;
-        }
+    /// the order of [`AlbedoNodes::nodes`] (`position`: each touched cell's position in
+    /// `cells`, by flat index).
+    fn node_stencils(&self, k: usize, position: &[u32]) -> Vec<NodeStencil> {
         let nodes = AlbedoNodes::new(self.angles_deg[k].to_radians(), self.resolution);
         nodes
             .nodes()
