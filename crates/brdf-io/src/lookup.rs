@@ -127,19 +127,31 @@ pub fn combine(lookup: Lookup, cells: &[(&[f64], f64)], out: &mut [f64]) {
 pub fn look_up<'r, E>(
     lookup: Lookup,
     stencil: impl IntoIterator<Item = (usize, f64)>,
-    mut record: impl FnMut(usize) -> std::result::Result<&'r [f64], E>,
+    record: impl FnMut(usize) -> std::result::Result<&'r [f64], E>,
     out: &mut [f64],
 ) -> std::result::Result<(), E> {
-    let mut cells: [(&[f64], f64); 8] = [(&[], 0.0); 8];
+    let (cells, k) = weighted_cells(stencil, record)?;
+    combine(lookup, &cells[..k], out);
+    Ok(())
+}
+
+/// The weighted cells of `stencil` (an interpolation stencil: at most 8 flat cell index and
+/// weight pairs) as (`cell(a)`, weight) pairs in stencil order, zero weights skipped (`cell` is
+/// called once per weighted cell), and how many there are: [`look_up`]'s gathering, for
+/// consumers that combine cells their own way.
+pub fn weighted_cells<C: Copy + Default, E>(
+    stencil: impl IntoIterator<Item = (usize, f64)>,
+    mut cell: impl FnMut(usize) -> std::result::Result<C, E>,
+) -> std::result::Result<([(C, f64); 8], usize), E> {
+    let mut cells = [(C::default(), 0.0); 8];
     let mut k = 0;
     for (a, w) in stencil {
         if w != 0.0 {
-            cells[k] = (record(a)?, w);
+            cells[k] = (cell(a)?, w);
             k += 1;
         }
     }
-    combine(lookup, &cells[..k], out);
-    Ok(())
+    Ok((cells, k))
 }
 
 /// A grid source looked up with another [`Lookup`]: the same cells ([`BrdfSource::eval_cell`]),

@@ -658,27 +658,19 @@ fn project(weights: &[Vec<f64>; 3], needed: &[usize], acc: &[f64], k: f64) -> [f
     })
 }
 
-/// One weighted cell of a logarithmic lookup: its needed channels' values, their logarithms
-/// ([`brdf_io::lookup::cell_logs`]: NaN where a value is not positive) and its weight.
-type LogCell<'a> = (&'a [f64], &'a [f64], f64);
+/// One weighted cell of a logarithmic lookup: (its needed channels' values, their logarithms
+/// ([`brdf_io::lookup::cell_logs`]: NaN where a value is not positive)) and its weight.
+type LogCell<'a> = ((&'a [f64], &'a [f64]), f64);
 
 /// The logarithmic lookup of the weighted cells of `stencil` (at most 8 (cell, weight) pairs;
 /// zero weights skipped) into `out`, with `cell(a)` giving cell a's values and logarithms
-/// (each at most once per lookup): `brdf_io::lookup::look_up`'s gathering, [`log_combine`].
+/// (each at most once per lookup): [`brdf_io::lookup::weighted_cells`], [`log_combine`].
 fn log_look_up<'c, E>(
     stencil: impl IntoIterator<Item = (usize, f64)>,
-    mut cell: impl FnMut(usize) -> std::result::Result<(&'c [f64], &'c [f64]), E>,
+    cell: impl FnMut(usize) -> std::result::Result<(&'c [f64], &'c [f64]), E>,
     out: &mut [f64],
 ) -> std::result::Result<(), E> {
-    let mut weighted: [LogCell; 8] = [(&[], &[], 0.0); 8];
-    let mut n = 0;
-    for (a, w) in stencil {
-        if w != 0.0 {
-            let (values, logs) = cell(a)?;
-            weighted[n] = (values, logs, w);
-            n += 1;
-        }
-    }
+    let (weighted, n) = brdf_io::lookup::weighted_cells(stencil, cell)?;
     log_combine(&weighted[..n], out);
     Ok(())
 }
@@ -714,7 +706,7 @@ unsafe fn log_combine_avx2(cells: &[LogCell<'_>], out: &mut [f64]) {
 #[inline(always)]
 fn log_combine_portable(cells: &[LogCell<'_>], out: &mut [f64]) {
     out.fill(0.0);
-    for &(_, logs, w) in cells {
+    for &((_, logs), w) in cells {
         out.iter_mut().zip(logs).for_each(|(o, g)| *o += w * g);
     }
     let mut fallback = false;
@@ -727,7 +719,7 @@ fn log_combine_portable(cells: &[LogCell<'_>], out: &mut [f64]) {
             if o.is_nan() {
                 *o = cells
                     .iter()
-                    .fold(0.0, |sum, &(values, _, w)| sum + w * values[k]);
+                    .fold(0.0, |sum, &((values, _), w)| sum + w * values[k]);
             }
         }
     }
@@ -3290,7 +3282,7 @@ mod tests {
         ];
         let mut outs = Vec::new();
         for s in &stencils {
-            let cells: Vec<LogCell> = s.iter().map(|&(a, w)| (cell(a).0, cell(a).1, w)).collect();
+            let cells: Vec<LogCell> = s.iter().map(|&(a, w)| (cell(a), w)).collect();
             let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             let mut portable = vec![0.0; m];
             log_combine_portable(&cells, &mut portable);
