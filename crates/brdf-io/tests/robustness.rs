@@ -536,7 +536,7 @@ mod store {
     use std::path::{Path, PathBuf};
     use std::sync::Arc;
 
-    use brdf_io::store::{Compression, Dtype, OpenOptions, ReadMode, StoreMaterial};
+    use brdf_io::store::{Compression, Dtype, OpenOptions, Paging, ReadMode, StoreMaterial};
     use brdf_io::{AngularGrid, Channels, Error, Store, StoreInfo, StoreOptions, StoreWriter};
     use proptest::prelude::*;
 
@@ -609,17 +609,24 @@ mod store {
         }
     }
 
-    /// Opens the store at `path` memory-mapped and with positioned reads, and reads it through
+    /// Opens the store at `path` memory-mapped (paged as the kernel likes, and on demand) and
+    /// with positioned reads, and reads it through
     /// every read path: the checksum, each chunk (decoded and borrowed), the sequential and
     /// parallel passes, every index's N values, ranges, every material's row, and lookups of
     /// a stored material (every cell, and one direction pair). No read may panic; every error
     /// must name the file; values read are compared with `want` (the values written).
     pub(super) fn exercise(path: &Path, want: &[Vec<f32>]) -> Outcome {
         let mut out = Outcome::default();
-        for mode in [ReadMode::Mmap, ReadMode::Buffered] {
+        let reads = [
+            (ReadMode::Mmap, Paging::ReadAround),
+            (ReadMode::Mmap, Paging::OnDemand),
+            (ReadMode::Buffered, Paging::Auto),
+        ];
+        for (mode, paging) in reads {
             let options = OpenOptions {
                 mode,
                 cache_chunks: 4,
+                paging,
             };
             let Some(store) = out.note(path, "open", Store::open_with(path, options)) else {
                 continue;

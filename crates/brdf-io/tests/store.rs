@@ -2,7 +2,9 @@
 
 use std::path::{Path, PathBuf};
 
-use brdf_io::store::{Compression, Dtype, OpenOptions, ReadMode, StoreHeader, StoreMaterial};
+use brdf_io::store::{
+    Compression, Dtype, OpenOptions, Paging, ReadMode, StoreHeader, StoreMaterial,
+};
 use brdf_io::{AngularGrid, Channels, Error, Store, StoreInfo, StoreOptions, StoreWriter};
 use proptest::prelude::*;
 
@@ -56,6 +58,14 @@ fn write_materials(
     w.finish()
 }
 
+/// The ways a store can be read: a memory map paged as the kernel likes or on demand, and
+/// positioned reads. Every read gives the same values whichever is used.
+const READS: [(ReadMode, Paging); 3] = [
+    (ReadMode::Mmap, Paging::ReadAround),
+    (ReadMode::Mmap, Paging::OnDemand),
+    (ReadMode::Buffered, Paging::Auto),
+];
+
 fn read_all(store: &Store) -> Vec<Vec<f32>> {
     let n = store.n_materials();
     (0..n)
@@ -97,15 +107,17 @@ fn round_trip_material_mode_all_read_paths() {
         };
         let header = write_materials(&path, &info, &rows, options, 11).unwrap();
         assert_eq!(header.layout.n_chunks, info.d().div_ceil(7));
-        for mode in [ReadMode::Mmap, ReadMode::Buffered] {
+        for (mode, paging) in READS {
             let store = Store::open_with(
                 &path,
                 OpenOptions {
                     mode,
                     cache_chunks: 2,
+                    paging,
                 },
             )
             .unwrap();
+            assert_eq!(store.paged_on_demand(), paging == Paging::OnDemand);
             store.verify_checksum().unwrap();
             assert_eq!(store.n_materials(), 5);
             assert_eq!(store.d(), 4 * 5 * 6 * 3);
@@ -1501,8 +1513,9 @@ proptest! {
             };
             write_materials(&path, &info, &rows, opts, 7).unwrap();
             let full = read_all(&Store::open(&path).unwrap());
-            for mode in [ReadMode::Mmap, ReadMode::Buffered] {
-                let store = Store::open_with(&path, OpenOptions { mode, cache_chunks: 1 }).unwrap();
+            for (mode, paging) in READS {
+                let options = OpenOptions { mode, cache_chunks: 1, paging };
+                let store = Store::open_with(&path, options).unwrap();
                 let how = format!("{compression:?} {dtype:?} {mode:?}");
                 for r in &ranges {
                     for (m, row) in full.iter().enumerate() {

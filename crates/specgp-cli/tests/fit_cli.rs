@@ -618,6 +618,71 @@ fn sample_writes_csv_to_stdout_with_a_dash() {
     );
 }
 
+/// `SPECGP_PAGING` chooses how stores are paged in from the disk: lookups, renders, fits and
+/// materialised predictions give the same bytes whichever is chosen, and a value that is not
+/// one of the three is refused naming the variable and the store.
+#[test]
+fn store_paging_from_the_environment_changes_no_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    fitted_small(d, "400:700:100");
+    std::fs::write(d.join("dirs.csv"), "0,0,1,0,0,1\n0.6,0,0.8,0.1,0.2,0.97\n").unwrap();
+    let with = |paging: &str, args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_specgp"))
+            .args(args)
+            .current_dir(d)
+            .env("SPECGP_PAGING", paging)
+            .output()
+            .expect("run specgp")
+    };
+    let commands: [&[&str]; 4] = [
+        &[
+            "sample",
+            "m.toml@0.1,-0.2",
+            "--dirs",
+            "dirs.csv",
+            "--out",
+            "-",
+        ],
+        &[
+            "render",
+            "m.toml@0.1,-0.2",
+            "--size",
+            "32",
+            "--out",
+            "s.png",
+        ],
+        &["fit", "data.sbrdf", "--out", "f.toml", "--latent-dim", "2"],
+        &["predict", "m.toml", "--at", "0.1,-0.2", "--out", "p.npy"],
+    ];
+    let outputs = |paging: &str| -> Vec<Vec<u8>> {
+        let mut all = Vec::new();
+        for args in commands {
+            let out = with(paging, args);
+            assert!(out.status.success(), "{paging} {args:?}: {out:?}");
+            all.push(out.stdout);
+        }
+        for file in ["s.png", "p.npy"] {
+            all.push(std::fs::read(d.join(file)).unwrap());
+        }
+        let model = std::fs::read_to_string(d.join("f.toml")).unwrap();
+        // Everything but the timings.
+        let fit: Vec<&str> = model.lines().filter(|l| !l.contains("seconds")).collect();
+        all.push(fit.join("\n").into_bytes());
+        all
+    };
+    let on_demand = outputs("on-demand");
+    assert_eq!(on_demand, outputs("read-around"));
+    assert_eq!(on_demand, outputs("auto"));
+    let out = with("random", commands[0]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("SPECGP_PAGING=\"random\"") && err.contains("data.sbrdf"),
+        "{err}"
+    );
+}
+
 /// A store damaged after it was written is refused by the commands that read all of it
 /// (`export`, `fit`) instead of leaving as wrong numbers or a model that records the checksum
 /// of other data; nothing is written.

@@ -36,6 +36,85 @@ pub enum ReadMode {
     Buffered,
 }
 
+/// How a memory-mapped store's pages come in from the disk when they are not in the page cache.
+///
+/// A page fault in a mapping normally makes the kernel read a window around the page
+/// (`read_ahead_kb`, 8 MB on this project's VMs): right for a store that fits in memory, where
+/// the whole file soon sits in the page cache anyway, but a store larger than memory then reads
+/// almost all of itself for a few thousand scattered lookups (a 256 px sphere of a predicted
+/// material on the paper's 58 GB grid read ~55 GB in 25 s; BENCHMARKS.md "dataset store").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Paging {
+    /// [`Paging::OnDemand`] for a file larger than half the physical memory, else
+    /// [`Paging::ReadAround`]; the environment variable `SPECGP_PAGING` (`auto`, `on-demand`,
+    /// `read-around`) overrides the choice.
+    #[default]
+    Auto,
+    /// The kernel's default: a fault reads a window around its page.
+    ReadAround,
+    /// Small reads (a lookup's cell, one index's N values: under [`ON_DEMAND_MAX_BYTES`]) go
+    /// through a second map of the file in which a fault reads its page only (`MADV_RANDOM`),
+    /// after asking the kernel for exactly the bytes they touch (`MADV_WILLNEED`: one request
+    /// for a cell instead of one per page). Larger reads (chunks, the streaming passes, the
+    /// checksum) keep the kernel's read-around, whose read-ahead keeps a sequential pass at
+    /// the disk's speed (on-demand pages made the paper grid's Gram pass 1.8x slower). Values
+    /// are the same as under [`Paging::ReadAround`]; only the disk traffic differs.
+    OnDemand,
+}
+
+/// The environment variable that overrides [`Paging::Auto`].
+pub const PAGING_ENV: &str = "SPECGP_PAGING";
+
+/// Reads shorter than this go through the on-demand map under [`Paging::OnDemand`] (a cell of
+/// the paper's grid, 195 channels x 51 materials in f32, is 40 KB).
+pub const ON_DEMAND_MAX_BYTES: usize = 1 << 20;
+
+impl Paging {
+    /// Parses `auto`, `on-demand` or `read-around` (the values of [`PAGING_ENV`]).
+    pub fn parse(s: &str) -> Option<Self> {
+        match s.trim() {
+            "auto" => Some(Self::Auto),
+            "on-demand" => Some(Self::OnDemand),
+            "read-around" => Some(Self::ReadAround),
+            _ => None,
+        }
+    }
+
+    /// Whether a mapped file of `file_len` bytes is paged on demand: the variant's own answer,
+    /// or for [`Paging::Auto`] the environment's (an error for a value that is not one of the
+    /// three) or else the file's size against the physical memory.
+    fn on_demand(self, file_len: u64, path: &Path) -> Result<bool> {
+        match self {
+            Self::ReadAround => Ok(false),
+            Self::OnDemand => Ok(true),
+            Self::Auto => match std::env::var(PAGING_ENV) {
+                Ok(v) => match Self::parse(&v) {
+                    Some(Self::Auto) => Ok(larger_than_half_the_memory(file_len)),
+                    Some(p) => p.on_demand(file_len, path),
+                    None => Err(Error::StoreUsage {
+                        path: path.to_owned(),
+                        reason: format!(
+                            "{PAGING_ENV}={v:?}: expected auto, on-demand or read-around"
+                        ),
+                    }),
+                },
+                Err(_) => Ok(larger_than_half_the_memory(file_len)),
+            },
+        }
+    }
+}
+
+/// Whether `bytes` exceed half the physical memory (`MemTotal` of `/proc/meminfo`; false where
+/// that cannot be read).
+fn larger_than_half_the_memory(bytes: u64) -> bool {
+    let total = std::fs::read_to_string("/proc/meminfo").ok().and_then(|m| {
+        let line = m.lines().find(|l| l.starts_with("MemTotal:"))?;
+        let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+        kib.checked_mul(1024)
+    });
+    total.is_some_and(|t| bytes > t / 2)
+}
+
 /// Options of [`Store::open_with`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct OpenOptions {
@@ -43,6 +122,8 @@ pub struct OpenOptions {
     pub mode: ReadMode,
     /// Decompressed chunks kept for [`Store::values_at`] on zstd stores (default 64).
     pub cache_chunks: usize,
+    /// How a memory map's pages are read from the disk (no effect on positioned reads).
+    pub paging: Paging,
 }
 
 impl Default for OpenOptions {
@@ -50,12 +131,14 @@ impl Default for OpenOptions {
         Self {
             mode: ReadMode::Mmap,
             cache_chunks: 64,
+            paging: Paging::Auto,
         }
     }
 }
 
 enum Backing {
-    Mmap(memmap2::Mmap),
+    /// The map, and under [`Paging::OnDemand`] a second map of the file for small reads.
+    Mmap(memmap2::Mmap, Option<memmap2::Mmap>),
     File(File),
 }
 
@@ -265,7 +348,18 @@ impl Store {
                 // process may then read changed values or receive SIGBUS on access to pages
                 // past the new end of file. Use `ReadMode::Buffered` where that can happen.
                 let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| Error::io(&path, e))?;
-                Backing::Mmap(map)
+                let small_reads = if options.paging.on_demand(file_len, &path)? {
+                    // SAFETY: as for `map` above: the same file under the same contract.
+                    let random =
+                        unsafe { memmap2::Mmap::map(&file) }.map_err(|e| Error::io(&path, e))?;
+                    // A hint: a kernel that refuses it pages this map as it pages `map`.
+                    #[cfg(unix)]
+                    let _ = random.advise(memmap2::Advice::Random);
+                    Some(random)
+                } else {
+                    None
+                };
+                Backing::Mmap(map, small_reads)
             }
         };
         let per_shard = options.cache_chunks.div_ceil(CACHE_SHARDS).max(1);
@@ -361,12 +455,42 @@ impl Store {
         self.mask.get_or_init(|| self.header.grid.validity_mask())
     }
 
+    /// Whether the store is memory-mapped and paged on demand ([`Paging::OnDemand`]).
+    pub fn paged_on_demand(&self) -> bool {
+        matches!(self.backing, Backing::Mmap(_, Some(_)))
+    }
+
+    /// The mapped bytes `offset..offset + len`, if they lie in the file: under
+    /// [`Paging::OnDemand`] a read shorter than [`ON_DEMAND_MAX_BYTES`] comes from the
+    /// on-demand map, after asking the kernel to read exactly these bytes in one request;
+    /// everything else from the read-around map. `None` for a store read with positioned reads.
+    fn mapped(&self, offset: usize, len: usize) -> Option<Option<&[u8]>> {
+        let Backing::Mmap(map, small_reads) = &self.backing else {
+            return None;
+        };
+        let end = offset.checked_add(len)?;
+        Some(match small_reads {
+            Some(random) if len < ON_DEMAND_MAX_BYTES => {
+                let bytes = random.get(offset..end)?;
+                #[cfg(unix)]
+                if len > 0 {
+                    // A hint: refused, the faults read the pages one by one.
+                    let _ = random.advise_range(memmap2::Advice::WillNeed, offset, len);
+                }
+                Some(bytes)
+            }
+            _ => map.get(offset..end),
+        })
+    }
+
     /// Raw bytes at `offset..offset + len` of the file.
     fn bytes(&self, offset: u64, len: usize) -> Result<Cow<'_, [u8]>> {
         match &self.backing {
-            Backing::Mmap(m) => {
-                let s = offset as usize;
-                m.get(s..s + len).map(Cow::Borrowed).ok_or_else(|| {
+            Backing::Mmap(..) => {
+                let bytes = usize::try_from(offset)
+                    .ok()
+                    .and_then(|s| self.mapped(s, len).flatten());
+                bytes.map(Cow::Borrowed).ok_or_else(|| {
                     corrupt(&self.path, format!("read past the end at byte {offset}"))
                 })
             }
@@ -461,7 +585,7 @@ impl Store {
         if cfg!(target_endian = "little")
             && self.header.layout.compression == Compression::None
             && self.header.layout.dtype == Dtype::F32
-            && let Backing::Mmap(m) = &self.backing
+            && let Backing::Mmap(m, _) = &self.backing
         {
             let (a, b) = (self.offsets[c] as usize, self.offsets[c + 1] as usize);
             let s = PAYLOAD_OFFSET as usize;
@@ -706,7 +830,9 @@ impl Store {
 
     /// A hint that the values of `d_range` (all materials) are read soon: on an uncompressed
     /// store opened with a memory map, asks the CPU to fetch their cache lines into L2
-    /// (x86-64); no effect otherwise, or for a range outside the store.
+    /// (x86-64), and under [`Paging::OnDemand`] the kernel to read their pages from the disk
+    /// (the CPU's prefetch skips pages that are not in memory); no effect otherwise, or for a
+    /// range outside the store or across chunks.
     pub fn prefetch(&self, d_range: Range<usize>) {
         if let Some(bytes) = self.mapped_bytes(d_range) {
             super::prefetch_lines(bytes);
@@ -725,14 +851,11 @@ impl Store {
         {
             return None;
         }
-        let Backing::Mmap(m) = &self.backing else {
-            return None;
-        };
         let c = d_range.start / chunk_len;
         let j = d_range.start - c * chunk_len;
         let row = self.n_materials() * layout.dtype.size();
         let s = (PAYLOAD_OFFSET + self.offsets[c]) as usize + j * row;
-        m.get(s..s + d_range.len() * row)
+        self.mapped(s, d_range.len() * row).flatten()
     }
 
     /// Values of material `m` over `d_range` into `out` (`out.len() == d_range.len()`).
@@ -1051,8 +1174,25 @@ mod tests {
         let options = OpenOptions {
             mode: ReadMode::Mmap,
             cache_chunks,
+            ..OpenOptions::default()
         };
         Store::open_with(&p, options).unwrap()
+    }
+
+    /// `Paging::Auto` pages a file on demand when it is larger than half the physical memory;
+    /// the environment's values parse, anything else does not.
+    #[test]
+    fn paging_auto_goes_by_the_file_size_and_parses_the_environment_values() {
+        assert!(!larger_than_half_the_memory(1 << 20));
+        #[cfg(target_os = "linux")]
+        assert!(larger_than_half_the_memory(u64::MAX));
+        assert_eq!(Paging::parse("on-demand"), Some(Paging::OnDemand));
+        assert_eq!(Paging::parse(" read-around\n"), Some(Paging::ReadAround));
+        assert_eq!(Paging::parse("auto"), Some(Paging::Auto));
+        assert_eq!(Paging::parse("random"), None);
+        let p = Path::new("x.sbrdf");
+        assert!(Paging::OnDemand.on_demand(0, p).unwrap());
+        assert!(!Paging::ReadAround.on_demand(u64::MAX, p).unwrap());
     }
 
     /// How many chunks the cache holds, over all shards.
