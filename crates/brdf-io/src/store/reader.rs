@@ -52,21 +52,21 @@ pub enum Paging {
     Auto,
     /// The kernel's default: a fault reads a window around its page.
     ReadAround,
-    /// Small reads (a lookup's cell, one index's N values: under [`ON_DEMAND_MAX_BYTES`]) go
-    /// through a second map of the file in which a fault reads its page only (`MADV_RANDOM`),
-    /// after asking the kernel for exactly the bytes they touch (`MADV_WILLNEED`: one request
-    /// for a cell instead of one per page). Larger reads (chunks, the streaming passes, the
-    /// checksum) keep the kernel's read-around, whose read-ahead keeps a sequential pass at
-    /// the disk's speed (on-demand pages made the paper grid's Gram pass 1.8x slower). Values
-    /// are the same as under [`Paging::ReadAround`]; only the disk traffic differs.
+    /// Small reads (a lookup's cell, one index's N values: under [`ON_DEMAND_MAX_BYTES`]) are
+    /// positioned reads of exactly their bytes (one request to the disk for a cell; the
+    /// kernel reads no more for a read that does not continue the one before) instead of
+    /// faults in the map. Larger reads (chunks, the streaming passes, the checksum) keep the
+    /// map and the kernel's read-around, whose read-ahead keeps a sequential pass at the
+    /// disk's speed. Values are the same as under [`Paging::ReadAround`]; only the disk traffic
+    /// differs.
     OnDemand,
 }
 
 /// The environment variable that overrides [`Paging::Auto`].
 pub const PAGING_ENV: &str = "SPECGP_PAGING";
 
-/// Reads shorter than this go through the on-demand map under [`Paging::OnDemand`] (a cell of
-/// the paper's grid, 195 channels x 51 materials in f32, is 40 KB).
+/// Reads shorter than this are positioned reads under [`Paging::OnDemand`] (a cell of the
+/// paper's grid, 195 channels x 51 materials in f32, is 40 KB).
 pub const ON_DEMAND_MAX_BYTES: usize = 1 << 20;
 
 impl Paging {
@@ -137,8 +137,8 @@ impl Default for OpenOptions {
 }
 
 enum Backing {
-    /// The map, and under [`Paging::OnDemand`] a second map of the file for small reads.
-    Mmap(memmap2::Mmap, Option<memmap2::Mmap>),
+    /// The map, and under [`Paging::OnDemand`] the file for small positioned reads.
+    Mmap(memmap2::Mmap, Option<File>),
     File(File),
 }
 
@@ -348,17 +348,7 @@ impl Store {
                 // process may then read changed values or receive SIGBUS on access to pages
                 // past the new end of file. Use `ReadMode::Buffered` where that can happen.
                 let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| Error::io(&path, e))?;
-                let small_reads = if options.paging.on_demand(file_len, &path)? {
-                    // SAFETY: as for `map` above: the same file under the same contract.
-                    let random =
-                        unsafe { memmap2::Mmap::map(&file) }.map_err(|e| Error::io(&path, e))?;
-                    // A hint: a kernel that refuses it pages this map as it pages `map`.
-                    #[cfg(unix)]
-                    let _ = random.advise(memmap2::Advice::Random);
-                    Some(random)
-                } else {
-                    None
-                };
+                let small_reads = options.paging.on_demand(file_len, &path)?.then_some(file);
                 Backing::Mmap(map, small_reads)
             }
         };
@@ -460,37 +450,35 @@ impl Store {
         matches!(self.backing, Backing::Mmap(_, Some(_)))
     }
 
-    /// The mapped bytes `offset..offset + len`, if they lie in the file: under
-    /// [`Paging::OnDemand`] a read shorter than [`ON_DEMAND_MAX_BYTES`] comes from the
-    /// on-demand map, after asking the kernel to read exactly these bytes in one request;
-    /// everything else from the read-around map. `None` for a store read with positioned reads.
-    fn mapped(&self, offset: usize, len: usize) -> Option<Option<&[u8]>> {
-        let Backing::Mmap(map, small_reads) = &self.backing else {
-            return None;
-        };
-        let end = offset.checked_add(len)?;
-        Some(match small_reads {
-            Some(random) if len < ON_DEMAND_MAX_BYTES => {
-                let bytes = random.get(offset..end)?;
-                #[cfg(unix)]
-                if len > 0 {
-                    // A hint: refused, the faults read the pages one by one.
-                    let _ = random.advise_range(memmap2::Advice::WillNeed, offset, len);
-                }
-                Some(bytes)
-            }
-            _ => map.get(offset..end),
-        })
+    /// The file for a positioned read of `len` bytes instead of the map: the store's file
+    /// under [`Paging::OnDemand`] for a read shorter than [`ON_DEMAND_MAX_BYTES`], else `None`.
+    fn read_on_demand(&self, len: usize) -> Option<&File> {
+        match &self.backing {
+            Backing::Mmap(_, Some(file)) if len < ON_DEMAND_MAX_BYTES => Some(file),
+            _ => None,
+        }
     }
 
     /// Raw bytes at `offset..offset + len` of the file.
     fn bytes(&self, offset: u64, len: usize) -> Result<Cow<'_, [u8]>> {
+        if let Some(file) = self.read_on_demand(len) {
+            if offset
+                .checked_add(len as u64)
+                .is_none_or(|end| end > self.file_len)
+            {
+                return Err(corrupt(
+                    &self.path,
+                    format!("read past the end at byte {offset}"),
+                ));
+            }
+            let mut buf = vec![0u8; len];
+            read_exact_at(file, &mut buf, offset).map_err(|e| Error::io(&self.path, e))?;
+            return Ok(Cow::Owned(buf));
+        }
         match &self.backing {
-            Backing::Mmap(..) => {
-                let bytes = usize::try_from(offset)
-                    .ok()
-                    .and_then(|s| self.mapped(s, len).flatten());
-                bytes.map(Cow::Borrowed).ok_or_else(|| {
+            Backing::Mmap(m, _) => {
+                let s = offset as usize;
+                m.get(s..s + len).map(Cow::Borrowed).ok_or_else(|| {
                     corrupt(&self.path, format!("read past the end at byte {offset}"))
                 })
             }
@@ -810,7 +798,8 @@ impl Store {
 
     /// [`Store::values_in`] without a copy when possible: borrowed from the map when the range
     /// lies in one chunk of an uncompressed f32 store opened with a memory map (little-endian
-    /// host), else read into `buf`.
+    /// host; under [`Paging::OnDemand`] only from [`ON_DEMAND_MAX_BYTES`] on), else read into
+    /// `buf`.
     pub fn values_in_ref<'a>(
         &'a self,
         d_range: Range<usize>,
@@ -830,9 +819,8 @@ impl Store {
 
     /// A hint that the values of `d_range` (all materials) are read soon: on an uncompressed
     /// store opened with a memory map, asks the CPU to fetch their cache lines into L2
-    /// (x86-64), and under [`Paging::OnDemand`] the kernel to read their pages from the disk
-    /// (the CPU's prefetch skips pages that are not in memory); no effect otherwise, or for a
-    /// range outside the store or across chunks.
+    /// (x86-64); no effect otherwise (positioned reads, including [`Paging::OnDemand`]'s), or
+    /// for a range outside the store or across chunks.
     pub fn prefetch(&self, d_range: Range<usize>) {
         if let Some(bytes) = self.mapped_bytes(d_range) {
             super::prefetch_lines(bytes);
@@ -851,11 +839,17 @@ impl Store {
         {
             return None;
         }
+        let Backing::Mmap(m, _) = &self.backing else {
+            return None;
+        };
         let c = d_range.start / chunk_len;
         let j = d_range.start - c * chunk_len;
         let row = self.n_materials() * layout.dtype.size();
         let s = (PAYLOAD_OFFSET + self.offsets[c]) as usize + j * row;
-        self.mapped(s, d_range.len() * row).flatten()
+        if self.read_on_demand(d_range.len() * row).is_some() {
+            return None;
+        }
+        m.get(s..s + d_range.len() * row)
     }
 
     /// Values of material `m` over `d_range` into `out` (`out.len() == d_range.len()`).
