@@ -270,7 +270,8 @@ fn small_and_degenerate_datasets() {
     let mut bytes = std::fs::read(&bad).unwrap();
     bytes[4096..4100].copy_from_slice(&f32::NAN.to_le_bytes());
     std::fs::write(&bad, bytes).unwrap();
-    // `fit_store` verifies the payload checksum first; the Gram pass alone finds the NaN.
+    // `fit_store` reports the payload checksum's mismatch, although the Gram pass it runs
+    // alongside the hash finds the NaN too (as it does alone).
     let err = fit_store(&bad, &p).unwrap_err();
     assert!(
         matches!(
