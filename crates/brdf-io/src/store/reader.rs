@@ -819,17 +819,32 @@ impl Store {
 
     /// A hint that the values of `d_range` (all materials) are read soon: on an uncompressed
     /// store opened with a memory map, asks the CPU to fetch their cache lines into L2
-    /// (x86-64); no effect otherwise (positioned reads, including [`Paging::OnDemand`]'s), or
-    /// for a range outside the store or across chunks.
+    /// (x86-64), or where [`Paging::OnDemand`] reads them with a positioned read, the kernel to
+    /// start reading them from the disk (Linux); no effect otherwise, or for a range outside
+    /// the store or across chunks.
     pub fn prefetch(&self, d_range: Range<usize>) {
-        if let Some(bytes) = self.mapped_bytes(d_range) {
+        if let Some(bytes) = self.mapped_bytes(d_range.clone()) {
             super::prefetch_lines(bytes);
+            return;
+        }
+        #[cfg(target_os = "linux")]
+        if let Some((offset, len)) = self.span(d_range)
+            && let Some(file) = self.read_on_demand(len)
+        {
+            // A hint: a kernel that refuses it reads the bytes when they are read.
+            let advice = rustix::fs::Advice::WillNeed;
+            let _ = rustix::fs::fadvise(
+                file,
+                offset as u64,
+                std::num::NonZeroU64::new(len as u64),
+                advice,
+            );
         }
     }
 
-    /// The stored bytes of `d_range` (all materials) in the memory map, when the range is
-    /// non-empty, lies in one chunk, and the store is uncompressed and opened with a map.
-    fn mapped_bytes(&self, d_range: Range<usize>) -> Option<&[u8]> {
+    /// Where the stored bytes of `d_range` (all materials) lie in the file (offset, length),
+    /// when the range is non-empty, lies in one chunk, and the store is uncompressed.
+    fn span(&self, d_range: Range<usize>) -> Option<(usize, usize)> {
         let layout = &self.header.layout;
         let chunk_len = layout.chunk_len;
         if layout.compression != Compression::None
@@ -839,17 +854,25 @@ impl Store {
         {
             return None;
         }
-        let Backing::Mmap(m, _) = &self.backing else {
-            return None;
-        };
         let c = d_range.start / chunk_len;
         let j = d_range.start - c * chunk_len;
         let row = self.n_materials() * layout.dtype.size();
         let s = (PAYLOAD_OFFSET + self.offsets[c]) as usize + j * row;
-        if self.read_on_demand(d_range.len() * row).is_some() {
+        Some((s, d_range.len() * row))
+    }
+
+    /// The stored bytes of `d_range` (all materials) in the memory map, when the range is
+    /// non-empty, lies in one chunk, the store is uncompressed and opened with a map, and the
+    /// range is not read with positioned reads ([`Paging::OnDemand`]).
+    fn mapped_bytes(&self, d_range: Range<usize>) -> Option<&[u8]> {
+        let Backing::Mmap(m, _) = &self.backing else {
+            return None;
+        };
+        let (s, len) = self.span(d_range)?;
+        if self.read_on_demand(len).is_some() {
             return None;
         }
-        m.get(s..s + d_range.len() * row)
+        m.get(s..s + len)
     }
 
     /// Values of material `m` over `d_range` into `out` (`out.len() == d_range.len()`).
