@@ -922,6 +922,14 @@ impl PredictedMaterial {
             });
         }
         let stencil = self.pred.inner.grid.interpolation_stencil(hd);
+        if self.pred.lookup_store().0.paged_on_demand() {
+            // A store read from the disk cell by cell: the stencil's reads go out together.
+            for &(a, w) in &stencil {
+                if w != 0.0 {
+                    self.prefetch_cell(a);
+                }
+            }
+        }
         out.iter_mut().for_each(|o| *o = 0.0);
         let mut cell = [0.0f64; 8];
         let mut heap = Vec::new();
