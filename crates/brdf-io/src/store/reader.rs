@@ -461,28 +461,14 @@ impl Store {
 
     /// Raw bytes at `offset..offset + len` of the file.
     fn bytes(&self, offset: u64, len: usize) -> Result<Cow<'_, [u8]>> {
-        if let Some(file) = self.read_on_demand(len) {
-            if offset
-                .checked_add(len as u64)
-                .is_none_or(|end| end > self.file_len)
-            {
-                return Err(corrupt(
-                    &self.path,
-                    format!("read past the end at byte {offset}"),
-                ));
-            }
-            let mut buf = vec![0u8; len];
-            read_exact_at(file, &mut buf, offset).map_err(|e| Error::io(&self.path, e))?;
-            return Ok(Cow::Owned(buf));
-        }
-        match &self.backing {
-            Backing::Mmap(m, _) => {
+        match (&self.backing, self.read_on_demand(len)) {
+            (Backing::Mmap(m, _), None) => {
                 let s = offset as usize;
                 m.get(s..s + len).map(Cow::Borrowed).ok_or_else(|| {
                     corrupt(&self.path, format!("read past the end at byte {offset}"))
                 })
             }
-            Backing::File(f) => {
+            (Backing::File(f), _) | (_, Some(f)) => {
                 let mut buf = vec![0u8; len];
                 read_exact_at(f, &mut buf, offset).map_err(|e| Error::io(&self.path, e))?;
                 Ok(Cow::Owned(buf))
