@@ -24,7 +24,7 @@ use rayon::prelude::*;
 use crate::error::{Error, Result};
 use crate::grid::{AngularGrid, Channels, HalfDiff, Vec3};
 use crate::lookup::{Lookup, cell_record, look_up};
-use crate::source::BrdfSource;
+use crate::source::{BrdfSource, PREFETCH_AHEAD};
 
 /// Nodes per axis of the half-vector grid by default ([`AlbedoNodes::new`]): 96 x 96.
 pub const DEFAULT_RESOLUTION: usize = 96;
@@ -330,7 +330,10 @@ impl GridAlbedo {
             .par_chunks(CELLS_PER_TASK)
             .map(|chunk| {
                 let (mut sums, mut f) = (vec![0.0; len], vec![0.0; nc]);
-                for (a, weights) in chunk {
+                for (i, (a, weights)) in chunk.iter().enumerate() {
+                    if let Some((next, _)) = chunk.get(i + PREFETCH_AHEAD) {
+                        source.prefetch_cell(*next);
+                    }
                     source.eval_cell(*a, &mut f)?;
                     for &(k, w) in weights {
                         for (s, v) in sums[k * nc..(k + 1) * nc].iter_mut().zip(&f) {
@@ -372,7 +375,11 @@ impl GridAlbedo {
                 let mut f = vec![0.0; nc];
                 chunk
                     .iter()
-                    .map(|(a, _)| {
+                    .enumerate()
+                    .map(|(i, (a, _))| {
+                        if let Some((next, _)) = chunk.get(i + PREFETCH_AHEAD) {
+                            source.prefetch_cell(*next);
+                        }
                         source.eval_cell(*a, &mut f)?;
                         Ok(cell_record(lookup, &f))
                     })

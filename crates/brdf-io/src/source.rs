@@ -5,6 +5,13 @@ use crate::error::{Error, Result};
 use crate::grid::{AngularGrid, Channels, Vec3};
 use crate::lookup::Lookup;
 
+/// How many cells ahead a consumer that evaluates cells in order (render plans, albedo
+/// tables) asks the source to prefetch ([`BrdfSource::prefetch_cell`]): with the store's
+/// prefetch into L2, 2 cells ahead rendered a fast-table sphere in 3.0 ms against 3.6 ms for 1
+/// (4: no better; BENCHMARKS.md "render", session 11); on a store paged on demand it keeps the
+/// disk busy (BENCHMARKS.md "dataset store", session 49).
+pub const PREFETCH_AHEAD: usize = 2;
+
 /// A BRDF that can be evaluated at arbitrary direction pairs.
 ///
 /// Directions are in the local frame (z = surface normal) and need not be normalised; the

@@ -25,6 +25,7 @@ use std::convert::Infallible;
 use std::sync::{Arc, Mutex, PoisonError};
 
 use brdf_io::lookup::cell_logs;
+use brdf_io::source::PREFETCH_AHEAD;
 use brdf_io::{AngularGrid, BrdfSource, HalfDiff, Lookup, Vec3};
 use rayon::prelude::*;
 
@@ -34,11 +35,6 @@ use super::{
 };
 use crate::error::Result;
 use crate::image::Image;
-
-/// How many cells ahead a render asks the source to prefetch ([`BrdfSource::prefetch_cell`]):
-/// with the store's prefetch into L2, 2 cells ahead rendered a fast-table sphere in 3.0 ms
-/// against 3.6 ms for 1 (4: no better; BENCHMARKS.md "render", session 11).
-const PREFETCH_AHEAD: usize = 2;
 
 /// Scenes kept by the plan cache (least recently built first out).
 pub const CACHED_PLANS: usize = 4;
