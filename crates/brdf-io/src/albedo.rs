@@ -24,7 +24,7 @@ use rayon::prelude::*;
 use crate::error::{Error, Result};
 use crate::grid::{AngularGrid, Channels, HalfDiff, Vec3};
 use crate::lookup::{Lookup, cell_record, look_up};
-use crate::source::{BrdfSource, PREFETCH_AHEAD};
+use crate::source::{BrdfSource, eval_cells_in_order};
 
 /// Nodes per axis of the half-vector grid by default ([`AlbedoNodes::new`]): 96 x 96.
 pub const DEFAULT_RESOLUTION: usize = 96;
@@ -329,18 +329,20 @@ impl GridAlbedo {
             .cells
             .par_chunks(CELLS_PER_TASK)
             .map(|chunk| {
-                let (mut sums, mut f) = (vec![0.0; len], vec![0.0; nc]);
-                for (i, (a, weights)) in chunk.iter().enumerate() {
-                    if let Some((next, _)) = chunk.get(i + PREFETCH_AHEAD) {
-                        source.prefetch_cell(*next);
-                    }
-                    source.eval_cell(*a, &mut f)?;
-                    for &(k, w) in weights {
-                        for (s, v) in sums[k * nc..(k + 1) * nc].iter_mut().zip(&f) {
-                            *s += w * v;
+                let mut sums = vec![0.0; len];
+                eval_cells_in_order(
+                    source,
+                    chunk,
+                    |(a, _)| *a,
+                    |_, (_, weights), f| {
+                        for &(k, w) in weights {
+                            for (s, v) in sums[k * nc..(k + 1) * nc].iter_mut().zip(f) {
+                                *s += w * v;
+                            }
                         }
-                    }
-                }
+                        Ok::<_, Error>(())
+                    },
+                )?;
                 Ok(sums)
             })
             .collect::<Result<Vec<_>>>()?;
@@ -372,18 +374,17 @@ impl GridAlbedo {
             .cells
             .par_chunks(CELLS_PER_TASK)
             .map(|chunk| {
-                let mut f = vec![0.0; nc];
-                chunk
-                    .iter()
-                    .enumerate()
-                    .map(|(i, (a, _))| {
-                        if let Some((next, _)) = chunk.get(i + PREFETCH_AHEAD) {
-                            source.prefetch_cell(*next);
-                        }
-                        source.eval_cell(*a, &mut f)?;
-                        Ok(cell_record(lookup, &f))
-                    })
-                    .collect::<Result<Vec<_>>>()
+                let mut records = Vec::with_capacity(chunk.len());
+                eval_cells_in_order(
+                    source,
+                    chunk,
+                    |(a, _)| *a,
+                    |_, _, f| {
+                        records.push(cell_record(lookup, f));
+                        Ok::<_, Error>(())
+                    },
+                )?;
+                Ok(records)
             })
             .collect::<Result<Vec<_>>>()?
             .concat();

@@ -252,6 +252,10 @@ impl<S: BrdfSource> BrdfSource for WithLookup<S> {
     fn prefetch_cell(&self, a: usize) {
         self.inner.prefetch_cell(a);
     }
+
+    fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
+        self.inner.will_need_cells(cells);
+    }
 }
 
 #[cfg(test)]
@@ -480,7 +484,7 @@ mod tests {
         // The lookup of a wrapper of a wrapper is the outer one's.
         let twice = WithLookup::new(&w, Lookup::Multilinear).unwrap();
         assert_eq!(twice.lookup(), Lookup::Multilinear);
-        // Prefetch hints reach the wrapped source.
+        // Prefetch hints (both kinds) reach the wrapped source.
         struct Hinted<S>(S, std::sync::Mutex<Vec<usize>>);
         impl<S: BrdfSource> BrdfSource for Hinted<S> {
             fn channels(&self) -> Channels {
@@ -495,11 +499,15 @@ mod tests {
             fn prefetch_cell(&self, a: usize) {
                 self.1.lock().unwrap().push(a);
             }
+            fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
+                self.1.lock().unwrap().extend(cells.map(|a| 1000 + a));
+            }
         }
         let hinted = Hinted(w, std::sync::Mutex::new(Vec::new()));
         let outer = WithLookup::new(&hinted, Lookup::LogMultilinear).unwrap();
         outer.prefetch_cell(5);
         outer.prefetch_cell(9);
-        assert_eq!(*hinted.1.lock().unwrap(), [5, 9]);
+        outer.will_need_cells(&mut [3, 1].into_iter());
+        assert_eq!(*hinted.1.lock().unwrap(), [5, 9, 1003, 1001]);
     }
 }

@@ -57,6 +57,39 @@ pub trait BrdfSource: Sync {
     fn prefetch_cell(&self, a: usize) {
         let _ = a;
     }
+
+    /// A hint that [`BrdfSource::eval_cell`] of each of `cells` (in this order) follows: a
+    /// source that reads its values from a disk may start reading them all (a store read with
+    /// positioned reads, see [`crate::store::Store::will_need`]). Unlike
+    /// [`BrdfSource::prefetch_cell`], meant for many cells at once, well ahead. No effect by
+    /// default.
+    fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
+        let _ = cells;
+    }
+}
+
+/// Evaluates the cells of a grid source that `items` name (`cell(item)`, a flat index), in
+/// this order ([`BrdfSource::eval_cell`]), hinting the source ahead: all of them at once for a
+/// disk ([`BrdfSource::will_need_cells`]) and each one [`PREFETCH_AHEAD`] cells ahead for the
+/// CPU's caches ([`BrdfSource::prefetch_cell`]). `visit(i, item, f)` receives each item with
+/// its position and its cell's values `f` (every channel); the first error, of the source or
+/// of `visit`, ends the walk.
+pub fn eval_cells_in_order<T, E: From<Error>>(
+    source: &dyn BrdfSource,
+    items: &[T],
+    cell: impl Fn(&T) -> usize,
+    mut visit: impl FnMut(usize, &T, &[f64]) -> std::result::Result<(), E>,
+) -> std::result::Result<(), E> {
+    let mut f = vec![0.0; source.channels().len()];
+    source.will_need_cells(&mut items.iter().map(&cell));
+    for (i, item) in items.iter().enumerate() {
+        if let Some(next) = items.get(i + PREFETCH_AHEAD) {
+            source.prefetch_cell(cell(next));
+        }
+        source.eval_cell(cell(item), &mut f)?;
+        visit(i, item, &f)?;
+    }
+    Ok(())
 }
 
 /// The linear blend `a f1 + (1 - a) f2` of two sources in BRDF values (the paper's linear
@@ -129,6 +162,12 @@ impl BrdfSource for Blend<'_> {
         self.first.prefetch_cell(a);
         self.second.prefetch_cell(a);
     }
+
+    fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
+        let cells: Vec<usize> = cells.collect();
+        self.first.will_need_cells(&mut cells.iter().copied());
+        self.second.will_need_cells(&mut cells.into_iter());
+    }
 }
 
 /// Implements [`BrdfSource`] for a pointer type by forwarding every method to the source it
@@ -158,6 +197,10 @@ macro_rules! forward_source {
 
             fn prefetch_cell(&self, a: usize) {
                 (**self).prefetch_cell(a);
+            }
+
+            fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
+                (**self).will_need_cells(cells);
             }
         }
     )*};
@@ -1033,15 +1076,23 @@ mod tests {
         }
     }
 
-    /// A source without a grid (channels given) that records the prefetch hints it gets.
-    struct Hinted(Channels, std::sync::Mutex<Vec<usize>>);
+    /// A source without a grid (channels given) that records the prefetch hints it gets
+    /// (`prefetch_cell`'s cells, then `will_need_cells`' lists).
+    struct Hinted(
+        Channels,
+        std::sync::Mutex<Vec<usize>>,
+        std::sync::Mutex<Vec<Vec<usize>>>,
+    );
 
     impl Hinted {
         fn new(channels: Channels) -> Self {
-            Self(channels, std::sync::Mutex::new(Vec::new()))
+            Self(channels, Default::default(), Default::default())
         }
         fn hints(&self) -> Vec<usize> {
             self.1.lock().unwrap().clone()
+        }
+        fn will_need_hints(&self) -> Vec<Vec<usize>> {
+            self.2.lock().unwrap().clone()
         }
     }
 
@@ -1057,6 +1108,123 @@ mod tests {
         fn prefetch_cell(&self, a: usize) {
             self.1.lock().unwrap().push(a);
         }
+        fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
+            self.2.lock().unwrap().push(cells.collect());
+        }
+    }
+
+    /// What [`Recorder`] was asked, in order.
+    #[derive(Debug, PartialEq)]
+    enum Event {
+        WillNeed(Vec<usize>),
+        Prefetch(usize),
+        Eval(usize),
+    }
+
+    /// A grid source (cell `a` holds `a + channel`, cell 13 fails) that records what it is
+    /// asked.
+    struct Recorder(std::sync::Mutex<Vec<Event>>);
+
+    impl BrdfSource for Recorder {
+        fn channels(&self) -> Channels {
+            Channels::Rgb
+        }
+        fn eval(&self, _wi: Vec3, _wo: Vec3, _out: &mut [f64]) -> Result<()> {
+            unreachable!("only cells are evaluated")
+        }
+        fn grid(&self) -> Option<AngularGrid> {
+            Some(AngularGrid::new(2, 2, 4).unwrap())
+        }
+        fn eval_cell(&self, a: usize, out: &mut [f64]) -> Result<()> {
+            self.0.lock().unwrap().push(Event::Eval(a));
+            if a == 13 {
+                return Err(Error::InvalidArgument {
+                    reason: "cell 13".into(),
+                });
+            }
+            for (c, o) in out.iter_mut().enumerate() {
+                *o = (a + c) as f64;
+            }
+            Ok(())
+        }
+        fn prefetch_cell(&self, a: usize) {
+            self.0.lock().unwrap().push(Event::Prefetch(a));
+        }
+        fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
+            self.0
+                .lock()
+                .unwrap()
+                .push(Event::WillNeed(cells.collect()));
+        }
+    }
+
+    /// `eval_cells_in_order` hints every cell at once, then evaluates them in order, each
+    /// after a prefetch `PREFETCH_AHEAD` cells ahead, hands each item its position and values,
+    /// and stops at the first error of the source or of the visitor.
+    #[test]
+    fn eval_cells_in_order_hints_ahead_and_stops_at_the_first_error() {
+        use Event::{Eval, Prefetch, WillNeed};
+        assert_eq!(PREFETCH_AHEAD, 2, "the expected events below assume 2");
+        let source = Recorder(Default::default());
+        let items = [(5, 'a'), (2, 'b'), (7, 'c'), (0, 'd')];
+        let mut seen = Vec::new();
+        eval_cells_in_order(
+            &source,
+            &items,
+            |(a, _)| *a,
+            |i, (_, name), f| {
+                seen.push((i, *name, f.to_vec()));
+                Ok::<_, Error>(())
+            },
+        )
+        .unwrap();
+        let want = [(0, 'a', 5.0), (1, 'b', 2.0), (2, 'c', 7.0), (3, 'd', 0.0)];
+        let want: Vec<_> = want
+            .iter()
+            .map(|&(i, n, v)| (i, n, vec![v, v + 1.0, v + 2.0]))
+            .collect();
+        assert_eq!(seen, want);
+        let events = std::mem::take(&mut *source.0.lock().unwrap());
+        let want = [
+            WillNeed(vec![5, 2, 7, 0]),
+            Prefetch(7),
+            Eval(5),
+            Prefetch(0),
+            Eval(2),
+            Eval(7),
+            Eval(0),
+        ];
+        assert_eq!(events, want);
+        // The source's error ends the walk at its cell.
+        let e = eval_cells_in_order(&source, &[1, 13, 4], |a| *a, |_, _, _| Ok::<_, Error>(()))
+            .unwrap_err();
+        assert!(e.to_string().contains("cell 13"), "{e}");
+        let events = std::mem::take(&mut *source.0.lock().unwrap());
+        let want = [WillNeed(vec![1, 13, 4]), Prefetch(4), Eval(1), Eval(13)];
+        assert_eq!(events, want);
+        // So does the visitor's, in its own error type.
+        let r: std::result::Result<(), Box<dyn std::error::Error>> = eval_cells_in_order(
+            &source,
+            &[3, 6, 8],
+            |a| *a,
+            |i, a, _| {
+                if *a == 6 {
+                    return Err(format!("visitor at {i}").into());
+                }
+                Ok(())
+            },
+        );
+        assert_eq!(r.unwrap_err().to_string(), "visitor at 1");
+        assert_eq!(source.0.lock().unwrap().last(), Some(&Eval(6)));
+        // No cells: a hint of none, nothing evaluated.
+        eval_cells_in_order(
+            &source,
+            &[] as &[usize],
+            |a| *a,
+            |_, _, _| Ok::<_, Error>(()),
+        )
+        .unwrap();
+        assert_eq!(source.0.lock().unwrap().last(), Some(&WillNeed(vec![])));
     }
 
     /// A source that is not a grid source refuses cell lookups (the trait's default), so does a
@@ -1077,6 +1245,15 @@ mod tests {
         blend.prefetch_cell(7);
         blend.prefetch_cell(2);
         assert_eq!((a.hints(), b.hints()), (vec![7, 2], vec![7, 2]));
+        blend.will_need_cells(&mut [4, 1, 9].into_iter());
+        // Through a box and a reference of the blend too (the forwarding impls).
+        let boxed: Box<dyn BrdfSource> = Box::new(&blend);
+        boxed.will_need_cells(&mut [3].into_iter());
+        let want = vec![vec![4, 1, 9], vec![3]];
+        assert_eq!(
+            (a.will_need_hints(), b.will_need_hints()),
+            (want.clone(), want)
+        );
         let up = [0.0, 0.0, 1.0];
         let e = blend.eval(up, up, &mut [0.0; 4]).unwrap_err();
         assert!(e.to_string().contains("4 slots for 3 channels"), "{e}");

@@ -875,18 +875,34 @@ impl PredictedMaterial {
     /// its stored values into the cache (see [`brdf_io::store::Store::prefetch`]); no effect
     /// for a cell outside the grid.
     pub fn prefetch_cell(&self, a: usize) {
+        if let Some(range) = self.stored_range(a) {
+            self.pred.lookup_store().0.prefetch(range);
+        }
+    }
+
+    /// A hint that [`PredictedMaterial::eval_cell`] of each of `cells` (in this order)
+    /// follows: on a store read from the disk, starts reading their stored values (see
+    /// [`brdf_io::store::Store::will_need`]); no effect for cells outside the grid.
+    pub fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
+        let store = self.pred.lookup_store().0;
+        store.will_need(cells.filter_map(|a| self.stored_range(a)));
+    }
+
+    /// The stored values (flat indices of the lookup store) that cell `a` reads: its selected
+    /// channels' span; `None` for a cell outside the grid or one already predicted (a
+    /// materialised cell cache reads nothing).
+    fn stored_range(&self, a: usize) -> Option<std::ops::Range<usize>> {
         if a >= self.pred.inner.grid.len() {
-            return;
+            return None;
         }
         if let Some(cells) = &self.pred.inner.forward_cells
             && cells.cells[a].get().is_some()
         {
-            return;
+            return None;
         }
         let nc = self.pred.inner.channels.len();
         let (first, last) = self.selection.span();
-        let (store, _) = self.pred.lookup_store();
-        store.prefetch(a * nc + first..a * nc + last + 1);
+        Some(a * nc + first..a * nc + last + 1)
     }
 
     fn check_out(&self, out: &[f64]) -> Result<()> {
@@ -1074,6 +1090,10 @@ impl BrdfSource for PredictedMaterial {
 
     fn prefetch_cell(&self, a: usize) {
         PredictedMaterial::prefetch_cell(self, a);
+    }
+
+    fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
+        PredictedMaterial::will_need_cells(self, cells);
     }
 }
 

@@ -381,6 +381,7 @@ fn selections_starting_past_the_first_channel_read_their_own_channels() {
                 .with_wavelengths(&Channels::parse_wavelengths(wavelengths).unwrap())
                 .unwrap();
             let mut out = vec![0.0; taps.len()];
+            sub.will_need_cells(&mut (0..p.grid().len()));
             for a in 0..p.grid().len() {
                 sub.prefetch_cell(a);
                 sub.eval_cell(a, &mut out).unwrap();
@@ -1474,6 +1475,7 @@ fn cell_lookups_beyond_the_grid_are_errors() {
         // A prefetch hint for it does nothing (it overflowed too).
         material.prefetch_cell(a);
         BrdfSource::prefetch_cell(&material, a);
+        BrdfSource::will_need_cells(&material, &mut [0, a, cells - 1].into_iter());
     }
     // The last cell still reads.
     material.eval_cell(cells - 1, &mut out).unwrap();

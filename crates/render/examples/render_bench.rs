@@ -60,6 +60,9 @@ impl<S: BrdfSource> BrdfSource for Counted<S> {
     fn prefetch_cell(&self, a: usize) {
         BrdfSource::prefetch_cell(&self.0, a);
     }
+    fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
+        BrdfSource::will_need_cells(&self.0, cells);
+    }
 }
 
 fn median(mut v: Vec<f64>) -> f64 {

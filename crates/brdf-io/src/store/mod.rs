@@ -29,7 +29,10 @@ mod sample;
 mod writer;
 
 pub use gram::{F64_BLOCK, GramTransform, Identity};
-pub use reader::{ON_DEMAND_MAX_BYTES, OpenOptions, PAGING_ENV, Paging, ReadMode, Store};
+pub use reader::{
+    ON_DEMAND_MAX_BYTES, OpenOptions, PAGING_ENV, Paging, ReadMode, Store, WILL_NEED_GAP,
+    WILL_NEED_MAX_RUN,
+};
 pub use sample::{StoreMaterial, parse_store_spec};
 pub use writer::{MaterialWriter, StoreWriter, check_material_name};
 

@@ -62,6 +62,13 @@ pub enum Paging {
     OnDemand,
 }
 
+/// [`Store::will_need`] reads ranges of the file at most this many bytes apart as one (the
+/// bytes between cost less than another request to the disk).
+pub const WILL_NEED_GAP: usize = 64 << 10;
+
+/// [`Store::will_need`] merges ranges into runs of at most this many bytes.
+pub const WILL_NEED_MAX_RUN: usize = 8 << 20;
+
 /// The environment variable that overrides [`Paging::Auto`].
 pub const PAGING_ENV: &str = "SPECGP_PAGING";
 
@@ -101,6 +108,37 @@ impl Paging {
                 Err(_) => Ok(larger_than_half_the_memory(file_len)),
             },
         }
+    }
+}
+
+/// Merges file spans `(offset, len)`, in the order given, into runs `emit(start, end)` (the
+/// hints of [`Store::will_need`]): a span
+/// joins the run before it when it starts in it or at most `gap` bytes after its end and the
+/// run stays within `max_run` bytes; otherwise (also when it starts before the run) it starts
+/// a new run. Empty spans are skipped.
+#[cfg_attr(not(target_os = "linux"), allow(dead_code))]
+fn merge_spans(
+    spans: impl IntoIterator<Item = (usize, usize)>,
+    gap: usize,
+    max_run: usize,
+    mut emit: impl FnMut(usize, usize),
+) {
+    let mut run: Option<(usize, usize)> = None;
+    for (offset, len) in spans.into_iter().filter(|&(_, len)| len > 0) {
+        let end = offset + len;
+        run = match run {
+            Some((s, e)) if offset >= s && offset <= e + gap && end.max(e) - s <= max_run => {
+                Some((s, end.max(e)))
+            }
+            Some((s, e)) => {
+                emit(s, e);
+                Some((offset, end))
+            }
+            None => Some((offset, end)),
+        };
+    }
+    if let Some((s, e)) = run {
+        emit(s, e);
     }
 }
 
@@ -828,6 +866,34 @@ impl Store {
         }
     }
 
+    /// A hint that the values of `d_ranges` (all materials, each within one chunk; in the order
+    /// they are read) are read soon, far enough ahead for the disk: on a store read with
+    /// positioned reads ([`Paging::OnDemand`], [`ReadMode::Buffered`]), asks the kernel to
+    /// start reading them all, ranges closer than [`WILL_NEED_GAP`] bytes to the one before as
+    /// one read (Linux); no effect otherwise (a store in memory needs no hint that far ahead:
+    /// [`Store::prefetch`] fetches cache lines just in time).
+    pub fn will_need(&self, d_ranges: impl IntoIterator<Item = Range<usize>>) {
+        #[cfg(target_os = "linux")]
+        {
+            let file = match &self.backing {
+                Backing::Mmap(_, Some(file)) | Backing::File(file) => file,
+                Backing::Mmap(_, None) => return,
+            };
+            let spans = d_ranges.into_iter().filter_map(|r| self.span(r));
+            merge_spans(spans, WILL_NEED_GAP, WILL_NEED_MAX_RUN, |start, end| {
+                // A hint: a kernel that refuses it reads the bytes when they are read.
+                let _ = rustix::fs::fadvise(
+                    file,
+                    start as u64,
+                    std::num::NonZeroU64::new((end - start) as u64),
+                    rustix::fs::Advice::WillNeed,
+                );
+            });
+        }
+        #[cfg(not(target_os = "linux"))]
+        let _ = d_ranges;
+    }
+
     /// Where the stored bytes of `d_range` (all materials) lie in the file (offset, length),
     /// when the range is non-empty, lies in one chunk, and the store is uncompressed.
     fn span(&self, d_range: Range<usize>) -> Option<(usize, usize)> {
@@ -1097,6 +1163,38 @@ mod tests {
     use super::*;
     use crate::store::{StoreOptions, StoreWriter};
     use crate::{AngularGrid, Channels, StoreInfo};
+
+    /// `merge_spans` joins a span to the run before it when it starts within `gap` bytes of
+    /// the run's end (or inside it) and the run stays within `max_run`; anything else (a larger
+    /// gap, a span before the run, a run that would grow too long) starts a new run.
+    #[test]
+    fn merge_spans_joins_near_spans_in_order() {
+        let runs = |spans: &[(usize, usize)], gap, max_run| {
+            let mut out = Vec::new();
+            merge_spans(spans.iter().copied(), gap, max_run, |s, e| out.push((s, e)));
+            out
+        };
+        assert_eq!(runs(&[], 10, 100), []);
+        assert_eq!(runs(&[(5, 0)], 10, 100), []);
+        assert_eq!(
+            runs(&[(5, 3)], 0, 1),
+            [(5, 8)],
+            "a long span alone is a run"
+        );
+        // Touching, within the gap, exactly at the gap, one past it.
+        assert_eq!(runs(&[(0, 4), (4, 4)], 0, 100), [(0, 8)]);
+        assert_eq!(runs(&[(0, 4), (9, 1)], 5, 100), [(0, 10)]);
+        assert_eq!(runs(&[(0, 4), (10, 1)], 5, 100), [(0, 4), (10, 11)]);
+        // Overlapping and contained spans extend nothing past their end.
+        assert_eq!(runs(&[(0, 10), (2, 3), (8, 4)], 0, 100), [(0, 12)]);
+        // A span before the run starts a new one (order is kept, not sorted).
+        assert_eq!(runs(&[(20, 4), (0, 4), (6, 2)], 5, 100), [(20, 24), (0, 8)]);
+        // The run's length: up to max_run joins, past it starts anew.
+        assert_eq!(runs(&[(0, 4), (4, 6)], 0, 10), [(0, 10)]);
+        assert_eq!(runs(&[(0, 4), (4, 7)], 0, 10), [(0, 4), (4, 11)]);
+        // Empty spans are skipped, even between two that join.
+        assert_eq!(runs(&[(0, 4), (50, 0), (6, 2)], 5, 100), [(0, 8)]);
+    }
 
     /// Folds in waves give the same bits as one wave of all segments, whatever the wave size.
     #[test]

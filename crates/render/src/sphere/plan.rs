@@ -25,7 +25,7 @@ use std::convert::Infallible;
 use std::sync::{Arc, Mutex, PoisonError};
 
 use brdf_io::lookup::cell_logs;
-use brdf_io::source::PREFETCH_AHEAD;
+use brdf_io::source::eval_cells_in_order;
 use brdf_io::{AngularGrid, BrdfSource, HalfDiff, Lookup, Vec3};
 use rayon::prelude::*;
 
@@ -321,23 +321,22 @@ pub(super) fn render(
         env: opts.env_radiance > 0.0,
     };
     let plan = plan_for(key, || Plan::build(key, opts.light_dir(), sight));
-    let nc = channels.len();
     let lookup = source.lookup();
     let m = needed.len();
     // Each planned cell evaluated once, in parallel (chunks of `CHUNK` cells), into what its
     // lookups read: `keep(i, f)` keeps the i-th cell of the chunk from all its channels `f`.
     const CHUNK: usize = 256;
     let eval_chunk = |chunk: &[u32], keep: &mut dyn FnMut(usize, &[f64])| -> Result<()> {
-        let mut f = vec![0.0; nc];
-        for (i, &a) in chunk.iter().enumerate() {
-            if let Some(&next) = chunk.get(i + PREFETCH_AHEAD) {
-                source.prefetch_cell(next as usize);
-            }
-            source.eval_cell(a as usize, &mut f)?;
-            check_finite(&f, &needed, &channels, || cell_place(&grid, a as usize))?;
-            keep(i, &f);
-        }
-        Ok(())
+        eval_cells_in_order(
+            source,
+            chunk,
+            |&a| a as usize,
+            |i, &a, f| {
+                check_finite(f, &needed, &channels, || cell_place(&grid, a as usize))?;
+                keep(i, f);
+                Ok(())
+            },
+        )
     };
     let cells = match lookup {
         Lookup::Multilinear => {
