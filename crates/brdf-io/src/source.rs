@@ -2,7 +2,7 @@
 //! import report that resampling returns.
 
 use crate::error::{Error, Result};
-use crate::grid::{AngularGrid, Channels, Vec3};
+use crate::grid::{AngularGrid, Channels, HalfDiff, Vec3};
 use crate::lookup::Lookup;
 
 /// How many cells ahead a consumer that evaluates cells in order (render plans, albedo
@@ -90,6 +90,24 @@ pub fn eval_cells_in_order<T, E: From<Error>>(
         visit(i, item, &f)?;
     }
     Ok(())
+}
+
+/// A hint that [`BrdfSource::eval`] at each of `pairs` (`(wi, wo)`) follows: for a grid
+/// source, passes the cells that their lookups read (their interpolation stencils, ascending,
+/// each once) to [`BrdfSource::will_need_cells`]; no effect for other sources.
+pub fn will_need_pairs(source: &dyn BrdfSource, pairs: &[(Vec3, Vec3)]) {
+    let Some(grid) = source.grid() else {
+        return;
+    };
+    let mut cells: Vec<usize> = pairs
+        .iter()
+        .filter(|(wi, wo)| wi[2] > 0.0 && wo[2] > 0.0)
+        .filter_map(|&(wi, wo)| HalfDiff::from_dirs(wi, wo))
+        .flat_map(|hd| grid.interpolation_stencil(&hd).map(|(a, _)| a))
+        .collect();
+    cells.sort_unstable();
+    cells.dedup();
+    source.will_need_cells(&mut cells.into_iter());
 }
 
 /// The linear blend `a f1 + (1 - a) f2` of two sources in BRDF values (the paper's linear
@@ -1225,6 +1243,41 @@ mod tests {
         )
         .unwrap();
         assert_eq!(source.0.lock().unwrap().last(), Some(&WillNeed(vec![])));
+    }
+
+    /// `will_need_pairs` hints a grid source the cells of the pairs' stencils (ascending, each
+    /// once; none for a pair below the horizon) and nothing to a source without a grid.
+    #[test]
+    fn will_need_pairs_hints_the_stencils_of_the_pairs_above_the_horizon() {
+        let source = Recorder(Default::default());
+        let grid = source.grid().unwrap();
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        let pairs = [
+            ([0.0, 0.0, 1.0], [s, 0.0, s]),
+            ([0.3, 0.1, 0.9], [-0.5, 0.2, 0.8]),
+            ([0.0, 0.0, 1.0], [s, 0.0, -s]), // below the horizon
+            ([0.0, 0.0, 1.0], [s, 0.0, s]),  // the first again
+        ];
+        will_need_pairs(&source, &pairs);
+        let mut want: Vec<usize> = pairs[..2]
+            .iter()
+            .flat_map(|&(wi, wo)| {
+                let hd = HalfDiff::from_dirs(wi, wo).unwrap();
+                grid.interpolation_stencil(&hd).map(|(a, _)| a)
+            })
+            .collect();
+        want.sort_unstable();
+        want.dedup();
+        assert!(want.len() > 2, "{want:?}");
+        let events = std::mem::take(&mut *source.0.lock().unwrap());
+        assert_eq!(events, [Event::WillNeed(want)]);
+        // Only below the horizon: a hint of no cells.
+        will_need_pairs(&source, &pairs[2..3]);
+        assert_eq!(*source.0.lock().unwrap(), [Event::WillNeed(vec![])]);
+        // Not a grid source: no hint.
+        let plain = Hinted::new(Channels::Rgb);
+        will_need_pairs(&plain, &pairs);
+        assert!(plain.will_need_hints().is_empty());
     }
 
     /// A source that is not a grid source refuses cell lookups (the trait's default), so does a

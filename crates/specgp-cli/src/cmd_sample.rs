@@ -288,19 +288,40 @@ pub fn parse_dirs(text: &str, path: &Path) -> anyhow::Result<Vec<(Vec3, Vec3)>> 
     Ok(pairs)
 }
 
-/// Evaluates `source` at every pair and returns the CSV text (header of channel labels).
+/// Direction pairs per parallel task of [`sample_csv`] (a grid source is told their cells
+/// together, so that one stored on a disk reads them at once).
+const PAIRS_PER_TASK: usize = 256;
+
+/// Evaluates `source` at every pair (in parallel) and returns the CSV text (header of channel
+/// labels, then a row per pair in order). An error names the first pair that failed.
 pub fn sample_csv(source: &dyn BrdfSource, pairs: &[(Vec3, Vec3)]) -> anyhow::Result<String> {
+    use rayon::prelude::*;
+    use std::fmt::Write as _;
     let labels = source.channels().labels();
+    let rows = |first: usize, block: &[(Vec3, Vec3)]| -> anyhow::Result<String> {
+        brdf_io::source::will_need_pairs(source, block);
+        let (mut text, mut buf) = (String::new(), vec![0.0; labels.len()]);
+        for (k, (wi, wo)) in block.iter().enumerate() {
+            source
+                .eval(*wi, *wo, &mut buf)
+                .with_context(|| format!("evaluating direction pair {}", first + k + 1))?;
+            for (c, v) in buf.iter().enumerate() {
+                let sep = if c == 0 { "" } else { "," };
+                let _ = write!(text, "{sep}{v:e}"); // (writing to a String cannot fail)
+            }
+            text.push('\n');
+        }
+        Ok(text)
+    };
+    let blocks: Vec<anyhow::Result<String>> = pairs
+        .par_chunks(PAIRS_PER_TASK)
+        .enumerate()
+        .map(|(b, block)| rows(b * PAIRS_PER_TASK, block))
+        .collect();
     let mut out = labels.join(",");
     out.push('\n');
-    let mut buf = vec![0.0; labels.len()];
-    for (k, (wi, wo)) in pairs.iter().enumerate() {
-        source
-            .eval(*wi, *wo, &mut buf)
-            .with_context(|| format!("evaluating direction pair {}", k + 1))?;
-        let row: Vec<String> = buf.iter().map(|v| format!("{v:e}")).collect();
-        out.push_str(&row.join(","));
-        out.push('\n');
+    for block in blocks {
+        out.push_str(&block?);
     }
     Ok(out)
 }
@@ -365,6 +386,50 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("empty file"), "{e}");
+    }
+
+    /// A source whose value is `wi_x` (one channel) and which fails where `wi_x` is negative.
+    struct FailsWhereNegative;
+
+    impl BrdfSource for FailsWhereNegative {
+        fn channels(&self) -> Channels {
+            Channels::spectral(vec![500.0]).unwrap()
+        }
+        fn eval(&self, wi: Vec3, _wo: Vec3, out: &mut [f64]) -> brdf_io::Result<()> {
+            if wi[0] < 0.0 {
+                return Err(brdf_io::Error::InvalidArgument {
+                    reason: format!("negative at {}", wi[0]),
+                });
+            }
+            out[0] = wi[0];
+            Ok(())
+        }
+    }
+
+    /// Pairs evaluated in parallel tasks come out as rows in order, and an error names the
+    /// first failing pair, whichever task fails first.
+    #[test]
+    fn rows_keep_the_order_and_errors_name_the_first_failing_pair() {
+        let n = 3 * PAIRS_PER_TASK + 7;
+        let pair = |x: f64| ([x, 0.0, 1.0], [0.0, 0.0, 1.0]);
+        let mut pairs: Vec<_> = (0..n).map(|k| pair(k as f64)).collect();
+        let csv = sample_csv(&FailsWhereNegative, &pairs).unwrap();
+        let rows: Vec<&str> = csv.lines().collect();
+        assert_eq!(rows.len(), n + 1);
+        assert_eq!(rows[0], "500");
+        for (k, row) in rows[1..].iter().enumerate() {
+            assert_eq!(row.parse::<f64>().unwrap(), k as f64, "row {k}");
+        }
+        // Failures in the second and the last task: the second task's names the pair.
+        let first = PAIRS_PER_TASK + 5;
+        pairs[first] = pair(-1.0);
+        pairs[n - 1] = pair(-2.0);
+        let e = format!("{:#}", sample_csv(&FailsWhereNegative, &pairs).unwrap_err());
+        assert!(
+            e.contains(&format!("evaluating direction pair {}: ", first + 1))
+                && e.contains("negative at -1"),
+            "{e}"
+        );
     }
 
     #[test]
