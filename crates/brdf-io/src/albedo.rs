@@ -458,6 +458,88 @@ impl GridAlbedo {
             })
             .collect()
     }
+
+    /// A [`GridAlbedo::table`] accumulated from values that stream past instead of evaluated
+    /// cell by cell: see [`AlbedoStream`].
+    pub fn stream(&self, channels: Channels) -> AlbedoStream<'_> {
+        AlbedoStream {
+            sums: vec![0.0; self.angles_deg.len() * channels.len()],
+            albedo: self,
+            channels,
+            next_cell: 0,
+            done: 0,
+        }
+    }
+}
+
+/// The albedo table of a grid source looked up multilinearly, summed from its values as they
+/// stream past in flat order (`cell * channels + channel`, blocks from 0 to the end, as a
+/// prediction is materialised), so that a check of the values costs no second read of them:
+/// [`AlbedoStream::push`] every block in order, then [`AlbedoStream::finish`]. The table equals
+/// [`GridAlbedo::table`] of a source with these values but for the sums' order (their last
+/// bits).
+#[derive(Debug)]
+pub struct AlbedoStream<'a> {
+    albedo: &'a GridAlbedo,
+    channels: Channels,
+    /// Per elevation (rows) and channel, the sums so far.
+    sums: Vec<f64>,
+    /// Position in the albedo's `cells` of the first touched cell not yet complete.
+    next_cell: usize,
+    /// Values pushed so far.
+    done: usize,
+}
+
+impl AlbedoStream<'_> {
+    /// Adds the block of values at flat indices `range` (`values.len() == range.len()`),
+    /// which must start where the block before ended (0 for the first).
+    pub fn push(&mut self, range: std::ops::Range<usize>, values: &[f32]) -> Result<()> {
+        let nc = self.channels.len();
+        let total = self.albedo.grid.len() * nc;
+        if range.start != self.done || range.len() != values.len() || range.end > total {
+            return Err(Error::InvalidArgument {
+                reason: format!(
+                    "albedo stream: block {range:?} of {} values after {} of {total}",
+                    values.len(),
+                    self.done
+                ),
+            });
+        }
+        let cells = &self.albedo.cells;
+        while let Some((a, weights)) = cells.get(self.next_cell) {
+            let (first, end) = (a * nc, (a + 1) * nc);
+            if first >= range.end {
+                break;
+            }
+            for d in first.max(range.start)..end.min(range.end) {
+                let (c, v) = (d - first, f64::from(values[d - range.start]));
+                for &(k, w) in weights {
+                    self.sums[k * nc + c] += w * v;
+                }
+            }
+            if end > range.end {
+                break;
+            }
+            self.next_cell += 1;
+        }
+        self.done = range.end;
+        Ok(())
+    }
+
+    /// The table, once every value has been pushed.
+    pub fn finish(self) -> Result<AlbedoTable> {
+        let total = self.albedo.grid.len() * self.channels.len();
+        if self.done != total {
+            return Err(Error::InvalidArgument {
+                reason: format!("albedo stream ended after {} of {total} values", self.done),
+            });
+        }
+        Ok(AlbedoTable {
+            angles_deg: self.albedo.angles_deg.clone(),
+            channels: self.channels,
+            values: self.sums,
+        })
+    }
 }
 
 #[cfg(test)]
@@ -651,6 +733,54 @@ mod tests {
             .map(Vec::len)
             .sum();
         assert!(nodes > angles.len() * 24 * 24 / 4, "{nodes}");
+    }
+
+    /// A stream fed a stored material's values in blocks of any size (splitting cells or
+    /// not) gives the table of its cells up to the sums' order; a block out of order, of the
+    /// wrong length or past the end, and a stream finished early, are errors.
+    #[test]
+    fn streamed_values_give_the_table_of_their_cells() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = store(dir.path());
+        let angles = [0.0, 35.0, 70.0, 86.0];
+        let m = crate::store::StoreMaterial::open(&path, "glossy").unwrap();
+        let (grid, nc) = (m.grid().unwrap(), m.channels().len());
+        let albedo = GridAlbedo::new(&grid, &angles, 24).unwrap();
+        let want = albedo.table(&m).unwrap();
+        assert!(want.values.iter().all(|&v| v > 0.1), "{:?}", want.values);
+        let mut all = Vec::with_capacity(grid.len() * nc);
+        let mut f = vec![0.0; nc];
+        for a in 0..grid.len() {
+            m.eval_cell(a, &mut f).unwrap();
+            all.extend(f.iter().map(|&v| v as f32));
+        }
+        for block in [1, 2, nc, 7 * nc + 2, all.len()] {
+            let mut stream = albedo.stream(m.channels());
+            for (i, values) in all.chunks(block).enumerate() {
+                let start = i * block;
+                stream.push(start..start + values.len(), values).unwrap();
+            }
+            let got = stream.finish().unwrap();
+            assert_eq!(
+                (&got.angles_deg, &got.channels),
+                (&want.angles_deg, &want.channels)
+            );
+            for (g, w) in got.values.iter().zip(&want.values) {
+                assert!((g - w).abs() <= 1e-13 * w, "block {block}: {g} vs {w}");
+            }
+        }
+        let message = |r: Result<()>| r.unwrap_err().to_string();
+        let mut stream = albedo.stream(m.channels());
+        stream.push(0..5, &all[..5]).unwrap();
+        let e = message(stream.push(6..8, &all[6..8]));
+        assert!(e.contains("block 6..8 of 2 values after 5 of"), "{e}");
+        let e = message(stream.push(5..8, &all[5..7]));
+        assert!(e.contains("block 5..8 of 2 values"), "{e}");
+        let end = all.len();
+        let e = message(stream.push(5..end + 1, &vec![0.0; end - 4]));
+        assert!(e.contains(&format!("after 5 of {end}")), "{e}");
+        let e = stream.finish().unwrap_err().to_string();
+        assert!(e.contains(&format!("ended after 5 of {end} values")), "{e}");
     }
 
     /// The peak is the first of equal largest values, in elevation then channel order.

@@ -182,6 +182,19 @@ impl PredictedMaterial {
         path: &Path,
         progress: impl FnMut(usize, usize),
     ) -> Result<MaterializeReport> {
+        self.materialize_with(path, progress, |_, _| Ok(()))
+    }
+
+    /// [`PredictedMaterial::materialize`], showing every block of values to `observe(range,
+    /// values)` as it is written (as [`PredictedMaterial::stream_values`] gives them: output
+    /// order, before any MERL regridding), e.g. to check the values without reading them again;
+    /// an error of `observe` ends the writing (and nothing is renamed into place).
+    pub fn materialize_with(
+        &self,
+        path: &Path,
+        progress: impl FnMut(usize, usize),
+        mut observe: impl FnMut(Range<usize>, &[f32]) -> Result<()>,
+    ) -> Result<MaterializeReport> {
         let start = Instant::now();
         let format = OutputFormat::from_path(path)?;
         let total = self.output_len();
@@ -192,7 +205,8 @@ impl PredictedMaterial {
             OutputFormat::Npy => {
                 let mut w = NpyWriter::create(path, NpyDtype::F32, &[1, total])?;
                 self.stream_values(
-                    |_, v| {
+                    |r, v| {
+                        observe(r, v)?;
                         count.add(v);
                         Ok(w.write_f32(v)?)
                     },
@@ -215,6 +229,7 @@ impl PredictedMaterial {
                 w.declare_materials(&[(self.label(), source.as_str())])?;
                 self.stream_values(
                     |r, v| {
+                        observe(r.clone(), v)?;
                         count.add(v);
                         Ok(w.write_block(r, v)?)
                     },
@@ -235,7 +250,8 @@ impl PredictedMaterial {
                 }
                 let mut all = Vec::with_capacity(total);
                 self.stream_values(
-                    |_, v| {
+                    |r, v| {
+                        observe(r, v)?;
                         count.add(v);
                         all.extend_from_slice(v);
                         Ok(())

@@ -207,6 +207,67 @@ fn posterior_mean_and_variance_equal_a_dense_reference() {
     assert!(checked > 50);
 }
 
+/// `materialize_with` shows the observer every value written, in order, in contiguous blocks
+/// (for `.npy` and `.sbrdf` outputs); an observer's error ends the writing and leaves nothing
+/// at the path.
+#[test]
+fn materialising_shows_every_value_written_to_the_observer() {
+    let options = StoreOptions {
+        chunk_len: Some(100), // several chunks, so several blocks, some splitting cells
+        ..StoreOptions::default()
+    };
+    let f = fixture_with(6, "log", options);
+    let pred = Predictor::open(&f.model).unwrap();
+    assert!(pred.store().n_chunks() > 3, "{}", pred.store().n_chunks());
+    let material = pred.predict(&[0.1, 0.4], PredictorKind::Exact).unwrap();
+    for name in ["seen.npy", "seen.sbrdf"] {
+        let out = f._dir.path().join(name);
+        let mut seen: Vec<f32> = Vec::new();
+        let mut blocks = 0;
+        material
+            .materialize_with(
+                &out,
+                |_, _| {},
+                |range, values| {
+                    assert_eq!((range.start, range.len()), (seen.len(), values.len()));
+                    seen.extend_from_slice(values);
+                    blocks += 1;
+                    Ok(())
+                },
+            )
+            .unwrap();
+        let written = if name.ends_with(".npy") {
+            brdf_io::npy::read(&out).unwrap().to_f32()
+        } else {
+            let store = Store::open(&out).unwrap();
+            let mut row = vec![0f32; store.d()];
+            store.material_row(0, 0..store.d(), &mut row).unwrap();
+            row
+        };
+        assert_eq!(seen.len(), pred.store().d());
+        assert!(blocks > 1, "{name}: {blocks}");
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&seen), bits(&written), "{name}");
+    }
+    let out = f._dir.path().join("refused.npy");
+    let mut calls = 0;
+    let e = material
+        .materialize_with(
+            &out,
+            |_, _| {},
+            |_, _| {
+                calls += 1;
+                Err(Error::InvalidArgument {
+                    reason: "observer says no".into(),
+                })
+            },
+        )
+        .unwrap_err();
+    assert!(e.to_string().contains("observer says no"), "{e}");
+    assert_eq!(calls, 1);
+    assert!(!out.exists());
+}
+
 #[test]
 fn lazy_lookups_equal_the_materialised_values() {
     let f = fixture(8, "log");

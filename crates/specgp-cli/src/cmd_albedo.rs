@@ -14,8 +14,10 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
-use brdf_io::albedo::{AlbedoTable, DEFAULT_RESOLUTION, directional_albedo, gains_energy};
-use brdf_io::{BrdfSource, Channels};
+use brdf_io::albedo::{
+    AlbedoTable, DEFAULT_RESOLUTION, GridAlbedo, directional_albedo, gains_energy,
+};
+use brdf_io::{AngularGrid, BrdfSource, Channels};
 
 use crate::cmd_sample::SourceArgs;
 
@@ -221,7 +223,14 @@ pub fn energy_warning(table: &AlbedoTable, what: &str) -> Option<String> {
 /// `predict` and `convert` run on what they write. A check that fails is logged at debug
 /// level only: it never stops an output.
 pub fn warn_on_energy_gain(source: &dyn BrdfSource, what: &str) {
-    match directional_albedo(source, &DEFAULT_ANGLES_DEG, DEFAULT_RESOLUTION) {
+    let table = directional_albedo(source, &DEFAULT_ANGLES_DEG, DEFAULT_RESOLUTION);
+    warn_on_energy_gain_in(table, what);
+}
+
+/// Logs [`energy_warning`] for the table of [`warn_on_energy_gain`]'s check of `what`, or at
+/// debug level why the check failed.
+pub fn warn_on_energy_gain_in(table: brdf_io::Result<AlbedoTable>, what: &str) {
+    match table {
         Ok(table) => {
             if let Some(warning) = energy_warning(&table, what) {
                 tracing::warn!("{warning}");
@@ -229,6 +238,15 @@ pub fn warn_on_energy_gain(source: &dyn BrdfSource, what: &str) {
         }
         Err(e) => tracing::debug!("energy check of {what} skipped: {e}"),
     }
+}
+
+/// The cell weights of [`warn_on_energy_gain`]'s check on `grid`, to sum the check from a
+/// material's values as they stream past ([`GridAlbedo::stream`]); `None` (logged at debug
+/// level) where they cannot be made.
+pub fn energy_check_weights(grid: &AngularGrid) -> Option<GridAlbedo> {
+    GridAlbedo::new(grid, &DEFAULT_ANGLES_DEG, DEFAULT_RESOLUTION)
+        .map_err(|e| tracing::debug!("energy check weights of grid {grid}: {e}"))
+        .ok()
 }
 
 #[cfg(test)]

@@ -3240,6 +3240,29 @@ fn albedo_reports_energy_conservation() {
         let at = m.coords[0].to_string();
         let (_, err) = specgp_outputs(&["predict", "l.toml", "--at", &at, "--out", "p.npy"], d);
         assert_eq!(err.contains(gain), m.name == "bright", "{}: {err}", m.name);
+        // The check summed from the values as they are written (multilinear lookups) reports
+        // what `albedo` and the cell-by-cell check (logarithmic lookups) report.
+        let said = |err: &str| {
+            let words = "reflects more light than it receives: ";
+            err.lines()
+                .find_map(|l| l.split_once(words))
+                .map(|(_, w)| w.to_owned())
+        };
+        let point = format!("l.toml@{at}");
+        let (_, by_cells) = specgp_outputs(&["albedo", &point, "--out", "-"], d);
+        let (_, log) = specgp_outputs(
+            &[
+                "predict", "l.toml", "--at", &at, "--lookup", "log", "--out", "q.npy",
+            ],
+            d,
+        );
+        assert_eq!(
+            said(&err),
+            said(&by_cells),
+            "{}: {err} / {by_cells}",
+            m.name
+        );
+        assert_eq!(said(&err), said(&log), "{}: {err} / {log}", m.name);
     }
 
     // A training material at its own latent point.
