@@ -53,9 +53,9 @@ pub enum Paging {
     /// The kernel's default: a fault reads a window around its page.
     ReadAround,
     /// Small reads (a lookup's cell, one index's N values: under [`ON_DEMAND_MAX_BYTES`]) are
-    /// positioned reads of exactly their bytes (one request to the disk for a cell; the
-    /// kernel reads no more for a read that does not continue the one before) instead of
-    /// faults in the map. Larger reads (chunks, the streaming passes, the checksum) keep the
+    /// positioned reads of exactly their bytes (one request to the disk for a cell, through a
+    /// handle of their own advised `POSIX_FADV_RANDOM` on Linux, so that the kernel reads no
+    /// more even for reads that follow one another) instead of faults in the map. Larger reads (chunks, the streaming passes, the checksum) keep the
     /// map and the kernel's read-around, whose read-ahead keeps a sequential pass at the
     /// disk's speed. Values are the same as under [`Paging::ReadAround`]; only the disk traffic
     /// differs.
@@ -140,6 +140,26 @@ fn merge_spans(
     if let Some((s, e)) = run {
         emit(s, e);
     }
+}
+
+/// The handle for [`Paging::OnDemand`]'s positioned reads of a store opened as `file`: on
+/// Linux a second open file description of the same file (`/proc/self/fd/N`, so it cannot be
+/// another file) advised `POSIX_FADV_RANDOM`, so that the kernel reads what each read asks
+/// instead of a read-ahead window that grows whenever reads happen to follow one another (the
+/// RGL writer's cell reads then read 100 GB of a 58 GB store), while the map, made from
+/// `file`, keeps its read-ahead for streaming passes; elsewhere, or when that fails, `file`.
+fn random_read_handle(file: File) -> File {
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::fd::AsRawFd;
+        let reopened = File::open(format!("/proc/self/fd/{}", file.as_raw_fd()));
+        if let Ok(second) = reopened
+            && rustix::fs::fadvise(&second, 0, None, rustix::fs::Advice::Random).is_ok()
+        {
+            return second;
+        }
+    }
+    file
 }
 
 /// Whether `bytes` exceed half the physical memory (`MemTotal` of `/proc/meminfo`; false where
@@ -386,7 +406,10 @@ impl Store {
                 // process may then read changed values or receive SIGBUS on access to pages
                 // past the new end of file. Use `ReadMode::Buffered` where that can happen.
                 let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| Error::io(&path, e))?;
-                let small_reads = options.paging.on_demand(file_len, &path)?.then_some(file);
+                let small_reads = options
+                    .paging
+                    .on_demand(file_len, &path)?
+                    .then(|| random_read_handle(file));
                 Backing::Mmap(map, small_reads)
             }
         };
@@ -1194,6 +1217,31 @@ mod tests {
         assert_eq!(runs(&[(0, 4), (4, 7)], 0, 10), [(0, 4), (4, 11)]);
         // Empty spans are skipped, even between two that join.
         assert_eq!(runs(&[(0, 4), (50, 0), (6, 2)], 5, 100), [(0, 8)]);
+    }
+
+    /// The handle of on-demand positioned reads is the file that was opened (its inode, its
+    /// bytes), even when its path names another file by then (on Linux it is a second open
+    /// file description of the same file, not a second open of the path).
+    #[cfg(unix)]
+    #[test]
+    fn random_read_handles_read_the_file_opened() {
+        use std::os::unix::fs::MetadataExt;
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("bytes.bin");
+        let bytes: Vec<u8> = (0..5000u32).map(|i| (i * 7 % 251) as u8).collect();
+        std::fs::write(&p, &bytes).unwrap();
+        let file = File::open(&p).unwrap();
+        let id = |m: std::fs::Metadata| (m.dev(), m.ino());
+        let opened = id(file.metadata().unwrap());
+        // The path replaced by another file before the handle is made.
+        std::fs::write(dir.path().join("other.bin"), [9u8; 5000]).unwrap();
+        std::fs::rename(dir.path().join("other.bin"), &p).unwrap();
+        assert_ne!(id(std::fs::metadata(&p).unwrap()), opened);
+        let handle = random_read_handle(file);
+        assert_eq!(id(handle.metadata().unwrap()), opened);
+        let mut got = [0u8; 100];
+        read_exact_at(&handle, &mut got, 4321).unwrap();
+        assert_eq!(got[..], bytes[4321..4421]);
     }
 
     /// Folds in waves give the same bits as one wave of all segments, whatever the wave size.
