@@ -380,6 +380,14 @@ impl BrdfSource for CachedCells<'_> {
             _ => return Ok(()),
         };
         let lookup = self.source.lookup();
+        let stencil = self.grid.interpolation_stencil(&hd);
+        // The cells not yet evaluated, asked for together (a store read from the disk then
+        // reads them at once rather than one after another).
+        for &(a, w) in &stencil {
+            if w != 0.0 && self.cells[a].get().is_none() {
+                self.source.prefetch_cell(a);
+            }
+        }
         let record = |a: usize| {
             let cell = self.cells[a].get_or_init(|| {
                 let mut v = vec![0.0; self.channels.len()];
@@ -394,7 +402,7 @@ impl BrdfSource for CachedCells<'_> {
                 }),
             }
         };
-        look_up(lookup, self.grid.interpolation_stencil(&hd), record, out)
+        look_up(lookup, stencil, record, out)
     }
 }
 
@@ -1603,11 +1611,13 @@ mod tests {
     }
 
     /// A grid source: each cell's values a function of its index, interpolated with the grid's
-    /// stencil (as stored and predicted materials are); counts its evaluations.
+    /// stencil (as stored and predicted materials are); counts its evaluations and prefetch
+    /// hints.
     struct Cells {
         grid: crate::grid::AngularGrid,
         evals: std::sync::atomic::AtomicUsize,
         cell_evals: Vec<std::sync::atomic::AtomicUsize>,
+        prefetches: Vec<std::sync::atomic::AtomicUsize>,
         failing: Option<usize>,
     }
 
@@ -1618,6 +1628,7 @@ mod tests {
                 grid,
                 evals: 0.into(),
                 cell_evals: (0..grid.len()).map(|_| 0.into()).collect(),
+                prefetches: (0..grid.len()).map(|_| 0.into()).collect(),
                 failing,
             }
         }
@@ -1670,11 +1681,14 @@ mod tests {
             (0..3).for_each(|c| out[c] = Self::value(a, c));
             Ok(())
         }
+        fn prefetch_cell(&self, a: usize) {
+            self.prefetches[a].fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
     }
 
     /// The cached cells of a grid source evaluate as the source does, to the bit (the same
-    /// sums in the same order), zero at or below the horizon, each cell once; a cell that
-    /// cannot be evaluated is an error naming it.
+    /// sums in the same order), zero at or below the horizon, each cell once, after a prefetch
+    /// hint; a cell that cannot be evaluated is an error naming it.
     #[test]
     fn cached_cells_evaluate_as_their_source_each_cell_once() {
         let source = Cells::new(None);
@@ -1702,6 +1716,13 @@ mod tests {
             }
         }
         source.assert_most_cells_evaluated_once();
+        // Each cell was hinted while it was not yet evaluated: once, as it was evaluated.
+        let counts = |v: &[std::sync::atomic::AtomicUsize]| {
+            v.iter()
+                .map(|c| c.load(std::sync::atomic::Ordering::Relaxed))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(counts(&source.prefetches), counts(&source.cell_evals));
 
         let (wi, wo) = pairs[0];
         let hd = crate::grid::HalfDiff::from_dirs(wi, wo).unwrap();
