@@ -55,10 +55,10 @@ pub enum Paging {
     /// Small reads (a lookup's cell, one index's N values: under [`ON_DEMAND_MAX_BYTES`]) are
     /// positioned reads of exactly their bytes (one request to the disk for a cell, through a
     /// handle of their own advised `POSIX_FADV_RANDOM` on Linux, so that the kernel reads no
-    /// more even for reads that follow one another) instead of faults in the map. Larger reads (chunks, the streaming passes, the checksum) keep the
-    /// map and the kernel's read-around, whose read-ahead keeps a sequential pass at the
-    /// disk's speed. Values are the same as under [`Paging::ReadAround`]; only the disk traffic
-    /// differs.
+    /// more even for reads that follow one another) instead of faults in the map. Larger
+    /// reads (chunks, the streaming passes, the checksum) keep the map and the kernel's
+    /// read-around, whose read-ahead keeps a sequential pass at the disk's speed. Values are
+    /// the same as under [`Paging::ReadAround`]; only the disk traffic differs.
     OnDemand,
 }
 
