@@ -1246,7 +1246,7 @@ mod tests {
     }
 
     /// `will_need_pairs` hints a grid source the cells of the pairs' stencils (ascending, each
-    /// once; none for a pair below the horizon) and nothing to a source without a grid.
+    /// once; none for a pair below or on the horizon) and nothing to a source without a grid.
     #[test]
     fn will_need_pairs_hints_the_stencils_of_the_pairs_above_the_horizon() {
         let source = Recorder(Default::default());
@@ -1255,8 +1255,10 @@ mod tests {
         let pairs = [
             ([0.0, 0.0, 1.0], [s, 0.0, s]),
             ([0.3, 0.1, 0.9], [-0.5, 0.2, 0.8]),
-            ([0.0, 0.0, 1.0], [s, 0.0, -s]), // below the horizon
-            ([0.0, 0.0, 1.0], [s, 0.0, s]),  // the first again
+            ([0.0, 0.0, 1.0], [s, 0.0, -s]),    // below the horizon
+            ([0.0, 0.0, 1.0], [1.0, 0.0, 0.0]), // on it (no lookup reads a cell there)
+            ([1.0, 0.0, 0.0], [0.0, 0.0, 1.0]),
+            ([0.0, 0.0, 1.0], [s, 0.0, s]), // the first again
         ];
         will_need_pairs(&source, &pairs);
         let mut want: Vec<usize> = pairs[..2]
@@ -1271,8 +1273,8 @@ mod tests {
         assert!(want.len() > 2, "{want:?}");
         let events = std::mem::take(&mut *source.0.lock().unwrap());
         assert_eq!(events, [Event::WillNeed(want)]);
-        // Only below the horizon: a hint of no cells.
-        will_need_pairs(&source, &pairs[2..3]);
+        // Only below or on the horizon: a hint of no cells.
+        will_need_pairs(&source, &pairs[2..5]);
         assert_eq!(*source.0.lock().unwrap(), [Event::WillNeed(vec![])]);
         // Not a grid source: no hint.
         let plain = Hinted::new(Channels::Rgb);
