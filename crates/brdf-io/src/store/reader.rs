@@ -1215,6 +1215,11 @@ mod tests {
         // The run's length: up to max_run joins, past it starts anew.
         assert_eq!(runs(&[(0, 4), (4, 6)], 0, 10), [(0, 10)]);
         assert_eq!(runs(&[(0, 4), (4, 7)], 0, 10), [(0, 4), (4, 11)]);
+        assert_eq!(
+            runs(&[(100, 4), (104, 6)], 0, 10),
+            [(100, 110)],
+            "the run's own length"
+        );
         // Empty spans are skipped, even between two that join.
         assert_eq!(runs(&[(0, 4), (50, 0), (6, 2)], 5, 100), [(0, 8)]);
     }
