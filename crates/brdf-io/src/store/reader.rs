@@ -162,6 +162,21 @@ fn random_read_handle(file: File) -> File {
     file
 }
 
+/// Asks the kernel to start reading bytes `start..end` of `file` into the page cache
+/// (`posix_fadvise(WILLNEED)`, Linux; nothing elsewhere). A hint: a kernel that refuses it
+/// reads the bytes when they are read.
+fn advise_will_need(file: &File, start: usize, end: usize) {
+    #[cfg(target_os = "linux")]
+    let _ = rustix::fs::fadvise(
+        file,
+        start as u64,
+        std::num::NonZeroU64::new((end - start) as u64),
+        rustix::fs::Advice::WillNeed,
+    );
+    #[cfg(not(target_os = "linux"))]
+    let _ = (file, start, end);
+}
+
 /// Whether `bytes` exceed half the physical memory (`MemTotal` of `/proc/meminfo`; false where
 /// that cannot be read).
 fn larger_than_half_the_memory(bytes: u64) -> bool {
@@ -870,22 +885,17 @@ impl Store {
     /// start reading them from the disk (Linux); no effect otherwise, or for a range outside
     /// the store or across chunks.
     pub fn prefetch(&self, d_range: Range<usize>) {
-        if let Some(bytes) = self.mapped_bytes(d_range.clone()) {
-            super::prefetch_lines(bytes);
+        let Some((offset, len)) = self.span(d_range) else {
             return;
-        }
-        #[cfg(target_os = "linux")]
-        if let Some((offset, len)) = self.span(d_range)
-            && let Some(file) = self.read_on_demand(len)
-        {
-            // A hint: a kernel that refuses it reads the bytes when they are read.
-            let advice = rustix::fs::Advice::WillNeed;
-            let _ = rustix::fs::fadvise(
-                file,
-                offset as u64,
-                std::num::NonZeroU64::new(len as u64),
-                advice,
-            );
+        };
+        match (&self.backing, self.read_on_demand(len)) {
+            (_, Some(file)) => advise_will_need(file, offset, offset + len),
+            (Backing::Mmap(m, _), None) => {
+                if let Some(bytes) = m.get(offset..offset + len) {
+                    super::prefetch_lines(bytes);
+                }
+            }
+            (Backing::File(_), None) => {}
         }
     }
 
@@ -904,13 +914,7 @@ impl Store {
             };
             let spans = d_ranges.into_iter().filter_map(|r| self.span(r));
             merge_spans(spans, WILL_NEED_GAP, WILL_NEED_MAX_RUN, |start, end| {
-                // A hint: a kernel that refuses it reads the bytes when they are read.
-                let _ = rustix::fs::fadvise(
-                    file,
-                    start as u64,
-                    std::num::NonZeroU64::new((end - start) as u64),
-                    rustix::fs::Advice::WillNeed,
-                );
+                advise_will_need(file, start, end);
             });
         }
         #[cfg(not(target_os = "linux"))]
