@@ -256,6 +256,10 @@ impl<S: BrdfSource> BrdfSource for WithLookup<S> {
     fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
         self.inner.will_need_cells(cells);
     }
+
+    fn cell_source(&self) -> Option<&dyn std::any::Any> {
+        self.inner.cell_source()
+    }
 }
 
 #[cfg(test)]

@@ -66,6 +66,15 @@ pub trait BrdfSource: Sync {
     fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
         let _ = cells;
     }
+
+    /// The concrete source whose [`BrdfSource::eval_cell`] this source's is, for a consumer
+    /// that evaluates the cells of several sources of one kind together (a render of many
+    /// predictions of one model reads each cell once for all of them: it downcasts this to
+    /// the prediction). Only wrappers that evaluate cells exactly as their inner source
+    /// (boxes, references, [`crate::lookup::WithLookup`]) forward it; `None` by default.
+    fn cell_source(&self) -> Option<&dyn std::any::Any> {
+        None
+    }
 }
 
 /// Evaluates the cells of a grid source that `items` name (`cell(item)`, a flat index), in
@@ -78,15 +87,30 @@ pub fn eval_cells_in_order<T, E: From<Error>>(
     source: &dyn BrdfSource,
     items: &[T],
     cell: impl Fn(&T) -> usize,
+    visit: impl FnMut(usize, &T, &[f64]) -> std::result::Result<(), E>,
+) -> std::result::Result<(), E> {
+    let eval = |a: usize, f: &mut [f64]| source.eval_cell(a, f).map_err(E::from);
+    eval_cells_in_order_by(source, source.channels().len(), eval, items, cell, visit)
+}
+
+/// [`eval_cells_in_order`] with each cell's `width` values computed by `eval(a, f)` instead of
+/// a source's own [`BrdfSource::eval_cell`] (several sources' cells at once, say), the hints
+/// going to `hints` (a source that reads the same cells).
+pub fn eval_cells_in_order_by<T, E>(
+    hints: &dyn BrdfSource,
+    width: usize,
+    mut eval: impl FnMut(usize, &mut [f64]) -> std::result::Result<(), E>,
+    items: &[T],
+    cell: impl Fn(&T) -> usize,
     mut visit: impl FnMut(usize, &T, &[f64]) -> std::result::Result<(), E>,
 ) -> std::result::Result<(), E> {
-    let mut f = vec![0.0; source.channels().len()];
-    source.will_need_cells(&mut items.iter().map(&cell));
+    let mut f = vec![0.0; width];
+    hints.will_need_cells(&mut items.iter().map(&cell));
     for (i, item) in items.iter().enumerate() {
         if let Some(next) = items.get(i + PREFETCH_AHEAD) {
-            source.prefetch_cell(cell(next));
+            hints.prefetch_cell(cell(next));
         }
-        source.eval_cell(cell(item), &mut f)?;
+        eval(cell(item), &mut f)?;
         visit(i, item, &f)?;
     }
     Ok(())
@@ -219,6 +243,10 @@ macro_rules! forward_source {
 
             fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
                 (**self).will_need_cells(cells);
+            }
+
+            fn cell_source(&self) -> Option<&dyn std::any::Any> {
+                (**self).cell_source()
             }
         }
     )*};

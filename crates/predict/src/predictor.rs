@@ -801,7 +801,54 @@ impl PredictedMaterial {
     /// are bit-identical.
     pub fn eval_cell(&self, a: usize, out: &mut [f64]) -> Result<()> {
         self.check_out(out)?;
-        let inner = &*self.pred.inner;
+        Self::eval_cell_each(&[self], a, out)
+    }
+
+    /// Whether `other` evaluates its cells from the same stored values as this material (the
+    /// same predictor, or a clone of it, and the same output channels), so
+    /// [`PredictedMaterial::eval_cell_each`] evaluates both at once.
+    pub fn shares_cells(&self, other: &PredictedMaterial) -> bool {
+        Arc::ptr_eq(&self.pred.inner, &other.pred.inner)
+            && (Arc::ptr_eq(&self.selection, &other.selection) || self.selection == other.selection)
+    }
+
+    /// Values of the output channels at angular cell `a` for each of `materials` into `out`,
+    /// material after material (`materials.len()` x channels values): the cell's stored
+    /// values are read, and transformed, once for all of them (renders of many predictions of
+    /// one scene were bound by reading memory: each read the same cells again). Each
+    /// material's values are bit-identical to its own [`PredictedMaterial::eval_cell`]. The
+    /// materials must share their cells ([`PredictedMaterial::shares_cells`]); an error
+    /// names the first material whose values are not finite.
+    pub fn eval_cell_each(
+        materials: &[&PredictedMaterial],
+        a: usize,
+        out: &mut [f64],
+    ) -> Result<()> {
+        let Some(head) = materials.first() else {
+            return Err(Error::InvalidArgument {
+                reason: "a batch of predicted cells needs at least one material".into(),
+            });
+        };
+        if let Some(m) = materials.iter().find(|m| !head.shares_cells(m)) {
+            return Err(Error::InvalidArgument {
+                reason: format!(
+                    "the predictions {} and {} do not share their cells (another model or \
+                     other output channels): evaluate them apart",
+                    head.label, m.label
+                ),
+            });
+        }
+        let width = head.selection.taps().len();
+        if out.len() != width * materials.len() {
+            return Err(Error::InvalidArgument {
+                reason: format!(
+                    "output has {} slots for {} materials of {width} channels",
+                    out.len(),
+                    materials.len()
+                ),
+            });
+        }
+        let inner = &*head.pred.inner;
         // Before `a * nc`: a huge index wrapped onto another cell's values (a panic in debug
         // builds).
         if a >= inner.grid.len() {
@@ -811,13 +858,28 @@ impl PredictedMaterial {
             });
         }
         let (nc, n) = (inner.channels.len(), inner.n);
-        let sel = &*self.selection;
-        let (first, last) = self.selection.span();
+        let sel = &*head.selection;
+        let (first, last) = sel.span();
+        let t = inner.transform;
         SCRATCH.with(|scratch| {
             let mut scratch = scratch.borrow_mut();
             let (raw, wide, vals) = &mut *scratch;
             let span = last + 1 - first;
             vals.resize(span, 0.0);
+            // Each material: its dot products over the rows, the inverse transform, its
+            // channels, checked (`combine_block`'s arithmetic).
+            let mut each = |rows: Rows<'_>| -> Result<()> {
+                for (m, out) in materials.iter().zip(out.chunks_exact_mut(width)) {
+                    match rows {
+                        Rows::Stored(rows) => row_dots(&m.coef, rows, vals),
+                        Rows::Forward(rows) => row_dots(&m.coef, rows, vals),
+                    }
+                    t.inverse_in_place(vals);
+                    sel.apply(vals, first, out);
+                    m.check_finite(out, a * width)?;
+                }
+                Ok(())
+            };
             if let Some(cells) = &inner.forward_cells {
                 // The cell's forward-transformed values, all channels, computed once: the
                 // transform is elementwise, so these are the bits combine_block computes.
@@ -830,16 +892,19 @@ impl PredictedMaterial {
                         cells.cells[a].get_or_init(|| t)
                     }
                 };
-                row_dots(&self.coef, &cell[first * n..(last + 1) * n], vals);
-                inner.transform.inverse_in_place(vals);
+                each(Rows::Forward(&cell[first * n..(last + 1) * n]))
             } else {
-                let (store, transformed) = self.pred.lookup_store();
+                let (store, transformed) = head.pred.lookup_store();
                 let block = store.values_in_ref(a * nc + first..a * nc + last + 1, raw)?;
                 debug_assert_eq!(block.len(), span * n);
-                self.combine_block(block, transformed, wide, vals);
+                if transformed || t == Transform::Raw {
+                    each(Rows::Stored(block))
+                } else {
+                    wide.resize(block.len(), 0.0);
+                    t.forward_batch(block, wide);
+                    each(Rows::Forward(wide))
+                }
             }
-            sel.apply(vals, first, out);
-            self.check_finite(out, a * out.len())
         })
     }
 
@@ -1025,6 +1090,13 @@ impl PredictedMaterial {
     }
 }
 
+/// The rows of N values a cell's dot products read: stored (f32) or forward-transformed (f64).
+#[derive(Clone, Copy)]
+enum Rows<'a> {
+    Stored(&'a [f32]),
+    Forward(&'a [f64]),
+}
+
 thread_local! {
     /// Scratch of the lazy lookups: stored values, transformed values, results.
     static SCRATCH: RefCell<(Vec<f32>, Vec<f64>, Vec<f64>)> =
@@ -1048,7 +1120,8 @@ fn row_dots<T: Lanes>(c: &[f64], rows: &[T], out: &mut [f64]) {
     row_dots_body(c, rows, out);
 }
 
-/// [`row_dots`] with AVX2: each dot product by [`gp_core::fastmath::dot_avx2`] (explicit
+/// [`row_dots`] with AVX2: [`ROWS_AT_ONCE`] rows at a time by
+/// [`gp_core::fastmath::dot_rows_avx2`], the rest by [`gp_core::fastmath::dot_avx2`] (explicit
 /// 4-lane vectors, the arithmetic of [`gp_core::fastmath::dot`] exactly), so results are
 /// bit-identical to [`row_dots_body`].
 ///
@@ -1057,12 +1130,26 @@ fn row_dots<T: Lanes>(c: &[f64], rows: &[T], out: &mut [f64]) {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn row_dots_avx2<T: Lanes>(c: &[f64], rows: &[T], out: &mut [f64]) {
-    for (o, row) in out.iter_mut().zip(rows.chunks_exact(c.len())) {
+    let n = c.len();
+    let whole = (rows.len() / n).min(out.len());
+    let mut k = 0;
+    while k + ROWS_AT_ONCE <= whole {
+        // SAFETY: AVX2 and FMA are available (this function's contract); rows from k on hold
+        // at least ROWS_AT_ONCE rows of n values (k + ROWS_AT_ONCE <= whole).
+        let dots =
+            unsafe { gp_core::fastmath::dot_rows_avx2::<T, ROWS_AT_ONCE>(c, &rows[k * n..]) };
+        out[k..k + ROWS_AT_ONCE].copy_from_slice(&dots);
+        k += ROWS_AT_ONCE;
+    }
+    for (o, row) in out[k..].iter_mut().zip(rows[k * n..].chunks_exact(n)) {
         // SAFETY: AVX2 and FMA are available (this function's contract); `row` has c.len()
         // values.
         *o = unsafe { gp_core::fastmath::dot_avx2(c, row) };
     }
 }
+
+/// Rows whose dot products [`row_dots_avx2`] computes together (interleaved chains).
+const ROWS_AT_ONCE: usize = 8;
 
 #[inline(always)]
 fn row_dots_body<T: Copy + Into<f64>>(c: &[f64], rows: &[T], out: &mut [f64]) {
@@ -1094,6 +1181,10 @@ impl BrdfSource for PredictedMaterial {
 
     fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
         PredictedMaterial::will_need_cells(self, cells);
+    }
+
+    fn cell_source(&self) -> Option<&dyn std::any::Any> {
+        Some(self)
     }
 }
 
@@ -1127,22 +1218,29 @@ mod tests {
 
     #[test]
     fn row_dots_are_bit_identical_to_the_portable_dot() {
+        // 21 rows: two blocks of ROWS_AT_ONCE and five rows one by one.
         for n in (1..=13).chain([51, 100]) {
             let c = values(n, n as u64);
-            let rows64 = values(n * 5, 7 + n as u64);
+            let rows64 = values(n * 21, 7 + n as u64);
             let rows32: Vec<f32> = rows64.iter().map(|&v| v as f32).collect();
-            let (mut fast, mut portable) = (vec![0.0; 5], vec![0.0; 5]);
+            let (mut fast, mut portable) = (vec![0.0; 21], vec![0.0; 21]);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             row_dots(&c, &rows64, &mut fast);
             row_dots_body(&c, &rows64, &mut portable);
-            assert_eq!(fast, portable, "f64, n = {n}");
+            assert_eq!(bits(&fast), bits(&portable), "f64, n = {n}");
             row_dots(&c, &rows32, &mut fast);
             row_dots_body(&c, &rows32, &mut portable);
-            assert_eq!(fast, portable, "f32, n = {n}");
+            assert_eq!(bits(&fast), bits(&portable), "f32, n = {n}");
             let direct: Vec<f64> = rows32
                 .chunks(n)
                 .map(|r| gp_core::fastmath::dot(&c, r))
                 .collect();
-            assert_eq!(fast, direct, "f32, n = {n}");
+            assert_eq!(bits(&fast), bits(&direct), "f32, n = {n}");
+            // Fewer output slots than rows: only the first rows, the others untouched.
+            let mut few = [-1.0; 10];
+            row_dots(&c, &rows32, &mut few[..9]);
+            assert_eq!(bits(&few[..9]), bits(&direct[..9]), "n = {n}");
+            assert_eq!(few[9], -1.0);
         }
     }
 }

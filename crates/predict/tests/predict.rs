@@ -415,6 +415,105 @@ fn forward_cache_gives_the_uncached_bits() {
     }
 }
 
+/// Predictions evaluated together (`eval_cell_each`, as renders of many thumbnails do) give
+/// each one's own `eval_cell` bits, on every lookup path (the dataset under `log` and `raw`,
+/// the forward cache, the sidecar), for full channels and for a wavelength subset made for
+/// each material apart; materials that do not share their cells, and bad arguments, are
+/// refused, and an overflow names the material that overflowed.
+#[test]
+fn predictions_evaluated_together_have_each_ones_bits() {
+    for transform in ["log", "raw"] {
+        let f = fixture(6, transform);
+        let pred = Predictor::open(&f.model).unwrap();
+        let names = material_names(&pred);
+        let mut paths = vec![pred.clone(), pred.with_forward_cache()];
+        if transform == "log" {
+            let side = pred.transformed_store_path();
+            pred.build_transformed_store(&side, |_, _| {}).unwrap();
+            paths.push(pred.with_transformed_store(&side).unwrap());
+        }
+        let subset = Channels::parse_wavelengths("425,500,610").unwrap();
+        for p in &paths {
+            let full = vec![
+                p.predict(&[0.3, -0.2], PredictorKind::Exact).unwrap(),
+                p.clone()
+                    .predict(&[-0.1, 0.4], PredictorKind::Smooth)
+                    .unwrap(),
+                p.lerp(&names[0], &names[2], 0.3).unwrap(),
+                p.training(&names[4]).unwrap(),
+            ];
+            let sub: Vec<_> = full
+                .iter()
+                .map(|m| m.with_wavelengths(&subset).unwrap())
+                .collect();
+            for batch in [&full, &sub] {
+                let refs: Vec<&predict::PredictedMaterial> = batch.iter().collect();
+                let w = batch[0].channels().len();
+                let mut together = vec![0.0; w * refs.len()];
+                let mut alone = vec![0.0; w];
+                for a in 0..p.grid().len() {
+                    predict::PredictedMaterial::eval_cell_each(&refs, a, &mut together).unwrap();
+                    for (k, m) in batch.iter().enumerate() {
+                        m.eval_cell(a, &mut alone).unwrap();
+                        let got = &together[k * w..(k + 1) * w];
+                        for (x, y) in got.iter().zip(&alone) {
+                            assert_eq!(x.to_bits(), y.to_bits(), "{transform}, cell {a}, {k}");
+                        }
+                    }
+                }
+            }
+            assert!(full[0].shares_cells(&full[1]) && sub[0].shares_cells(&sub[3]));
+            assert!(!full[0].shares_cells(&sub[0]));
+            let mixed = [&full[0], &sub[1]];
+            let e = predict::PredictedMaterial::eval_cell_each(&mixed, 0, &mut [0.0; 10]);
+            let e = e.unwrap_err().to_string();
+            assert!(e.contains("do not share their cells"), "{e}");
+        }
+        // Another predictor (even of the same model) reads its own cells.
+        let other = Predictor::open(&f.model).unwrap();
+        let (a, b) = (
+            pred.training(&names[0]).unwrap(),
+            other.training(&names[0]).unwrap(),
+        );
+        assert!(!a.shares_cells(&b));
+        // A forward cache is another predictor's (under `raw` there is none: the same one).
+        let cached = pred.with_forward_cache().training(&names[0]).unwrap();
+        assert_eq!(a.shares_cells(&cached), transform == "raw");
+        let nc = pred.channels().len();
+        let each = predict::PredictedMaterial::eval_cell_each;
+        assert!(each(&[&a, &b], 0, &mut vec![0.0; 2 * nc]).is_err());
+        let e = each(&[], 0, &mut []).unwrap_err().to_string();
+        assert!(e.contains("at least one material"), "{e}");
+        let e = each(&[&a, &a], 0, &mut vec![0.0; nc])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains(&format!("slots for 2 materials of {nc} channels")),
+            "{e}"
+        );
+        let cells = pred.grid().len();
+        let e = each(&[&a, &a], cells, &mut vec![0.0; 2 * nc]).unwrap_err();
+        assert!(
+            matches!(e, Error::CellOutOfRange { cell, .. } if cell == cells),
+            "{e}"
+        );
+        if transform == "log" {
+            // A blend far beyond its materials overflows: the error names it, not the others.
+            let wild = pred.lerp(&names[0], &names[1], 1e6).unwrap();
+            let mut out = vec![0.0; 2 * nc];
+            let e = (0..cells)
+                .find_map(|c| each(&[&a, &wild], c, &mut out).err())
+                .expect("the blend overflows somewhere")
+                .to_string();
+            assert!(
+                e.contains(&format!("of the prediction {}", wild.label()))
+                    && e.contains("prediction overflowed"),
+                "{e}"
+            );
+        }
+    }
+}
+
 /// A wavelength selection whose stored span starts after the first stored channel (475 nm
 /// between 450 and 500, 650 nm stored; one at 700 nm alone) reads each cell's own channels on
 /// every lookup path (the dataset, the forward cache, the sidecar), with prefetch hints before

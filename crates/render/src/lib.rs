@@ -67,5 +67,5 @@ pub use map::{MapOptions, latent_map};
 pub use sheet::{ComparisonSheet, comparison_sheet, path_comparison, sphere_rows};
 pub use sphere::{
     ENV_MODE_NAMES, EnvMode, EnvTableSpec, PlaneOptions, SphereOptions, clear_plans, render_plane,
-    render_sphere, studio_irradiance, studio_radiance,
+    render_sphere, render_spheres, studio_irradiance, studio_radiance,
 };

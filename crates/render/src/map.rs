@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use crate::error::{Error, Result};
 use crate::font;
 use crate::image::Image;
-use crate::sphere::{SphereOptions, render_sphere};
+use crate::sphere::{SphereOptions, render_spheres};
 
 /// Largest side of a map's plot area and of its thumbnail panel, in pixels (as a sphere's).
 pub const MAX_MAP_PIXELS: usize = 8192;
@@ -476,15 +476,22 @@ pub fn latent_map(
             .collect();
         // A failure names the thumbnail's latent point (a NaN in a predicted material said
         // which cell and channel, but not where on the map).
-        let thumbs: Vec<Image> = points_of_cells
+        let at = |p: [f64; 2]| {
+            move |e| Error::Thumbnail {
+                point: p,
+                cause: Box::new(e),
+            }
+        };
+        let sources: Vec<Box<dyn BrdfSource + '_>> = points_of_cells
             .iter()
-            .map(|&p| {
-                f(p).and_then(|src| render_sphere(src.as_ref(), &opts.sphere))
-                    .map_err(|e| Error::Thumbnail {
-                        point: p,
-                        cause: Box::new(e),
-                    })
-            })
+            .map(|&p| f(p).map_err(at(p)))
+            .collect::<Result<_>>()?;
+        // Rendered together: predictions of one model read each cell once for all of them.
+        let sources: Vec<&dyn BrdfSource> = sources.iter().map(|s| s.as_ref()).collect();
+        let thumbs: Vec<Image> = render_spheres(&sources, &opts.sphere)
+            .into_iter()
+            .zip(&points_of_cells)
+            .map(|(thumb, &p)| thumb.map_err(at(p)))
             .collect::<Result<_>>()?;
         let bg = Image::new(g * ts, rows * ts, [0.02; 3]);
         img.blit(&bg, ox, margin as i64);

@@ -68,6 +68,7 @@ use std::sync::OnceLock;
 use brdf_io::lookup::{cell_record, look_up};
 use brdf_io::{AngularGrid, BrdfSource, Channels, HalfDiff, Lookup, Vec3};
 use gp_core::fastmath::exp_lanes;
+use predict::PredictedMaterial;
 use rayon::prelude::*;
 
 use crate::colour::{ColourPipeline, Illuminant};
@@ -648,14 +649,21 @@ fn colour_weights(
 /// `needed` channels. Negative channel values count as 0: a BRDF is non-negative, and the
 /// values that dip below (a raw-space GP prediction that undershoots, the out-of-gamut cells of
 /// RGB tensor files) rendered as black holes ringed by saturated colour.
+///
+/// The three rows are summed in one pass, each in channel order from -0.0 as
+/// [`Iterator::sum`] does (the same bits as three sums one after the other, but three
+/// additions in flight instead of one: a planned render of many predictions spent an eighth of
+/// its time here).
 fn project(weights: &[Vec<f64>; 3], needed: &[usize], acc: &[f64], k: f64) -> [f64; 3] {
-    [0, 1, 2].map(|r| {
-        k * weights[r]
-            .iter()
-            .zip(needed)
-            .map(|(w, &c)| w * acc[c].max(0.0))
-            .sum::<f64>()
-    })
+    let mut sums = [-0.0f64; 3];
+    let rows = weights[0].iter().zip(&weights[1]).zip(&weights[2]);
+    for (((w0, w1), w2), &c) in rows.zip(needed) {
+        let f = acc[c].max(0.0);
+        sums[0] += w0 * f;
+        sums[1] += w1 * f;
+        sums[2] += w2 * f;
+    }
+    sums.map(|s| k * s)
 }
 
 /// One weighted cell of a logarithmic lookup: (its needed channels' values, their logarithms
@@ -1169,6 +1177,50 @@ pub fn render_sphere(source: &dyn BrdfSource, opts: &SphereOptions) -> Result<Im
     render_scene(source, opts, plan::Scene::Sphere, sphere_sight(opts.size))
 }
 
+/// Spheres of several materials in one scene (`opts`), in order: each result is what
+/// [`render_sphere`] gives for that material alone (the same pixels, the same error).
+/// Predictions of one model ([`PredictedMaterial`], also behind a [`BrdfSource::cell_source`]
+/// such as a [`brdf_io::lookup::WithLookup`]) with one lookup, rendered through a plan,
+/// evaluate each planned cell once for all of them: its stored values are read once instead
+/// of once per sphere (latent-map thumbnails were bound by reading memory).
+pub fn render_spheres(sources: &[&dyn BrdfSource], opts: &SphereOptions) -> Vec<Result<Image>> {
+    if let Some(images) = render_together(sources, opts) {
+        return images.into_iter().map(Ok).collect();
+    }
+    sources.iter().map(|s| render_sphere(*s, opts)).collect()
+}
+
+/// The spheres of `sources` rendered together ([`render_spheres`]) when they are two or more
+/// predictions that share their cells, with one lookup, under a render plan, and none fails;
+/// `None` otherwise (each is then rendered alone, which gives each failure its own error).
+fn render_together(sources: &[&dyn BrdfSource], opts: &SphereOptions) -> Option<Vec<Image>> {
+    let (&first, _) = sources.split_first()?;
+    let EnvMode::Table(spec) = opts.env_mode else {
+        return None;
+    };
+    let (grid, lookup) = (first.grid()?, first.lookup());
+    if sources.len() < 2 || opts.check().is_err() || !planned(&grid, opts.size, &spec) {
+        return None;
+    }
+    let members: Vec<&PredictedMaterial> = sources
+        .iter()
+        .map(|s| s.cell_source()?.downcast_ref::<PredictedMaterial>())
+        .collect::<Option<_>>()?;
+    let alike = |(s, m): (&&dyn BrdfSource, &&PredictedMaterial)| {
+        s.lookup() == lookup && s.grid() == Some(grid) && members[0].shares_cells(m)
+    };
+    if !sources.iter().zip(&members).all(alike) {
+        return None;
+    }
+    let batch = plan::Materials::Predicted { first, members };
+    let sight = sphere_sight(opts.size);
+    plan::render(&batch, opts, grid, spec, plan::Scene::Sphere, &sight)
+        .ok()?
+        .into_iter()
+        .map(|image| refuse_nan_pixels(image, opts).ok())
+        .collect()
+}
+
 /// What the pixels of a `size x size` image of the unit sphere see (orthographic, view along
 /// +z), with the anti-aliased silhouette of the module docs.
 fn sphere_sight(size: usize) -> impl Fn(usize, usize) -> Option<Sight> + Sync {
@@ -1223,7 +1275,12 @@ fn render_scene(
     if let (Some(grid), EnvMode::Table(spec)) = (source.grid(), opts.env_mode)
         && planned(&grid, opts.size, &spec)
     {
-        return refuse_nan_pixels(plan::render(source, opts, grid, spec, scene, &sight)?, opts);
+        let one = plan::Materials::One(source);
+        let mut images = plan::render(&one, opts, grid, spec, scene, &sight)?;
+        let image = images.pop().ok_or_else(|| Error::InvalidArgument {
+            reason: "a planned render gave no image".into(),
+        })?;
+        return refuse_nan_pixels(image, opts);
     }
     let shader = Shader::new(source, opts)?;
     let img = rasterize(opts.size, shader.n_channels, |px, py, f| {
@@ -1980,17 +2037,150 @@ mod tests {
         };
         let unplanned = render_sphere(&src, &opts(big)).unwrap();
         let reference = plan::render(
-            &src,
+            &plan::Materials::One(&src),
             &opts(big),
             src.grid,
             big,
             plan::Scene::Sphere,
             &sphere_sight(6),
         )
-        .unwrap();
+        .unwrap()
+        .remove(0);
         assert_eq!(unplanned.alpha, reference.alpha);
         assert!(max_rel_diff(&unplanned, &reference) < 1e-9);
         assert!(mean_colour(&unplanned).0[1] > 0.01);
+    }
+
+    /// Spheres rendered together (`render_spheres`) are the spheres rendered alone, pixel for
+    /// pixel: predictions of one model under multilinear and logarithmic lookups (together,
+    /// also split into several passes), mixed with other sources or other lookups, or in
+    /// scenes without a plan (rendered one by one); a member that fails gets its own error
+    /// and the others their images.
+    #[test]
+    fn spheres_rendered_together_are_the_spheres_rendered_alone() {
+        use brdf_io::lookup::WithLookup;
+        use predict::{Predictor, PredictorKind};
+        let dir = tempfile::tempdir().unwrap();
+        let store = dir.path().join("data.sbrdf");
+        let presets = brdf_synth::preset(0);
+        let picked: Vec<_> = presets.iter().step_by(presets.len() / 5).cloned().collect();
+        let grid = AngularGrid::new(8, 8, 16).unwrap();
+        let channels = Channels::parse_wavelengths("400:700:50").unwrap();
+        let options = brdf_io::StoreOptions::default();
+        brdf_synth::write_store(&store, &picked, grid, &channels, options, 0, |_| {}).unwrap();
+        let params = gplvm::FitParams {
+            latent_dim: 2,
+            max_iterations: 100,
+            ..gplvm::FitParams::default()
+        };
+        let model = gplvm::fit_store(&store, &params.check().unwrap()).unwrap();
+        let path = dir.path().join("model.toml");
+        model.save(&path).unwrap();
+        let pred = Predictor::open(&path).unwrap();
+        let names: Vec<String> = model.materials.iter().map(|m| m.name.clone()).collect();
+        let points = [[0.2, -0.1], [-0.3, 0.4], [0.0, 0.0]];
+        let mut members: Vec<predict::PredictedMaterial> = points
+            .iter()
+            .map(|p| pred.predict(p, PredictorKind::Exact).unwrap())
+            .collect();
+        members.push(pred.lerp(&names[0], &names[1], 0.4).unwrap());
+        let same = |a: &Image, b: &Image| {
+            let bits = |i: &Image| {
+                let rgb = i.rgb.iter().flatten().map(|v| v.to_bits());
+                rgb.chain(i.alpha.iter().map(|v| v.to_bits()))
+                    .collect::<Vec<_>>()
+            };
+            bits(a) == bits(b)
+        };
+        let check = |sources: &[&dyn BrdfSource], opts: &SphereOptions| {
+            let together = render_spheres(sources, opts);
+            assert_eq!(together.len(), sources.len());
+            for (k, (t, s)) in together.iter().zip(sources).enumerate() {
+                let alone = render_sphere(*s, opts).unwrap();
+                assert!(same(t.as_ref().unwrap(), &alone), "member {k}");
+            }
+        };
+        let opts = SphereOptions {
+            size: 24,
+            ..SphereOptions::default()
+        };
+        for lookup in [Lookup::Multilinear, Lookup::LogMultilinear] {
+            let looked: Vec<_> = members
+                .iter()
+                .map(|m| WithLookup::new(m.clone(), lookup).unwrap())
+                .collect();
+            let sources: Vec<&dyn BrdfSource> = looked.iter().map(|s| s as _).collect();
+            assert!(render_together(&sources, &opts).is_some(), "{lookup:?}");
+            check(&sources, &opts);
+            // One pass a material.
+            plan::BATCH_BYTES_IN_TESTS.store(1, std::sync::atomic::Ordering::Relaxed);
+            check(&sources, &opts);
+            plan::BATCH_BYTES_IN_TESTS.store(0, std::sync::atomic::Ordering::Relaxed);
+            // Per pixel: no plan, so one by one.
+            let per_pixel = SphereOptions {
+                env_mode: EnvMode::PerPixel,
+                size: 12,
+                ..opts
+            };
+            assert!(render_together(&sources, &per_pixel).is_none());
+            check(&sources, &per_pixel);
+        }
+        // Bare predictions (multilinear) go together too.
+        let bare: Vec<&dyn BrdfSource> = members.iter().map(|m| m as _).collect();
+        assert!(render_together(&bare, &opts).is_some());
+        check(&bare, &opts);
+        // Another lookup, another source or another predictor: one by one, the same images.
+        let log = WithLookup::new(members[1].clone(), Lookup::LogMultilinear).unwrap();
+        let lambert = Lambert(channels.clone(), 0.5);
+        let other = Predictor::open(&path).unwrap();
+        let elsewhere = other.predict(&points[0], PredictorKind::Exact).unwrap();
+        for odd in [&log as &dyn BrdfSource, &lambert, &elsewhere] {
+            let sources = [bare[0], odd, bare[2]];
+            assert!(render_together(&sources, &opts).is_none());
+            check(&sources, &opts);
+        }
+        // A blend far beyond its materials overflows: its own error, the others' images.
+        let wild = pred.lerp(&names[0], &names[1], 1e6).unwrap();
+        let sources = [bare[0], &wild as &dyn BrdfSource, bare[1]];
+        let together = render_spheres(&sources, &opts);
+        let alone = render_sphere(&wild, &opts).unwrap_err().to_string();
+        assert_eq!(together[1].as_ref().unwrap_err().to_string(), alone);
+        assert!(same(
+            together[2].as_ref().unwrap(),
+            &render_sphere(bare[1], &opts).unwrap()
+        ));
+    }
+
+    /// `project` has the bits of the three row sums one after the other (`Iterator::sum`),
+    /// with negative, zero and NaN-free values of mixed magnitudes, and weights of both signs.
+    #[test]
+    fn projection_has_the_bits_of_three_separate_sums() {
+        let mut state = 0x853c_49e6_748f_ea9bu64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            let u = (state >> 11) as f64 / (1u64 << 53) as f64 - 0.3;
+            u * 10f64.powi((state % 9) as i32 - 4)
+        };
+        for n in [0, 1, 2, 7, 33, 143] {
+            let acc: Vec<f64> = (0..n + 5).map(|_| next()).collect();
+            let needed: Vec<usize> = (0..n).map(|j| (j * 7 + 3) % (n + 5)).collect();
+            let weights = [0, 1, 2].map(|_| (0..n).map(|_| next()).collect::<Vec<f64>>());
+            let k = next();
+            let separate = [0, 1, 2].map(|r| {
+                k * weights[r]
+                    .iter()
+                    .zip(&needed)
+                    .map(|(w, &c)| w * acc[c].max(0.0))
+                    .sum::<f64>()
+            });
+            let got = project(&weights, &needed, &acc, k);
+            assert_eq!(got.map(f64::to_bits), separate.map(f64::to_bits), "n = {n}");
+        }
+        // All terms -0.0 (a negative weight times a zero value): the sums keep the sign.
+        let got = project(&[vec![-1.0], vec![-1.0], vec![-1.0]], &[0], &[0.0], 1.0);
+        assert_eq!(got.map(f64::to_bits), [(-0.0f64).to_bits(); 3]);
     }
 
     #[test]

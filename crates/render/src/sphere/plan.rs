@@ -25,15 +25,16 @@ use std::convert::Infallible;
 use std::sync::{Arc, Mutex, PoisonError};
 
 use brdf_io::lookup::cell_logs;
-use brdf_io::source::eval_cells_in_order;
-use brdf_io::{AngularGrid, BrdfSource, HalfDiff, Lookup, Vec3};
+use brdf_io::source::eval_cells_in_order_by;
+use brdf_io::{AngularGrid, BrdfSource, Channels, HalfDiff, Lookup, Vec3};
+use predict::PredictedMaterial;
 use rayon::prelude::*;
 
 use super::{
     ENV_TABLE_MAX_DEGREES, EnvTable, EnvTableSpec, Sight, SphereOptions, basis, cell_place,
     check_finite, colour_weights, dot, log_look_up, project,
 };
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::image::Image;
 
 /// Scenes kept by the plan cache (least recently built first out).
@@ -299,18 +300,71 @@ impl Cells {
     }
 }
 
-/// Renders the scene `sight` of a grid source with the pre-integrated environment of `spec`
-/// through its plan (see the module docs). `opts` must be checked.
+/// The materials a planned render evaluates: one source, or predictions of one model whose
+/// cells are evaluated together ([`PredictedMaterial::eval_cell_each`]: each cell's stored
+/// values read once for all of them).
+pub(super) enum Materials<'a> {
+    /// One source.
+    One(&'a dyn BrdfSource),
+    /// Predictions that share their cells ([`PredictedMaterial::shares_cells`]).
+    Predicted {
+        /// The first of them as a source: its hints serve all (they read the same cells).
+        first: &'a dyn BrdfSource,
+        /// All of them, in order.
+        members: Vec<&'a PredictedMaterial>,
+    },
+}
+
+impl Materials<'_> {
+    fn len(&self) -> usize {
+        match self {
+            Materials::One(_) => 1,
+            Materials::Predicted { members, .. } => members.len(),
+        }
+    }
+
+    /// The source that takes the hints (its channels and lookup are all materials').
+    fn hints(&self) -> &dyn BrdfSource {
+        match self {
+            Materials::One(source) => *source,
+            Materials::Predicted { first, .. } => *first,
+        }
+    }
+
+    /// Values of cell `a` for every material, one after the other, into `f`.
+    fn eval(&self, a: usize, f: &mut [f64]) -> Result<()> {
+        match self {
+            Materials::One(source) => Ok(source.eval_cell(a, f)?),
+            Materials::Predicted { members, .. } => {
+                PredictedMaterial::eval_cell_each(members, a, f).map_err(|e| {
+                    Error::InvalidArgument {
+                        reason: e.to_string(),
+                    }
+                })
+            }
+        }
+    }
+}
+
+/// Most bytes of evaluated cells ([`Cells`]) a batch of materials keeps at once: more
+/// materials than that takes are evaluated in several passes over the plan's cells (a
+/// multilinear lookup keeps 24 bytes a cell, a logarithmic one 16 per needed channel).
+const MAX_BATCH_CELL_BYTES: usize = 256 << 20;
+
+/// Renders the scene `sight` of grid sources with the pre-integrated environment of `spec`
+/// through its plan (see the module docs), one image per material of `materials` (all with the
+/// channels and lookup of the source that takes the hints), each the image a render of it
+/// alone gives. `opts` must be checked.
 pub(super) fn render(
-    source: &dyn BrdfSource,
+    materials: &Materials<'_>,
     opts: &SphereOptions,
     grid: AngularGrid,
     spec: EnvTableSpec,
     scene: Scene,
     sight: &(dyn Fn(usize, usize) -> Option<Sight> + Sync),
-) -> Result<Image> {
-    let channels = source.channels();
-    let (weights, needed) = colour_weights(&channels, opts.illuminant)?;
+) -> Result<Vec<Image>> {
+    let (channels, lookup) = (&materials.hints().channels(), materials.hints().lookup());
+    let (weights, needed) = colour_weights(channels, opts.illuminant)?;
     let key = Key {
         scene,
         size: opts.size,
@@ -321,56 +375,146 @@ pub(super) fn render(
         env: opts.env_radiance > 0.0,
     };
     let plan = plan_for(key, || Plan::build(key, opts.light_dir(), sight));
-    let lookup = source.lookup();
     let m = needed.len();
-    // Each planned cell evaluated once, in parallel (chunks of `CHUNK` cells), into what its
-    // lookups read: `keep(i, f)` keeps the i-th cell of the chunk from all its channels `f`.
+    let group = batch_size(lookup, plan.cells.len(), m);
+    let mut cells = Vec::with_capacity(materials.len());
+    match materials {
+        Materials::Predicted { first, members } if members.len() > group => {
+            for members in members.chunks(group) {
+                let part = Materials::Predicted {
+                    first: *first,
+                    members: members.to_vec(),
+                };
+                cells.extend(evaluate(&plan, &part, channels, lookup, &weights, &needed)?);
+            }
+        }
+        _ => cells = evaluate(&plan, materials, channels, lookup, &weights, &needed)?,
+    }
+    let columns: Vec<[f64; 3]> = (0..m)
+        .map(|c| [weights[0][c], weights[1][c], weights[2][c]])
+        .collect();
+    Ok(cells
+        .iter()
+        .map(|cells| shade(&plan, cells, &columns, opts))
+        .collect())
+}
+
+/// The cells of `plan` evaluated for each of `materials` (one pass over the plan's cells) as
+/// their lookups read them (`weights`, `needed`: the colour projection of `channels`).
+fn evaluate(
+    plan: &Plan,
+    materials: &Materials<'_>,
+    channels: &Channels,
+    lookup: Lookup,
+    weights: &[Vec<f64>; 3],
+    needed: &[usize],
+) -> Result<Vec<Cells>> {
+    let (k, m, nc) = (materials.len(), needed.len(), channels.len());
+    let grid = plan.key.grid;
+    // Each planned cell evaluated once for all materials, in parallel (chunks of `CHUNK`
+    // cells), into what their lookups read: `keep(i, f)` keeps the i-th cell of the chunk
+    // from the materials' channels `f` (k x nc values).
     const CHUNK: usize = 256;
     let eval_chunk = |chunk: &[u32], keep: &mut dyn FnMut(usize, &[f64])| -> Result<()> {
-        eval_cells_in_order(
-            source,
+        eval_cells_in_order_by(
+            materials.hints(),
+            k * nc,
+            |a, f| materials.eval(a, f),
             chunk,
             |&a| a as usize,
             |i, &a, f| {
-                check_finite(f, &needed, &channels, || cell_place(&grid, a as usize))?;
+                for f in f.chunks_exact(nc.max(1)) {
+                    check_finite(f, needed, channels, || cell_place(&grid, a as usize))?;
+                }
                 keep(i, f);
                 Ok(())
             },
         )
     };
-    let cells = match lookup {
+    let n_cells = plan.cells.len();
+    Ok(match lookup {
         Lookup::Multilinear => {
-            let mut colours = vec![[0.0; 3]; plan.cells.len()];
+            // Cell after cell, each the k materials' colours.
+            let mut colours = vec![[0.0; 3]; n_cells * k];
             plan.cells
                 .par_chunks(CHUNK)
-                .zip(colours.par_chunks_mut(CHUNK))
+                .zip(colours.par_chunks_mut(CHUNK * k))
                 .try_for_each(|(chunk, colours)| {
                     eval_chunk(chunk, &mut |i, f| {
-                        colours[i] = project(&weights, &needed, f, 1.0);
+                        for (j, f) in f.chunks_exact(nc.max(1)).enumerate() {
+                            colours[i * k + j] = project(weights, needed, f, 1.0);
+                        }
                     })
                 })?;
-            Cells::Colours(colours)
+            (0..k)
+                .map(|j| Cells::Colours(colours.iter().skip(j).step_by(k).copied().collect()))
+                .collect()
         }
         Lookup::LogMultilinear => {
-            let mut values = vec![0.0; plan.cells.len() * m];
-            let mut logs = vec![0.0; plan.cells.len() * m];
+            // Cell after cell, each the k materials' m needed values (and their logarithms).
+            let per_cell = k * m;
+            let mut values = vec![0.0; n_cells * per_cell];
+            let mut logs = vec![0.0; n_cells * per_cell];
             plan.cells
                 .par_chunks(CHUNK)
-                .zip(values.par_chunks_mut(CHUNK * m.max(1)))
-                .zip(logs.par_chunks_mut(CHUNK * m.max(1)))
+                .zip(values.par_chunks_mut(CHUNK * per_cell.max(1)))
+                .zip(logs.par_chunks_mut(CHUNK * per_cell.max(1)))
                 .try_for_each(|((chunk, values), logs)| {
                     eval_chunk(chunk, &mut |i, f| {
-                        let v = &mut values[i * m..(i + 1) * m];
-                        v.iter_mut().zip(&needed).for_each(|(v, &k)| *v = f[k]);
-                        cell_logs(v, &mut logs[i * m..(i + 1) * m]);
+                        for (j, f) in f.chunks_exact(nc.max(1)).enumerate() {
+                            let at = (i * k + j) * m..(i * k + j + 1) * m;
+                            let v = &mut values[at.clone()];
+                            v.iter_mut().zip(needed).for_each(|(v, &c)| *v = f[c]);
+                            cell_logs(v, &mut logs[at]);
+                        }
                     })
                 })?;
-            Cells::Logs { m, values, logs }
+            let member = |all: &[f64], j: usize| -> Vec<f64> {
+                all.chunks_exact(m.max(1))
+                    .skip(j)
+                    .step_by(k)
+                    .flatten()
+                    .copied()
+                    .collect()
+            };
+            (0..k)
+                .map(|j| Cells::Logs {
+                    m,
+                    values: member(&values, j),
+                    logs: member(&logs, j),
+                })
+                .collect()
         }
+    })
+}
+
+/// How many materials' cells (of a plan of `cells` cells, `m` needed channels) one pass of
+/// [`render`] keeps under `lookup`: as many as fit [`MAX_BATCH_CELL_BYTES`], at least one.
+fn batch_size(lookup: Lookup, cells: usize, m: usize) -> usize {
+    let per_material = match lookup {
+        Lookup::Multilinear => 24 * cells,
+        Lookup::LogMultilinear => 16 * m * cells,
     };
-    let columns: Vec<[f64; 3]> = (0..m)
-        .map(|k| [weights[0][k], weights[1][k], weights[2][k]])
-        .collect();
+    #[cfg(test)]
+    let max = match BATCH_BYTES_IN_TESTS.load(std::sync::atomic::Ordering::Relaxed) {
+        0 => MAX_BATCH_CELL_BYTES,
+        bytes => bytes,
+    };
+    #[cfg(not(test))]
+    let max = MAX_BATCH_CELL_BYTES;
+    (max / per_material.max(1)).max(1)
+}
+
+/// In tests, a [`MAX_BATCH_CELL_BYTES`] small enough to split a few thumbnails into passes (0:
+/// the constant). The images do not depend on it, so tests running meanwhile are unaffected.
+#[cfg(test)]
+pub(super) static BATCH_BYTES_IN_TESTS: std::sync::atomic::AtomicUsize =
+    std::sync::atomic::AtomicUsize::new(0);
+
+/// The image of one material's evaluated `cells` under `plan` (`columns`: the linear-sRGB
+/// weights of each needed channel).
+fn shade(plan: &Plan, cells: &Cells, columns: &[[f64; 3]], opts: &SphereOptions) -> Image {
+    let key = plan.key;
     let table = key.env.then(|| EnvTable {
         theta_max: ENV_TABLE_MAX_DEGREES.to_radians(),
         rgb: plan
@@ -383,7 +527,7 @@ pub(super) fn render(
                     for (w, s) in dirs {
                         let rgb = s
                             .as_ref()
-                            .map_or([0.0; 3], |s| cells.interpolate(s, &columns, scratch));
+                            .map_or([0.0; 3], |s| cells.interpolate(s, columns, scratch));
                         (0..3).for_each(|c| acc[c] += w * rgb[c]);
                     }
                     acc.map(|v| opts.env_radiance * v)
@@ -400,7 +544,7 @@ pub(super) fn render(
         if let Some((cos_i, s)) = &p.light
             && e != 0.0
         {
-            let rgb = cells.interpolate(s, &columns, scratch);
+            let rgb = cells.interpolate(s, columns, scratch);
             let k = cos_i * e;
             (0..3).for_each(|c| acc[c] += k * rgb[c]);
         }
@@ -428,7 +572,7 @@ pub(super) fn render(
                 }
             },
         );
-    Ok(img)
+    img
 }
 
 /// Drops the cached render plans (the next render of every scene rebuilds its plan): frees
