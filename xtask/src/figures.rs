@@ -11,7 +11,7 @@ use brdf_io::store::StoreMaterial;
 use brdf_io::{BrdfSource, Lookup};
 use predict::evaluate::LooRow;
 use predict::{Predictor, PredictorKind};
-use render::{Image, SphereOptions, render_sphere};
+use render::{Image, SphereOptions, render_spheres};
 use serde::Serialize;
 
 use crate::error::{Error, Result};
@@ -213,17 +213,37 @@ fn sheet_figure(
     let mut held_out_delta_e = Vec::new();
     let mut delta_e = Vec::new();
     let sheet_path = out.join("sheet.png");
-    for (col, &i) in picks.iter().enumerate() {
-        let name = &model.materials[i].name;
+    // Every sphere in one render (the reconstructions, predictions of one model, evaluate
+    // their cells together): per pick, measured, reconstructed and held out (if any).
+    let mut sources = Vec::new();
+    let mut has_held = Vec::new();
+    for &i in picks {
         let measured =
             StoreMaterial::by_index(store.clone(), i).map_err(|e| err(&sheet_path, e))?;
-        let measured = scene.look(measured, &sheet_path)?;
-        let a = render_sphere(&measured, opts).map_err(|e| err(&sheet_path, e))?;
+        sources.push(scene.look(measured, &sheet_path)?);
         let rec = pred
             .predict(&model.materials[i].coords, PredictorKind::Smooth)
             .map_err(|e| err(&sheet_path, e))?;
-        let b =
-            render_sphere(&scene.look(rec, &sheet_path)?, opts).map_err(|e| err(&sheet_path, e))?;
+        sources.push(scene.look(rec, &sheet_path)?);
+        let held = scene
+            .held_out(&model.materials[i].name)
+            .map_err(|e| err(&sheet_path, e))?;
+        has_held.push(held.is_some());
+        if let Some(held) = held {
+            sources.push(scene.look(held, &sheet_path)?);
+        }
+    }
+    let mut rendered = render_spheres(&as_sources(&sources), opts).into_iter();
+    let mut next = || -> Result<Image> {
+        match rendered.next() {
+            Some(sphere) => sphere.map_err(|e| err(&sheet_path, e)),
+            None => Err(err(&sheet_path, "fewer spheres rendered than asked for")),
+        }
+    };
+    for (col, (&i, &held)) in picks.iter().zip(&has_held).enumerate() {
+        let name = &model.materials[i].name;
+        let a = next()?;
+        let b = next()?;
         spheres += 2;
         let de = mean_delta_e(&a, &b).map_err(|e| err(&sheet_path, e))?;
         let x = 4 + col * cell;
@@ -244,9 +264,8 @@ fn sheet_figure(
             mean_delta_e: de,
             held_out_delta_e: None,
         });
-        if let Some(held) = scene.held_out(name).map_err(|e| err(&sheet_path, e))? {
-            let c = render_sphere(&scene.look(held, &sheet_path)?, opts)
-                .map_err(|e| err(&sheet_path, e))?;
+        if held {
+            let c = next()?;
             spheres += 1;
             let de = mean_delta_e(&a, &c).map_err(|e| err(&sheet_path, e))?;
             let y3 = 4 + 2 * (cell + label_h);
@@ -486,14 +505,22 @@ fn predictions_figure(
     let path = out.join("predictions.png");
     let (cell, label_h) = (scene.cell(), LABEL_H);
     let mut img = Image::new(predictions.len() * cell + 4, cell + 2 * label_h + 4, BG);
-    for (col, p) in predictions.iter().enumerate() {
-        let kind = if p.predictor == "smooth" {
-            PredictorKind::Smooth
-        } else {
-            PredictorKind::Exact
-        };
-        let m = pred.predict(&p.point, kind).map_err(|e| err(&path, e))?;
-        let s = render_sphere(&scene.look(m, &path)?, opts).map_err(|e| err(&path, e))?;
+    // All in one render: predictions of one model evaluate their cells together.
+    let sources = predictions
+        .iter()
+        .map(|p| {
+            let kind = if p.predictor == "smooth" {
+                PredictorKind::Smooth
+            } else {
+                PredictorKind::Exact
+            };
+            let m = pred.predict(&p.point, kind).map_err(|e| err(&path, e))?;
+            scene.look(m, &path)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let rendered = render_spheres(&as_sources(&sources), opts);
+    for (col, (p, s)) in predictions.iter().zip(rendered).enumerate() {
+        let s = s.map_err(|e| err(&path, e))?;
         spheres += 1;
         let x = 4 + col * cell;
         img.blit(&s, x as i64, 4);

@@ -10,7 +10,7 @@ use crate::colour::delta_e_2000_rgb;
 use crate::error::{Error, Result};
 use crate::font;
 use crate::image::{Image, ramp};
-use crate::sphere::{SphereOptions, render_sphere};
+use crate::sphere::{SphereOptions, render_spheres};
 
 /// Background of sheets (linear grey).
 const BACKGROUND: [f64; 3] = [0.02; 3];
@@ -132,6 +132,17 @@ pub struct ComparisonSheet {
 /// One row of a sheet: a label and its sources, one per column.
 pub type SheetRow<'a> = (String, Vec<&'a dyn BrdfSource>);
 
+/// The spheres of every row's sources, row by row: all rendered in one [`render_spheres`]
+/// (predictions of one model, in any row, evaluate their cells together); the first error in
+/// reading order, if any.
+fn render_rows(rows: &[SheetRow<'_>], opts: &SphereOptions) -> Result<Vec<Vec<Image>>> {
+    let all: Vec<&dyn BrdfSource> = rows.iter().flat_map(|(_, r)| r.iter().copied()).collect();
+    let mut images = render_spheres(&all, opts).into_iter();
+    rows.iter()
+        .map(|(_, r)| images.by_ref().take(r.len()).collect())
+        .collect()
+}
+
 /// Width of the label column of a sheet: the widest row label (at least 40 pixels) and a gap
 /// before the first sphere (labels ran into it).
 fn label_width(rows: &[SheetRow<'_>]) -> usize {
@@ -189,13 +200,9 @@ pub fn comparison_sheet(
         );
     }
     let mut means = Vec::new();
-    for (r, (label, sources)) in rows.iter().enumerate() {
+    for (r, ((label, _), renders)) in rows.iter().zip(render_rows(rows, opts)?).enumerate() {
         let y = (header + r * row_h) as i64;
         img.text(PAD as i64, y + (s / 2) as i64 - 3, label, 1, TEXT);
-        let renders = sources
-            .iter()
-            .map(|src| render_sphere(*src, opts))
-            .collect::<Result<Vec<_>>>()?;
         for (c, r_img) in renders.iter().enumerate() {
             img.blit(r_img, cell_x(c), y);
         }
@@ -270,11 +277,11 @@ pub fn sphere_rows(
     let height = PAD + rows.len() * row_h + cap_h + PAD;
     let mut img = Image::new(width, height, BACKGROUND);
     let cell_x = |c: usize| (label_w + PAD + c * (s + PAD)) as i64;
-    for (r, (label, sources)) in rows.iter().enumerate() {
+    for (r, ((label, _), renders)) in rows.iter().zip(render_rows(rows, opts)?).enumerate() {
         let y = (PAD + r * row_h) as i64;
         img.text(PAD as i64, y + (s / 2) as i64 - 3, label, 1, TEXT);
-        for (c, src) in sources.iter().enumerate() {
-            img.blit(&render_sphere(*src, opts)?, cell_x(c), y);
+        for (c, sphere) in renders.iter().enumerate() {
+            img.blit(sphere, cell_x(c), y);
         }
     }
     let y = (PAD + rows.len() * row_h) as i64;
@@ -317,6 +324,7 @@ mod tests {
     use brdf_io::{Channels, Vec3};
 
     use super::*;
+    use crate::sphere::render_sphere;
 
     /// A grey Lambertian reflector of albedo `rho` (RGB).
     struct Grey(f64);

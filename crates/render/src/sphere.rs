@@ -1182,12 +1182,51 @@ pub fn render_sphere(source: &dyn BrdfSource, opts: &SphereOptions) -> Result<Im
 /// Predictions of one model ([`PredictedMaterial`], also behind a [`BrdfSource::cell_source`]
 /// such as a [`brdf_io::lookup::WithLookup`]) with one lookup, rendered through a plan,
 /// evaluate each planned cell once for all of them: its stored values are read once instead
-/// of once per sphere (latent-map thumbnails were bound by reading memory).
+/// of once per sphere (latent-map thumbnails were bound by reading memory). Other sources,
+/// and predictions with no partner, are rendered one by one.
 pub fn render_spheres(sources: &[&dyn BrdfSource], opts: &SphereOptions) -> Vec<Result<Image>> {
-    if let Some(images) = render_together(sources, opts) {
-        return images.into_iter().map(Ok).collect();
+    let mut images: Vec<Option<Result<Image>>> = sources.iter().map(|_| None).collect();
+    for group in batches(sources) {
+        let members: Vec<&dyn BrdfSource> = group.iter().map(|&i| sources[i]).collect();
+        if let Some(together) = render_together(&members, opts) {
+            for (&i, image) in group.iter().zip(together) {
+                images[i] = Some(Ok(image));
+            }
+        }
     }
-    sources.iter().map(|s| render_sphere(*s, opts)).collect()
+    images
+        .into_iter()
+        .zip(sources)
+        .map(|(image, source)| image.unwrap_or_else(|| render_sphere(*source, opts)))
+        .collect()
+}
+
+/// The positions of `sources` that are predictions sharing their cells with another one, with
+/// the same lookup and grid, in groups (each in order; groups of two or more).
+fn batches(sources: &[&dyn BrdfSource]) -> Vec<Vec<usize>> {
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    let prediction = |i: usize| {
+        sources[i]
+            .cell_source()?
+            .downcast_ref::<PredictedMaterial>()
+    };
+    for (i, source) in sources.iter().enumerate() {
+        let Some(m) = prediction(i) else {
+            continue;
+        };
+        let alike = |g: &&mut Vec<usize>| {
+            let first = sources[g[0]];
+            first.lookup() == source.lookup()
+                && first.grid() == source.grid()
+                && prediction(g[0]).is_some_and(|f| f.shares_cells(m))
+        };
+        match groups.iter_mut().find(alike) {
+            Some(group) => group.push(i),
+            None => groups.push(vec![i]),
+        }
+    }
+    groups.retain(|g| g.len() > 1);
+    groups
 }
 
 /// The spheres of `sources` rendered together ([`render_spheres`]) when they are two or more
@@ -2129,16 +2168,30 @@ mod tests {
         let bare: Vec<&dyn BrdfSource> = members.iter().map(|m| m as _).collect();
         assert!(render_together(&bare, &opts).is_some());
         check(&bare, &opts);
-        // Another lookup, another source or another predictor: one by one, the same images.
+        // Another lookup, another source or another predictor: not in the others' batch
+        // (rendered alone, or with their own partners), the same images.
         let log = WithLookup::new(members[1].clone(), Lookup::LogMultilinear).unwrap();
+        let log2 = WithLookup::new(members[3].clone(), Lookup::LogMultilinear).unwrap();
         let lambert = Lambert(channels.clone(), 0.5);
         let other = Predictor::open(&path).unwrap();
         let elsewhere = other.predict(&points[0], PredictorKind::Exact).unwrap();
         for odd in [&log as &dyn BrdfSource, &lambert, &elsewhere] {
             let sources = [bare[0], odd, bare[2]];
             assert!(render_together(&sources, &opts).is_none());
+            assert_eq!(batches(&sources), [vec![0, 2]]);
             check(&sources, &opts);
         }
+        let sources = [
+            &lambert as &dyn BrdfSource,
+            &log,
+            bare[0],
+            &elsewhere,
+            &log2,
+            bare[1],
+        ];
+        assert_eq!(batches(&sources), [vec![1, 4], vec![2, 5]]);
+        check(&sources, &opts);
+        assert!(batches(&[bare[0], &lambert, &elsewhere]).is_empty());
         // A blend far beyond its materials overflows: its own error, the others' images.
         let wild = pred.lerp(&names[0], &names[1], 1e6).unwrap();
         let sources = [bare[0], &wild as &dyn BrdfSource, bare[1]];
