@@ -46,7 +46,7 @@ mod write;
 
 pub use write::{
     ALBEDO_THETAS_DEG, BROAD_SHARE, CHECK_PAIRS, DEFAULT_TOLERANCE, MAX_EVAL_THETA_DEG,
-    MIRROR_SHARE, RglWriteOptions, RglWriteSummary, rgl_fields, write_rgl,
+    MIRROR_SHARE, RglWriteOptions, RglWriteSummary, rgl_fields, write_rgl, write_rgl_then,
 };
 
 /// Linear interpolation weights along one conditioning axis, as Mitsuba's

@@ -223,8 +223,12 @@ pub fn energy_warning(table: &AlbedoTable, what: &str) -> Option<String> {
 /// `predict` and `convert` run on what they write. A check that fails is logged at debug
 /// level only: it never stops an output.
 pub fn warn_on_energy_gain(source: &dyn BrdfSource, what: &str) {
-    let table = directional_albedo(source, &DEFAULT_ANGLES_DEG, DEFAULT_RESOLUTION);
-    warn_on_energy_gain_in(table, what);
+    warn_on_energy_gain_in(energy_check(source), what);
+}
+
+/// The albedo table [`warn_on_energy_gain`] checks.
+pub fn energy_check(source: &dyn BrdfSource) -> brdf_io::Result<AlbedoTable> {
+    directional_albedo(source, &DEFAULT_ANGLES_DEG, DEFAULT_RESOLUTION)
 }
 
 /// Logs [`energy_warning`] for the table of [`warn_on_energy_gain`]'s check of `what`, or at

@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use brdf_io::rgl::{RglWriteOptions, write_rgl};
+use brdf_io::rgl::{RglWriteOptions, write_rgl_then};
 use brdf_io::{BrdfSource, Channels};
 
 /// Arguments of `specgp convert`.
@@ -93,9 +93,10 @@ pub fn write_bsdf(
         out.display()
     ));
     spinner.enable_steady_tick(std::time::Duration::from_millis(120));
-    let written = write_rgl(source, out, &options);
+    // The energy check through the writer's cells: a prediction's are not evaluated again.
+    let written = write_rgl_then(source, out, &options, crate::cmd_albedo::energy_check);
     spinner.finish_and_clear();
-    let summary = written.with_context(|| format!("writing {}", out.display()))?;
+    let (summary, energy) = written.with_context(|| format!("writing {}", out.display()))?;
     let channels = match source.channels() {
         Channels::Rgb => "R,G,B".to_owned(),
         c => format!("{} wavelengths", c.len()),
@@ -143,7 +144,7 @@ pub fn write_bsdf(
             summary.values
         );
     }
-    crate::cmd_albedo::warn_on_energy_gain(source, label);
+    crate::cmd_albedo::warn_on_energy_gain_in(energy, label);
     Ok(())
 }
 

@@ -3263,6 +3263,10 @@ fn albedo_reports_energy_conservation() {
             m.name
         );
         assert_eq!(said(&err), said(&log), "{}: {err} / {log}", m.name);
+        // A `.bsdf` output checks through the cells the writer read: the same words.
+        let args = ["predict", "l.toml", "--at", &at, "--out", "p.bsdf"];
+        let (_, file) = specgp_outputs(&args, d);
+        assert_eq!(said(&file), said(&by_cells), "{}: {file}", m.name);
     }
 
     // A training material at its own latent point.

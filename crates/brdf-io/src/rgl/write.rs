@@ -388,21 +388,57 @@ impl BrdfSource for CachedCells<'_> {
                 self.source.prefetch_cell(a);
             }
         }
-        let record = |a: usize| {
-            let cell = self.cells[a].get_or_init(|| {
-                let mut v = vec![0.0; self.channels.len()];
-                self.source
-                    .eval_cell(a, &mut v)
-                    .map(|()| cell_record(lookup, &v))
+        look_up(lookup, stencil, |a| self.record(a), out)
+    }
+
+    fn grid(&self) -> Option<crate::grid::AngularGrid> {
+        Some(self.grid)
+    }
+
+    fn lookup(&self) -> crate::lookup::Lookup {
+        self.source.lookup()
+    }
+
+    /// The cell's values, from the cache (evaluated and kept if not yet there).
+    fn eval_cell(&self, a: usize, out: &mut [f64]) -> Result<()> {
+        crate::source::check_output_len(out, self.channels.len())?;
+        if a >= self.cells.len() {
+            return Err(Error::InvalidArgument {
+                reason: format!("cell {a} of a grid of {} cells", self.cells.len()),
             });
-            match cell {
-                Ok(record) => Ok(&record[..]),
-                Err(e) => Err(Error::InvalidArgument {
-                    reason: format!("cell {a} of the source: {e}"),
-                }),
-            }
-        };
-        look_up(lookup, stencil, record, out)
+        }
+        out.copy_from_slice(&self.record(a)?[..out.len()]);
+        Ok(())
+    }
+
+    fn prefetch_cell(&self, a: usize) {
+        if self.cells.get(a).is_some_and(|c| c.get().is_none()) {
+            self.source.prefetch_cell(a);
+        }
+    }
+
+    fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
+        let uncached = cells.filter(|&a| self.cells.get(a).is_some_and(|c| c.get().is_none()));
+        self.source
+            .will_need_cells(&mut uncached.collect::<Vec<_>>().into_iter());
+    }
+}
+
+impl CachedCells<'_> {
+    /// Cell `a`'s record ([`cell_record`] under the source's lookup), evaluated once.
+    fn record(&self, a: usize) -> Result<&[f64]> {
+        let cell = self.cells[a].get_or_init(|| {
+            let mut v = vec![0.0; self.channels.len()];
+            self.source
+                .eval_cell(a, &mut v)
+                .map(|()| cell_record(self.source.lookup(), &v))
+        });
+        match cell {
+            Ok(record) => Ok(&record[..]),
+            Err(e) => Err(Error::InvalidArgument {
+                reason: format!("cell {a} of the source: {e}"),
+            }),
+        }
     }
 }
 
@@ -413,14 +449,23 @@ pub fn rgl_fields(
     options: &RglWriteOptions,
 ) -> Result<(Vec<Field>, RglWriteSummary)> {
     options.check()?;
-    let cached;
-    let source: &dyn BrdfSource = match source.grid() {
-        Some(grid) => {
-            cached = CachedCells::new(source, grid);
-            &cached
-        }
-        None => source,
-    };
+    with_cached_cells(source, |source| fields_of(source, options))
+}
+
+/// `f` of `source` as the writer reads it: a grid source through a cache of its cells
+/// ([`CachedCells`], each cell evaluated once), another source as it is.
+fn with_cached_cells<T>(source: &dyn BrdfSource, f: impl FnOnce(&dyn BrdfSource) -> T) -> T {
+    match source.grid() {
+        Some(grid) => f(&CachedCells::new(source, grid)),
+        None => f(source),
+    }
+}
+
+/// [`rgl_fields`] of a source already cached as the writer reads it ([`with_cached_cells`]).
+fn fields_of(
+    source: &dyn BrdfSource,
+    options: &RglWriteOptions,
+) -> Result<(Vec<Field>, RglWriteSummary)> {
     // The source's side of the checks, the same for every candidate file: made once, after the
     // first candidate's tables (whose errors come first).
     let reference = std::sync::OnceLock::new();
@@ -1025,9 +1070,28 @@ pub fn write_rgl(
     path: impl AsRef<Path>,
     options: &RglWriteOptions,
 ) -> Result<RglWriteSummary> {
-    let (fields, summary) = rgl_fields(source, options)?;
-    TensorFile::write(path, &fields)?;
-    Ok(summary)
+    write_rgl_then(source, path, options, |_| ()).map(|(summary, ())| summary)
+}
+
+/// [`write_rgl`], then `after` of the source as the writer read it, with what `after`
+/// returns: a grid source's cells evaluated for the file are not evaluated again (the writer
+/// keeps them; e.g. the energy check of `specgp predict --out X.bsdf` reads most of the same
+/// cells: at the paper's grid, a prediction read them from the disk twice); `after` sees the
+/// same values, channels, grid and lookup as the source's own (a cached grid source equals
+/// the source up to rounding in `eval`, and bit for bit in `eval_cell`). `after` runs only
+/// once the file is written.
+pub fn write_rgl_then<T>(
+    source: &dyn BrdfSource,
+    path: impl AsRef<Path>,
+    options: &RglWriteOptions,
+    after: impl FnOnce(&dyn BrdfSource) -> T,
+) -> Result<(RglWriteSummary, T)> {
+    options.check()?;
+    with_cached_cells(source, |source| {
+        let (fields, summary) = fields_of(source, options)?;
+        TensorFile::write(path, &fields)?;
+        Ok((summary, after(source)))
+    })
 }
 
 #[cfg(test)]
@@ -1771,6 +1835,92 @@ mod tests {
         assert!(fields == plain_fields, "the files differ");
         assert_eq!(summary, plain_summary);
         assert_eq!(summary.values, 4 * 8 * 8 * 3, "{summary:?}");
+    }
+
+    /// The writer's cached cells are a grid source of their own: the source's grid and lookup,
+    /// each cell's values bit for bit from `eval_cell` (evaluated once across `eval` and
+    /// `eval_cell`), hints passed on only for cells not yet cached, and clear errors for a
+    /// cell outside the grid or a wrong output length.
+    #[test]
+    fn cached_cells_are_the_sources_cells() {
+        use std::sync::atomic::Ordering::Relaxed;
+        let source = Cells::new(None);
+        let cached = CachedCells::new(&source, source.grid);
+        assert_eq!(cached.grid(), Some(source.grid));
+        assert_eq!(cached.lookup(), source.lookup());
+        let (mut got, mut want) = ([0.0; 3], [0.0; 3]);
+        // Half the cells through `eval` first (cached), then every cell by `eval_cell`.
+        let mut state = 11u64;
+        for _ in 0..200 {
+            cached
+                .eval(random_dir(&mut state), random_dir(&mut state), &mut got)
+                .unwrap();
+        }
+        let before: Vec<usize> = source.cell_evals.iter().map(|c| c.load(Relaxed)).collect();
+        let prefetched: Vec<usize> = source.prefetches.iter().map(|c| c.load(Relaxed)).collect();
+        for a in 0..source.grid.len() {
+            cached.prefetch_cell(a);
+            cached.eval_cell(a, &mut got).unwrap();
+            (0..3).for_each(|c| want[c] = Cells::value(a, c));
+            assert_eq!(got.map(f64::to_bits), want.map(f64::to_bits), "cell {a}");
+            // Again: from the cache.
+            cached.eval_cell(a, &mut got).unwrap();
+            assert_eq!(got.map(f64::to_bits), want.map(f64::to_bits), "cell {a}");
+        }
+        for a in 0..source.grid.len() {
+            let evals = source.cell_evals[a].load(Relaxed);
+            assert_eq!(evals, 1, "cell {a}");
+            // A hint only for a cell that `eval` had not cached.
+            let hinted = source.prefetches[a].load(Relaxed) - prefetched[a];
+            assert_eq!(hinted, 1 - before[a], "cell {a}");
+        }
+        assert!(before.contains(&1) && before.contains(&0));
+        let n = source.grid.len();
+        let e = cached.eval_cell(n, &mut got).unwrap_err().to_string();
+        assert!(
+            e.contains(&format!("cell {n} of a grid of {n} cells")),
+            "{e}"
+        );
+        assert!(cached.eval_cell(0, &mut [0.0; 2]).is_err());
+    }
+
+    /// `write_rgl_then` writes `write_rgl`'s file and gives `after` the source as the writer
+    /// read it: a grid source's directional albedo from the cached cells equals the source's
+    /// own to the bit, with no cell evaluated twice across the write and the check; other
+    /// sources are passed as they are.
+    #[test]
+    fn writing_then_checking_reads_each_cell_once() {
+        let dir = tempfile::tempdir().unwrap();
+        let options = fixed_sizes(4, 8, 16);
+        let (a, b) = (dir.path().join("a.bsdf"), dir.path().join("b.bsdf"));
+        let source = Cells::new(None);
+        let angles = [0.0, 30.0, 60.0, 85.0];
+        let (summary, table) = write_rgl_then(&source, &a, &options, |s| {
+            crate::albedo::directional_albedo(s, &angles, 24).unwrap()
+        })
+        .unwrap();
+        source.assert_most_cells_evaluated_once();
+        let fresh = Cells::new(None);
+        assert_eq!(write_rgl(&fresh, &b, &options).unwrap(), summary);
+        assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+        let direct = crate::albedo::directional_albedo(&fresh, &angles, 24).unwrap();
+        let bits = |t: &crate::albedo::AlbedoTable| {
+            t.values.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        };
+        assert_eq!(bits(&table), bits(&direct));
+        assert!(table.values.iter().all(|&v| v > 0.05), "{table:?}");
+        // A source without a grid: `after` gets it as it is.
+        let analytic = Analytic::new(0.4);
+        let (_, seen) = write_rgl_then(&analytic, &a, &options, |s| s.grid().is_none()).unwrap();
+        assert!(seen);
+        // A failed write runs no check.
+        let bad = RglWriteOptions {
+            resolution: 0,
+            ..options.clone()
+        };
+        let mut ran = false;
+        assert!(write_rgl_then(&source, &a, &bad, |_| ran = true).is_err());
+        assert!(!ran);
     }
 
     /// Refinement walks the doublings as its docs say: from the file as given, each step
