@@ -465,15 +465,19 @@ mod tests {
         }
     }
 
+    /// Whether this CPU runs the AVX2 + FMA kernels (the tests of their bits need it).
+    #[cfg(target_arch = "x86_64")]
+    fn avx2_and_fma() -> bool {
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+    }
+
     /// The AVX2 dot product has `dot`'s bits for f64 and f32 values, at every length (all
     /// remainders) and with values of mixed signs and magnitudes (where the order of additions
     /// shows).
     #[test]
     #[cfg(target_arch = "x86_64")]
     fn avx2_dot_has_the_portable_dots_bits() {
-        if !(std::arch::is_x86_feature_detected!("avx2")
-            && std::arch::is_x86_feature_detected!("fma"))
-        {
+        if !avx2_and_fma() {
             return;
         }
         let mut next = mixed_values(0x9e37_79b9_7f4a_7c15);
@@ -481,7 +485,7 @@ mod tests {
             let a: Vec<f64> = (0..len).map(|_| next()).collect();
             let b: Vec<f64> = (0..len).map(|_| next()).collect();
             let b32: Vec<f32> = b.iter().map(|&v| v as f32).collect();
-            // SAFETY: AVX2 and FMA were detected above.
+            // SAFETY: AVX2 and FMA were detected above (`avx2_and_fma`).
             let (fast, fast32) = unsafe { (dot_avx2(&a, &b), dot_avx2(&a, &b32)) };
             assert_eq!(fast.to_bits(), dot(&a, &b).to_bits(), "f64, length {len}");
             assert_eq!(
@@ -497,9 +501,7 @@ mod tests {
     #[test]
     #[cfg(target_arch = "x86_64")]
     fn avx2_dot_rows_have_each_rows_dot_bits() {
-        if !(std::arch::is_x86_feature_detected!("avx2")
-            && std::arch::is_x86_feature_detected!("fma"))
-        {
+        if !avx2_and_fma() {
             return;
         }
         fn check<const R: usize>(next: &mut impl FnMut() -> f64, len: usize) {
