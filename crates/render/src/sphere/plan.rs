@@ -232,7 +232,8 @@ impl Plan {
     }
 }
 
-/// The plan's cells of one material, as its lookups read them.
+/// The plan's cells of k materials, as their lookups read them: cell after cell, each with the
+/// k materials' entries one after the other ([`Member`] reads one material's).
 enum Cells {
     /// Multilinear lookups: each cell's linear sRGB (the projection is linear, so
     /// interpolating projected cells is projecting the interpolated values).
@@ -245,9 +246,9 @@ enum Cells {
     Logs {
         /// Needed channels per cell.
         m: usize,
-        /// m values per cell.
+        /// m values per cell and material.
         values: Vec<f64>,
-        /// m logarithms per cell (NaN where the value is not positive).
+        /// m logarithms per cell and material (NaN where the value is not positive).
         logs: Vec<f64>,
     },
 }
@@ -257,25 +258,34 @@ struct Scratch {
     f: Vec<f64>,
 }
 
-impl Cells {
+/// Material `j` of the `k` whose cells a [`Cells`] holds (cell `a`'s entry of it at `a * k +
+/// j`).
+struct Member<'t> {
+    cells: &'t Cells,
+    k: usize,
+    j: usize,
+}
+
+impl Member<'_> {
     fn scratch(&self) -> Scratch {
-        match self {
+        match self.cells {
             Cells::Colours(_) => Scratch { f: Vec::new() },
             Cells::Logs { m, .. } => Scratch { f: vec![0.0; *m] },
         }
     }
 
-    /// Linear sRGB interpolated from the cells (`columns`: the linear-sRGB weights of each
-    /// needed channel, for [`Cells::Logs`]).
+    /// Linear sRGB interpolated from the material's cells (`columns`: the linear-sRGB weights
+    /// of each needed channel, for [`Cells::Logs`]).
     fn interpolate(&self, s: &Stencil, columns: &[[f64; 3]], scratch: &mut Scratch) -> [f64; 3] {
-        match self {
+        let (k, j) = (self.k, self.j);
+        match self.cells {
             Cells::Colours(colours) => {
                 let mut rgb = [0.0; 3];
                 for &(a, w) in s {
                     if w == 0.0 {
                         continue;
                     }
-                    let cell = colours[a as usize];
+                    let cell = colours[a as usize * k + j];
                     (0..3).for_each(|c| rgb[c] += w * cell[c]);
                 }
                 rgb
@@ -283,7 +293,8 @@ impl Cells {
             Cells::Logs { m, values, logs } => {
                 let stencil = s.iter().map(|&(a, w)| (a as usize, w));
                 let cell = |a: usize| {
-                    let at = a * m..(a + 1) * m;
+                    let e = a * k + j;
+                    let at = e * m..(e + 1) * m;
                     Ok::<_, Infallible>((&values[at.clone()], &logs[at]))
                 };
                 let Ok(()) = log_look_up(stencil, cell, &mut scratch.f);
@@ -376,30 +387,41 @@ pub(super) fn render(
     };
     let plan = plan_for(key, || Plan::build(key, opts.light_dir(), sight));
     let m = needed.len();
-    let group = batch_size(lookup, plan.cells.len(), m);
-    let mut cells = Vec::with_capacity(materials.len());
-    match materials {
-        Materials::Predicted { first, members } if members.len() > group => {
-            for members in members.chunks(group) {
-                let part = Materials::Predicted {
-                    first: *first,
-                    members: members.to_vec(),
-                };
-                cells.extend(evaluate(&plan, &part, channels, lookup, &weights, &needed)?);
-            }
-        }
-        _ => cells = evaluate(&plan, materials, channels, lookup, &weights, &needed)?,
-    }
     let columns: Vec<[f64; 3]> = (0..m)
         .map(|c| [weights[0][c], weights[1][c], weights[2][c]])
         .collect();
-    Ok(cells
-        .iter()
-        .map(|cells| shade(&plan, cells, &columns, opts))
-        .collect())
+    // The materials' cells, as many at a time as fit `MAX_BATCH_CELL_BYTES`, each pass's
+    // spheres shaded before the next pass.
+    let mut images = Vec::with_capacity(materials.len());
+    let mut pass = |part: &Materials<'_>| -> Result<()> {
+        let cells = evaluate(&plan, part, channels, lookup, &weights, &needed)?;
+        let k = part.len();
+        for j in 0..k {
+            let member = Member {
+                cells: &cells,
+                k,
+                j,
+            };
+            images.push(shade(&plan, &member, &columns, opts));
+        }
+        Ok(())
+    };
+    let group = batch_size(lookup, plan.cells.len(), m);
+    match materials {
+        Materials::Predicted { first, members } if members.len() > group => {
+            for members in members.chunks(group) {
+                pass(&Materials::Predicted {
+                    first: *first,
+                    members: members.to_vec(),
+                })?;
+            }
+        }
+        _ => pass(materials)?,
+    }
+    Ok(images)
 }
 
-/// The cells of `plan` evaluated for each of `materials` (one pass over the plan's cells) as
+/// The cells of `plan` evaluated for all of `materials` (one pass over the plan's cells) as
 /// their lookups read them (`weights`, `needed`: the colour projection of `channels`).
 fn evaluate(
     plan: &Plan,
@@ -408,7 +430,7 @@ fn evaluate(
     lookup: Lookup,
     weights: &[Vec<f64>; 3],
     needed: &[usize],
-) -> Result<Vec<Cells>> {
+) -> Result<Cells> {
     let (k, m, nc) = (materials.len(), needed.len(), channels.len());
     let grid = plan.key.grid;
     // Each planned cell evaluated once for all materials, in parallel (chunks of `CHUNK`
@@ -446,9 +468,7 @@ fn evaluate(
                         }
                     })
                 })?;
-            (0..k)
-                .map(|j| Cells::Colours(colours.iter().skip(j).step_by(k).copied().collect()))
-                .collect()
+            Cells::Colours(colours)
         }
         Lookup::LogMultilinear => {
             // Cell after cell, each the k materials' m needed values (and their logarithms).
@@ -469,21 +489,7 @@ fn evaluate(
                         }
                     })
                 })?;
-            let member = |all: &[f64], j: usize| -> Vec<f64> {
-                all.chunks_exact(m.max(1))
-                    .skip(j)
-                    .step_by(k)
-                    .flatten()
-                    .copied()
-                    .collect()
-            };
-            (0..k)
-                .map(|j| Cells::Logs {
-                    m,
-                    values: member(&values, j),
-                    logs: member(&logs, j),
-                })
-                .collect()
+            Cells::Logs { m, values, logs }
         }
     })
 }
@@ -513,7 +519,7 @@ pub(super) static BATCH_BYTES_IN_TESTS: std::sync::atomic::AtomicUsize =
 
 /// The image of one material's evaluated `cells` under `plan` (`columns`: the linear-sRGB
 /// weights of each needed channel).
-fn shade(plan: &Plan, cells: &Cells, columns: &[[f64; 3]], opts: &SphereOptions) -> Image {
+fn shade(plan: &Plan, cells: &Member<'_>, columns: &[[f64; 3]], opts: &SphereOptions) -> Image {
     let key = plan.key;
     let table = key.env.then(|| EnvTable {
         theta_max: ENV_TABLE_MAX_DEGREES.to_radians(),
