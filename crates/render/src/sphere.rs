@@ -1186,10 +1186,11 @@ pub fn render_sphere(source: &dyn BrdfSource, opts: &SphereOptions) -> Result<Im
 /// and predictions with no partner, are rendered one by one.
 pub fn render_spheres(sources: &[&dyn BrdfSource], opts: &SphereOptions) -> Vec<Result<Image>> {
     let mut images: Vec<Option<Result<Image>>> = sources.iter().map(|_| None).collect();
-    for group in batches(sources) {
-        let members: Vec<&dyn BrdfSource> = group.iter().map(|&i| sources[i]).collect();
-        if let Some(together) = render_together(&members, opts) {
-            for (&i, image) in group.iter().zip(together) {
+    for batch in batches(sources) {
+        let first = sources[batch[0].0];
+        let members = batch.iter().map(|&(_, m)| m).collect();
+        if let Some(together) = render_together(first, members, opts) {
+            for (&(i, _), image) in batch.iter().zip(together) {
                 images[i] = Some(Ok(image));
             }
         }
@@ -1201,54 +1202,50 @@ pub fn render_spheres(sources: &[&dyn BrdfSource], opts: &SphereOptions) -> Vec<
         .collect()
 }
 
-/// The positions of `sources` that are predictions sharing their cells with another one, with
-/// the same lookup and grid, in groups (each in order; groups of two or more).
-fn batches(sources: &[&dyn BrdfSource]) -> Vec<Vec<usize>> {
-    let mut groups: Vec<Vec<usize>> = Vec::new();
-    let prediction = |i: usize| {
-        sources[i]
-            .cell_source()?
-            .downcast_ref::<PredictedMaterial>()
-    };
-    for (i, source) in sources.iter().enumerate() {
-        let Some(m) = prediction(i) else {
+/// Predictions among a list of sources that share their cells, with one lookup and grid:
+/// (position, prediction) pairs, in order.
+type Batch<'a> = Vec<(usize, &'a PredictedMaterial)>;
+
+/// The groups of `sources` that [`render_spheres`] renders together: predictions (behind
+/// [`BrdfSource::cell_source`]) that share their cells with another one, with the same lookup
+/// and grid; groups of two or more.
+fn batches<'a>(sources: &[&'a dyn BrdfSource]) -> Vec<Batch<'a>> {
+    let mut groups: Vec<Batch<'a>> = Vec::new();
+    for (i, &source) in sources.iter().enumerate() {
+        let Some(m) = source
+            .cell_source()
+            .and_then(|s| s.downcast_ref::<PredictedMaterial>())
+        else {
             continue;
         };
-        let alike = |g: &&mut Vec<usize>| {
-            let first = sources[g[0]];
-            first.lookup() == source.lookup()
-                && first.grid() == source.grid()
-                && prediction(g[0]).is_some_and(|f| f.shares_cells(m))
+        let alike = |g: &&mut Batch<'a>| {
+            let (j, first) = g[0];
+            let head = sources[j];
+            head.lookup() == source.lookup()
+                && head.grid() == source.grid()
+                && first.shares_cells(m)
         };
         match groups.iter_mut().find(alike) {
-            Some(group) => group.push(i),
-            None => groups.push(vec![i]),
+            Some(group) => group.push((i, m)),
+            None => groups.push(vec![(i, m)]),
         }
     }
     groups.retain(|g| g.len() > 1);
     groups
 }
 
-/// The spheres of `sources` rendered together ([`render_spheres`]) when they are two or more
-/// predictions that share their cells, with one lookup, under a render plan, and none fails;
-/// `None` otherwise (each is then rendered alone, which gives each failure its own error).
-fn render_together(sources: &[&dyn BrdfSource], opts: &SphereOptions) -> Option<Vec<Image>> {
-    let (&first, _) = sources.split_first()?;
-    let EnvMode::Table(spec) = opts.env_mode else {
+/// The spheres of a batch ([`batches`]: `members`, the first of them as a source `first`)
+/// rendered together through a render plan, when the scene has one and none fails; `None`
+/// otherwise (each is then rendered alone, which gives each failure its own error).
+fn render_together(
+    first: &dyn BrdfSource,
+    members: Vec<&PredictedMaterial>,
+    opts: &SphereOptions,
+) -> Option<Vec<Image>> {
+    let (EnvMode::Table(spec), Some(grid)) = (opts.env_mode, first.grid()) else {
         return None;
     };
-    let (grid, lookup) = (first.grid()?, first.lookup());
-    if sources.len() < 2 || opts.check().is_err() || !planned(&grid, opts.size, &spec) {
-        return None;
-    }
-    let members: Vec<&PredictedMaterial> = sources
-        .iter()
-        .map(|s| s.cell_source()?.downcast_ref::<PredictedMaterial>())
-        .collect::<Option<_>>()?;
-    let alike = |(s, m): (&&dyn BrdfSource, &&PredictedMaterial)| {
-        s.lookup() == lookup && s.grid() == Some(grid) && members[0].shares_cells(m)
-    };
-    if !sources.iter().zip(&members).all(alike) {
+    if opts.check().is_err() || !planned(&grid, opts.size, &spec) {
         return None;
     }
     let batch = plan::Materials::Predicted { first, members };
@@ -2139,6 +2136,12 @@ mod tests {
                 assert!(same(t.as_ref().unwrap(), &alone), "member {k}");
             }
         };
+        let positions = |sources: &[&dyn BrdfSource]| -> Vec<Vec<usize>> {
+            let batches = batches(sources).into_iter();
+            batches
+                .map(|b| b.iter().map(|&(i, _)| i).collect())
+                .collect()
+        };
         let opts = SphereOptions {
             size: 24,
             ..SphereOptions::default()
@@ -2149,7 +2152,8 @@ mod tests {
                 .map(|m| WithLookup::new(m.clone(), lookup).unwrap())
                 .collect();
             let sources: Vec<&dyn BrdfSource> = looked.iter().map(|s| s as _).collect();
-            assert!(render_together(&sources, &opts).is_some(), "{lookup:?}");
+            let all: Vec<usize> = (0..sources.len()).collect();
+            assert_eq!(positions(&sources), [all], "{lookup:?}");
             check(&sources, &opts);
             // One pass a material.
             plan::BATCH_BYTES_IN_TESTS.store(1, std::sync::atomic::Ordering::Relaxed);
@@ -2161,12 +2165,13 @@ mod tests {
                 size: 12,
                 ..opts
             };
-            assert!(render_together(&sources, &per_pixel).is_none());
+            let members = batches(&sources).remove(0).into_iter().map(|(_, m)| m);
+            assert!(render_together(sources[0], members.collect(), &per_pixel).is_none());
             check(&sources, &per_pixel);
         }
         // Bare predictions (multilinear) go together too.
         let bare: Vec<&dyn BrdfSource> = members.iter().map(|m| m as _).collect();
-        assert!(render_together(&bare, &opts).is_some());
+        assert_eq!(positions(&bare), [vec![0, 1, 2, 3]]);
         check(&bare, &opts);
         // Another lookup, another source or another predictor: not in the others' batch
         // (rendered alone, or with their own partners), the same images.
@@ -2177,8 +2182,7 @@ mod tests {
         let elsewhere = other.predict(&points[0], PredictorKind::Exact).unwrap();
         for odd in [&log as &dyn BrdfSource, &lambert, &elsewhere] {
             let sources = [bare[0], odd, bare[2]];
-            assert!(render_together(&sources, &opts).is_none());
-            assert_eq!(batches(&sources), [vec![0, 2]]);
+            assert_eq!(positions(&sources), [vec![0, 2]]);
             check(&sources, &opts);
         }
         let sources = [
@@ -2189,9 +2193,12 @@ mod tests {
             &log2,
             bare[1],
         ];
-        assert_eq!(batches(&sources), [vec![1, 4], vec![2, 5]]);
+        assert_eq!(positions(&sources), [vec![1, 4], vec![2, 5]]);
         check(&sources, &opts);
         assert!(batches(&[bare[0], &lambert, &elsewhere]).is_empty());
+        // A batch holds the predictions themselves.
+        let batch = batches(&bare).remove(0);
+        assert!(batch.iter().all(|&(i, m)| std::ptr::eq(m, &members[i])));
         // A blend far beyond its materials overflows: its own error, the others' images.
         let wild = pred.lerp(&names[0], &names[1], 1e6).unwrap();
         let sources = [bare[0], &wild as &dyn BrdfSource, bare[1]];
