@@ -870,10 +870,7 @@ impl PredictedMaterial {
             // channels, checked (`combine_block`'s arithmetic).
             let mut each = |rows: Rows<'_>| -> Result<()> {
                 for (m, out) in materials.iter().zip(out.chunks_exact_mut(width)) {
-                    match rows {
-                        Rows::Stored(rows) => row_dots(&m.coef, rows, vals),
-                        Rows::Forward(rows) => row_dots(&m.coef, rows, vals),
-                    }
+                    rows.dots(&m.coef, vals);
                     t.inverse_in_place(vals);
                     sel.apply(vals, first, out);
                     m.check_finite(out, a * width)?;
@@ -897,13 +894,7 @@ impl PredictedMaterial {
                 let (store, transformed) = head.pred.lookup_store();
                 let block = store.values_in_ref(a * nc + first..a * nc + last + 1, raw)?;
                 debug_assert_eq!(block.len(), span * n);
-                if transformed || t == Transform::Raw {
-                    each(Rows::Stored(block))
-                } else {
-                    wide.resize(block.len(), 0.0);
-                    t.forward_batch(block, wide);
-                    each(Rows::Forward(wide))
-                }
+                each(Rows::of(block, t, transformed, wide))
             }
         })
     }
@@ -1058,13 +1049,7 @@ impl PredictedMaterial {
         out: &mut [f64],
     ) {
         let t = self.pred.inner.transform;
-        if transformed || t == Transform::Raw {
-            row_dots(&self.coef, block, out);
-        } else {
-            wide.resize(block.len(), 0.0);
-            t.forward_batch(block, wide);
-            row_dots(&self.coef, wide, out);
-        }
+        Rows::of(block, t, transformed, wide).dots(&self.coef, out);
         t.inverse_in_place(out);
     }
 
@@ -1095,6 +1080,29 @@ impl PredictedMaterial {
 enum Rows<'a> {
     Stored(&'a [f32]),
     Forward(&'a [f64]),
+}
+
+impl<'a> Rows<'a> {
+    /// The rows of stored `block` under transform `t`: the block itself when it needs none
+    /// (`raw`, or `transformed`: read from the sidecar), else its forward transform, computed
+    /// into `wide`.
+    fn of(block: &'a [f32], t: Transform, transformed: bool, wide: &'a mut Vec<f64>) -> Self {
+        if transformed || t == Transform::Raw {
+            Rows::Stored(block)
+        } else {
+            wide.resize(block.len(), 0.0);
+            t.forward_batch(block, wide);
+            Rows::Forward(wide)
+        }
+    }
+
+    /// `out[j] = dot(c, row j)` ([`row_dots`]).
+    fn dots(self, c: &[f64], out: &mut [f64]) {
+        match self {
+            Rows::Stored(rows) => row_dots(c, rows, out),
+            Rows::Forward(rows) => row_dots(c, rows, out),
+        }
+    }
 }
 
 thread_local! {
