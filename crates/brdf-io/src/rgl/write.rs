@@ -384,8 +384,8 @@ impl BrdfSource for CachedCells<'_> {
         // The cells not yet evaluated, asked for together (a store read from the disk then
         // reads them at once rather than one after another).
         for &(a, w) in &stencil {
-            if w != 0.0 && self.cells[a].get().is_none() {
-                self.source.prefetch_cell(a);
+            if w != 0.0 {
+                self.prefetch_cell(a);
             }
         }
         look_up(lookup, stencil, |a| self.record(a), out)
@@ -411,20 +411,27 @@ impl BrdfSource for CachedCells<'_> {
         Ok(())
     }
 
+    /// A hint for the source, if the cell is not cached yet.
     fn prefetch_cell(&self, a: usize) {
-        if self.cells.get(a).is_some_and(|c| c.get().is_none()) {
+        if self.uncached(a) {
             self.source.prefetch_cell(a);
         }
     }
 
+    /// A hint for the source, of the cells not cached yet.
     fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
-        let uncached = cells.filter(|&a| self.cells.get(a).is_some_and(|c| c.get().is_none()));
+        let uncached = cells.filter(|&a| self.uncached(a));
         self.source
             .will_need_cells(&mut uncached.collect::<Vec<_>>().into_iter());
     }
 }
 
 impl CachedCells<'_> {
+    /// Whether cell `a` is in the grid and not evaluated yet.
+    fn uncached(&self, a: usize) -> bool {
+        self.cells.get(a).is_some_and(|c| c.get().is_none())
+    }
+
     /// Cell `a`'s record ([`cell_record`] under the source's lookup), evaluated once.
     fn record(&self, a: usize) -> Result<&[f64]> {
         let cell = self.cells[a].get_or_init(|| {
