@@ -10,7 +10,10 @@
 //! specgp synth --out /tmp/b/synth.sbrdf && specgp fit /tmp/b/synth.sbrdf --out /tmp/b/model.toml
 //! cargo run --release -p render --example render_bench -- /tmp/b/model.toml [SIZE] [--sidecar] [--loop N] [--lookup log]
 //! cargo run --release -p render --example render_bench -- /tmp/b/model.toml [SIZE] --stored-materials
+//! cargo run --release -p render --example render_bench -- /tmp/b/model.toml [SIZE] --together K
 //! ```
+//! `--together K` times K predictions rendered one by one against `render::render_spheres`
+//! (each planned cell read once for all of them; latent-map thumbnails, sheets).
 //! `--stored-materials` runs the accuracy study of the environment table instead: every stored
 //! material of the model's dataset rendered with several table resolutions against a dense table
 //! (the images' largest and mean linear sRGB difference and largest 8-bit code difference).
@@ -231,6 +234,58 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             t.elapsed().as_secs_f64() / n.max(1) as f64
         );
         return Ok(());
+    }
+    // `--together K`: K predictions on the line through the first two materials (t in
+    // [-0.5, 1.5]) rendered one by one and together (`render_spheres`: each planned cell read
+    // once for all), the plan cached; medians of 5; the images must be identical.
+    if let Some(at) = args.iter().position(|a| a == "--together") {
+        let k: usize = args.get(at + 1).ok_or("--together K")?.parse()?;
+        let point = |i: usize| -> Vec<f64> {
+            let t = -0.5 + 2.0 * i as f64 / (k.max(2) - 1) as f64;
+            let (a, b) = (&mats[0].coords, &mats[1].coords);
+            a.iter().zip(b).map(|(a, b)| a + t * (b - a)).collect()
+        };
+        let materials = (0..k)
+            .map(|i| -> Result<_, Box<dyn std::error::Error>> {
+                let mut m = pred.predict(&point(i), predict::PredictorKind::Exact)?;
+                if let Some(w) = &needed {
+                    m = m.with_wavelengths(w)?;
+                }
+                Ok(WithLookup::new(m, lookup)?)
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let sources: Vec<&dyn BrdfSource> = materials.iter().map(|m| m as _).collect();
+        render_sphere(sources[0], &opts)?;
+        let (mut alone, mut together) = (Vec::new(), Vec::new());
+        let (mut solo, mut batch) = (Vec::new(), Vec::new());
+        for _ in 0..5 {
+            let t = Instant::now();
+            solo = sources
+                .iter()
+                .map(|s| render_sphere(*s, &opts))
+                .collect::<Result<Vec<_>, _>>()?;
+            alone.push(t.elapsed().as_secs_f64());
+            let t = Instant::now();
+            batch = render::render_spheres(&sources, &opts)
+                .into_iter()
+                .collect::<Result<Vec<_>, _>>()?;
+            together.push(t.elapsed().as_secs_f64());
+        }
+        let same = solo
+            .iter()
+            .zip(&batch)
+            .all(|(a, b)| a.rgb == b.rgb && a.alpha == b.alpha);
+        let (alone, together) = (median(alone), median(together));
+        println!(
+            "{k} predictions of {size} px, plan cached: one by one {alone:.4} s, together \
+             {together:.4} s ({:.2}x); identical images: {same}",
+            alone / together
+        );
+        return if same {
+            Ok(())
+        } else {
+            Err("the spheres rendered together differ from the ones rendered alone".into())
+        };
     }
     // Lazy, the scene's render plan built by this render (no earlier render of this view and
     // size in the process): median of 5.
