@@ -3,7 +3,8 @@
 //! ([`sheet`]), written as 8-bit sRGB PNGs ([`image`]).
 //!
 //! Everything renders through `BrdfSource::eval`, so a lazily predicted material is rendered
-//! without being materialised.
+//! without being materialised; several predictions of one model in one scene
+//! ([`render_spheres`]: latent-map thumbnails, sheets) read each cell they touch once for all.
 //!
 //! ```
 //! use brdf_io::store::StoreMaterial;
