@@ -208,17 +208,20 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         rayon::current_num_threads()
     );
     let needed = render::colour::needed_wavelengths(pred.channels(), opts.illuminant)?;
-    let predicted_material =
-        || -> Result<predict::PredictedMaterial, Box<dyn std::error::Error>> {
-            let mut m = pred.predict(&x, predict::PredictorKind::Exact)?;
+    // The prediction at a latent point, at the observer's wavelengths (and under the lookup).
+    let predicted_at =
+        |x: &[f64]| -> Result<predict::PredictedMaterial, Box<dyn std::error::Error>> {
+            let mut m = pred.predict(x, predict::PredictorKind::Exact)?;
             if let Some(w) = &needed {
                 m = m.with_wavelengths(w)?;
             }
             Ok(m)
         };
-    let lazy_material = || -> Result<_, Box<dyn std::error::Error>> {
-        Ok(WithLookup::new(predicted_material()?, lookup)?)
+    let looked_up_at = |x: &[f64]| -> Result<_, Box<dyn std::error::Error>> {
+        Ok(WithLookup::new(predicted_at(x)?, lookup)?)
     };
+    let predicted_material = || predicted_at(&x);
+    let lazy_material = || looked_up_at(&x);
     // `--loop N`: only the mean time of N lazy renders, each of a new prediction at the same
     // point, the scene's plan cached (a steadier number than the medians of 5 below, for
     // comparing builds).
@@ -246,13 +249,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             a.iter().zip(b).map(|(a, b)| a + t * (b - a)).collect()
         };
         let materials = (0..k)
-            .map(|i| -> Result<_, Box<dyn std::error::Error>> {
-                let mut m = pred.predict(&point(i), predict::PredictorKind::Exact)?;
-                if let Some(w) = &needed {
-                    m = m.with_wavelengths(w)?;
-                }
-                Ok(WithLookup::new(m, lookup)?)
-            })
+            .map(|i| looked_up_at(&point(i)))
             .collect::<Result<Vec<_>, _>>()?;
         let sources: Vec<&dyn BrdfSource> = materials.iter().map(|m| m as _).collect();
         render_sphere(sources[0], &opts)?;
