@@ -257,6 +257,10 @@ impl<S: BrdfSource> BrdfSource for WithLookup<S> {
         self.inner.will_need_cells(cells);
     }
 
+    fn takes_cell_hints(&self) -> bool {
+        self.inner.takes_cell_hints()
+    }
+
     fn cell_source(&self) -> Option<&dyn std::any::Any> {
         self.inner.cell_source()
     }
@@ -506,9 +510,14 @@ mod tests {
             fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
                 self.1.lock().unwrap().extend(cells.map(|a| 1000 + a));
             }
+            fn takes_cell_hints(&self) -> bool {
+                true
+            }
         }
+        assert!(!w.takes_cell_hints());
         let hinted = Hinted(w, std::sync::Mutex::new(Vec::new()));
         let outer = WithLookup::new(&hinted, Lookup::LogMultilinear).unwrap();
+        assert!(outer.takes_cell_hints());
         outer.prefetch_cell(5);
         outer.prefetch_cell(9);
         outer.will_need_cells(&mut [3, 1].into_iter());

@@ -67,6 +67,13 @@ pub trait BrdfSource: Sync {
         let _ = cells;
     }
 
+    /// Whether [`BrdfSource::will_need_cells`] does anything for this source (its cells are
+    /// read from a disk as they are needed): a consumer skips working out the cells it will
+    /// read when it does not ([`will_need_pairs`]). False by default; wrappers forward it.
+    fn takes_cell_hints(&self) -> bool {
+        false
+    }
+
     /// The concrete source whose [`BrdfSource::eval_cell`] this source's is, for a consumer
     /// that evaluates the cells of several sources of one kind together (a render of many
     /// predictions of one model reads each cell once for all of them: it downcasts this to
@@ -117,17 +124,20 @@ pub fn eval_cells_in_order_by<T, E>(
 }
 
 /// A hint that [`BrdfSource::eval`] at each of `pairs` (`(wi, wo)`) follows: for a grid
-/// source, passes the cells that their lookups read (their interpolation stencils, ascending,
-/// each once) to [`BrdfSource::will_need_cells`]; no effect for other sources.
+/// source, passes the cells that their lookups read (the cells of their interpolation stencils
+/// with a weight other than 0, ascending, each once) to [`BrdfSource::will_need_cells`]; no
+/// effect for other sources, nor for those that take no hints
+/// ([`BrdfSource::takes_cell_hints`]).
 pub fn will_need_pairs(source: &dyn BrdfSource, pairs: &[(Vec3, Vec3)]) {
-    let Some(grid) = source.grid() else {
+    let Some(grid) = source.grid().filter(|_| source.takes_cell_hints()) else {
         return;
     };
     let mut cells: Vec<usize> = pairs
         .iter()
         .filter(|(wi, wo)| wi[2] > 0.0 && wo[2] > 0.0)
         .filter_map(|&(wi, wo)| HalfDiff::from_dirs(wi, wo))
-        .flat_map(|hd| grid.interpolation_stencil(&hd).map(|(a, _)| a))
+        .flat_map(|hd| grid.interpolation_stencil(&hd))
+        .filter_map(|(a, w)| (w != 0.0).then_some(a))
         .collect();
     cells.sort_unstable();
     cells.dedup();
@@ -210,6 +220,10 @@ impl BrdfSource for Blend<'_> {
         self.first.will_need_cells(&mut cells.iter().copied());
         self.second.will_need_cells(&mut cells.into_iter());
     }
+
+    fn takes_cell_hints(&self) -> bool {
+        self.first.takes_cell_hints() || self.second.takes_cell_hints()
+    }
 }
 
 /// Implements [`BrdfSource`] for a pointer type by forwarding every method to the source it
@@ -243,6 +257,10 @@ macro_rules! forward_source {
 
             fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
                 (**self).will_need_cells(cells);
+            }
+
+            fn takes_cell_hints(&self) -> bool {
+                (**self).takes_cell_hints()
             }
 
             fn cell_source(&self) -> Option<&dyn std::any::Any> {
@@ -1202,6 +1220,9 @@ mod tests {
                 .unwrap()
                 .push(Event::WillNeed(cells.collect()));
         }
+        fn takes_cell_hints(&self) -> bool {
+            true
+        }
     }
 
     /// `eval_cells_in_order` hints every cell at once, then evaluates them in order, each
@@ -1289,16 +1310,25 @@ mod tests {
             ([0.0, 0.0, 1.0], [s, 0.0, s]), // the first again
         ];
         will_need_pairs(&source, &pairs);
-        let mut want: Vec<usize> = pairs[..2]
-            .iter()
-            .flat_map(|&(wi, wo)| {
-                let hd = HalfDiff::from_dirs(wi, wo).unwrap();
-                grid.interpolation_stencil(&hd).map(|(a, _)| a)
-            })
-            .collect();
-        want.sort_unstable();
-        want.dedup();
-        assert!(want.len() > 2, "{want:?}");
+        let stencils = pairs[..2].iter().flat_map(|&(wi, wo)| {
+            let hd = HalfDiff::from_dirs(wi, wo).unwrap();
+            grid.interpolation_stencil(&hd)
+        });
+        let cells = |weighted_only: bool| {
+            let mut cells: Vec<usize> = (stencils.clone())
+                .filter(|&(_, w)| w != 0.0 || !weighted_only)
+                .map(|(a, _)| a)
+                .collect();
+            cells.sort_unstable();
+            cells.dedup();
+            cells
+        };
+        // Cells of a weight 0 in every stencil are read by no lookup: not hinted.
+        let want = cells(true);
+        assert!(
+            want.len() > 2 && want.len() < cells(false).len(),
+            "{want:?}"
+        );
         let events = std::mem::take(&mut *source.0.lock().unwrap());
         assert_eq!(events, [Event::WillNeed(want)]);
         // Only below or on the horizon: a hint of no cells.
@@ -1308,6 +1338,28 @@ mod tests {
         let plain = Hinted::new(Channels::Rgb);
         will_need_pairs(&plain, &pairs);
         assert!(plain.will_need_hints().is_empty());
+        // A grid source that takes no hints (the trait's default, a store in memory): none.
+        struct Deaf<'a>(&'a Recorder);
+        impl BrdfSource for Deaf<'_> {
+            fn channels(&self) -> Channels {
+                self.0.channels()
+            }
+            fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
+                self.0.eval(wi, wo, out)
+            }
+            fn grid(&self) -> Option<AngularGrid> {
+                self.0.grid()
+            }
+            fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
+                self.0.will_need_cells(cells);
+            }
+        }
+        source.0.lock().unwrap().clear();
+        will_need_pairs(&Deaf(&source), &pairs);
+        assert!(source.0.lock().unwrap().is_empty());
+        // Boxed or borrowed, it is the source: hinted.
+        will_need_pairs(&Box::new(&source), &pairs[..1]);
+        assert_eq!(source.0.lock().unwrap().len(), 1);
     }
 
     /// A source that is not a grid source refuses cell lookups (the trait's default), so does a
@@ -1337,6 +1389,13 @@ mod tests {
             (a.will_need_hints(), b.will_need_hints()),
             (want.clone(), want)
         );
+        // A blend takes hints when either of its sources does.
+        assert!(!blend.takes_cell_hints() && !boxed.takes_cell_hints());
+        let recorder = Recorder(Default::default());
+        let (a_dyn, recorder_dyn): (&dyn BrdfSource, &dyn BrdfSource) = (&a, &recorder);
+        for (first, second) in [(a_dyn, recorder_dyn), (recorder_dyn, a_dyn)] {
+            assert!(Blend::new(first, second, 0.5).unwrap().takes_cell_hints());
+        }
         let up = [0.0, 0.0, 1.0];
         let e = blend.eval(up, up, &mut [0.0; 4]).unwrap_err();
         assert!(e.to_string().contains("4 slots for 3 channels"), "{e}");

@@ -118,6 +118,13 @@ fn round_trip_material_mode_all_read_paths() {
             )
             .unwrap();
             assert_eq!(store.paged_on_demand(), paging == Paging::OnDemand);
+            // Hints reach the kernel for positioned reads of stored bytes only.
+            let positioned = paging == Paging::OnDemand || mode == ReadMode::Buffered;
+            assert_eq!(
+                store.takes_will_need(),
+                cfg!(target_os = "linux") && positioned && compression == Compression::None,
+                "{mode:?} {paging:?} {compression:?}"
+            );
             store.verify_checksum().unwrap();
             assert_eq!(store.n_materials(), 5);
             assert_eq!(store.d(), 4 * 5 * 6 * 3);

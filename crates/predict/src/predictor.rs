@@ -1191,6 +1191,10 @@ impl BrdfSource for PredictedMaterial {
         PredictedMaterial::will_need_cells(self, cells);
     }
 
+    fn takes_cell_hints(&self) -> bool {
+        self.pred.lookup_store().0.takes_will_need()
+    }
+
     fn cell_source(&self) -> Option<&dyn std::any::Any> {
         Some(self)
     }

@@ -1647,6 +1647,38 @@ fn cell_lookups_beyond_the_grid_are_errors() {
     }
 }
 
+/// A prediction takes cell hints (`BrdfSource::takes_cell_hints`) when its store is read with
+/// positioned reads, which the hints reach, and not when the store is mapped in memory.
+#[test]
+fn predictions_take_cell_hints_when_their_store_reads_on_demand() {
+    use brdf_io::store::{OpenOptions, Paging, ReadMode};
+    let f = fixture(4, "raw");
+    for (mode, paging) in [
+        (ReadMode::Mmap, Paging::ReadAround),
+        (ReadMode::Mmap, Paging::OnDemand),
+        (ReadMode::Buffered, Paging::Auto),
+    ] {
+        let options = OpenOptions {
+            mode,
+            paging,
+            ..Default::default()
+        };
+        let store = Arc::new(Store::open_with(&f.store, options).unwrap());
+        let reads_on_demand = store.takes_will_need();
+        assert_eq!(
+            reads_on_demand,
+            cfg!(target_os = "linux") && paging != Paging::ReadAround,
+            "{mode:?} {paging:?}"
+        );
+        let model = Model::load(&f.model).unwrap();
+        let pred = Predictor::with_store(model, &f.model, store).unwrap();
+        let material = pred.predict(&[0.1, 0.2], PredictorKind::Exact).unwrap();
+        assert_eq!(material.takes_cell_hints(), reads_on_demand);
+        let boxed: Box<dyn BrdfSource> = Box::new(material);
+        assert_eq!(boxed.takes_cell_hints(), reads_on_demand);
+    }
+}
+
 #[test]
 fn the_transformed_sidecar_store_gives_the_same_predictions() {
     let f = fixture(8, "log");

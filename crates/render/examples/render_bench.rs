@@ -66,6 +66,9 @@ impl<S: BrdfSource> BrdfSource for Counted<S> {
     fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
         BrdfSource::will_need_cells(&self.0, cells);
     }
+    fn takes_cell_hints(&self) -> bool {
+        self.0.takes_cell_hints()
+    }
 }
 
 fn median(mut v: Vec<f64>) -> f64 {

@@ -54,7 +54,7 @@ use crate::albedo::{AlbedoNodes, direction};
 use crate::error::{Error, Result};
 use crate::grid::Channels;
 use crate::lookup::{cell_record, look_up};
-use crate::source::BrdfSource;
+use crate::source::{BrdfSource, will_need_pairs};
 use crate::tensor::{Field, TensorFile};
 
 /// The default [`RglWriteOptions::broad_share`].
@@ -341,8 +341,16 @@ fn eval_finite(
     Ok(())
 }
 
+/// Cells that [`CachedCells::fill`] hints to its source at once, one window ahead of those it
+/// evaluates (160 MB of stored values at the paper's 195 wavelengths and 51 materials).
+const FILL_WINDOW: usize = 4096;
+
+/// Cells per parallel task of [`CachedCells::fill`].
+const FILL_TASK: usize = 64;
+
 /// A grid source ([`BrdfSource::grid`]) whose cells are evaluated once each, when first
-/// needed, and interpolated with the grid's stencil (combined by the source's
+/// needed or hinted ([`BrdfSource::will_need_cells`] evaluates them at once, in the order of
+/// the file), and interpolated with the grid's stencil (combined by the source's
 /// [`BrdfSource::lookup`]): the writer evaluates the source ~10^5
 /// times per file, and a lazily predicted material costs N multiply-adds per value per cell,
 /// so each lookup would otherwise redo 8 cells' predictions. Equal to the source's own `eval`
@@ -418,11 +426,17 @@ impl BrdfSource for CachedCells<'_> {
         }
     }
 
-    /// A hint for the source, of the cells not cached yet.
+    /// Evaluates the cells not cached yet now, into the cache ([`CachedCells::fill`]): the
+    /// writer hints each stage's cells before looking them up, so that a source reading a
+    /// store from the disk reads them in the file's order rather than as the lookups come.
     fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
-        let uncached = cells.filter(|&a| self.uncached(a));
-        self.source
-            .will_need_cells(&mut uncached.collect::<Vec<_>>().into_iter());
+        self.fill(cells);
+    }
+
+    /// The source's: the cache gains nothing from evaluating cells early when they are not
+    /// read from a disk.
+    fn takes_cell_hints(&self) -> bool {
+        self.source.takes_cell_hints()
     }
 }
 
@@ -430,6 +444,32 @@ impl CachedCells<'_> {
     /// Whether cell `a` is in the grid and not evaluated yet.
     fn uncached(&self, a: usize) -> bool {
         self.cells.get(a).is_some_and(|c| c.get().is_none())
+    }
+
+    /// Evaluates the cells of `cells` not cached yet (each once, an error kept for the lookup
+    /// that reads the cell), in ascending order: in windows of [`FILL_WINDOW`] cells, each
+    /// hinted to the source ([`BrdfSource::will_need_cells`]) one window ahead and evaluated
+    /// in parallel.
+    fn fill(&self, cells: &mut dyn Iterator<Item = usize>) {
+        let mut cells: Vec<usize> = cells.filter(|&a| self.uncached(a)).collect();
+        cells.sort_unstable();
+        cells.dedup();
+        let windows: Vec<&[usize]> = cells.chunks(FILL_WINDOW).collect();
+        let hint = |w: usize| {
+            if let Some(window) = windows.get(w) {
+                self.source.will_need_cells(&mut window.iter().copied());
+            }
+        };
+        hint(0);
+        for (w, window) in windows.iter().enumerate() {
+            hint(w + 1);
+            window.par_chunks(FILL_TASK).for_each(|task| {
+                for &a in task {
+                    // An error stays in the cache: the lookup of the cell returns it.
+                    let _ = self.record(a);
+                }
+            });
+        }
     }
 
     /// Cell `a`'s record ([`cell_record`] under the source's lookup), evaluated once.
@@ -577,6 +617,32 @@ fn fields_of(
     Ok(best)
 }
 
+/// Most direction pairs that [`hint_slices`] hints at once (48 MB of them).
+const HINT_PAIRS: usize = 1 << 20;
+
+/// Hints `source` the cells of the direction pairs that `pairs(k, out)` appends to `out` for
+/// each `k` of `0..n` ([`will_need_pairs`]), about [`HINT_PAIRS`] pairs at a time: the
+/// writer's cached cells ([`CachedCells`]) then evaluate the cells of a stage in the file's
+/// order before its lookups read them. Nothing for a source that is not on a grid or takes no
+/// hints ([`BrdfSource::takes_cell_hints`]: a store in memory).
+fn hint_slices(
+    source: &dyn BrdfSource,
+    n: usize,
+    pairs: impl Fn(usize, &mut Vec<([f64; 3], [f64; 3])>),
+) {
+    if source.grid().is_none() || !source.takes_cell_hints() {
+        return;
+    }
+    let mut group = Vec::new();
+    for k in 0..n {
+        pairs(k, &mut group);
+        if group.len() >= HINT_PAIRS || k + 1 == n {
+            will_need_pairs(source, &group);
+            group.clear();
+        }
+    }
+}
+
 /// Seeded direction pairs of the check: cosine-distributed, and near the mirror direction.
 fn check_pairs() -> Vec<([f64; 3], [f64; 3])> {
     let mut state = 0x5eed_u64;
@@ -641,10 +707,19 @@ impl SourceReference {
         let channels = source.channels();
         let nc = channels.len();
         let lum_w = luminance_weights(&channels);
-        let albedo = ALBEDO_THETAS_DEG
-            .par_iter()
-            .map(|deg| {
-                let nodes = AlbedoNodes::new(deg.to_radians(), crate::albedo::DEFAULT_RESOLUTION);
+        let nodes: Vec<AlbedoNodes> = ALBEDO_THETAS_DEG
+            .iter()
+            .map(|deg| AlbedoNodes::new(deg.to_radians(), crate::albedo::DEFAULT_RESOLUTION))
+            .collect();
+        let pairs = check_pairs();
+        // The cells of both, hinted first (the writer's cache evaluates them in file order).
+        hint_slices(source, nodes.len() + 1, |k, out| match nodes.get(k) {
+            Some(e) => out.extend(e.nodes().iter().map(|&(wo, _)| (e.wi(), wo))),
+            None => out.extend_from_slice(&pairs),
+        });
+        let albedo = nodes
+            .into_par_iter()
+            .map(|nodes| {
                 let mut g = vec![0.0; nc];
                 let mut a_source = 0.0;
                 for &(wo, w) in nodes.nodes() {
@@ -659,7 +734,6 @@ impl SourceReference {
                 })
             })
             .collect::<Result<Vec<_>>>()?;
-        let pairs = check_pairs();
         let mut pair_values = vec![0.0; pairs.len() * nc];
         pair_values
             .par_chunks_mut(256 * nc)
@@ -801,10 +875,14 @@ fn fixed_fields(
     let u_at = |k: usize, n: usize| k as f64 / (n - 1) as f64;
 
     // 1. NDF from the retro-reflection, over u = sqrt(2 theta / pi).
+    let retro = |k: usize| {
+        let theta = u2theta(u_at(k, nw)).min(max_theta);
+        (theta, direction(theta, 0.0))
+    };
+    hint_slices(source, nw, |k, pairs| pairs.push((retro(k).1, retro(k).1)));
     let mut ndf = (0..nw)
         .map(|k| {
-            let theta = u2theta(u_at(k, nw)).min(max_theta);
-            let w = direction(theta, 0.0);
+            let (theta, w) = retro(k);
             let mut f = vec![0.0; nc];
             eval_finite(source, name, w, w, &mut f)?;
             Ok(lum(&f) * theta.cos().powi(2))
@@ -918,6 +996,22 @@ fn fixed_fields(
             [st, ct, u * tm.sin(), d_at(u)]
         })
         .collect();
+    // `wi` reflected about the half vector of the warp table's (row, col): (wi . m, wo).
+    let warp_point = |wi: [f64; 3], row: usize, col: usize| {
+        let ((cp, sp), [st, ct, ..]) = (row_phi[row], col_theta[col]);
+        reflect(wi, [st * cp, st * sp, ct])
+    };
+    if lobe_share > 0.0 {
+        hint_slices(source, nt, |k, pairs| {
+            let wi = direction(eval_theta(k), 0.0);
+            for (row, col) in (0..nw).flat_map(|row| (0..nw).map(move |col| (row, col))) {
+                let (dot, wo) = warp_point(wi, row, col);
+                if dot > 0.0 && wo[2] > 0.0 {
+                    pairs.push((wi, wo));
+                }
+            }
+        });
+    }
     let warps: Vec<(Vec<f32>, [f64; 3])> = (0..nt)
         .into_par_iter()
         .map(|k| -> Result<(Vec<f32>, [f64; 3])> {
@@ -925,10 +1019,9 @@ fn fixed_fields(
             let mut geo = vec![0.0f64; nw * nw];
             let mut lobe = vec![0.0f64; nw * nw];
             let mut f = vec![0.0; nc];
-            for (row, &(cp, sp)) in row_phi.iter().enumerate() {
-                for (col, &[st, ct, jac, d]) in col_theta.iter().enumerate() {
-                    let m = [st * cp, st * sp, ct];
-                    let (dot, wo) = reflect(wi, m);
+            for row in 0..nw {
+                for (col, &[.., jac, d]) in col_theta.iter().enumerate() {
+                    let (dot, wo) = warp_point(wi, row, col);
                     let c = dot.max(0.0);
                     geo[row * nw + col] = d * c * jac;
                     if lobe_share > 0.0 && c > 0.0 && wo[2] > 0.0 {
@@ -960,26 +1053,44 @@ fn fixed_fields(
     let warp = Warp::new(&vndf64, nt, nw, nw, Path::new(name))?;
 
     // 4. The values on the regular grid of each warped square; 5. their luminance.
+    // Slice k's corners of the warp, and the point of its row's `u_y` and column `col`: the
+    // warped square's coordinates u, wi reflected about their half vector (wi . m, wo), D.
+    let corners = |k: usize| Corners::new((0, 0.0), (k, 0.0), 0, 1);
+    let row_u = |row: usize, c: &Corners| warp.forward_y(u_at(row, res), c);
+    let table_point = |wi: [f64; 3], c: &Corners, u_y: f64, col: usize| {
+        let u = [warp.forward_x(u_at(col, res), u_y, c), u_y];
+        let (dot, wo) = reflect(wi, direction(u2theta(u[0]), u2phi(u[1])));
+        (u, dot, wo, d_at(u[0]))
+    };
+    hint_slices(source, nt, |k, pairs| {
+        let (wi, c) = (direction(eval_theta(k), 0.0), corners(k));
+        for row in 0..res {
+            let u_y = row_u(row, &c);
+            for col in 0..res {
+                let (_, dot, wo, d) = table_point(wi, &c, u_y, col);
+                if dot > 0.0 && wo[2] > 0.0 && d > 0.0 {
+                    pairs.push((wi, wo));
+                }
+            }
+        }
+    });
     let slices = (0..nt)
         .into_par_iter()
         .map(|k| {
             let ti = eval_theta(k);
             let wi = direction(ti, 0.0);
             let scale = 4.0 * sigma_table.eval([theta2u(ti), phi2u(0.0)]);
-            let c = Corners::new((0, 0.0), (k, 0.0), 0, 1);
+            let c = corners(k);
             let [sum_geo, sum_lobe, w_lobe] = mixture[k];
             let mut values = vec![0.0f32; nc * res * res];
             let mut lum_slice = vec![0.0f64; res * res];
             let mut f = vec![0.0; nc];
             let mut summary = RglWriteSummary::empty(nt, res, nw);
             for row in 0..res {
-                let u_y = warp.forward_y(u_at(row, res), &c);
+                let u_y = row_u(row, &c);
                 for col in 0..res {
-                    let u = [warp.forward_x(u_at(col, res), u_y, &c), u_y];
-                    let m = direction(u2theta(u[0]), u2phi(u[1]));
-                    let (dot, wo) = reflect(wi, m);
+                    let (u, dot, wo, d) = table_point(wi, &c, u_y, col);
                     summary.values += nc;
-                    let d = d_at(u[0]);
                     if !(dot > 0.0 && wo[2] > 0.0 && d > 0.0) {
                         summary.below_horizon += 1;
                         continue;
@@ -1683,25 +1794,49 @@ mod tests {
 
     /// A grid source: each cell's values a function of its index, interpolated with the grid's
     /// stencil (as stored and predicted materials are); counts its evaluations and prefetch
-    /// hints.
+    /// hints, and records its `will_need_cells` hints when it takes them.
     struct Cells {
         grid: crate::grid::AngularGrid,
         evals: std::sync::atomic::AtomicUsize,
         cell_evals: Vec<std::sync::atomic::AtomicUsize>,
         prefetches: Vec<std::sync::atomic::AtomicUsize>,
         failing: Option<usize>,
+        takes_hints: bool,
+        /// Each `will_need_cells` call's cells, in order.
+        will_need: std::sync::Mutex<Vec<Vec<usize>>>,
+        /// Per cell: how many `will_need_cells` calls there had been when it was evaluated.
+        hints_before_eval: Vec<std::sync::atomic::AtomicUsize>,
     }
 
     impl Cells {
         fn new(failing: Option<usize>) -> Self {
-            let grid = crate::grid::AngularGrid::new(4, 4, 8).unwrap();
+            Self::on(crate::grid::AngularGrid::new(4, 4, 8).unwrap(), failing)
+        }
+
+        fn on(grid: crate::grid::AngularGrid, failing: Option<usize>) -> Self {
+            let counts = || (0..grid.len()).map(|_| 0.into()).collect();
             Self {
                 grid,
                 evals: 0.into(),
-                cell_evals: (0..grid.len()).map(|_| 0.into()).collect(),
-                prefetches: (0..grid.len()).map(|_| 0.into()).collect(),
+                cell_evals: counts(),
+                prefetches: counts(),
                 failing,
+                takes_hints: false,
+                will_need: Default::default(),
+                hints_before_eval: counts(),
             }
+        }
+
+        /// The same source, taking `will_need_cells` hints (as a store read from a disk).
+        fn taking_hints(self) -> Self {
+            Self {
+                takes_hints: true,
+                ..self
+            }
+        }
+
+        fn will_need_calls(&self) -> Vec<Vec<usize>> {
+            self.will_need.lock().unwrap().clone()
         }
 
         fn value(a: usize, channel: usize) -> f64 {
@@ -1743,7 +1878,10 @@ mod tests {
             Some(self.grid)
         }
         fn eval_cell(&self, a: usize, out: &mut [f64]) -> Result<()> {
-            self.cell_evals[a].fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            use std::sync::atomic::Ordering::Relaxed;
+            self.cell_evals[a].fetch_add(1, Relaxed);
+            let calls = self.will_need.lock().unwrap().len();
+            self.hints_before_eval[a].store(calls, Relaxed);
             if self.failing == Some(a) {
                 return Err(Error::InvalidArgument {
                     reason: "no values here".into(),
@@ -1754,6 +1892,112 @@ mod tests {
         }
         fn prefetch_cell(&self, a: usize) {
             self.prefetches[a].fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
+        fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
+            self.will_need.lock().unwrap().push(cells.collect());
+        }
+        fn takes_cell_hints(&self) -> bool {
+            self.takes_hints
+        }
+    }
+
+    /// Hinted cells ([`CachedCells::fill`]) are evaluated at once, each once, those not cached
+    /// yet only: hinted to the source in ascending windows of [`FILL_WINDOW`], each window
+    /// hinted before its cells are evaluated and the next one before them too; later lookups
+    /// read the cache. The cache takes hints when its source does.
+    #[test]
+    fn cached_cells_evaluate_hinted_cells_in_ascending_windows() {
+        use std::sync::atomic::Ordering::Relaxed;
+        let source = Cells::on(crate::grid::AngularGrid::new(16, 16, 40).unwrap(), None);
+        let source = source.taking_hints();
+        let n = source.grid.len();
+        assert!(n > 2 * FILL_WINDOW, "{n}");
+        let cached = CachedCells::new(&source, source.grid);
+        assert!(cached.takes_cell_hints());
+        let mut got = [0.0; 3];
+        cached.eval_cell(7, &mut got).unwrap();
+        // Descending, with repeats, a cached cell and cells outside the grid.
+        let mut hinted = (0..n).rev().chain([3, 7, n, n + 5]);
+        cached.will_need_cells(&mut hinted);
+        let calls = source.will_need_calls();
+        let want: Vec<usize> = (0..n).filter(|&a| a != 7).collect();
+        assert_eq!(calls.concat(), want);
+        assert_eq!(calls.len(), want.len().div_ceil(FILL_WINDOW));
+        assert!(
+            calls[..calls.len() - 1]
+                .iter()
+                .all(|c| c.len() == FILL_WINDOW)
+        );
+        for a in 0..n {
+            assert_eq!(source.cell_evals[a].load(Relaxed), 1, "cell {a}");
+            if a == 7 {
+                continue;
+            }
+            // Window w is call w: hinted before its cells, with the next one.
+            let w = want.binary_search(&a).unwrap() / FILL_WINDOW;
+            let before = source.hints_before_eval[a].load(Relaxed);
+            assert_eq!(before, (w + 2).min(calls.len()), "cell {a}");
+        }
+        // From the cache now: no evaluation, no hint.
+        for a in [0, 7, n - 1] {
+            cached.eval_cell(a, &mut got).unwrap();
+            assert_eq!(got, [0, 1, 2].map(|c| Cells::value(a, c)));
+        }
+        cached.will_need_cells(&mut (0..n));
+        assert_eq!(source.will_need_calls().len(), calls.len());
+        assert!((0..n).all(|a| source.cell_evals[a].load(Relaxed) == 1));
+        // A failing cell's error is kept for its lookup.
+        let failing = Cells::on(source.grid, Some(5)).taking_hints();
+        let cached = CachedCells::new(&failing, failing.grid);
+        cached.will_need_cells(&mut (0..10));
+        let e = cached.eval_cell(5, &mut got).unwrap_err().to_string();
+        assert!(
+            e.contains("cell 5 of the source: ") && e.contains("no values here"),
+            "{e}"
+        );
+        assert_eq!(failing.cell_evals[5].load(Relaxed), 1);
+        assert!(!CachedCells::new(&Cells::new(None), failing.grid).takes_cell_hints());
+    }
+
+    /// A source that takes hints is written with each cell hinted before it is evaluated (so a
+    /// store read from a disk reads them in the file's order), into the same file; a source
+    /// that takes none is not hinted.
+    #[test]
+    fn grid_sources_are_hinted_before_their_cells_are_read() {
+        use std::sync::atomic::Ordering::Relaxed;
+        let plain = RglWriteOptions {
+            description: "cells".into(),
+            ..fixed_sizes(4, 8, 16)
+        };
+        // With the source's lobe in the warp, whose stage reads the most cells first.
+        let lobe = RglWriteOptions {
+            lobe_warp: Some(WARP_LOBE_SHARE),
+            ..plain.clone()
+        };
+        for options in [plain, lobe] {
+            let deaf = Cells::new(None);
+            let (want, want_summary) = rgl_fields(&deaf, &options).unwrap();
+            assert!(deaf.will_need_calls().is_empty());
+            let source = Cells::new(None).taking_hints();
+            let (fields, summary) = rgl_fields(&source, &options).unwrap();
+            assert!(fields == want, "the files differ");
+            assert_eq!(summary, want_summary);
+            source.assert_most_cells_evaluated_once();
+            let calls = source.will_need_calls();
+            for a in 0..source.grid.len() {
+                if source.cell_evals[a].load(Relaxed) == 1 {
+                    let hinted = calls.iter().position(|c| c.contains(&a));
+                    let before = source.hints_before_eval[a].load(Relaxed);
+                    assert!(hinted.is_some_and(|h| h < before), "cell {a}: {calls:?}");
+                }
+            }
+            // Every cell hinted once (only cells not yet evaluated are hinted).
+            let mut hinted = calls.concat();
+            hinted.sort_unstable();
+            let evaluated: Vec<usize> = (0..source.grid.len())
+                .filter(|&a| source.cell_evals[a].load(Relaxed) == 1)
+                .collect();
+            assert_eq!(hinted, evaluated);
         }
     }
 

@@ -526,6 +526,16 @@ impl Store {
         matches!(self.backing, Backing::Mmap(_, Some(_)))
     }
 
+    /// Whether [`Store::will_need`] hints reach the kernel: an uncompressed store whose values
+    /// are read from the file as they are needed (positioned reads under
+    /// [`Paging::OnDemand`], or [`ReadMode::Buffered`]), on Linux. A consumer may skip working
+    /// out what it will read when they do not.
+    pub fn takes_will_need(&self) -> bool {
+        cfg!(target_os = "linux")
+            && self.header.layout.compression == Compression::None
+            && matches!(self.backing, Backing::Mmap(_, Some(_)) | Backing::File(_))
+    }
+
     /// The file for a positioned read of `len` bytes instead of the map: the store's file
     /// under [`Paging::OnDemand`] for a read shorter than [`ON_DEMAND_MAX_BYTES`], else `None`.
     fn read_on_demand(&self, len: usize) -> Option<&File> {
