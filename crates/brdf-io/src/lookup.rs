@@ -494,7 +494,7 @@ mod tests {
         assert_eq!(twice.lookup(), Lookup::Multilinear);
         // Prefetch hints (both kinds) reach the wrapped source.
         struct Hinted<S>(S, std::sync::Mutex<Vec<usize>>);
-        impl<S: BrdfSource> BrdfSource for Hinted<S> {
+        impl<S: BrdfSource + 'static> BrdfSource for Hinted<S> {
             fn channels(&self) -> Channels {
                 self.0.channels()
             }
@@ -513,8 +513,11 @@ mod tests {
             fn takes_cell_hints(&self) -> bool {
                 true
             }
+            fn cell_source(&self) -> Option<&dyn std::any::Any> {
+                Some(self)
+            }
         }
-        assert!(!w.takes_cell_hints());
+        assert!(!w.takes_cell_hints() && w.cell_source().is_none());
         let hinted = Hinted(w, std::sync::Mutex::new(Vec::new()));
         let outer = WithLookup::new(&hinted, Lookup::LogMultilinear).unwrap();
         assert!(outer.takes_cell_hints());
@@ -522,5 +525,10 @@ mod tests {
         outer.prefetch_cell(9);
         outer.will_need_cells(&mut [3, 1].into_iter());
         assert_eq!(*hinted.1.lock().unwrap(), [5, 9, 1003, 1001]);
+        // The concrete source behind it is the wrapped one's (it evaluates the same cells).
+        let found = outer
+            .cell_source()
+            .and_then(|s| s.downcast_ref::<Hinted<WithLookup<_>>>());
+        assert!(found.is_some_and(|s| std::ptr::eq(s, &hinted)));
     }
 }

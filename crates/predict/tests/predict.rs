@@ -1679,6 +1679,23 @@ fn predictions_take_cell_hints_when_their_store_reads_on_demand() {
     }
 }
 
+/// A prediction is its own cell source (`BrdfSource::cell_source`): a consumer that evaluates
+/// several predictions' cells together finds it, through a box too.
+#[test]
+fn a_prediction_is_its_own_cell_source() {
+    let f = fixture(4, "log");
+    let pred = Predictor::open(&f.model).unwrap();
+    let material = pred.predict(&[0.1, 0.2], PredictorKind::Exact).unwrap();
+    let found = BrdfSource::cell_source(&material)
+        .and_then(|s| s.downcast_ref::<predict::PredictedMaterial>());
+    assert!(found.is_some_and(|m| std::ptr::eq(m, &material)));
+    let boxed: Box<dyn BrdfSource + '_> = Box::new(&material);
+    let found = boxed
+        .cell_source()
+        .and_then(|s| s.downcast_ref::<predict::PredictedMaterial>());
+    assert!(found.is_some_and(|m| std::ptr::eq(m, &material)));
+}
+
 #[test]
 fn the_transformed_sidecar_store_gives_the_same_predictions() {
     let f = fixture(8, "log");

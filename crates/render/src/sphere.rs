@@ -2155,6 +2155,16 @@ mod tests {
             let all: Vec<usize> = (0..sources.len()).collect();
             assert_eq!(positions(&sources), [all], "{lookup:?}");
             check(&sources, &opts);
+            // Through one plan (not one by one after a failed batch): the same images.
+            let members = batches(&sources).remove(0).into_iter().map(|(_, m)| m);
+            let images = render_together(sources[0], members.collect(), &opts).unwrap();
+            assert_eq!(images.len(), sources.len());
+            for (image, s) in images.iter().zip(&sources) {
+                assert!(
+                    same(image, &render_sphere(*s, &opts).unwrap()),
+                    "{lookup:?}"
+                );
+            }
             // One pass a material.
             plan::BATCH_BYTES_IN_TESTS.store(1, std::sync::atomic::Ordering::Relaxed);
             check(&sources, &opts);

@@ -1216,6 +1216,7 @@ pub fn write_rgl_then<T>(
 mod tests {
     use super::*;
     use crate::grid::Vec3;
+    use crate::lookup::Lookup;
     use crate::rgl::RglBsdf;
 
     /// A spectral Lambertian plus a GGX lobe (roughness `alpha`) with a colour that varies
@@ -2099,6 +2100,9 @@ mod tests {
         let cached = CachedCells::new(&source, source.grid);
         assert_eq!(cached.grid(), Some(source.grid));
         assert_eq!(cached.lookup(), source.lookup());
+        let logarithmic = crate::lookup::WithLookup::new(&source, Lookup::LogMultilinear).unwrap();
+        let cached_log = CachedCells::new(&logarithmic, source.grid);
+        assert_eq!(cached_log.lookup(), Lookup::LogMultilinear);
         let (mut got, mut want) = ([0.0; 3], [0.0; 3]);
         // Half the cells through `eval` first (cached), then every cell by `eval_cell`.
         let mut state = 11u64;
