@@ -2165,6 +2165,12 @@ mod tests {
                     "{lookup:?}"
                 );
             }
+            // Not through a plan: invalid options, an image too large for one.
+            for size in [0, 257] {
+                let members = batches(&sources).remove(0).into_iter().map(|(_, m)| m);
+                let unplanned = SphereOptions { size, ..opts };
+                assert!(render_together(sources[0], members.collect(), &unplanned).is_none());
+            }
             // One pass a material.
             plan::BATCH_BYTES_IN_TESTS.store(1, std::sync::atomic::Ordering::Relaxed);
             check(&sources, &opts);
