@@ -1187,7 +1187,8 @@ mod tests {
 
     /// A grid source (cell `a` holds `a + channel`, cell 13 fails) that records what it is
     /// asked.
-    struct Recorder(std::sync::Mutex<Vec<Event>>);
+    /// The second field: whether it takes hints (`takes_cell_hints`).
+    struct Recorder(std::sync::Mutex<Vec<Event>>, bool);
 
     impl BrdfSource for Recorder {
         fn channels(&self) -> Channels {
@@ -1221,7 +1222,7 @@ mod tests {
                 .push(Event::WillNeed(cells.collect()));
         }
         fn takes_cell_hints(&self) -> bool {
-            true
+            self.1
         }
     }
 
@@ -1232,7 +1233,7 @@ mod tests {
     fn eval_cells_in_order_hints_ahead_and_stops_at_the_first_error() {
         use Event::{Eval, Prefetch, WillNeed};
         assert_eq!(PREFETCH_AHEAD, 2, "the expected events below assume 2");
-        let source = Recorder(Default::default());
+        let source = Recorder(Default::default(), true);
         let items = [(5, 'a'), (2, 'b'), (7, 'c'), (0, 'd')];
         let mut seen = Vec::new();
         eval_cells_in_order(
@@ -1298,7 +1299,7 @@ mod tests {
     /// once; none for a pair below or on the horizon) and nothing to a source without a grid.
     #[test]
     fn will_need_pairs_hints_the_stencils_of_the_pairs_above_the_horizon() {
-        let source = Recorder(Default::default());
+        let source = Recorder(Default::default(), true);
         let grid = source.grid().unwrap();
         let s = std::f64::consts::FRAC_1_SQRT_2;
         let pairs = [
@@ -1338,25 +1339,11 @@ mod tests {
         let plain = Hinted::new(Channels::Rgb);
         will_need_pairs(&plain, &pairs);
         assert!(plain.will_need_hints().is_empty());
-        // A grid source that takes no hints (the trait's default, a store in memory): none.
-        struct Deaf<'a>(&'a Recorder);
-        impl BrdfSource for Deaf<'_> {
-            fn channels(&self) -> Channels {
-                self.0.channels()
-            }
-            fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> Result<()> {
-                self.0.eval(wi, wo, out)
-            }
-            fn grid(&self) -> Option<AngularGrid> {
-                self.0.grid()
-            }
-            fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
-                self.0.will_need_cells(cells);
-            }
-        }
+        // A grid source that takes no hints (a store in memory): none.
+        let deaf = Recorder(Default::default(), false);
+        will_need_pairs(&deaf, &pairs);
+        assert!(deaf.0.lock().unwrap().is_empty());
         source.0.lock().unwrap().clear();
-        will_need_pairs(&Deaf(&source), &pairs);
-        assert!(source.0.lock().unwrap().is_empty());
         // Boxed or borrowed, it is the source: hinted.
         will_need_pairs(&Box::new(&source), &pairs[..1]);
         assert_eq!(source.0.lock().unwrap().len(), 1);
@@ -1391,7 +1378,7 @@ mod tests {
         );
         // A blend takes hints when either of its sources does.
         assert!(!blend.takes_cell_hints() && !boxed.takes_cell_hints());
-        let recorder = Recorder(Default::default());
+        let recorder = Recorder(Default::default(), true);
         let (a_dyn, recorder_dyn): (&dyn BrdfSource, &dyn BrdfSource) = (&a, &recorder);
         for (first, second) in [(a_dyn, recorder_dyn), (recorder_dyn, a_dyn)] {
             assert!(Blend::new(first, second, 0.5).unwrap().takes_cell_hints());
