@@ -879,7 +879,10 @@ fn fixed_fields(
         let theta = u2theta(u_at(k, nw)).min(max_theta);
         (theta, direction(theta, 0.0))
     };
-    hint_slices(source, nw, |k, pairs| pairs.push((retro(k).1, retro(k).1)));
+    hint_slices(source, nw, |k, pairs| {
+        let w = retro(k).1;
+        pairs.push((w, w));
+    });
     let mut ndf = (0..nw)
         .map(|k| {
             let (theta, w) = retro(k);
