@@ -646,6 +646,25 @@ fn material_sampling_interpolates_on_the_grid() {
     let (wi, wo) = g.bin_centre(0, 1, 2).to_dirs();
     src.eval(wi, wo, &mut out).unwrap();
     assert!((out[2] - 26.0).abs() < 1e-9, "{out:?}");
+    // Cell hints: taken when the store reads on demand, and they change no value (cells
+    // outside the grid included).
+    use brdf_io::BrdfSource;
+    assert!(!src.takes_cell_hints());
+    let options = OpenOptions {
+        paging: Paging::OnDemand,
+        ..OpenOptions::default()
+    };
+    let on_demand = std::sync::Arc::new(Store::open_with(&path, options).unwrap());
+    let hinted = StoreMaterial::new(on_demand.clone(), "lin").unwrap();
+    assert_eq!(hinted.takes_cell_hints(), on_demand.takes_will_need());
+    assert_eq!(hinted.takes_cell_hints(), cfg!(target_os = "linux"));
+    hinted.will_need_cells(&mut (0..g.len() + 3).rev());
+    let (mut got, mut want) = ([0f64; 3], [0f64; 3]);
+    for a in (0..g.len()).filter(|&a| mask[a]) {
+        hinted.eval_cell(a, &mut got).unwrap();
+        m.eval_cell(a, &mut want).unwrap();
+        assert_eq!(got.map(f64::to_bits), want.map(f64::to_bits), "cell {a}");
+    }
     assert!(brdf_io::store::parse_store_spec("x.bsdf").is_none());
     // Both parts are needed: a `.sbrdf` path and a non-empty name.
     assert!(brdf_io::store::parse_store_spec("x.bsdf:lin").is_none());

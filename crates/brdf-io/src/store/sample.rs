@@ -174,4 +174,19 @@ impl BrdfSource for StoreMaterial {
         self.check_out(out)?;
         self.weighted_cells(&[(a, 1.0)], out)
     }
+
+    /// Starts reading the cells' stored values (the selected channels' span, all materials:
+    /// [`Store::will_need`]); cells outside the grid are skipped.
+    fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
+        let (nc, len) = (self.store.channels().len(), self.store.grid().len());
+        let (first, last) = self.selection.span();
+        let ranges = cells
+            .filter(|&a| a < len)
+            .map(|a| a * nc + first..a * nc + last + 1);
+        self.store.will_need(ranges);
+    }
+
+    fn takes_cell_hints(&self) -> bool {
+        self.store.takes_will_need()
+    }
 }
