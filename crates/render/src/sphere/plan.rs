@@ -406,7 +406,7 @@ pub(super) fn render(
         }
         Ok(())
     };
-    let group = batch_size(lookup, plan.cells.len(), m);
+    let group = batch_size(lookup, plan.cells.len(), m, max_batch_cell_bytes());
     match materials {
         Materials::Predicted { first, members } if members.len() > group => {
             for members in members.chunks(group) {
@@ -495,20 +495,22 @@ fn evaluate(
 }
 
 /// How many materials' cells (of a plan of `cells` cells, `m` needed channels) one pass of
-/// [`render`] keeps under `lookup`: as many as fit [`MAX_BATCH_CELL_BYTES`], at least one.
-fn batch_size(lookup: Lookup, cells: usize, m: usize) -> usize {
+/// [`render`] keeps under `lookup`: as many as fit `max_bytes`, at least one.
+fn batch_size(lookup: Lookup, cells: usize, m: usize, max_bytes: usize) -> usize {
     let per_material = match lookup {
         Lookup::Multilinear => 24 * cells,
         Lookup::LogMultilinear => 16 * m * cells,
     };
+    (max_bytes / per_material.max(1)).max(1)
+}
+
+/// [`MAX_BATCH_CELL_BYTES`], or in tests [`BATCH_BYTES_IN_TESTS`] when that is set.
+fn max_batch_cell_bytes() -> usize {
     #[cfg(test)]
-    let max = match BATCH_BYTES_IN_TESTS.load(std::sync::atomic::Ordering::Relaxed) {
-        0 => MAX_BATCH_CELL_BYTES,
-        bytes => bytes,
-    };
-    #[cfg(not(test))]
-    let max = MAX_BATCH_CELL_BYTES;
-    (max / per_material.max(1)).max(1)
+    if let bytes @ 1.. = BATCH_BYTES_IN_TESTS.load(std::sync::atomic::Ordering::Relaxed) {
+        return bytes;
+    }
+    MAX_BATCH_CELL_BYTES
 }
 
 /// In tests, a [`MAX_BATCH_CELL_BYTES`] small enough to split a few thumbnails into passes (0:
@@ -590,4 +592,24 @@ pub fn clear_plans() {
 #[cfg(test)]
 pub(super) fn cached_plans() -> usize {
     CACHE.lock().unwrap_or_else(PoisonError::into_inner).len()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A pass keeps as many materials as fit the bytes (24 per cell multilinear, 16 per needed
+    /// channel and cell logarithmic), at least one; the map's 36 thumbnails of a plan of
+    /// 100,000 cells (a 64 px sphere on 45 x 45 x 90) go in one pass under the default lookup.
+    #[test]
+    fn a_pass_keeps_the_materials_that_fit_its_bytes() {
+        use Lookup::{LogMultilinear, Multilinear};
+        assert_eq!(batch_size(Multilinear, 1000, 5, 240_000), 10);
+        assert_eq!(batch_size(Multilinear, 1000, 5, 239_999), 9);
+        assert_eq!(batch_size(LogMultilinear, 1000, 5, 240_000), 3);
+        assert_eq!(batch_size(LogMultilinear, 1000, 5, 79_999), 1);
+        assert_eq!(batch_size(Multilinear, 1000, 5, 0), 1);
+        assert_eq!(batch_size(Multilinear, 0, 5, 100), 100);
+        assert!(batch_size(Multilinear, 100_000, 33, MAX_BATCH_CELL_BYTES) >= 36);
+    }
 }
