@@ -116,7 +116,6 @@ impl Paging {
 /// joins the run before it when it starts in it or at most `gap` bytes after its end and the
 /// run stays within `max_run` bytes; otherwise (also when it starts before the run) it starts
 /// a new run. Empty spans are skipped.
-#[cfg_attr(not(target_os = "linux"), allow(dead_code))]
 fn merge_spans(
     spans: impl IntoIterator<Item = (usize, usize)>,
     gap: usize,
@@ -531,9 +530,20 @@ impl Store {
     /// [`Paging::OnDemand`], or [`ReadMode::Buffered`]), on Linux. A consumer may skip working
     /// out what it will read when they do not.
     pub fn takes_will_need(&self) -> bool {
-        cfg!(target_os = "linux")
-            && self.header.layout.compression == Compression::None
-            && matches!(self.backing, Backing::Mmap(_, Some(_)) | Backing::File(_))
+        self.will_need_file().is_some()
+    }
+
+    /// The file that [`Store::will_need`] hints go to ([`Store::takes_will_need`]).
+    fn will_need_file(&self) -> Option<&File> {
+        let uncompressed = self.header.layout.compression == Compression::None;
+        match &self.backing {
+            Backing::Mmap(_, Some(file)) | Backing::File(file)
+                if cfg!(target_os = "linux") && uncompressed =>
+            {
+                Some(file)
+            }
+            _ => None,
+        }
     }
 
     /// The file for a positioned read of `len` bytes instead of the map: the store's file
@@ -916,19 +926,13 @@ impl Store {
     /// one read (Linux); no effect otherwise (a store in memory needs no hint that far ahead:
     /// [`Store::prefetch`] fetches cache lines just in time).
     pub fn will_need(&self, d_ranges: impl IntoIterator<Item = Range<usize>>) {
-        #[cfg(target_os = "linux")]
-        {
-            let file = match &self.backing {
-                Backing::Mmap(_, Some(file)) | Backing::File(file) => file,
-                Backing::Mmap(_, None) => return,
-            };
-            let spans = d_ranges.into_iter().filter_map(|r| self.span(r));
-            merge_spans(spans, WILL_NEED_GAP, WILL_NEED_MAX_RUN, |start, end| {
-                advise_will_need(file, start, end);
-            });
-        }
-        #[cfg(not(target_os = "linux"))]
-        let _ = d_ranges;
+        let Some(file) = self.will_need_file() else {
+            return;
+        };
+        let spans = d_ranges.into_iter().filter_map(|r| self.span(r));
+        merge_spans(spans, WILL_NEED_GAP, WILL_NEED_MAX_RUN, |start, end| {
+            advise_will_need(file, start, end);
+        });
     }
 
     /// Where the stored bytes of `d_range` (all materials) lie in the file (offset, length),
