@@ -101,7 +101,6 @@ impl StoreMaterial {
     /// The sum of `w` times cell `a`'s stored channels over `cells` (only the channels the
     /// selection reads), through the selection into `out`.
     fn weighted_cells(&self, cells: &[(usize, f64)], out: &mut [f64]) -> Result<()> {
-        let nc = self.store.channels().len();
         let (first, last) = self.selection.span();
         let mut vals = vec![0f32; last + 1 - first];
         let mut sum = vec![0f64; vals.len()];
@@ -109,14 +108,15 @@ impl StoreMaterial {
             if w == 0.0 {
                 continue;
             }
-            self.store
-                .material_row(self.index, a * nc + first..a * nc + last + 1, &mut vals)?;
+            let range = self.stored_range(a);
+            let start = range.start;
+            self.store.material_row(self.index, range, &mut vals)?;
             // Lookups do not re-hash the payload: a damaged value must not pass silently.
             if let Some(k) = vals.iter().position(|v| !v.is_finite()) {
                 return Err(Error::DamagedValue {
                     path: self.store.path().to_owned(),
                     material: self.store.names()[self.index].to_owned(),
-                    index: a * nc + first + k,
+                    index: start + k,
                     value: vals[k],
                 });
             }
@@ -126,6 +126,13 @@ impl StoreMaterial {
         }
         self.selection.apply(&sum, first, out);
         Ok(())
+    }
+
+    /// The flat indices of cell `a`'s stored channels that the selection reads.
+    fn stored_range(&self, a: usize) -> std::ops::Range<usize> {
+        let nc = self.store.channels().len();
+        let (first, last) = self.selection.span();
+        a * nc + first..a * nc + last + 1
     }
 
     fn check_out(&self, out: &[f64]) -> Result<()> {
@@ -178,11 +185,8 @@ impl BrdfSource for StoreMaterial {
     /// Starts reading the cells' stored values (the selected channels' span, all materials:
     /// [`Store::will_need`]); cells outside the grid are skipped.
     fn will_need_cells(&self, cells: &mut dyn Iterator<Item = usize>) {
-        let (nc, len) = (self.store.channels().len(), self.store.grid().len());
-        let (first, last) = self.selection.span();
-        let ranges = cells
-            .filter(|&a| a < len)
-            .map(|a| a * nc + first..a * nc + last + 1);
+        let len = self.store.grid().len();
+        let ranges = cells.filter(|&a| a < len).map(|a| self.stored_range(a));
         self.store.will_need(ranges);
     }
 
