@@ -1500,8 +1500,8 @@ proptest! {
     /// and value type (all six in every case), in both read modes and with a one-chunk cache
     /// (so that chunks are evicted and read again): `material_row` of each material,
     /// `values_in` and `values_in_ref` (index-major; borrowed from the map exactly for ranges
-    /// within one chunk of an uncompressed f32 store), `values_at` at the ends, over ranges inside a chunk, across chunk
-    /// boundaries, empty, and up to the end of the store.
+    /// of an uncompressed f32 store), `values_at` at the ends, over ranges inside a chunk,
+    /// across chunk boundaries, empty, and up to the end of the store.
     #[test]
     fn sub_range_reads_agree_with_the_rows(
         n in 1usize..5,
@@ -1569,13 +1569,13 @@ proptest! {
                         }
                     }
                     // Borrowed (the buffer untouched) exactly where documented: a non-empty
-                    // range within one chunk of an uncompressed f32 store read through a map
-                    // (on-demand paging reads ranges this small with positioned reads).
+                    // range (within a chunk or across chunks: they follow one another) of an
+                    // uncompressed f32 store read through a map (on-demand paging reads ranges
+                    // this small with positioned reads).
                     let maps = (compression, dtype, mode) == (Compression::None, Dtype::F32, ReadMode::Mmap)
                         && paging != Paging::OnDemand;
-                    let one_chunk = r.start / chunk == r.end.saturating_sub(1) / chunk;
                     if !r.is_empty() {
-                        prop_assert_eq!(buf.is_empty(), maps && one_chunk, "{:?} {}", r, &how);
+                        prop_assert_eq!(buf.is_empty(), maps, "{:?} {}", r, &how);
                     }
                 }
                 let mut at = vec![f32::NAN; n];

@@ -449,7 +449,9 @@ impl CachedCells<'_> {
     /// Evaluates the cells of `cells` not cached yet (each once, an error kept for the lookup
     /// that reads the cell), in ascending order: in windows of [`FILL_WINDOW`] cells, each
     /// hinted to the source ([`BrdfSource::will_need_cells`]) one window ahead and evaluated
-    /// in parallel.
+    /// in parallel. The next window's hint runs beside this window's evaluation: a store that
+    /// takes a hint by reading the cells (direct I/O, see [`crate::store::Store::will_need`])
+    /// reads while the cells before are computed.
     fn fill(&self, cells: &mut dyn Iterator<Item = usize>) {
         let mut cells: Vec<usize> = cells.filter(|&a| self.uncached(a)).collect();
         cells.sort_unstable();
@@ -462,13 +464,17 @@ impl CachedCells<'_> {
         };
         hint(0);
         for (w, window) in windows.iter().enumerate() {
-            hint(w + 1);
-            window.par_chunks(FILL_TASK).for_each(|task| {
-                for &a in task {
-                    // An error stays in the cache: the lookup of the cell returns it.
-                    let _ = self.record(a);
-                }
-            });
+            rayon::join(
+                || hint(w + 1),
+                || {
+                    window.par_chunks(FILL_TASK).for_each(|task| {
+                        for &a in task {
+                            // An error stays in the cache: the lookup of the cell returns it.
+                            let _ = self.record(a);
+                        }
+                    })
+                },
+            );
         }
     }
 

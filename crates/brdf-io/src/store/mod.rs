@@ -26,6 +26,7 @@
 mod gram;
 mod reader;
 mod sample;
+mod staging;
 mod writer;
 
 pub use gram::{F64_BLOCK, GramTransform, Identity};

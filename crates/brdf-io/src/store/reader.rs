@@ -1,6 +1,5 @@
 //! Reading `.sbrdf` stores: memory-mapped (default) or with positioned reads.
 
-use std::borrow::Cow;
 use std::fs::File;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -11,6 +10,7 @@ use rayon::prelude::*;
 use xxhash_rust::xxh3::Xxh3;
 
 use super::gram::{GramAccumulator, GramTransform, Identity};
+use super::staging::{StagedRun, Staging};
 use super::writer::read_exact_at;
 use super::{
     Compression, Dtype, FORMAT_VERSION, MAGIC, PAYLOAD_OFFSET, PREFIX_LEN, StoreHeader,
@@ -249,6 +249,10 @@ pub struct Store {
     file_len: u64,
     cache: ChunkCache,
     mask: OnceLock<Vec<bool>>,
+    /// Runs read ahead with direct I/O for [`Store::will_need`] hints (a store read with
+    /// positioned reads, where direct I/O is available; see `staging.rs`), set up by the
+    /// first hint.
+    staging: OnceLock<Option<Staging>>,
 }
 
 /// The largest ratio of decompressed to compressed size a zstd frame can have: a block holds
@@ -441,6 +445,7 @@ impl Store {
                 clock: AtomicU64::new(0),
             },
             mask: OnceLock::new(),
+            staging: OnceLock::new(),
         })
     }
 
@@ -556,23 +561,38 @@ impl Store {
     }
 
     /// Raw bytes at `offset..offset + len` of the file.
-    fn bytes(&self, offset: u64, len: usize) -> Result<Cow<'_, [u8]>> {
+    fn bytes(&self, offset: u64, len: usize) -> Result<FileBytes<'_>> {
         match (&self.backing, self.read_on_demand(len)) {
             (Backing::Mmap(m, _), None) => {
                 let s = offset as usize;
-                m.get(s..s + len).map(Cow::Borrowed).ok_or_else(|| {
+                m.get(s..s + len).map(FileBytes::Mapped).ok_or_else(|| {
                     corrupt(&self.path, format!("read past the end at byte {offset}"))
                 })
             }
             (Backing::File(f), _) | (_, Some(f)) => {
+                if let Some(staging) = self.staging()
+                    && let Some(run) = staging.read(offset as usize, len)
+                {
+                    return Ok(FileBytes::Staged {
+                        run: Some(run),
+                        offset: offset as usize,
+                        len,
+                        staging,
+                    });
+                }
                 let mut buf = vec![0u8; len];
                 read_exact_at(f, &mut buf, offset).map_err(|e| Error::io(&self.path, e))?;
-                Ok(Cow::Owned(buf))
+                Ok(FileBytes::Read(buf))
             }
         }
     }
 
-    fn chunk_bytes(&self, c: usize) -> Result<Cow<'_, [u8]>> {
+    /// The staged runs, once a hint has set them up.
+    fn staging(&self) -> Option<&Staging> {
+        self.staging.get()?.as_ref()
+    }
+
+    fn chunk_bytes(&self, c: usize) -> Result<FileBytes<'_>> {
         let (a, b) = (self.offsets[c], self.offsets[c + 1]);
         self.bytes(PAYLOAD_OFFSET + a, (b - a) as usize)
     }
@@ -839,7 +859,8 @@ impl Store {
 
     /// All N values at every index of `d_range` into `out`, index-major
     /// (`out[(d - d_range.start) * N + m]`, `out.len() == d_range.len() * N`): one contiguous
-    /// read per chunk the range touches (the N x channels block of one angular cell is one read).
+    /// read on an uncompressed store (the N x channels block of one angular cell is one read,
+    /// whatever chunks it spans), else a slice of each decompressed chunk the range touches.
     pub fn values_in(&self, d_range: Range<usize>, out: &mut [f32]) -> Result<()> {
         let n = self.n_materials();
         if d_range.end > self.d() || d_range.start > d_range.end || out.len() != d_range.len() * n {
@@ -853,33 +874,29 @@ impl Store {
                 ),
             });
         }
-        let chunk_len = self.header.layout.chunk_len;
         let dtype = self.header.layout.dtype;
+        if let Some((offset, len)) = self.span(d_range.clone()) {
+            // Uncompressed: one read, whatever chunks the range spans.
+            let raw = self.bytes(offset as u64, len)?;
+            decode_values(&raw, dtype, out);
+            return Ok(());
+        }
+        let chunk_len = self.header.layout.chunk_len;
         let mut d = d_range.start;
         while d < d_range.end {
             let c = d / chunk_len;
             let j = d - c * chunk_len;
             let end = d_range.end.min((c + 1) * chunk_len);
             let dst = &mut out[(d - d_range.start) * n..(end - d_range.start) * n];
-            match self.header.layout.compression {
-                Compression::None => {
-                    let size = dtype.size();
-                    let off = PAYLOAD_OFFSET + self.offsets[c] + (j * n * size) as u64;
-                    let raw = self.bytes(off, dst.len() * size)?;
-                    decode_values(&raw, dtype, dst);
-                }
-                _ => {
-                    let chunk = self.cached_chunk(c)?;
-                    dst.copy_from_slice(&chunk[j * n..(j + end - d) * n]);
-                }
-            }
+            let chunk = self.cached_chunk(c)?;
+            dst.copy_from_slice(&chunk[j * n..(j + end - d) * n]);
             d = end;
         }
         Ok(())
     }
 
     /// [`Store::values_in`] without a copy when possible: borrowed from the map when the range
-    /// lies in one chunk of an uncompressed f32 store opened with a memory map (little-endian
+    /// is non-empty and the store an uncompressed f32 store opened with a memory map (little-endian
     /// host; under [`Paging::OnDemand`] only from [`ON_DEMAND_MAX_BYTES`] on), else read into
     /// `buf`.
     pub fn values_in_ref<'a>(
@@ -903,12 +920,13 @@ impl Store {
     /// store opened with a memory map, asks the CPU to fetch their cache lines into L2
     /// (x86-64), or where [`Paging::OnDemand`] reads them with a positioned read, the kernel to
     /// start reading them from the disk (Linux); no effect otherwise, or for a range outside
-    /// the store or across chunks.
+    /// the store.
     pub fn prefetch(&self, d_range: Range<usize>) {
         let Some((offset, len)) = self.span(d_range) else {
             return;
         };
         match (&self.backing, self.read_on_demand(len)) {
+            (_, Some(_)) if self.staging().is_some_and(|s| s.holds(offset, len)) => {}
             (_, Some(file)) => advise_will_need(file, offset, offset + len),
             (Backing::Mmap(m, _), None) => {
                 if let Some(bytes) = m.get(offset..offset + len) {
@@ -919,31 +937,62 @@ impl Store {
         }
     }
 
-    /// A hint that the values of `d_ranges` (all materials, each within one chunk; in the order
-    /// they are read) are read soon, far enough ahead for the disk: on a store read with
-    /// positioned reads ([`Paging::OnDemand`], [`ReadMode::Buffered`]), asks the kernel to
-    /// start reading them all, ranges closer than [`WILL_NEED_GAP`] bytes to the one before as
-    /// one read (Linux); no effect otherwise (a store in memory needs no hint that far ahead:
+    /// A hint that the values of `d_ranges` (all materials; in the order they are read) are read soon, far enough ahead for the disk: on a store read with
+    /// positioned reads ([`Paging::OnDemand`], [`ReadMode::Buffered`]), ranges closer than
+    /// [`WILL_NEED_GAP`] bytes to the one before are merged into runs, which are read at once
+    /// with direct I/O and kept for the reads that follow (up to a budget; the oldest runs
+    /// are dropped first), or where direct I/O is not available, which the kernel is asked to
+    /// start reading (Linux). So on such a store this call returns once the runs are in
+    /// memory. No effect otherwise (a store in memory needs no hint that far ahead:
     /// [`Store::prefetch`] fetches cache lines just in time).
     pub fn will_need(&self, d_ranges: impl IntoIterator<Item = Range<usize>>) {
         let Some(file) = self.will_need_file() else {
             return;
         };
         let spans = d_ranges.into_iter().filter_map(|r| self.span(r));
-        merge_spans(spans, WILL_NEED_GAP, WILL_NEED_MAX_RUN, |start, end| {
+        let staging = self
+            .staging
+            .get_or_init(|| Staging::direct(file, self.file_len));
+        let Some(staging) = staging else {
+            merge_spans(spans, WILL_NEED_GAP, WILL_NEED_MAX_RUN, |start, end| {
+                advise_will_need(file, start, end);
+            });
+            return;
+        };
+        let spans: Vec<(usize, usize)> = spans.filter(|&(_, len)| len > 0).collect();
+        let mut runs = Vec::new();
+        merge_spans(
+            spans.iter().copied(),
+            WILL_NEED_GAP,
+            WILL_NEED_MAX_RUN,
+            |start, end| {
+                runs.push((start, end, 0));
+            },
+        );
+        // Each span joined the run being built when it came, or started the next.
+        let mut k = 0;
+        for &(offset, len) in &spans {
+            if !(runs[k].0 <= offset && offset + len <= runs[k].1) && k + 1 < runs.len() {
+                k += 1;
+            }
+            runs[k].2 += 1;
+        }
+        for (start, end) in staging.stage(&runs) {
             advise_will_need(file, start, end);
-        });
+        }
     }
 
     /// Where the stored bytes of `d_range` (all materials) lie in the file (offset, length),
-    /// when the range is non-empty, lies in one chunk, and the store is uncompressed.
+    /// when the range is non-empty and the store is uncompressed. Its chunks then follow one
+    /// another with no gap (each exactly its values' size, checked on opening), so index d
+    /// lies at `d * N * value size` from the payload whatever chunk holds it, and any range is
+    /// one span, even across chunks.
     fn span(&self, d_range: Range<usize>) -> Option<(usize, usize)> {
         let layout = &self.header.layout;
         let chunk_len = layout.chunk_len;
         if layout.compression != Compression::None
             || d_range.start >= d_range.end
             || d_range.end > self.d()
-            || d_range.start / chunk_len != (d_range.end - 1) / chunk_len
         {
             return None;
         }
@@ -955,8 +1004,8 @@ impl Store {
     }
 
     /// The stored bytes of `d_range` (all materials) in the memory map, when the range is
-    /// non-empty, lies in one chunk, the store is uncompressed and opened with a map, and the
-    /// range is not read with positioned reads ([`Paging::OnDemand`]).
+    /// non-empty, the store is uncompressed and opened with a map, and the range is not read
+    /// with positioned reads ([`Paging::OnDemand`]).
     fn mapped_bytes(&self, d_range: Range<usize>) -> Option<&[u8]> {
         let Backing::Mmap(m, _) = &self.backing else {
             return None;
@@ -1131,6 +1180,44 @@ fn validate_header(h: &StoreHeader, path: &Path) -> Result<()> {
         ));
     }
     Ok(())
+}
+
+/// Bytes of a store's file: borrowed from the map, read into a buffer, or in a staged run.
+enum FileBytes<'a> {
+    Mapped(&'a [u8]),
+    Read(Vec<u8>),
+    /// File bytes `offset..offset + len` of a staged run (`Some` until dropped, when it goes
+    /// back to `staging`).
+    Staged {
+        run: Option<Arc<StagedRun>>,
+        offset: usize,
+        len: usize,
+        staging: &'a Staging,
+    },
+}
+
+impl std::ops::Deref for FileBytes<'_> {
+    type Target = [u8];
+
+    fn deref(&self) -> &[u8] {
+        match self {
+            Self::Mapped(b) => b,
+            Self::Read(v) => v,
+            Self::Staged {
+                run, offset, len, ..
+            } => run.as_ref().map_or(&[], |r| r.bytes(*offset, *len)),
+        }
+    }
+}
+
+impl Drop for FileBytes<'_> {
+    fn drop(&mut self) {
+        if let Self::Staged { run, staging, .. } = self
+            && let Some(run) = run.take()
+        {
+            staging.done(run);
+        }
+    }
 }
 
 impl std::fmt::Debug for Store {
@@ -1317,6 +1404,75 @@ mod tests {
                 "wave {wave}"
             );
         }
+    }
+
+    /// A hint on a store read with positioned reads stages the hinted cells' merged runs; the
+    /// reads that follow get the stored values from them (bit for bit), each run dropped after
+    /// as many reads as it had hinted cells. Checked through a plain handle (any file system)
+    /// and through direct I/O where the file system takes it.
+    #[test]
+    fn hinted_cells_are_read_from_staged_runs() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("staged.sbrdf");
+        let info = StoreInfo {
+            grid: AngularGrid::new(4, 4, 8).unwrap(),
+            channels: Channels::Rgb,
+        };
+        let options = StoreOptions {
+            chunk_len: Some(30), // ten cells a chunk: hinted cells meet chunk boundaries
+            ..StoreOptions::default()
+        };
+        let mut w = StoreWriter::create(&p, info, options).unwrap();
+        let d = w.d();
+        for m in 0..5u32 {
+            let values: Vec<f32> = (0..d as u32).map(|i| (i * 5 + m) as f32 / 7.0).collect();
+            w.add_material(&format!("m{m}"), "test", &values).unwrap();
+        }
+        w.finish().unwrap();
+        let mapped = Store::open(&p).unwrap();
+        let buffered = OpenOptions {
+            mode: ReadMode::Buffered,
+            ..OpenOptions::default()
+        };
+        let cells = [0usize, 1, 2, 7, 8, 9, 10, 40, 41, 95, 127];
+        let ranges = || cells.iter().map(|&a| a * 3..a * 3 + 3);
+        let direct = Store::open_with(&p, buffered).unwrap();
+        assert!(direct.staging.get().is_none(), "set up by the first hint");
+        let mut plain = Store::open_with(&p, buffered).unwrap();
+        let len = std::fs::metadata(&p).unwrap().len() as usize;
+        plain.staging = OnceLock::from(Some(Staging::new(File::open(&p).unwrap(), len, 1 << 20)));
+        for store in [&plain, &direct] {
+            store.will_need(ranges());
+            let Some(staging) = store.staging() else {
+                continue; // no direct I/O here
+            };
+            let runs = staging.run_count();
+            // Cells 0-2, 7-10, 40-41 join (within WILL_NEED_GAP); the chunk of 10 cells
+            // starts the runs anew at cells 10 and 40 no more than the file's order does.
+            assert!((1..=cells.len()).contains(&runs), "{runs} runs");
+            for r in ranges() {
+                let (mut want, mut got) = (vec![0f32; 15], vec![0f32; 15]);
+                mapped.values_in(r.clone(), &mut want).unwrap();
+                store.values_in(r.clone(), &mut got).unwrap();
+                assert_eq!(
+                    got.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                    want.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                    "{r:?}"
+                );
+            }
+            assert_eq!(staging.run_count(), 0, "every run read as often as hinted");
+            assert_eq!(staging.held_bytes(), 0);
+            // Unhinted reads go to the file as before.
+            let mut got = vec![0f32; 15];
+            store.values_in(60..63, &mut got).unwrap();
+            assert_eq!(got[5], mapped_value(&mapped, 61, 0));
+        }
+    }
+
+    fn mapped_value(store: &Store, d: usize, m: usize) -> f32 {
+        let mut out = vec![0f32; store.n_materials()];
+        store.values_at(d, &mut out).unwrap();
+        out[m]
     }
 
     /// A store of 3 materials in chunks of 1 index (D = 4 x 4 x 8 x 3 = 384 chunks) with
