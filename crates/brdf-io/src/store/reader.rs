@@ -111,8 +111,8 @@ impl Paging {
     }
 }
 
-/// Merges file spans `(offset, len)`, in the order given, into runs `emit(start, end)` (the
-/// hints of [`Store::will_need`]): a span
+/// Merges file spans `(offset, len)`, in the order given, into runs `emit(start, end, spans)`
+/// (`spans`: how many spans the run holds; the hints of [`Store::will_need`]): a span
 /// joins the run before it when it starts in it or at most `gap` bytes after its end and the
 /// run stays within `max_run` bytes; otherwise (also when it starts before the run) it starts
 /// a new run. Empty spans are skipped.
@@ -120,24 +120,24 @@ fn merge_spans(
     spans: impl IntoIterator<Item = (usize, usize)>,
     gap: usize,
     max_run: usize,
-    mut emit: impl FnMut(usize, usize),
+    mut emit: impl FnMut(usize, usize, usize),
 ) {
-    let mut run: Option<(usize, usize)> = None;
+    let mut run: Option<(usize, usize, usize)> = None;
     for (offset, len) in spans.into_iter().filter(|&(_, len)| len > 0) {
         let end = offset + len;
         run = match run {
-            Some((s, e)) if offset >= s && offset <= e + gap && end.max(e) - s <= max_run => {
-                Some((s, end.max(e)))
+            Some((s, e, n)) if offset >= s && offset <= e + gap && end.max(e) - s <= max_run => {
+                Some((s, end.max(e), n + 1))
             }
-            Some((s, e)) => {
-                emit(s, e);
-                Some((offset, end))
+            Some((s, e, n)) => {
+                emit(s, e, n);
+                Some((offset, end, 1))
             }
-            None => Some((offset, end)),
+            None => Some((offset, end, 1)),
         };
     }
-    if let Some((s, e)) = run {
-        emit(s, e);
+    if let Some((s, e, n)) = run {
+        emit(s, e, n);
     }
 }
 
@@ -954,29 +954,15 @@ impl Store {
             .staging
             .get_or_init(|| Staging::direct(file, self.file_len));
         let Some(staging) = staging else {
-            merge_spans(spans, WILL_NEED_GAP, WILL_NEED_MAX_RUN, |start, end| {
+            merge_spans(spans, WILL_NEED_GAP, WILL_NEED_MAX_RUN, |start, end, _| {
                 advise_will_need(file, start, end);
             });
             return;
         };
-        let spans: Vec<(usize, usize)> = spans.filter(|&(_, len)| len > 0).collect();
         let mut runs = Vec::new();
-        merge_spans(
-            spans.iter().copied(),
-            WILL_NEED_GAP,
-            WILL_NEED_MAX_RUN,
-            |start, end| {
-                runs.push((start, end, 0));
-            },
-        );
-        // Each span joined the run being built when it came, or started the next.
-        let mut k = 0;
-        for &(offset, len) in &spans {
-            if !(runs[k].0 <= offset && offset + len <= runs[k].1) && k + 1 < runs.len() {
-                k += 1;
-            }
-            runs[k].2 += 1;
-        }
+        merge_spans(spans, WILL_NEED_GAP, WILL_NEED_MAX_RUN, |start, end, n| {
+            runs.push((start, end, n));
+        });
         for (start, end) in staging.stage(&runs) {
             advise_will_need(file, start, end);
         }
@@ -1299,7 +1285,9 @@ mod tests {
     fn merge_spans_joins_near_spans_in_order() {
         let runs = |spans: &[(usize, usize)], gap, max_run| {
             let mut out = Vec::new();
-            merge_spans(spans.iter().copied(), gap, max_run, |s, e| out.push((s, e)));
+            merge_spans(spans.iter().copied(), gap, max_run, |s, e, _| {
+                out.push((s, e))
+            });
             out
         };
         assert_eq!(runs(&[], 10, 100), []);
@@ -1327,6 +1315,11 @@ mod tests {
         );
         // Empty spans are skipped, even between two that join.
         assert_eq!(runs(&[(0, 4), (50, 0), (6, 2)], 5, 100), [(0, 8)]);
+        // Each run counts the (non-empty) spans it holds.
+        let mut counted = Vec::new();
+        let spans = [(0, 4), (50, 0), (6, 2), (3, 1), (20, 4), (0, 1)];
+        merge_spans(spans, 5, 100, |s, e, n| counted.push((s, e, n)));
+        assert_eq!(counted, [(0, 8, 3), (20, 24, 1), (0, 1, 1)]);
     }
 
     /// The handle of on-demand positioned reads is the file that was opened (its inode, its
@@ -1354,28 +1347,41 @@ mod tests {
         assert_eq!(got[..], bytes[4321..4421]);
     }
 
-    /// Folds in waves give the same bits as one wave of all segments, whatever the wave size.
-    #[test]
-    fn folds_in_waves_give_the_same_bits() {
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("waves.sbrdf");
+    /// Writes a store of `n` materials on the RGB grid 4 x 4 x 8 at `path` in chunks of
+    /// `chunk_len` indices, material m's value at index i being `value(m, i)`.
+    fn rgb_store(
+        path: &Path,
+        chunk_len: usize,
+        compression: Compression,
+        n: u32,
+        value: impl Fn(u32, u32) -> f32,
+    ) {
         let info = StoreInfo {
             grid: AngularGrid::new(4, 4, 8).unwrap(),
             channels: Channels::Rgb,
         };
         let options = StoreOptions {
-            chunk_len: Some(5),
+            chunk_len: Some(chunk_len),
+            compression,
             ..StoreOptions::default()
         };
-        let mut w = StoreWriter::create(&p, info, options).unwrap();
-        let d = w.d();
-        for m in 0..7u32 {
-            let values: Vec<f32> = (0..d as u32)
-                .map(|i| 1.0 / (1.0 + ((i * 7919 + m * 104_729) % 1013) as f32))
-                .collect();
+        let mut w = StoreWriter::create(path, info, options).unwrap();
+        let d = w.d() as u32;
+        for m in 0..n {
+            let values: Vec<f32> = (0..d).map(|i| value(m, i)).collect();
             w.add_material(&format!("m{m}"), "test", &values).unwrap();
         }
         w.finish().unwrap();
+    }
+
+    /// Folds in waves give the same bits as one wave of all segments, whatever the wave size.
+    #[test]
+    fn folds_in_waves_give_the_same_bits() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("waves.sbrdf");
+        rgb_store(&p, 5, Compression::None, 7, |m, i| {
+            1.0 / (1.0 + ((i * 7919 + m * 104_729) % 1013) as f32)
+        });
         let store = Store::open(&p).unwrap();
         assert!(
             store.n_chunks() > 2 * PAR_FOLD_SEGMENTS,
@@ -1414,21 +1420,10 @@ mod tests {
     fn hinted_cells_are_read_from_staged_runs() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("staged.sbrdf");
-        let info = StoreInfo {
-            grid: AngularGrid::new(4, 4, 8).unwrap(),
-            channels: Channels::Rgb,
-        };
-        let options = StoreOptions {
-            chunk_len: Some(30), // ten cells a chunk: hinted cells meet chunk boundaries
-            ..StoreOptions::default()
-        };
-        let mut w = StoreWriter::create(&p, info, options).unwrap();
-        let d = w.d();
-        for m in 0..5u32 {
-            let values: Vec<f32> = (0..d as u32).map(|i| (i * 5 + m) as f32 / 7.0).collect();
-            w.add_material(&format!("m{m}"), "test", &values).unwrap();
-        }
-        w.finish().unwrap();
+        // Chunks of ten cells: hinted cells meet chunk boundaries.
+        rgb_store(&p, 30, Compression::None, 5, |m, i| {
+            (i * 5 + m) as f32 / 7.0
+        });
         let mapped = Store::open(&p).unwrap();
         let buffered = OpenOptions {
             mode: ReadMode::Buffered,
@@ -1483,22 +1478,7 @@ mod tests {
         cache_chunks: usize,
     ) -> Store {
         let p = dir.join(format!("{compression:?}.sbrdf"));
-        let info = StoreInfo {
-            grid: AngularGrid::new(4, 4, 8).unwrap(),
-            channels: Channels::Rgb,
-        };
-        let options = StoreOptions {
-            chunk_len: Some(1),
-            compression,
-            ..StoreOptions::default()
-        };
-        let mut w = StoreWriter::create(&p, info, options).unwrap();
-        let d = w.d();
-        for m in 0..3u8 {
-            let values: Vec<f32> = (0..d).map(|i| f32::from(m) + i as f32 / 1000.0).collect();
-            w.add_material(&format!("m{m}"), "test", &values).unwrap();
-        }
-        w.finish().unwrap();
+        rgb_store(&p, 1, compression, 3, |m, i| m as f32 + i as f32 / 1000.0);
         let options = OpenOptions {
             mode: ReadMode::Mmap,
             cache_chunks,
