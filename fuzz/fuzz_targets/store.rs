@@ -36,6 +36,8 @@ fn exercise(store: Store) {
     let n = store.n_materials();
     let d = store.d();
     let mut out = vec![0.0f32; n];
+    // Hints stage runs on stores read with positioned reads (direct I/O where available).
+    store.will_need([0..d.min(7), d / 2..d, d.saturating_sub(1)..d + 1]);
     for i in [0, d / 2, d.saturating_sub(1), d] {
         let _ = store.values_at(i, &mut out);
     }
