@@ -896,9 +896,9 @@ impl Store {
     }
 
     /// [`Store::values_in`] without a copy when possible: borrowed from the map when the range
-    /// is non-empty and the store an uncompressed f32 store opened with a memory map (little-endian
-    /// host; under [`Paging::OnDemand`] only from [`ON_DEMAND_MAX_BYTES`] on), else read into
-    /// `buf`.
+    /// is non-empty and the store an uncompressed f32 store opened with a memory map
+    /// (little-endian host; under [`Paging::OnDemand`] only from [`ON_DEMAND_MAX_BYTES`] on),
+    /// else read into `buf`.
     pub fn values_in_ref<'a>(
         &'a self,
         d_range: Range<usize>,
@@ -937,8 +937,9 @@ impl Store {
         }
     }
 
-    /// A hint that the values of `d_ranges` (all materials; in the order they are read) are read soon, far enough ahead for the disk: on a store read with
-    /// positioned reads ([`Paging::OnDemand`], [`ReadMode::Buffered`]), ranges closer than
+    /// A hint that the values of `d_ranges` (all materials; in the order they are read) are
+    /// read soon, far enough ahead for the disk: on a store read with positioned reads
+    /// ([`Paging::OnDemand`], [`ReadMode::Buffered`]), ranges closer than
     /// [`WILL_NEED_GAP`] bytes to the one before are merged into runs, which are read at once
     /// with direct I/O and kept for the reads that follow (up to a budget; the oldest runs
     /// are dropped first), or where direct I/O is not available, which the kernel is asked to
@@ -950,20 +951,22 @@ impl Store {
             return;
         };
         let spans = d_ranges.into_iter().filter_map(|r| self.span(r));
-        let staging = self
-            .staging
-            .get_or_init(|| Staging::direct(file, self.file_len));
-        let Some(staging) = staging else {
-            merge_spans(spans, WILL_NEED_GAP, WILL_NEED_MAX_RUN, |start, end, _| {
-                advise_will_need(file, start, end);
-            });
-            return;
-        };
         let mut runs = Vec::new();
         merge_spans(spans, WILL_NEED_GAP, WILL_NEED_MAX_RUN, |start, end, n| {
             runs.push((start, end, n));
         });
-        for (start, end) in staging.stage(&runs) {
+        let staging = self
+            .staging
+            .get_or_init(|| Staging::direct(file, self.file_len));
+        // What is not staged (no direct I/O, over the budget) is left to the kernel.
+        let unstaged = match staging {
+            Some(staging) => staging.stage(&runs),
+            None => runs
+                .into_iter()
+                .map(|(start, end, _)| (start, end))
+                .collect(),
+        };
+        for (start, end) in unstaged {
             advise_will_need(file, start, end);
         }
     }
