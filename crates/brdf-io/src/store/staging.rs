@@ -442,6 +442,75 @@ mod tests {
         assert_eq!(read(&staging, 60_000, 25_000), &bytes[60_000..85_000]);
     }
 
+    /// A hint stages its runs while their lengths add up to at most half the budget, wherever
+    /// in the file they lie; a run that starts where a staged one ends does not overlap it.
+    #[test]
+    fn a_hint_stages_runs_up_to_half_the_budget() {
+        let (_dir, bytes, staging) = staged_file(200_000, 100_000);
+        // 20,000 + 25,000 bytes: within half the budget (50,000), far into the file.
+        assert_eq!(
+            staging.stage(&[(10_000, 30_000, 1), (40_000, 65_000, 1)]),
+            []
+        );
+        assert_eq!(staging.run_count(), 2);
+        assert_eq!(read(&staging, 40_000, 25_000), &bytes[40_000..65_000]);
+        // Adjacent to the run 10,000..30,000 on either side.
+        assert_eq!(staging.stage(&[(30_000, 31_000, 1)]), []);
+        assert_eq!(staging.stage(&[(9_000, 10_000, 1)]), []);
+        assert_eq!(staging.run_count(), 3);
+        assert!(
+            !staging.holds(29_000, 2_000),
+            "a span across two runs is in neither"
+        );
+        assert_eq!(read(&staging, 30_000, 1_000), &bytes[30_000..31_000]);
+        assert_eq!(read(&staging, 9_000, 1_000), &bytes[9_000..10_000]);
+        assert_eq!(read(&staging, 10_000, 20_000), &bytes[10_000..30_000]);
+        assert_eq!(staging.run_count(), 0);
+    }
+
+    /// A run that overlaps one staged meanwhile (by another hint) is handed back and the
+    /// staged one kept; runs adding up to exactly the budget are all kept, one byte more drops
+    /// the oldest.
+    #[test]
+    fn runs_are_kept_up_to_exactly_the_budget() {
+        let run = |start: usize, len: usize| StagedRun {
+            start,
+            buf: vec![0; len],
+            at: 0,
+            len,
+            pending: AtomicUsize::new(1),
+        };
+        let starts = |runs: &[Arc<StagedRun>]| runs.iter().map(|r| r.start).collect::<Vec<_>>();
+        let mut runs = StagedRuns::default();
+        assert_eq!(starts(&runs.insert(run(1000, 4096), 8192)), [0usize; 0]);
+        // 0..4096 overlaps 1000..5096 from before its start.
+        assert_eq!(starts(&runs.insert(run(0, 4096), 8192)), [0]);
+        assert_eq!((runs.bytes, runs.by_start.len()), (4096, 1));
+        assert_eq!(runs.by_start[&1000].len, 4096, "the staged run is kept");
+        // Adjacent, and exactly the budget.
+        assert_eq!(starts(&runs.insert(run(5096, 4096), 8192)), [0usize; 0]);
+        assert_eq!(runs.bytes, 8192);
+        assert_eq!(starts(&runs.insert(run(9192, 1), 8192)), [1000]);
+        assert_eq!((runs.bytes, runs.by_start.len()), (4097, 2));
+    }
+
+    /// Dropped runs' buffers are kept for later runs up to a quarter of the budget, no more.
+    #[test]
+    fn kept_buffers_stay_within_a_quarter_of_the_budget() {
+        let (_dir, _bytes, staging) = staged_file(10, 32_768);
+        let kept = || {
+            let free = staging.free.lock().unwrap();
+            free.iter().map(Vec::len).collect::<Vec<_>>()
+        };
+        staging.recycle(vec![0; 4096]);
+        staging.recycle(vec![0; 4096]);
+        assert_eq!(kept(), [4096, 4096], "exactly a quarter");
+        staging.recycle(vec![0; 1]);
+        assert_eq!(kept(), [4096, 4096], "one byte more is not kept");
+        assert_eq!(staging.buffer(4096).len(), 4096);
+        assert_eq!(kept(), [4096], "a kept buffer is taken");
+    }
+
     /// Buffer sizes: powers of two up to 1 MiB, whole MiB above.
     #[test]
     fn buffer_sizes_come_in_few_classes() {
