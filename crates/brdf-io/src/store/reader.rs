@@ -1465,6 +1465,10 @@ mod tests {
             }
             assert_eq!(staging.run_count(), 0, "every run read as often as hinted");
             assert_eq!(staging.held_bytes(), 0);
+            assert!(
+                staging.kept_buffers() > 0,
+                "the reads gave the runs' buffers back"
+            );
             // Unhinted reads go to the file as before.
             let mut got = vec![0f32; 15];
             store.values_in(60..63, &mut got).unwrap();

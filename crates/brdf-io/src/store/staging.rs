@@ -200,6 +200,12 @@ impl Staging {
         self.lock().bytes
     }
 
+    /// Number of buffers kept for reuse.
+    #[cfg(test)]
+    pub(crate) fn kept_buffers(&self) -> usize {
+        self.free.lock().unwrap_or_else(|e| e.into_inner()).len()
+    }
+
     /// Number of staged runs.
     #[cfg(test)]
     pub(crate) fn run_count(&self) -> usize {
