@@ -495,3 +495,37 @@ pub fn sequential_read_seconds(
     }
     Ok((bytes, best))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Values spanning half precision's range: normal, subnormal, rounded, out of range.
+    const SAMPLES: [f32; 9] = [0.0, -1.5, 0.1, 3e-5, 6e-8, 65504.0, 1e5, 1.0 / 3.0, -2e-6];
+
+    #[test]
+    fn decode_values_reads_out_len_values_whatever_the_buffer_holds_beyond() {
+        for dtype in [Dtype::F32, Dtype::F16] {
+            let mut encoded = Vec::new();
+            encode_values(&SAMPLES, dtype, &mut encoded);
+            assert_eq!(encoded.len(), SAMPLES.len() * dtype.size());
+            let expected: Vec<f32> = SAMPLES.iter().map(|&v| dtype.round(v)).collect();
+            // Backed by u32s so the bytes are aligned for the vectorised f16 path; a copy one
+            // byte in is not, and takes the scalar path.
+            let mut words = vec![0u32; encoded.len() / 4 + 2];
+            let aligned: &mut [u8] = bytemuck::cast_slice_mut(&mut words);
+            aligned[..encoded.len()].copy_from_slice(&encoded);
+            let mut shifted = vec![0u8; encoded.len() + 1];
+            shifted[1..].copy_from_slice(&encoded);
+            for bytes in [&aligned[..encoded.len()], &shifted[1..]] {
+                let mut out = vec![f32::NAN; SAMPLES.len()];
+                decode_values(bytes, dtype, &mut out);
+                assert_eq!(out, expected, "{dtype:?}");
+                // Fewer values than the buffer holds: the first ones, on either path.
+                let mut head = [f32::NAN; 4];
+                decode_values(bytes, dtype, &mut head);
+                assert_eq!(head, expected[..4], "{dtype:?}");
+            }
+        }
+    }
+}
