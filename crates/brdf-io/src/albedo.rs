@@ -261,6 +261,12 @@ type NodeStencil = (f64, [(u32, f64); 8]);
 /// nodes (e.g. `specgp albedo --resolution 1024`, one source) are computed per table instead.
 const MAX_CACHED_NODES: usize = 1 << 18;
 
+// The bound holds the pipeline's 8 x 96 x 96 nodes, in the ~36 MB its documentation gives.
+const _: () = assert!(
+    MAX_CACHED_NODES >= 8 * 96 * 96
+        && MAX_CACHED_NODES * std::mem::size_of::<NodeStencil>() <= 36_000_000
+);
+
 /// [`GridAlbedo`]'s cached [`NodeStencil`]s per elevation: derived from its other fields, so
 /// they take no part in comparisons.
 #[derive(Debug, Clone, Default)]
@@ -733,6 +739,26 @@ mod tests {
             .map(Vec::len)
             .sum();
         assert!(nodes > angles.len() * 24 * 24 / 4, "{nodes}");
+    }
+
+    /// Node stencils are cached when the nodes (elevations x resolution^2) number at most the
+    /// bound, and not one more.
+    #[test]
+    fn node_stencils_are_cached_up_to_the_bound() {
+        use crate::lookup::{Lookup, WithLookup};
+        let dir = tempfile::tempdir().unwrap();
+        let path = store(dir.path());
+        let grid = AngularGrid::new(8, 8, 16).unwrap();
+        let (angles, resolution) = ([0.0, 35.0, 70.0], 12);
+        let n_nodes = angles.len() * resolution * resolution;
+        let m = crate::store::StoreMaterial::open(&path, "glossy").unwrap();
+        let log = WithLookup::new(&m, Lookup::LogMultilinear).unwrap();
+        for (bound, caches) in [(n_nodes, true), (n_nodes - 1, false)] {
+            let albedo = GridAlbedo::new(&grid, &angles, resolution).unwrap();
+            albedo.table_by_nodes(&log, bound).unwrap();
+            let cached = albedo.node_stencils.0.get().is_some();
+            assert_eq!(cached, caches, "bound {bound}");
+        }
     }
 
     /// A stream fed a stored material's values in blocks of any size (splitting cells or
