@@ -510,21 +510,20 @@ mod tests {
             encode_values(&SAMPLES, dtype, &mut encoded);
             assert_eq!(encoded.len(), SAMPLES.len() * dtype.size());
             let expected: Vec<f32> = SAMPLES.iter().map(|&v| dtype.round(v)).collect();
-            // Backed by u32s so the bytes are aligned for the vectorised f16 path; a copy one
-            // byte in is not, and takes the scalar path.
-            let mut words = vec![0u32; encoded.len() / 4 + 2];
-            let aligned: &mut [u8] = bytemuck::cast_slice_mut(&mut words);
-            aligned[..encoded.len()].copy_from_slice(&encoded);
-            let mut shifted = vec![0u8; encoded.len() + 1];
-            shifted[1..].copy_from_slice(&encoded);
-            for bytes in [&aligned[..encoded.len()], &shifted[1..]] {
+            // In u32-aligned memory: at offset 0 the vectorised f16 path reads it, one byte in
+            // (unaligned) the scalar path.
+            for offset in [0, 1] {
+                let mut words = vec![0u32; encoded.len() / 4 + 2];
+                let memory: &mut [u8] = bytemuck::cast_slice_mut(&mut words);
+                let bytes = &mut memory[offset..offset + encoded.len()];
+                bytes.copy_from_slice(&encoded);
                 let mut out = vec![f32::NAN; SAMPLES.len()];
                 decode_values(bytes, dtype, &mut out);
-                assert_eq!(out, expected, "{dtype:?}");
+                assert_eq!(out, expected, "{dtype:?} at {offset}");
                 // Fewer values than the buffer holds: the first ones, on either path.
                 let mut head = [f32::NAN; 4];
                 decode_values(bytes, dtype, &mut head);
-                assert_eq!(head, expected[..4], "{dtype:?}");
+                assert_eq!(head, expected[..4], "{dtype:?} at {offset}");
             }
         }
     }
