@@ -2155,10 +2155,17 @@ mod tests {
             let all: Vec<usize> = (0..sources.len()).collect();
             assert_eq!(positions(&sources), [all], "{lookup:?}");
             check(&sources, &opts);
-            // Through one plan (not one by one after a failed batch): the same images.
-            let members = batches(&sources).remove(0).into_iter().map(|(_, m)| m);
-            let images = render_together(sources[0], members.collect(), &opts).unwrap();
-            assert_eq!(images.len(), sources.len());
+            // Through one plan (not one by one after a failed batch) in one pass: the same
+            // images.
+            let together = |opts: &SphereOptions| {
+                let members = batches(&sources).remove(0).into_iter().map(|(_, m)| m);
+                plan::PASSES.with(|p| p.set(0));
+                let images = render_together(sources[0], members.collect(), opts);
+                (images, plan::PASSES.with(std::cell::Cell::get))
+            };
+            let (images, passes) = together(&opts);
+            let images = images.unwrap();
+            assert_eq!((images.len(), passes), (sources.len(), 1), "{lookup:?}");
             for (image, s) in images.iter().zip(&sources) {
                 assert!(
                     same(image, &render_sphere(*s, &opts).unwrap()),
@@ -2167,14 +2174,15 @@ mod tests {
             }
             // Not through a plan: invalid options, an image too large for one.
             for size in [0, 257] {
-                let members = batches(&sources).remove(0).into_iter().map(|(_, m)| m);
-                let unplanned = SphereOptions { size, ..opts };
-                assert!(render_together(sources[0], members.collect(), &unplanned).is_none());
+                assert!(together(&SphereOptions { size, ..opts }).0.is_none());
             }
             // One pass a material.
             plan::BATCH_BYTES_IN_TESTS.store(1, std::sync::atomic::Ordering::Relaxed);
             check(&sources, &opts);
+            let (images, passes) = together(&opts);
             plan::BATCH_BYTES_IN_TESTS.store(0, std::sync::atomic::Ordering::Relaxed);
+            let n = sources.len();
+            assert_eq!((images.unwrap().len(), passes), (n, n), "{lookup:?}");
             // Per pixel: no plan, so one by one.
             let per_pixel = SphereOptions {
                 env_mode: EnvMode::PerPixel,

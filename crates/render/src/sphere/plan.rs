@@ -394,6 +394,8 @@ pub(super) fn render(
     // spheres shaded before the next pass.
     let mut images = Vec::with_capacity(materials.len());
     let mut pass = |part: &Materials<'_>| -> Result<()> {
+        #[cfg(test)]
+        PASSES.with(|p| p.set(p.get() + 1));
         let cells = evaluate(&plan, part, channels, lookup, &weights, &needed)?;
         let k = part.len();
         for j in 0..k {
@@ -519,6 +521,13 @@ fn max_batch_cell_bytes() -> usize {
 pub(super) static BATCH_BYTES_IN_TESTS: std::sync::atomic::AtomicUsize =
     std::sync::atomic::AtomicUsize::new(0);
 
+#[cfg(test)]
+thread_local! {
+    /// In tests, the passes [`render`] has made on this thread (each evaluates the plan's
+    /// cells for one group of materials).
+    pub(super) static PASSES: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
 /// The image of one material's evaluated `cells` under `plan` (`columns`: the linear-sRGB
 /// weights of each needed channel).
 fn shade(plan: &Plan, cells: &Member<'_>, columns: &[[f64; 3]], opts: &SphereOptions) -> Image {
@@ -611,5 +620,21 @@ mod tests {
         assert_eq!(batch_size(Multilinear, 1000, 5, 0), 1);
         assert_eq!(batch_size(Multilinear, 0, 5, 100), 100);
         assert!(batch_size(Multilinear, 100_000, 33, MAX_BATCH_CELL_BYTES) >= 36);
+    }
+
+    /// A lookup's stencil is the grid's interpolation stencil when both directions are above
+    /// the horizon, and none when either lies on it or below (grid sources read 0 there).
+    #[test]
+    fn stencils_only_above_the_horizon() {
+        let grid = AngularGrid::new(8, 8, 16).unwrap();
+        let (wi, wo) = ([0.6, 0.0, 0.8], [-0.48, 0.36, 0.8]);
+        let hd = HalfDiff::from_dirs(wi, wo).unwrap();
+        let expected = grid.interpolation_stencil(&hd).map(|(a, w)| (a as u32, w));
+        assert_eq!(stencil(&grid, wi, wo), Some(expected));
+        for low in [[0.8, 0.6, 0.0], [0.8, 0.0, -1e-3]] {
+            assert!(HalfDiff::from_dirs(low, wo).is_some());
+            assert_eq!(stencil(&grid, low, wo), None, "wi {low:?}");
+            assert_eq!(stencil(&grid, wi, low), None, "wo {low:?}");
+        }
     }
 }
